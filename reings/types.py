@@ -1,0 +1,145 @@
+"""Public value types: `Gaussians`, `Camera`, `RenderOutput`.
+
+Conventions (fixed; every backend and kernel follows them):
+
+* quaternions are (w, x, y, z), not necessarily unit; they are normalised inside the projection;
+* `log_scales` hold log-scales (scale = exp), `opacity_logits` hold logits (opacity = sigmoid);
+* `sh` is (N, K, 3) with K in {1, 4, 9, 16} (SH degree 0..3), coefficient order of 3DGS;
+* `Camera.K` is the 3x3 pinhole matrix, `Camera.viewmat` the 4x4 world-to-camera matrix with
+  OpenCV axes (x right, y down, z forward); pixel (i, j) has its centre at (i + 0.5, j + 0.5).
+
+This module validates shapes and dtypes at the API edge (gsplat's design rule): a wrong shape is
+a `ValueError` naming the field, never a kernel failure. Non-finite *values* are allowed: such a
+Gaussian is culled by the projection.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, fields
+
+import numpy as np
+
+SH_COUNTS = (1, 4, 9, 16)  # K for SH degree 0, 1, 2, 3
+
+
+def _f32(name: str, a, shape_tail: tuple, lead: int | None = None) -> np.ndarray:
+    a = np.ascontiguousarray(np.asarray(a, dtype=np.float32))
+    want = len(shape_tail) + 1
+    if a.ndim != want or tuple(a.shape[1:]) != shape_tail or (lead is not None and a.shape[0] != lead):
+        exp = ("N" if lead is None else str(lead),) + tuple(str(s) for s in shape_tail)
+        raise ValueError(f"Gaussians.{name}: expected shape ({', '.join(exp)}), got {a.shape}")
+    return a
+
+
+@dataclass(frozen=True)
+class Gaussians:
+    """N Gaussians as float32 numpy arrays (raw, un-activated parameters)."""
+
+    means: np.ndarray  # [N, 3]
+    quats: np.ndarray  # [N, 4] (w, x, y, z), any norm
+    log_scales: np.ndarray  # [N, 3]
+    opacity_logits: np.ndarray  # [N]
+    sh: np.ndarray  # [N, K, 3], K in {1, 4, 9, 16}
+
+    def __post_init__(self):
+        means = _f32("means", self.means, (3,))
+        n = means.shape[0]
+        object.__setattr__(self, "means", means)
+        object.__setattr__(self, "quats", _f32("quats", self.quats, (4,), n))
+        object.__setattr__(self, "log_scales", _f32("log_scales", self.log_scales, (3,), n))
+        op = np.ascontiguousarray(np.asarray(self.opacity_logits, dtype=np.float32))
+        if op.shape != (n,):
+            raise ValueError(f"Gaussians.opacity_logits: expected shape ({n},), got {op.shape}")
+        object.__setattr__(self, "opacity_logits", op)
+        sh = np.ascontiguousarray(np.asarray(self.sh, dtype=np.float32))
+        if sh.ndim != 3 or sh.shape[0] != n or sh.shape[2] != 3 or sh.shape[1] not in SH_COUNTS:
+            raise ValueError(f"Gaussians.sh: expected shape ({n}, K, 3) with K in {SH_COUNTS}, got {sh.shape}")
+        object.__setattr__(self, "sh", sh)
+
+    def __len__(self) -> int:
+        return self.means.shape[0]
+
+    @property
+    def sh_degree(self) -> int:
+        return SH_COUNTS.index(self.sh.shape[1])
+
+    @classmethod
+    def empty(cls, sh_degree: int = 0) -> "Gaussians":
+        k = SH_COUNTS[sh_degree]
+        z = np.zeros
+        return cls(z((0, 3)), z((0, 4)), z((0, 3)), z((0,)), z((0, k, 3)))
+
+    def zeros_like(self) -> "Gaussians":
+        return Gaussians(*(np.zeros_like(getattr(self, f.name)) for f in fields(self)))
+
+    def astuple(self) -> tuple:
+        return tuple(getattr(self, f.name) for f in fields(self))
+
+    def subset(self, index) -> "Gaussians":
+        """Rows selected by an index array or boolean mask."""
+        return Gaussians(*(a[index] for a in self.astuple()))
+
+
+FIELDS = tuple(f.name for f in fields(Gaussians))  # ("means", "quats", ...)
+
+
+@dataclass(frozen=True)
+class Camera:
+    """Pinhole camera: K [3, 3], viewmat [4, 4] world-to-camera (OpenCV axes), image size in pixels."""
+
+    K: np.ndarray  # [3, 3] [[fx, 0, cx], [0, fy, cy], [0, 0, 1]]
+    viewmat: np.ndarray  # [4, 4]
+    width: int
+    height: int
+
+    def __post_init__(self):
+        K = np.asarray(self.K, dtype=np.float64)
+        V = np.asarray(self.viewmat, dtype=np.float64)
+        if K.shape != (3, 3):
+            raise ValueError(f"Camera.K: expected shape (3, 3), got {K.shape}")
+        if V.shape != (4, 4):
+            raise ValueError(f"Camera.viewmat: expected shape (4, 4), got {V.shape}")
+        if not (np.all(np.isfinite(K)) and np.all(np.isfinite(V))):
+            raise ValueError("Camera: K and viewmat must be finite")
+        if not (K[0, 0] > 0 and K[1, 1] > 0):
+            raise ValueError(f"Camera.K: focal lengths must be positive, got fx={K[0, 0]}, fy={K[1, 1]}")
+        w, h = int(self.width), int(self.height)
+        if w != self.width or h != self.height or w < 1 or h < 1:
+            raise ValueError(f"Camera: width and height must be positive integers, got {self.width}x{self.height}")
+        object.__setattr__(self, "K", K)
+        object.__setattr__(self, "viewmat", V)
+        object.__setattr__(self, "width", w)
+        object.__setattr__(self, "height", h)
+
+    @property
+    def fx(self) -> float:
+        return float(self.K[0, 0])
+
+    @property
+    def fy(self) -> float:
+        return float(self.K[1, 1])
+
+    @property
+    def cx(self) -> float:
+        return float(self.K[0, 2])
+
+    @property
+    def cy(self) -> float:
+        return float(self.K[1, 2])
+
+    @property
+    def center(self) -> np.ndarray:
+        """Camera centre in world coordinates, [3] float64."""
+        R, t = self.viewmat[:3, :3], self.viewmat[:3, 3]
+        return -R.T @ t
+
+
+@dataclass
+class RenderOutput:
+    """What `reings.render` returns. All float32 numpy arrays."""
+
+    rgb: np.ndarray  # [H, W, 3]  colour + T_final * background
+    depth: np.ndarray  # [H, W]   sum of t_z * alpha * T (not normalised by alpha)
+    alpha: np.ndarray  # [H, W]   sum of alpha * T
+    final_T: np.ndarray | None = None  # [H, W] transmittance left after the last blended Gaussian
+    importance: np.ndarray | None = None  # [N] per-Gaussian sum of alpha*T over pixels (if asked)
+    stats: dict | None = None  # counts: visible, intersections, evaluated pairs, ...
