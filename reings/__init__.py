@@ -1,0 +1,35 @@
+"""reings: torch-free few-shot novel view synthesis with 3D Gaussians (ReInGS).
+
+`import reings` is light: it imports numpy only. pyopencl, onnxruntime, cv2 and pycolmap are
+imported by the modules that need them, on first use. torch is never imported.
+"""
+from __future__ import annotations
+
+import importlib
+
+__version__ = "0.1.0"
+
+# public name -> module that defines it (loaded on first attribute access)
+_LAZY = {
+    "Gaussians": "reings.types",
+    "Camera": "reings.types",
+    "RenderOutput": "reings.types",
+    "render": "reings.render",
+    "render_vjp": "reings.render",
+    "get_backend": "reings.backends",
+}
+
+__all__ = sorted(_LAZY)
+
+
+def __getattr__(name):
+    mod = _LAZY.get(name)
+    if mod is None:
+        raise AttributeError(f"module 'reings' has no attribute {name!r}")
+    value = getattr(importlib.import_module(mod), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__():
+    return sorted(set(globals()) | set(__all__))

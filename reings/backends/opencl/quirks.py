@@ -1,0 +1,70 @@
+"""Named capability predicates for OpenCL devices (pyopencl.characterize style).
+
+Only this module looks at vendor / platform strings. Everything else asks a predicate, and kernels
+see the answers as `-D` defines (`build_defines`).
+"""
+from __future__ import annotations
+
+
+def platform_name(device) -> str:
+    return device.platform.name
+
+
+def is_pocl(device) -> bool:
+    """PoCL: CPU work-groups run as loops over work-items; no forward-progress guarantee between
+    work-groups, so no look-back scans (PERF.md §4.1)."""
+    return "Portable Computing Language" in device.platform.name
+
+
+def is_oclgrind(device) -> bool:
+    """Oclgrind: the strict OpenCL 1.2 simulator used for memory-safety tests."""
+    return "Oclgrind" in device.platform.name
+
+
+def is_nvidia(device) -> bool:
+    """NVIDIA's OpenCL: `cl_nv_pragma_unroll` is the standard detection (PERF.md §4.4); inline PTX
+    (`red.global.add.f32`, `shfl.sync`) compiles there."""
+    return "cl_nv_pragma_unroll" in device.extensions
+
+
+def is_cpu(device) -> bool:
+    import pyopencl as cl
+
+    return bool(device.type & cl.device_type.CPU)
+
+
+def has_fp32_global_atomic_add(device) -> bool:
+    """cl_ext_float_atomics with fp32 global add (PoCL >= 5); absent on pip PoCL 3.0 and NVIDIA."""
+    return "cl_ext_float_atomics" in device.extensions
+
+
+def opencl_c_version(device) -> tuple[int, int]:
+    # e.g. "OpenCL C 1.2 PoCL" / "OpenCL C 1.2 "
+    try:
+        v = device.opencl_c_version.split()[2]
+        major, minor = v.split(".")[:2]
+        return int(major), int(minor)
+    except Exception:  # pragma: no cover - malformed driver strings
+        return (1, 2)
+
+
+def local_mem_size(device) -> int:
+    return int(device.local_mem_size)
+
+
+def max_work_group_size(device) -> int:
+    return int(device.max_work_group_size)
+
+
+def build_defines(device) -> dict[str, int]:
+    """The capability defines every kernel file is built with.
+
+    REINGS_CPU_SCHEDULE  1 on CPU devices (PoCL): row/tile-per-work-item schedules, no barriers.
+    REINGS_NV_PTX        1 on NVIDIA: inline PTX red.global.add.f32 and shfl.sync are allowed.
+    REINGS_FLOAT_ATOMICS 1 where cl_ext_float_atomics provides a native fp32 global add.
+    """
+    return {
+        "REINGS_CPU_SCHEDULE": int(is_cpu(device)),
+        "REINGS_NV_PTX": int(is_nvidia(device)),
+        "REINGS_FLOAT_ATOMICS": int(has_fp32_global_atomic_add(device)),
+    }
