@@ -1,0 +1,28 @@
+# make run   : set up .venv on first use, then fit + evaluate the built-in procedural scene on PoCL
+# make test  : set up .venv on first use, then run the test suite (CPU only)
+# make bench : kernel microbenchmarks on PoCL (see bench/README.md)
+PYTHON ?= python3
+VENV   ?= .venv
+PY     := $(VENV)/bin/python
+DEVICE ?= pocl
+OUT    ?= runs/procedural
+
+.PHONY: run test bench clean
+
+$(VENV)/.installed: pyproject.toml
+	$(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install -q --upgrade pip
+	$(PY) -m pip install -q -e ".[data,test]"
+	touch $@
+
+run: $(VENV)/.installed
+	$(VENV)/bin/reings run --device $(DEVICE) --preset quick --out $(OUT) --overwrite
+
+test: $(VENV)/.installed
+	$(PY) -m pytest -q -ra
+
+bench: $(VENV)/.installed
+	$(VENV)/bin/reings bench --device $(DEVICE)
+
+clean:
+	rm -rf $(VENV) runs .pytest_cache
