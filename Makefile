@@ -13,6 +13,7 @@ $(VENV)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install -q --upgrade pip
 	$(PY) -m pip install -q -e ".[data,test]"
+	scripts/ensure_pocl.sh $(PY)
 	touch $@
 
 run: $(VENV)/.installed

@@ -17,12 +17,25 @@ _LAZY = {
     "render": "reings.render",
     "render_vjp": "reings.render",
     "get_backend": "reings.backends",
+    "Scene": "reings.data.scene",
+    "SceneError": "reings.data.scene",
+    "load_scene": "reings.data.scene",
+    "few_shot_split": "reings.data.splits",
+    "make_procedural_scene": "reings.data.procedural",
+    "sfm_extent": "reings.data.sfm",
+    "get_depth_prior": "reings.data.depth_prior",
+    "evaluate_images": "reings.metrics",
 }
+_SUBMODULES = ("metrics",)
 
-__all__ = sorted(_LAZY)
+__all__ = sorted(_LAZY) + list(_SUBMODULES)
 
 
 def __getattr__(name):
+    if name in _SUBMODULES:
+        value = importlib.import_module(f"reings.{name}")
+        globals()[name] = value
+        return value
     mod = _LAZY.get(name)
     if mod is None:
         raise AttributeError(f"module 'reings' has no attribute {name!r}")

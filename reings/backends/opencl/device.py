@@ -7,6 +7,7 @@
 """
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass
 
 
@@ -61,13 +62,50 @@ def find_device(spec: str):
     if spec not in _PLATFORM_MATCH:
         raise DeviceNotFound(f"unknown device {spec!r}: use pocl, cuda, oclgrind, opencl:P:D or reference")
     needle, hint = _PLATFORM_MATCH[spec]
-    for p in plats:
-        if needle in p.name:
-            devs = p.get_devices()
-            if devs:
-                return p, devs[0]
+    candidates = [(p, p.get_devices()) for p in plats if needle in p.name]
+    candidates = [(p, devs[0]) for p, devs in candidates if devs]
+    if spec == "pocl" and len(candidates) > 1:
+        # Several PoCLs (the pip wheel's and a system one): newest first.
+        candidates.sort(key=lambda pd: _pocl_version(pd[0]), reverse=True)
+    failures = []
+    for p, d in candidates:
+        err = _build_probe(p, d) if spec == "pocl" else None
+        if err is None:
+            return p, d
+        failures.append(f"{p.version.strip()}: {err}")
+    if failures:
+        raise DeviceNotFound(
+            f"device {spec!r}: no PoCL platform can compile kernels on this CPU ({'; '.join(failures)}). "
+            "The pip PoCL 3.0 (LLVM 14) does not know CPUs newer than Zen 3/Sapphire Rapids and fails with "
+            "\"unknown target CPU 'generic'\"; install your distribution's PoCL (Debian/Ubuntu: "
+            "apt-get install pocl-opencl-icd) and reings will use it")
     names = ", ".join(p.name for p in plats) or "none"
     raise DeviceNotFound(f"device {spec!r}: no OpenCL platform named {needle!r} (found: {names}); {hint}")
+
+
+def _pocl_version(platform) -> tuple:
+    m = re.search(r"PoCL (\d+)\.(\d+)", platform.version)
+    return (int(m.group(1)), int(m.group(2))) if m else (0, 0)
+
+
+_PROBES: dict[str, str | None] = {}
+
+
+def _build_probe(platform, device) -> str | None:
+    """Compile a one-line kernel once per platform; None if it builds, else the first error line.
+    (Catches PoCL builds whose LLVM rejects the host CPU, see find_device.)"""
+    import pyopencl as cl
+
+    key = f"{platform.version}|{device.name}"
+    if key not in _PROBES:
+        try:
+            ctx = cl.Context([device])
+            cl.Program(ctx, "__kernel void probe(__global float *a) { a[0] = exp(a[0]); }").build()
+            _PROBES[key] = None
+        except Exception as e:  # build failure or a broken driver
+            lines = [ln.strip() for ln in str(e).splitlines() if "error" in ln.lower()]
+            _PROBES[key] = (lines[-1] if lines else str(e).splitlines()[0])[:200]
+    return _PROBES[key]
 
 
 _HANDLES: dict[str, DeviceHandle] = {}
@@ -84,6 +122,20 @@ def open_device(spec: str, profiling: bool = True) -> DeviceHandle:
         props = cl.command_queue_properties.PROFILING_ENABLE if profiling else 0
         _HANDLES[key] = DeviceHandle(spec, plat, dev, ctx, cl.CommandQueue(ctx, dev, properties=props))
     return _HANDLES[key]
+
+
+def probe_main(argv=None) -> int:
+    """`python -m reings.backends.opencl.device [spec]`: exit 0 if the device opens and compiles."""
+    import sys
+
+    spec = (argv or sys.argv[1:] or ["pocl"])[0]
+    try:
+        plat, dev = find_device(spec)
+    except DeviceNotFound as e:
+        print(f"reings: {e}", file=sys.stderr)
+        return 1
+    print(f"{spec}: {dev.name.strip()} [{plat.version.strip()}]")
+    return 0
 
 
 def list_devices() -> list[dict]:
@@ -106,3 +158,7 @@ def list_devices() -> list[dict]:
                 "fp64": "cl_khr_fp64" in d.extensions,
             })
     return out
+
+
+if __name__ == "__main__":
+    raise SystemExit(probe_main())

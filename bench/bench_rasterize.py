@@ -1,0 +1,132 @@
+"""Rasterizer alone (kernels/rasterize.cl) on a PERF.md §1.7 scene: forward, backward, reduce.
+
+    python bench/bench_rasterize.py [--device pocl] [--scene A] [--runs 40] [--warmup 8]
+                                    [--schedule auto|cpu|gpu] [--define RASTER_VEC=16 ...]
+
+Projection and binning come from the float64 reference (`reings.backends.reference`), uploaded
+once; only the rasterizer kernels are timed, with OpenCL profiling events (median of --runs after
+--warmup), plus wall clock around enqueue+finish. Prints one JSON line per measurement and a table.
+Counts: visible Gaussians, intersections, evaluated (pixel, Gaussian) pairs (the reference's count:
+pairs up to and including each pixel's stopping Gaussian) and pairs/s of the forward.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from reings.backends import reference as ref  # noqa: E402
+from reings.backends.base import V_RECORD  # noqa: E402
+from reings.bench_scenes import perf_scene  # noqa: E402
+
+
+def _ms(ev) -> float:
+    return (ev.profile.end - ev.profile.start) * 1e-6
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--device", default="pocl")
+    ap.add_argument("--scene", default="A")
+    ap.add_argument("--runs", type=int, default=40)
+    ap.add_argument("--warmup", type=int, default=8)
+    ap.add_argument("--schedule", choices=["auto", "cpu", "gpu"], default="auto")
+    ap.add_argument("--define", action="append", default=[], help="extra kernel define NAME=VALUE")
+    ap.add_argument("--n", type=int, default=None, help="override the Gaussian count (smoke runs)")
+    ap.add_argument("--no-count", action="store_true", help="skip the reference pair count (slow)")
+    args = ap.parse_args(argv)
+
+    import pyopencl as cl
+
+    from reings.backends.opencl.device import open_device
+    from reings.backends.opencl.rasterize import Rasterizer
+
+    g, cam = perf_scene(args.scene, n=args.n)
+    W, H = cam.width, cam.height
+    t0 = time.perf_counter()
+    proj = ref.project_fwd(g, cam)
+    bins = ref.bin(proj, W, H)
+    t_setup = time.perf_counter() - t0
+    n, k, v = len(g), len(bins.gid_from_isect), len(bins.gid_from_rank)
+
+    h = open_device(args.device)
+    defines = dict(d.split("=", 1) for d in args.define)
+    sched = None if args.schedule == "auto" else args.schedule == "cpu"
+    r = Rasterizer(h, cpu_schedule=sched, **defines)
+    ctx, q = h.context, h.queue
+    mf = cl.mem_flags
+
+    def up(a, dt):
+        a = np.ascontiguousarray(a, dt)
+        return cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=a if a.size else np.zeros(1, dt))
+
+    f32, i32 = np.float32, np.int32
+    b = {f: up(getattr(proj, f), f32) for f in ("means2d", "conics", "colors", "opacities", "depths")}
+    for f in ("tile_ranges", "gid_from_isect", "emit_from_isect", "gid_from_rank", "offset_from_rank"):
+        b[f] = up(getattr(bins, f), i32)
+    rng = np.random.default_rng(0)
+    vr = up(rng.normal(size=(H, W, 3)) / (H * W), f32)  # an L1-like cotangent scale
+    grads = cl.Buffer(ctx, mf.READ_WRITE, n * V_RECORD * 4)
+
+    def fwd():
+        e0 = r.prep(b["means2d"], b["conics"], b["colors"], b["opacities"], b["depths"], n)
+        e1 = r.fwd(None, None, None, None, None, n, b["tile_ranges"], b["gid_from_isect"], b["emit_from_isect"],
+                   k, W, H, (0, 0, 0), prepared=True)
+        return e0, e1
+
+    def bwd():
+        e2 = r.bwd(b["tile_ranges"], b["gid_from_isect"], b["emit_from_isect"], k, W, H, v_rgb=vr)
+        e3 = r.reduce(r.v_emit, V_RECORD, b["offset_from_rank"], b["gid_from_rank"], v, grads)
+        return e2, e3
+
+    times = {"prep": [], "fwd": [], "bwd": [], "reduce": [], "wall_fwd": [], "wall_fwd_bwd": []}
+    for it in range(args.warmup + args.runs):
+        q.finish()
+        t0 = time.perf_counter()
+        e0, e1 = fwd()
+        q.finish()
+        t1 = time.perf_counter()
+        e2, e3 = bwd()
+        q.finish()
+        t2 = time.perf_counter()
+        if it >= args.warmup:
+            times["prep"].append(_ms(e0))
+            times["fwd"].append(_ms(e1))
+            times["bwd"].append(_ms(e2))
+            times["reduce"].append(_ms(e3))
+            times["wall_fwd"].append((t1 - t0) * 1e3)
+            times["wall_fwd_bwd"].append((t2 - t0) * 1e3)
+    med = {key: float(np.median(val)) for key, val in times.items()}
+
+    pairs = None
+    if not args.no_count:
+        pairs = ref.rasterize_fwd(proj, bins, W, H).evaluated_pairs
+
+    base = dict(bench="rasterize", scene=args.scene, device=h.name, driver=h.device.driver_version,
+                schedule="cpu" if r.cpu_schedule else "gpu", defines=defines, n=n, visible=v,
+                intersections=k, evaluated_pairs=pairs, width=W, height=H, runs=args.runs,
+                setup_s=round(t_setup, 2))
+    rows = [("prep", med["prep"]), ("fwd", med["fwd"]), ("bwd", med["bwd"]), ("reduce", med["reduce"]),
+            ("fwd total (prep+fwd)", med["prep"] + med["fwd"]),
+            ("fwd+bwd total", med["prep"] + med["fwd"] + med["bwd"] + med["reduce"]),
+            ("wall fwd", med["wall_fwd"]), ("wall fwd+bwd", med["wall_fwd_bwd"])]
+    for name, ms in rows:
+        rec = dict(base, stage=name, median_ms=round(ms, 4))
+        if pairs and name in ("fwd", "bwd"):
+            rec["pairs_per_s"] = pairs / (ms * 1e-3)
+        print(json.dumps(rec))
+    print(f"\n{h.name} | scene {args.scene} {W}x{H} | N={n} visible={v} K={k} pairs={pairs} "
+          f"| schedule={'cpu' if r.cpu_schedule else 'gpu'} {defines or ''}")
+    for name, ms in rows:
+        extra = f"  {pairs / (ms * 1e-3) / 1e6:8.1f} M pairs/s" if pairs and name in ("fwd", "bwd") else ""
+        print(f"  {name:22s} {ms:9.3f} ms{extra}")
+
+
+if __name__ == "__main__":
+    main()

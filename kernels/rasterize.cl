@@ -1,0 +1,696 @@
+/* rasterize.cl: tile rasterizer, forward and backward, importance records, segmented reduce.
+ *
+ * Must match reings.backends.reference.rasterize_fwd / rasterize_bwd (issue #2 §3):
+ * per pixel, front to back along its tile's list (sorted by (tile, depth, gid)):
+ *   d = (u, v) - pixel centre, power = -0.5 (A dx^2 + C dy^2) - B dx dy; skip if power > 0;
+ *   alpha = min(ALPHA_MAX, o exp(power)); skip if alpha < ALPHA_MIN;
+ *   stop *before* the Gaussian if T (1 - alpha) < T_MIN;
+ *   colour += c alpha T, depth += z alpha T, T *= 1 - alpha;  rgb = colour + T bg, alpha = 1 - T.
+ * last = 1 + position (in the tile's list) of the pixel's last blended Gaussian, 0 for none.
+ *
+ * Kernels
+ *   rasterize_prep  per gid: packs (u, v, A, B, C, o, r, g, b, z) plus the pixel box outside of
+ *                   which alpha < ALPHA_MIN (opacity-aware, conservative by 1% + 0.5 px) into one
+ *                   float16 record, so a (tile, Gaussian) pair costs one 64-byte gather.  The box
+ *                   only skips pairs the per-pixel test would skip anyway (same function).
+ *   rasterize_fwd   images; with -D RASTER_IMPORTANCE=1 also imp_emit[emit] = sum over the tile's
+ *                   pixels of alpha T (every emit slot of the tile is written, 0 if unused).
+ *   rasterize_bwd   per-intersection gradient records v_emit[emit, V_RECORD] =
+ *                   (v_u, v_v, v_A, v_B, v_C, v_r, v_g, v_b, v_opacity, v_z), each (tile, Gaussian)
+ *                   pair summed over the tile's pixels: no per-pixel atomics, deterministic.
+ *                   Front-to-back replay (Brush): T is never recovered by division; the colour
+ *                   behind a Gaussian comes from the forward output minus what was blended so far,
+ *                   folded with the cotangents into one scalar R per pixel.
+ *   isect_reduce    out[gid_from_rank[r], :] (+)= sum of records[offset_from_rank[r] ..
+ *                   offset_from_rank[r+1], :], records of width `width` (10: gradients, 1: importance).
+ *
+ * Defines (defaults): REINGS_CPU_SCHEDULE (0), REINGS_NV_PTX (0) from quirks.build_defines;
+ *   RASTER_IMPORTANCE (0); RASTER_VEC (8, CPU pixel lanes: 8 = AVX2, 16 = AVX-512);
+ *   FWD_BATCH (256) / BWD_BATCH (32): Gaussians staged in local memory per batch (GPU schedule).
+ * Schedules (same algorithm, same results up to float rounding of sums):
+ *   CPU: one work-item per tile (local size 1), no barriers; the tile's 256 pixels are
+ *        RASTER_VEC-wide vectors in private arrays; Gaussians are the outer loop (uniform scalar
+ *        loads), each visits only the pixel rows/vectors of its box; per-pixel and whole-tile
+ *        early exit; per-(tile, Gaussian) sums stay in registers and are written once.
+ *   GPU: one 256-work-item group per tile, a work-item per pixel, Gaussians staged in local memory
+ *        by batches, whole-tile early exit; per-Gaussian work-group sums by warp shuffles
+ *        (shfl.sync.bfly, REINGS_NV_PTX) + a local combine across warps, else a local tree.
+ * Not handled: non-finite inputs are culled by the projection (the box test still rejects NaN
+ * opacity/means); tile lists must be sorted front to back.
+ */
+#include "common.h"
+
+#ifndef RASTER_IMPORTANCE
+#define RASTER_IMPORTANCE 0
+#endif
+#ifndef RASTER_VEC
+#define RASTER_VEC 8
+#endif
+#ifndef FWD_BATCH
+#define FWD_BATCH 256
+#endif
+#ifndef BWD_BATCH
+#define BWD_BATCH 32
+#endif
+
+/* ------------------------------------------------------------------------------------------ */
+/* rasterize_prep                                                                              */
+
+__kernel void rasterize_prep(__global const float *means2d,   // [N, 2]
+                             __global const float *conics,    // [N, 3]
+                             __global const float *colors,    // [N, 3]
+                             __global const float *opacities, // [N]
+                             __global const float *depths,    // [N]
+                             __global float *packed,          // [N, 16] out
+                             const int n) {
+    const int g = get_global_id(0);
+    if (g >= n) return;
+    const float u = means2d[2 * g], v = means2d[2 * g + 1];
+    const float A = conics[3 * g], B = conics[3 * g + 1], C = conics[3 * g + 2];
+    const float o = opacities[g];
+    float xlo = 1.0f, xhi = 0.0f, ylo = 1.0f, yhi = 0.0f; /* empty box */
+    const float lo = o * 255.0f;
+    /* o < 1/255 (or NaN): alpha < ALPHA_MIN everywhere -> never blended */
+    if (lo >= 1.0f && isfinite(u) && isfinite(v) && isfinite(lo)) {
+        const float det = A * C - B * B;
+        /* power >= -ln(255 o) needs dy^2 <= 2 ln(255 o) A / det (and dx^2 likewise with C) */
+        const float thr = 2.0f * log(lo);
+        float ex = 1e7f, ey = 1e7f; /* not positive definite: no box, the pixel test decides */
+        if (det > 0.0f && A > 0.0f && C > 0.0f && isfinite(det)) {
+            ex = fmin(sqrt(thr * C / det) * 1.01f + 0.5f, 1e7f);
+            ey = fmin(sqrt(thr * A / det) * 1.01f + 0.5f, 1e7f);
+        }
+        /* pixel i (centre i + 0.5) is inside when |u - (i + 0.5)| <= ex */
+        xlo = clamp(ceil(u - ex - 0.5f), -2.0f, 1e7f);
+        xhi = clamp(floor(u + ex - 0.5f), -2.0f, 1e7f);
+        ylo = clamp(ceil(v - ey - 0.5f), -2.0f, 1e7f);
+        yhi = clamp(floor(v + ey - 0.5f), -2.0f, 1e7f);
+    }
+    __global float *rec = packed + (size_t)g * 16;
+    rec[0] = u;
+    rec[1] = v;
+    rec[2] = A;
+    rec[3] = B;
+    rec[4] = C;
+    rec[5] = o;
+    rec[6] = colors[3 * g];
+    rec[7] = colors[3 * g + 1];
+    rec[8] = colors[3 * g + 2];
+    rec[9] = depths[g];
+    rec[10] = xlo;
+    rec[11] = xhi;
+    rec[12] = ylo;
+    rec[13] = yhi;
+    rec[14] = 0.0f;
+    rec[15] = 0.0f;
+}
+
+/* ------------------------------------------------------------------------------------------ */
+/* isect_reduce: segmented sum of per-emit records into per-Gaussian rows                      */
+
+__kernel void isect_reduce(__global const float *records,       // [K_emit, width]
+                           __global const int *offset_from_rank, // [V + 1]
+                           __global const int *gid_from_rank,    // [V]
+                           __global float *out,                  // [N, width]
+                           const int n_rank, const int width, const int accumulate) {
+    const int r = get_global_id(0);
+    if (r >= n_rank) return;
+    const int a = offset_from_rank[r], b = offset_from_rank[r + 1];
+    const int gid = gid_from_rank[r];
+    for (int f = 0; f < width; ++f) {
+        float s = accumulate ? out[gid * width + f] : 0.0f;
+        for (int e = a; e < b; ++e) s += records[e * width + f];
+        out[gid * width + f] = s;
+    }
+}
+
+#if REINGS_CPU_SCHEDULE
+/* ========================================================================================== */
+/* CPU schedule                                                                                */
+
+#if RASTER_VEC == 8
+typedef float8 vf;
+typedef int8 vi;
+#define LANES ((vf)(0.5f, 1.5f, 2.5f, 3.5f, 4.5f, 5.5f, 6.5f, 7.5f))
+#define ILANES ((vi)(0, 1, 2, 3, 4, 5, 6, 7))
+#define VLOAD vload8
+#define VSTORE vstore8
+inline float hsum(vf x) {
+    float4 a = x.lo + x.hi;
+    float2 b = a.lo + a.hi;
+    return b.x + b.y;
+}
+inline int hcount(vi m) {
+    int4 a = (m & 1).lo + (m & 1).hi;
+    int2 b = a.lo + a.hi;
+    return b.x + b.y;
+}
+inline int hmax(vi x) {
+    int4 a = max(x.lo, x.hi);
+    int2 b = max(a.lo, a.hi);
+    return max(b.x, b.y);
+}
+#elif RASTER_VEC == 16
+typedef float16 vf;
+typedef int16 vi;
+#define LANES ((vf)(0.5f, 1.5f, 2.5f, 3.5f, 4.5f, 5.5f, 6.5f, 7.5f, 8.5f, 9.5f, 10.5f, 11.5f, 12.5f, 13.5f, 14.5f, 15.5f))
+#define ILANES ((vi)(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15))
+#define VLOAD vload16
+#define VSTORE vstore16
+inline float hsum(vf x) {
+    float8 a8 = x.lo + x.hi;
+    float4 a = a8.lo + a8.hi;
+    float2 b = a.lo + a.hi;
+    return b.x + b.y;
+}
+inline int hcount(vi m) {
+    int8 a8 = (m & 1).lo + (m & 1).hi;
+    int4 a = a8.lo + a8.hi;
+    int2 b = a.lo + a.hi;
+    return b.x + b.y;
+}
+inline int hmax(vi x) {
+    int8 a8 = max(x.lo, x.hi);
+    int4 a = max(a8.lo, a8.hi);
+    int2 b = max(a.lo, a.hi);
+    return max(b.x, b.y);
+}
+#else
+#error "RASTER_VEC must be 8 or 16"
+#endif
+
+#define CPR (TILE_SIZE / RASTER_VEC)   /* pixel vectors per tile row */
+#define NVEC (TILE_PIXELS / RASTER_VEC) /* pixel vectors per tile */
+
+/* The rows [*r0, *r1] and vector columns [*c0, *c1] (tile-relative) of a Gaussian's box;
+ * returns 0 when the box misses the tile. */
+inline int box_in_tile(float16 g, int x0, int y0, int *r0, int *r1, int *c0, int *c1) {
+    const int xlo = (int)g.sa - x0, xhi = (int)g.sb - x0, ylo = (int)g.sc - y0, yhi = (int)g.sd - y0;
+    *r0 = max(ylo, 0);
+    *r1 = min(yhi, TILE_SIZE - 1);
+    *c0 = max(xlo, 0) / RASTER_VEC;
+    *c1 = min(xhi, TILE_SIZE - 1);
+    if (xhi < xlo || *c1 < 0 || *r1 < *r0 || xlo > TILE_SIZE - 1) return 0;
+    *c1 /= RASTER_VEC;
+    return 1;
+}
+
+__kernel void rasterize_fwd(__global const float16 *packed,      // [N] from rasterize_prep
+                            __global const int *tile_ranges,     // [T, 2]
+                            __global const int *gid_from_isect,  // [K]
+                            __global const int *emit_from_isect, // [K]
+                            const int width, const int height, const int tiles_x, const int n_tiles,
+                            const float bg_r, const float bg_g, const float bg_b,
+                            __global float *out_rgb,   // [H, W, 3]
+                            __global float *out_depth, // [H, W]
+                            __global float *out_alpha, // [H, W]
+                            __global float *out_T,     // [H, W]
+                            __global int *out_last,    // [H, W]
+                            __global float *imp_emit)  // [K] (RASTER_IMPORTANCE only)
+{
+    /* a 2D range (tx, ty): no div/rem of the tile id (LLVM's `freeze`, which Oclgrind rejects) */
+    const int tx = get_global_id(0), ty = get_global_id(1);
+    const int tile = ty * tiles_x + tx;
+    if (tx >= tiles_x || tile >= n_tiles) return;
+    const int x0 = tx * TILE_SIZE, y0 = ty * TILE_SIZE;
+    /* T > 0: active; T < 0: stopped (|T| is final); pixels outside the image start stopped */
+    vf Tv[NVEC], Rv[NVEC], Gv[NVEC], Bv[NVEC], Dv[NVEC];
+    vi Lv[NVEC];
+    int n_active = 0;
+    for (int c = 0; c < NVEC; ++c) {
+        const int py = y0 + (int)((uint)c / CPR), px = x0 + (int)((uint)c % CPR) * RASTER_VEC;
+        const vi inside = (ILANES + px < width) & (vi)(py < height ? -1 : 0);
+        Tv[c] = select((vf)(-1.0f), (vf)(1.0f), inside);
+        Rv[c] = Gv[c] = Bv[c] = Dv[c] = (vf)(0.0f);
+        Lv[c] = (vi)(0);
+        n_active += hcount(inside);
+    }
+    const int start = tile_ranges[2 * tile], end = tile_ranges[2 * tile + 1];
+    int i = start;
+    for (; i < end && n_active > 0; ++i) {
+        const float16 g = packed[gid_from_isect[i]];
+        const int kk = i - start + 1;
+        int r0, r1, c0, c1;
+        vf imp = (vf)(0.0f);
+        if (box_in_tile(g, x0, y0, &r0, &r1, &c0, &c1)) {
+            for (int r = r0; r <= r1; ++r) {
+                const float dy = g.s1 - ((float)(y0 + r) + 0.5f);
+                for (int cc = c0; cc <= c1; ++cc) {
+                    const int c = r * CPR + cc;
+                    const vf T = Tv[c];
+                    const vf dx = (vf)(g.s0 - (float)(x0 + cc * RASTER_VEC)) - LANES;
+                    const vf power = -0.5f * (g.s2 * dx * dx + g.s4 * dy * dy) - g.s3 * dx * dy;
+                    const vf alpha = fmin((vf)(ALPHA_MAX), g.s5 * exp(power));
+                    const vi ok = (T > 0.0f) & (power <= 0.0f) & (alpha >= ALPHA_MIN);
+                    if (!any(ok)) continue;
+                    const vf Tn = T * (1.0f - alpha);
+                    const vi stop = ok & (Tn < T_MIN);
+                    const vi blend = ok & ~stop;
+                    const vf w = select((vf)(0.0f), alpha * T, blend);
+                    Rv[c] += w * g.s6;
+                    Gv[c] += w * g.s7;
+                    Bv[c] += w * g.s8;
+                    Dv[c] += w * g.s9;
+                    imp += w;
+                    Tv[c] = select(select(T, -T, stop), Tn, blend);
+                    Lv[c] = select(Lv[c], (vi)(kk), blend);
+                    if (any(stop)) n_active -= hcount(stop);
+                }
+            }
+        }
+#if RASTER_IMPORTANCE
+        imp_emit[emit_from_isect[i]] = hsum(imp);
+#endif
+    }
+#if RASTER_IMPORTANCE
+    for (; i < end; ++i) imp_emit[emit_from_isect[i]] = 0.0f;
+#endif
+    for (int c = 0; c < NVEC; ++c) {
+        const int py = y0 + (int)((uint)c / CPR), px0 = x0 + (int)((uint)c % CPR) * RASTER_VEC;
+        if (py >= height) break;
+        const vf T = fabs(Tv[c]);
+        float tT[RASTER_VEC], tD[RASTER_VEC], tA[RASTER_VEC], tR[RASTER_VEC], tG[RASTER_VEC], tB[RASTER_VEC];
+        int tL[RASTER_VEC];
+        VSTORE(T, 0, tT);
+        VSTORE(Dv[c], 0, tD);
+        VSTORE(1.0f - T, 0, tA);
+        VSTORE(Rv[c] + T * bg_r, 0, tR);
+        VSTORE(Gv[c] + T * bg_g, 0, tG);
+        VSTORE(Bv[c] + T * bg_b, 0, tB);
+        VSTORE(Lv[c], 0, tL);
+        const int nl = min(RASTER_VEC, width - px0);
+        for (int l = 0; l < nl; ++l) {
+            const int p = py * width + px0 + l;
+            out_T[p] = tT[l];
+            out_depth[p] = tD[l];
+            out_alpha[p] = tA[l];
+            out_last[p] = tL[l];
+            out_rgb[3 * p] = tR[l];
+            out_rgb[3 * p + 1] = tG[l];
+            out_rgb[3 * p + 2] = tB[l];
+        }
+    }
+}
+
+__kernel void rasterize_bwd(__global const float16 *packed,      // [N] from rasterize_prep
+                            __global const int *tile_ranges,     // [T, 2]
+                            __global const int *gid_from_isect,  // [K]
+                            __global const int *emit_from_isect, // [K]
+                            const int width, const int height, const int tiles_x, const int n_tiles,
+                            __global const float *out_rgb,   // [H, W, 3] forward output
+                            __global const float *out_depth, // [H, W]
+                            __global const float *out_T,     // [H, W]
+                            __global const int *out_last,    // [H, W]
+                            __global const float *v_rgb,     // [H, W, 3] (bit 0 of v_mask)
+                            __global const float *v_depth,   // [H, W]    (bit 1)
+                            __global const float *v_alpha,   // [H, W]    (bit 2)
+                            const int v_mask,
+                            __global float *v_emit) // [K, V_RECORD]
+{
+    /* a 2D range (tx, ty): no div/rem of the tile id (LLVM's `freeze`, which Oclgrind rejects) */
+    const int tx = get_global_id(0), ty = get_global_id(1);
+    const int tile = ty * tiles_x + tx;
+    if (tx >= tiles_x || tile >= n_tiles) return;
+    const int x0 = tx * TILE_SIZE, y0 = ty * TILE_SIZE;
+    /* per pixel: T before the current Gaussian; R = v.(output - blended so far) - v_alpha T_final;
+     * last (0 outside the image: never valid); the cotangents */
+    vf Tv[NVEC], Rv[NVEC], VR[NVEC], VG[NVEC], VB[NVEC], VD[NVEC];
+    vi Lv[NVEC];
+    vi lmax = (vi)(0);
+    for (int c = 0; c < NVEC; ++c) {
+        const int py = y0 + (int)((uint)c / CPR), px0 = x0 + (int)((uint)c % CPR) * RASTER_VEC;
+        float vr[RASTER_VEC], vg[RASTER_VEC], vb[RASTER_VEC], vd[RASTER_VEC], R[RASTER_VEC];
+        int L[RASTER_VEC];
+        for (int l = 0; l < RASTER_VEC; ++l) {
+            vr[l] = vg[l] = vb[l] = vd[l] = R[l] = 0.0f;
+            L[l] = 0;
+        }
+        if (py < height) {
+            const int nl = min(RASTER_VEC, width - px0);
+            for (int l = 0; l < nl; ++l) {
+                const int p = py * width + px0 + l;
+                float r = 0.0f;
+                if (v_mask & 1) {
+                    vr[l] = v_rgb[3 * p];
+                    vg[l] = v_rgb[3 * p + 1];
+                    vb[l] = v_rgb[3 * p + 2];
+                    r += vr[l] * out_rgb[3 * p] + vg[l] * out_rgb[3 * p + 1] + vb[l] * out_rgb[3 * p + 2];
+                }
+                if (v_mask & 2) {
+                    vd[l] = v_depth[p];
+                    r += vd[l] * out_depth[p];
+                }
+                if (v_mask & 4) r -= v_alpha[p] * out_T[p];
+                R[l] = r;
+                L[l] = out_last[p];
+            }
+        }
+        Tv[c] = (vf)(1.0f);
+        Rv[c] = VLOAD(0, R);
+        VR[c] = VLOAD(0, vr);
+        VG[c] = VLOAD(0, vg);
+        VB[c] = VLOAD(0, vb);
+        VD[c] = VLOAD(0, vd);
+        Lv[c] = VLOAD(0, L);
+        lmax = max(lmax, Lv[c]);
+    }
+    const int start = tile_ranges[2 * tile], end = tile_ranges[2 * tile + 1];
+    /* Gaussians at positions >= max(last) touch no pixel: their records are 0 */
+    const int stop_at = start + hmax(lmax);
+    int i = start;
+    for (; i < stop_at; ++i) {
+        const float16 g = packed[gid_from_isect[i]];
+        const int k = i - start;
+        vf a_u = 0.0f, a_v = 0.0f, a_A = 0.0f, a_B = 0.0f, a_C = 0.0f;
+        vf a_r = 0.0f, a_g = 0.0f, a_b = 0.0f, a_o = 0.0f, a_z = 0.0f;
+        int r0, r1, c0, c1;
+        if (box_in_tile(g, x0, y0, &r0, &r1, &c0, &c1)) {
+            for (int r = r0; r <= r1; ++r) {
+                const float dy = g.s1 - ((float)(y0 + r) + 0.5f);
+                for (int cc = c0; cc <= c1; ++cc) {
+                    const int c = r * CPR + cc;
+                    const vi valid = (vi)(k) < Lv[c];
+                    if (!any(valid)) continue;
+                    const vf dx = (vf)(g.s0 - (float)(x0 + cc * RASTER_VEC)) - LANES;
+                    const vf power = -0.5f * (g.s2 * dx * dx + g.s4 * dy * dy) - g.s3 * dx * dy;
+                    const vf G = exp(power);
+                    const vf a = g.s5 * G;
+                    const vf alpha = fmin((vf)(ALPHA_MAX), a);
+                    const vi ok = valid & (power <= 0.0f) & (alpha >= ALPHA_MIN);
+                    if (!any(ok)) continue;
+                    const vf T = Tv[c], R = Rv[c];
+                    const vf w = select((vf)(0.0f), alpha * T, ok);
+                    const vf vr = VR[c], vg = VG[c], vb = VB[c], vd = VD[c];
+                    const vf vc = vr * g.s6 + vg * g.s7 + vb * g.s8 + vd * g.s9;
+                    const vf Rn = R - vc * w;
+                    a_r += vr * w;
+                    a_g += vg * w;
+                    a_b += vb * w;
+                    a_z += vd * w;
+                    /* d out / d alpha: T c - (behind) / (1 - alpha); alpha <= ALPHA_MAX bounds 1/(1-alpha) */
+                    const vf va = select((vf)(0.0f), T * vc - Rn / (1.0f - alpha), ok & (a <= ALPHA_MAX));
+                    a_o += va * G;
+                    const vf vp = va * alpha; /* d/d power (alpha = o exp(power) when unclamped) */
+                    a_A -= 0.5f * dx * dx * vp;
+                    a_B -= dx * dy * vp;
+                    a_C -= 0.5f * dy * dy * vp;
+                    a_u -= (g.s2 * dx + g.s3 * dy) * vp;
+                    a_v -= (g.s3 * dx + g.s4 * dy) * vp;
+                    Tv[c] = select(T, T * (1.0f - alpha), ok);
+                    Rv[c] = select(R, Rn, ok);
+                }
+            }
+        }
+        __global float *rec = v_emit + (size_t)emit_from_isect[i] * V_RECORD;
+        rec[0] = hsum(a_u);
+        rec[1] = hsum(a_v);
+        rec[2] = hsum(a_A);
+        rec[3] = hsum(a_B);
+        rec[4] = hsum(a_C);
+        rec[5] = hsum(a_r);
+        rec[6] = hsum(a_g);
+        rec[7] = hsum(a_b);
+        rec[8] = hsum(a_o);
+        rec[9] = hsum(a_z);
+    }
+    for (; i < end; ++i) {
+        __global float *rec = v_emit + (size_t)emit_from_isect[i] * V_RECORD;
+        for (int f = 0; f < V_RECORD; ++f) rec[f] = 0.0f;
+    }
+}
+
+#else
+/* ========================================================================================== */
+/* GPU schedule: a 256-work-item group per tile, a work-item per pixel                         */
+
+#define WARP 32
+#if REINGS_NV_PTX
+#define NPART (TILE_PIXELS / WARP) /* one partial per warp */
+inline float shfl_xor(float x, int m) {
+    float r;
+    asm volatile("shfl.sync.bfly.b32 %0, %1, %2, 0x1f, 0xffffffff;" : "=f"(r) : "f"(x), "r"(m));
+    return r;
+}
+inline int warp_any(int p) {
+    int r;
+    asm volatile("{\n\t.reg .pred q, a;\n\tsetp.ne.s32 q, %1, 0;\n\t"
+                 "vote.sync.any.pred a, q, 0xffffffff;\n\tselp.s32 %0, 1, 0, a;\n\t}"
+                 : "=r"(r) : "r"(p));
+    return r;
+}
+inline float warp_sum(float x) {
+    for (int m = WARP / 2; m >= 1; m >>= 1) x += shfl_xor(x, m);
+    return x;
+}
+#else
+#define NPART 1
+#endif
+
+/* Sum NF values over the work-group into part[(p * batch + j) * NF + f] (p: partial index).
+ * NVIDIA: butterfly shuffles per warp (skipped when no lane contributes), lane 0 stores.
+ * Portable: a local-memory tree (red: [NF * TILE_PIXELS]), barriers inside; every work-item
+ * must call it (uniform control flow). */
+inline void group_sum(const float *vals, const int NF, const int any_nz, const int j, const int batch,
+                      __local float *part, __local float *red, const int lid) {
+#if REINGS_NV_PTX
+    const int w = lid / WARP, lane = lid % WARP;
+    (void)red;
+    if (warp_any(any_nz)) {
+        for (int f = 0; f < NF; ++f) {
+            const float s = warp_sum(vals[f]);
+            if (lane == 0) part[(w * batch + j) * NF + f] = s;
+        }
+    } else if (lane == 0) {
+        for (int f = 0; f < NF; ++f) part[(w * batch + j) * NF + f] = 0.0f;
+    }
+#else
+    (void)any_nz;
+    for (int f = 0; f < NF; ++f) red[f * TILE_PIXELS + lid] = vals[f];
+    barrier(CLK_LOCAL_MEM_FENCE);
+    for (int s = TILE_PIXELS / 2; s > 0; s >>= 1) {
+        if (lid < s)
+            for (int f = 0; f < NF; ++f) red[f * TILE_PIXELS + lid] += red[f * TILE_PIXELS + lid + s];
+        barrier(CLK_LOCAL_MEM_FENCE);
+    }
+    if (lid == 0)
+        for (int f = 0; f < NF; ++f) part[j * NF + f] = red[f * TILE_PIXELS];
+    /* the next call's first write to red[lid] follows this barrier */
+    barrier(CLK_LOCAL_MEM_FENCE);
+#endif
+}
+
+inline int in_box(float16 g, int px, int py) {
+    return (float)px >= g.sa && (float)px <= g.sb && (float)py >= g.sc && (float)py <= g.sd;
+}
+
+__kernel __attribute__((reqd_work_group_size(TILE_PIXELS, 1, 1))) void
+rasterize_fwd(__global const float16 *packed,      // [N] from rasterize_prep
+              __global const int *tile_ranges,     // [T, 2]
+              __global const int *gid_from_isect,  // [K]
+              __global const int *emit_from_isect, // [K]
+              const int width, const int height, const int tiles_x, const int n_tiles,
+              const float bg_r, const float bg_g, const float bg_b,
+              __global float *out_rgb,   // [H, W, 3]
+              __global float *out_depth, // [H, W]
+              __global float *out_alpha, // [H, W]
+              __global float *out_T,     // [H, W]
+              __global int *out_last,    // [H, W]
+              __global float *imp_emit)  // [K] (RASTER_IMPORTANCE only)
+{
+    __local float16 sh[FWD_BATCH];
+    __local int n_done;
+#if RASTER_IMPORTANCE
+    __local float part[NPART * FWD_BATCH];
+#if !REINGS_NV_PTX
+    __local float red[TILE_PIXELS];
+#else
+    __local float *red = 0;
+#endif
+#endif
+    /* groups on a 2D range (tx, ty): no div/rem of the tile id (LLVM `freeze`, rejected by Oclgrind) */
+    const int tx = get_group_id(0), ty = get_group_id(1);
+    const int tile = ty * tiles_x + tx;
+    const int lid = get_local_id(0);
+    const int x0 = tx * TILE_SIZE, y0 = ty * TILE_SIZE;
+    /* unsigned: a signed div/rem pair turns into LLVM `freeze` (Oclgrind rejects it) */
+    const int px = x0 + (int)((uint)lid % TILE_SIZE), py = y0 + (int)((uint)lid / TILE_SIZE);
+    const int inside = px < width && py < height;
+    const float fx = (float)px + 0.5f, fy = (float)py + 0.5f;
+    int active = inside;
+    float T = 1.0f, cr = 0.0f, cg = 0.0f, cb = 0.0f, cd = 0.0f;
+    int last = 0;
+    const int start = tile_ranges[2 * tile], end = tile_ranges[2 * tile + 1];
+    int b0 = start;
+    for (; b0 < end; b0 += FWD_BATCH) {
+        barrier(CLK_LOCAL_MEM_FENCE); /* the previous batch is done with sh / part / n_done */
+        if (lid == 0) n_done = 0;
+        barrier(CLK_LOCAL_MEM_FENCE);
+        if (!active) atomic_inc(&n_done);
+        const int nb = min(FWD_BATCH, end - b0);
+        if (lid < nb) sh[lid] = packed[gid_from_isect[b0 + lid]];
+        barrier(CLK_LOCAL_MEM_FENCE);
+        if (n_done == TILE_PIXELS) break; /* uniform: whole tile saturated */
+        for (int j = 0; j < nb; ++j) {
+            const float16 g = sh[j];
+            float w = 0.0f;
+            if (active && in_box(g, px, py)) {
+                const float dx = g.s0 - fx, dy = g.s1 - fy;
+                const float power = -0.5f * (g.s2 * dx * dx + g.s4 * dy * dy) - g.s3 * dx * dy;
+                const float alpha = fmin(ALPHA_MAX, g.s5 * exp(power));
+                if (power <= 0.0f && alpha >= ALPHA_MIN) {
+                    const float Tn = T * (1.0f - alpha);
+                    if (Tn < T_MIN) {
+                        active = 0;
+                    } else {
+                        w = alpha * T;
+                        cr += w * g.s6;
+                        cg += w * g.s7;
+                        cb += w * g.s8;
+                        cd += w * g.s9;
+                        T = Tn;
+                        last = b0 - start + j + 1;
+                    }
+                }
+            }
+#if RASTER_IMPORTANCE
+            group_sum(&w, 1, w != 0.0f, j, FWD_BATCH, part, red, lid);
+#endif
+        }
+#if RASTER_IMPORTANCE
+        barrier(CLK_LOCAL_MEM_FENCE);
+        if (lid < nb) {
+            float s = 0.0f;
+            for (int p = 0; p < NPART; ++p) s += part[p * FWD_BATCH + lid];
+            imp_emit[emit_from_isect[b0 + lid]] = s;
+        }
+#endif
+    }
+#if RASTER_IMPORTANCE
+    /* after an early exit the remaining slots are 0 */
+    for (int e = b0 + lid; e < end; e += TILE_PIXELS) imp_emit[emit_from_isect[e]] = 0.0f;
+#endif
+    if (inside) {
+        const int p = py * width + px;
+        out_rgb[3 * p] = cr + T * bg_r;
+        out_rgb[3 * p + 1] = cg + T * bg_g;
+        out_rgb[3 * p + 2] = cb + T * bg_b;
+        out_depth[p] = cd;
+        out_alpha[p] = 1.0f - T;
+        out_T[p] = T;
+        out_last[p] = last;
+    }
+}
+
+__kernel __attribute__((reqd_work_group_size(TILE_PIXELS, 1, 1))) void
+rasterize_bwd(__global const float16 *packed,      // [N] from rasterize_prep
+              __global const int *tile_ranges,     // [T, 2]
+              __global const int *gid_from_isect,  // [K]
+              __global const int *emit_from_isect, // [K]
+              const int width, const int height, const int tiles_x, const int n_tiles,
+              __global const float *out_rgb,   // [H, W, 3] forward output
+              __global const float *out_depth, // [H, W]
+              __global const float *out_T,     // [H, W]
+              __global const int *out_last,    // [H, W]
+              __global const float *v_rgb,     // [H, W, 3] (bit 0 of v_mask)
+              __global const float *v_depth,   // [H, W]    (bit 1)
+              __global const float *v_alpha,   // [H, W]    (bit 2)
+              const int v_mask,
+              __global float *v_emit) // [K, V_RECORD]
+{
+    __local float16 sh[BWD_BATCH];
+    __local float part[NPART * BWD_BATCH * V_RECORD];
+#if !REINGS_NV_PTX
+    __local float red[V_RECORD * TILE_PIXELS];
+#else
+    __local float *red = 0;
+#endif
+    __local int max_last;
+    /* groups on a 2D range (tx, ty): no div/rem of the tile id (LLVM `freeze`, rejected by Oclgrind) */
+    const int tx = get_group_id(0), ty = get_group_id(1);
+    const int tile = ty * tiles_x + tx;
+    const int lid = get_local_id(0);
+    const int x0 = tx * TILE_SIZE, y0 = ty * TILE_SIZE;
+    /* unsigned: a signed div/rem pair turns into LLVM `freeze` (Oclgrind rejects it) */
+    const int px = x0 + (int)((uint)lid % TILE_SIZE), py = y0 + (int)((uint)lid / TILE_SIZE);
+    const int inside = px < width && py < height;
+    const float fx = (float)px + 0.5f, fy = (float)py + 0.5f;
+    float vr = 0.0f, vg = 0.0f, vb = 0.0f, vd = 0.0f, R = 0.0f, T = 1.0f;
+    int last = 0;
+    if (inside) {
+        const int p = py * width + px;
+        if (v_mask & 1) {
+            vr = v_rgb[3 * p];
+            vg = v_rgb[3 * p + 1];
+            vb = v_rgb[3 * p + 2];
+            R += vr * out_rgb[3 * p] + vg * out_rgb[3 * p + 1] + vb * out_rgb[3 * p + 2];
+        }
+        if (v_mask & 2) {
+            vd = v_depth[p];
+            R += vd * out_depth[p];
+        }
+        if (v_mask & 4) R -= v_alpha[p] * out_T[p];
+        last = out_last[p];
+    }
+    if (lid == 0) max_last = 0;
+    barrier(CLK_LOCAL_MEM_FENCE);
+    atomic_max(&max_last, last);
+    barrier(CLK_LOCAL_MEM_FENCE);
+    const int start = tile_ranges[2 * tile], end = tile_ranges[2 * tile + 1];
+    const int stop_at = start + max_last; /* positions >= max(last) touch no pixel */
+    int b0 = start;
+    for (; b0 < stop_at; b0 += BWD_BATCH) {
+        const int nb = min(BWD_BATCH, stop_at - b0);
+        barrier(CLK_LOCAL_MEM_FENCE); /* the previous batch is done with sh / part */
+        if (lid < nb) sh[lid] = packed[gid_from_isect[b0 + lid]];
+        barrier(CLK_LOCAL_MEM_FENCE);
+        for (int j = 0; j < nb; ++j) {
+            const float16 g = sh[j];
+            const int k = b0 - start + j;
+            float vals[V_RECORD];
+            for (int f = 0; f < V_RECORD; ++f) vals[f] = 0.0f;
+            int nz = 0;
+            if (k < last && in_box(g, px, py)) {
+                const float dx = g.s0 - fx, dy = g.s1 - fy;
+                const float power = -0.5f * (g.s2 * dx * dx + g.s4 * dy * dy) - g.s3 * dx * dy;
+                const float G = exp(power);
+                const float a = g.s5 * G;
+                const float alpha = fmin(ALPHA_MAX, a);
+                if (power <= 0.0f && alpha >= ALPHA_MIN) {
+                    nz = 1;
+                    const float w = alpha * T;
+                    const float vc = vr * g.s6 + vg * g.s7 + vb * g.s8 + vd * g.s9;
+                    const float Rn = R - vc * w;
+                    vals[5] = vr * w;
+                    vals[6] = vg * w;
+                    vals[7] = vb * w;
+                    vals[9] = vd * w;
+                    /* no gradient through the ALPHA_MAX clamp */
+                    const float va = a <= ALPHA_MAX ? T * vc - Rn / (1.0f - alpha) : 0.0f;
+                    vals[8] = va * G;
+                    const float vp = va * alpha;
+                    vals[2] = -0.5f * dx * dx * vp;
+                    vals[3] = -dx * dy * vp;
+                    vals[4] = -0.5f * dy * dy * vp;
+                    vals[0] = -(g.s2 * dx + g.s3 * dy) * vp;
+                    vals[1] = -(g.s3 * dx + g.s4 * dy) * vp;
+                    T *= 1.0f - alpha;
+                    R = Rn;
+                }
+            }
+            group_sum(vals, V_RECORD, nz, j, BWD_BATCH, part, red, lid);
+        }
+        barrier(CLK_LOCAL_MEM_FENCE);
+        for (int e = lid; e < nb * V_RECORD; e += TILE_PIXELS) {
+            const int j = e / V_RECORD, f = e - j * V_RECORD;
+            float s = 0.0f;
+            for (int p = 0; p < NPART; ++p) s += part[(p * BWD_BATCH + j) * V_RECORD + f];
+            v_emit[(size_t)emit_from_isect[b0 + j] * V_RECORD + f] = s;
+        }
+    }
+    /* Gaussians at positions >= max(last): zero records */
+    for (int e = stop_at + lid; e < end; e += TILE_PIXELS) {
+        __global float *rec = v_emit + (size_t)emit_from_isect[e] * V_RECORD;
+        for (int f = 0; f < V_RECORD; ++f) rec[f] = 0.0f;
+    }
+}
+#endif

@@ -1,0 +1,498 @@
+"""`OpenCLBackend`: the stage sequence of reings/backends/base.py on one OpenCL device.
+
+    b = OpenCLBackend("pocl")                      # or "cuda", "oclgrind", "opencl:P:D"
+    out = b.render(g, cam, background=(0, 0, 0), near=0.01)          # RenderOutput (+ stats)
+    grads = b.render_vjp(g, cam, v_rgb, v_depth, v_alpha, ...)       # Gaussians of dL/d(field)
+
+Stage methods with the reference's names take and return host numpy (tests, debugging):
+`project_fwd`, `bin`, `rasterize_fwd`, `rasterize_bwd`, `project_bwd`. The fused `render` /
+`render_vjp` keep every intermediate on the device:
+
+    upload -> project_fwd -> depth sort (all N, culled keys last) -> bin_count -> scan
+      -> ONE blocking read of (V, K) -> bin_emit -> tile sort (ceil(log2 T) bits) -> tile_ranges
+      -> rasterize_fwd -> one final batch of reads
+    render_vjp: [forward] -> rasterize_bwd -> isect_reduce -> project_bwd -> one final batch of reads
+
+Forward reuse in render_vjp (documented contract): on CPU devices (PoCL) render_vjp reuses the
+device state of the immediately preceding forward of this backend when the camera, background,
+near and opacity override are equal AND every input array is byte-identical to what that forward
+uploaded (compared against the zero-copy mapped input buffers, ~1-3 ms for SH3 at 100k). Any other
+call on this backend in between invalidates the state. On GPUs the forward is always recomputed:
+the kernels are cheaper than reading the inputs back to verify them. Either way the result is the
+VJP at exactly the given inputs.
+
+Device time per stage: after each call, `last_profile` maps stage name -> milliseconds between the
+end of the previous stage and the end of this one on the device timeline (profiling events of the
+in-order queue), and `last_stats` holds the counts.
+
+Not here: input validation (reings/render.py), kernel math (kernels/*.cl), sorting/scan
+(sort.py), rasterization (rasterize.py).
+"""
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass, field
+from typing import Sequence
+
+import numpy as np
+
+from ...types import FIELDS, Camera, Gaussians, RenderOutput
+from ..base import (CLAMP_GUARD, V_RECORD, Bins, Projected, RasterGrads, RasterOut, tile_grid)
+from . import quirks
+from .device import open_device
+from .program import library_for
+from .scratch import Scratch
+from .sort import ExclusiveScan, RadixSort
+
+CAM_RECORD = 24  # floats, layout in kernels/project.cl
+DEPTH_KEY_CULLED = 0xFFFFFFFF
+GRAD_BITS = {"means": 1, "quats": 2, "log_scales": 4, "opacity_logits": 8, "sh": 16}
+_F32, _I32, _U32 = np.float32, np.int32, np.uint32
+
+
+def tile_bits(n_tiles: int) -> int:
+    """ceil(log2(n_tiles)): the bits of a tile id (0 for a single tile)."""
+    return int(max(n_tiles - 1, 0)).bit_length()
+
+
+def camera_record(cam: Camera, near: float) -> np.ndarray:
+    """The float32 [CAM_RECORD] camera record of kernels/project.cl, computed in float64."""
+    V = cam.viewmat
+    W, H = cam.width, cam.height
+    fx, fy, cx, cy = cam.fx, cam.fy, cam.cx, cam.cy
+    tan_fovx, tan_fovy = 0.5 * W / fx, 0.5 * H / fy
+    rec = np.zeros(CAM_RECORD, np.float64)
+    rec[0:9] = V[:3, :3].ravel()
+    rec[9:12] = V[:3, 3]
+    rec[12:16] = (fx, fy, cx, cy)
+    rec[16:19] = cam.center
+    rec[19] = near
+    rec[20] = (W - cx) / fx + CLAMP_GUARD * tan_fovx  # lim_x_pos
+    rec[21] = cx / fx + CLAMP_GUARD * tan_fovx  # lim_x_neg
+    rec[22] = (H - cy) / fy + CLAMP_GUARD * tan_fovy
+    rec[23] = cy / fy + CLAMP_GUARD * tan_fovy
+    return rec.astype(_F32)
+
+
+@dataclass
+class _Frame:
+    """Device state of one forward (buffers are scratch-owned; valid until the next call)."""
+
+    n: int
+    width: int
+    height: int
+    tiles_x: int
+    n_tiles: int
+    sh_k: int
+    visible: int = 0
+    isects: int = 0
+    bufs: dict = field(default_factory=dict)
+    key: tuple | None = None  # (camera, background, near, override) for forward reuse
+
+
+class OpenCLBackend:
+    """One OpenCL device (see the module docstring)."""
+
+    def __init__(self, device_spec: str = "pocl"):
+        self.spec = device_spec
+        self.handle = open_device(device_spec)
+        self.name = f"opencl:{device_spec}"
+        self.device_name = self.handle.name
+        self.cpu = quirks.is_cpu(self.handle.device)
+        self.queue = self.handle.queue
+        self.lib = library_for(self.handle)
+        self.scratch = Scratch(self.handle)
+        with warnings.catch_warnings():  # the second sorter re-retrieves the same kernels, once
+            warnings.simplefilter("ignore")
+            self.depth_sorter = RadixSort(self.handle)  # two sorters: each owns its ping-pong scratch
+            self.tile_sorter = RadixSort(self.handle)
+            self.depth_sorter.kernels(False)
+            self.tile_sorter.kernels(False)
+        self.scan = ExclusiveScan(self.handle)
+        self.wg = 256 if self.cpu else 128  # PoCL: fewer, larger work-groups (dispatch cost ~us each)
+        self._kernels: dict = {}
+        self._raster = None
+        self._frame: _Frame | None = None
+        self._keep: list = []  # host arrays referenced by non-blocking copies still in flight
+        self._events: list = []  # (stage, event) of the current call
+        self.last_profile: dict[str, float] = {}
+        self.last_stats: dict[str, int] = {}
+
+    # ------------------------------------------------------------------------------------------
+    # plumbing
+    # ------------------------------------------------------------------------------------------
+    def kernel(self, filename: str, name: str, **defines):
+        key = (filename, name, tuple(sorted(defines.items())))
+        k = self._kernels.get(key)
+        if k is None:
+            k = self._kernels[key] = self.lib.get(filename, name, **defines)
+        return k
+
+    def _launch(self, k, n: int, *args, wg: int | None = None):
+        """One work-item per index in [0, n), global size rounded up to the work-group size."""
+        if n <= 0:
+            return None
+        wg = wg or self.wg
+        gsize = -(-n // wg) * wg
+        return k(self.queue, (gsize,), (wg,), *args)
+
+    def _mark(self, stage: str, ev, span: bool = False):
+        """Record the last event of a stage. span=True: the stage enqueued several commands and only
+        the last event is known, so its time is measured from the end of the previous stage."""
+        if ev is not None:
+            self._events.append((stage, ev, span))
+
+    def _profile(self):
+        """Stage times (ms) of this call from its profiling events: end - start of a single-kernel
+        stage; end(stage) - end(previous stage) for a multi-command (span) stage."""
+        prof: dict[str, float] = {}
+        prev = None
+        for stage, ev, span in self._events:
+            try:
+                start, end = ev.profile.start, ev.profile.end
+            except Exception:  # profiling off or unsupported: leave it out
+                continue
+            base = prev if (span and prev is not None) else start
+            prof[stage] = prof.get(stage, 0.0) + max(end - base, 0) * 1e-6
+            prev = end
+        self.last_profile = prof
+        self._events = []
+
+    @property
+    def raster(self):
+        if self._raster is None:
+            from .rasterize import Rasterizer
+
+            self._raster = Rasterizer(self.handle, scratch=self.scratch)
+        return self._raster
+
+    def _upload(self, space: str, name: str, a: np.ndarray):
+        a = np.ascontiguousarray(a)
+        self._keep.append(a)
+        return self.scratch.upload(space, name, a)
+
+    def _read(self, buf, shape, dtype, wait_for=None) -> np.ndarray:
+        """Enqueue a non-blocking read into a fresh host array (valid after _finish)."""
+        import pyopencl as cl
+
+        out = np.empty(shape, dtype)
+        if out.size:
+            cl.enqueue_copy(self.queue, out, buf, is_blocking=False, wait_for=wait_for)
+        return out
+
+    def _finish(self):
+        self.queue.finish()
+        self._keep = []
+        self._profile()
+
+    # ------------------------------------------------------------------------------------------
+    # forward pieces on the device
+    # ------------------------------------------------------------------------------------------
+    def _upload_gaussians(self, g: Gaussians) -> dict:
+        return {f: self._upload("gauss", "in_" + f, getattr(g, f)) for f in FIELDS}
+
+    def _project_device(self, fr: _Frame, inp: dict, cam: Camera, near: float, override) -> None:
+        n, s = fr.n, self.scratch
+        b = fr.bufs
+        b["cam"] = self._upload("small", "cam", camera_record(cam, near))
+        b["means2d"] = s.get("gauss", "means2d", n, 8)
+        b["conics"] = s.get("gauss", "conics", n, 12)
+        b["depths"] = s.get("gauss", "depths", n, 4)
+        b["radii"] = s.get("gauss", "radii", n, 4)
+        b["tile_rect"] = s.get("gauss", "tile_rect", n, 16)
+        b["colors"] = s.get("gauss", "colors", n, 12)
+        b["opacities"] = s.get("gauss", "opacities", n, 4)
+        b["depth_keys"] = s.get("gauss", "depth_keys", n, 4)
+        b["gid_vals"] = s.get("gauss", "gid_vals", n, 4)
+        k = self.kernel("project.cl", "project_fwd", SH_K=fr.sh_k)
+        ov = _F32(override if override is not None else 0.0)
+        ev = self._launch(k, n, _I32(n), inp["means"], inp["quats"], inp["log_scales"],
+                          inp["opacity_logits"], inp["sh"], b["cam"], _I32(fr.width), _I32(fr.height), ov,
+                          b["means2d"], b["conics"], b["depths"], b["radii"], b["tile_rect"], b["colors"],
+                          b["opacities"], b["depth_keys"], b["gid_vals"])
+        self._mark("project_fwd", ev)
+
+    def _bin_device(self, fr: _Frame) -> None:
+        """Depth sort, counts, scan, the one control readback, emit, tile sort, tile ranges."""
+        import pyopencl as cl
+
+        n, s, b = fr.n, self.scratch, fr.bufs
+        # (1) depth sort of all N: culled keys (0xFFFFFFFF) sort last, ties keep gid order
+        keys, gfr, ev = self.depth_sorter.sort_pairs(b["depth_keys"], b["gid_vals"], n, 0, 32)
+        self._mark("sort_depth", ev, span=True)
+        b["depth_keys_sorted"], b["gid_from_rank"] = keys, gfr
+        # (2) tiles touched per rank, V; exclusive scan -> offset_from_rank, total K into ctrl[1]
+        touched = s.get("gauss", "tiles_touched", n + 1, 4)
+        ctrl = s.get("small", "ctrl", 2, 4)
+        offsets = b["offset_from_rank"] = s.get("gauss", "offset_from_rank", n + 1, 4)
+        ev = self._launch(self.kernel("bin.cl", "bin_count"), n + 1, _I32(n), keys, gfr, b["tile_rect"],
+                          touched, ctrl)
+        self._mark("bin_count", ev)
+        _, ev = self.scan(touched, offsets, n + 1, total_buf=ctrl, total_at=1, read_total=False)
+        self._mark("scan", ev, span=True)
+        # the one blocking device -> host read of the forward: (V, K) together
+        counts = np.empty(2, _U32)
+        cl.enqueue_copy(self.queue, counts, ctrl, is_blocking=True)
+        self._keep = []
+        v, k = int(counts[0]), int(counts[1])
+        fr.visible, fr.isects = v, k
+        # (3) emit: tile ids row-major per rank at its slots; values = emit slot
+        tile_keys = s.get("isect", "tile_keys", k, 4)
+        emit_vals = s.get("isect", "emit_vals", k, 4)
+        gid_from_emit = b["gid_from_emit"] = s.get("isect", "gid_from_emit", k, 4)
+        ev = self._launch(self.kernel("bin.cl", "bin_emit"), v, _I32(v), _I32(fr.tiles_x), gfr, offsets,
+                          b["tile_rect"], tile_keys, emit_vals, gid_from_emit)
+        self._mark("bin_emit", ev)
+        # (4) stable tile sort over ceil(log2 T) bits: keeps (depth, gid) order inside each tile
+        tk, efi, ev = self.tile_sorter.sort_pairs(tile_keys, emit_vals, k, 0, tile_bits(fr.n_tiles))
+        self._mark("sort_tile", ev, span=True)
+        b["tile_keys_sorted"], b["emit_from_isect"] = tk, efi
+        # (5) tile ranges + gid_from_isect, no atomics
+        ranges = b["tile_ranges"] = s.get("tile", "tile_ranges", fr.n_tiles, 8)
+        gfi = b["gid_from_isect"] = s.get("isect", "gid_from_isect", k, 4)
+        ev = self._launch(self.kernel("bin.cl", "tile_ranges"), k + 1, _I32(k), _I32(fr.n_tiles), tk, efi,
+                          gid_from_emit, ranges, gfi)
+        self._mark("tile_ranges", ev)
+
+    def _new_frame(self, n: int, width: int, height: int, sh_k: int) -> _Frame:
+        self._frame = None  # any call invalidates the previous forward's device state
+        tiles_x, tiles_y = tile_grid(width, height)
+        self._events = []
+        return _Frame(n=n, width=width, height=height, tiles_x=tiles_x, n_tiles=tiles_x * tiles_y, sh_k=sh_k)
+
+    def _forward(self, g: Gaussians, cam: Camera, background, near: float, override,
+                 want_importance: bool) -> _Frame:
+        fr = self._new_frame(len(g), cam.width, cam.height, g.sh.shape[1])
+        fr.bufs["in"] = self._upload_gaussians(g)
+        self._project_device(fr, fr.bufs["in"], cam, near, override)
+        self._bin_device(fr)
+        self._raster_fwd(fr, background, want_importance)
+        fr.key = (cam.K.tobytes(), cam.viewmat.tobytes(), cam.width, cam.height,
+                  tuple(float(x) for x in background), float(near),
+                  None if override is None else float(override))
+        return fr
+
+    # ------------------------------------------------------------------------------------------
+    # rasterizer adapter (reings/backends/opencl/rasterize.py owns the kernels)
+    # ------------------------------------------------------------------------------------------
+    def _raster_fwd(self, fr: _Frame, background, want_importance: bool) -> None:
+        """rasterize_prep + rasterize_fwd; importance: per-emit records reduced per gid."""
+        import pyopencl as cl
+
+        r, b = self.raster, fr.bufs
+        ev = r.fwd(b["means2d"], b["conics"], b["colors"], b["opacities"], b["depths"], fr.n, b["tile_ranges"],
+                   b["gid_from_isect"], b["emit_from_isect"], fr.isects, fr.width, fr.height,
+                   tuple(float(x) for x in background), importance=want_importance)
+        self._mark("rasterize_fwd", ev, span=True)
+        b["out_rgb"], b["out_depth"], b["out_alpha"] = r.rgb, r.depth, r.alpha
+        b["out_T"], b["out_last"] = r.final_T, r.last
+        if want_importance:
+            imp = b["importance"] = self.scratch.get("gauss", "importance", fr.n, 4)
+            if fr.n:  # culled rows are not written by the reduce: zero them all first
+                cl.enqueue_fill_buffer(self.queue, imp, _F32(0), 0, 4 * fr.n)
+            ev = r.reduce(r.imp_emit, 1, b["offset_from_rank"], b["gid_from_rank"], fr.visible, imp)
+            self._mark("importance_reduce", ev)
+
+    def _raster_bwd(self, fr: _Frame, v_rgb, v_depth, v_alpha) -> None:
+        """rasterize_bwd (per-emit records) + isect_reduce into v_proj [N, V_RECORD] (rows of
+        culled gids are left unwritten: project_bwd never reads them)."""
+        r, b = self.raster, fr.bufs
+        vr = None if v_rgb is None else self._upload("pixel", "v_rgb", np.asarray(v_rgb, _F32))
+        vd = None if v_depth is None else self._upload("pixel", "v_depth", np.asarray(v_depth, _F32))
+        va = None if v_alpha is None else self._upload("pixel", "v_alpha", np.asarray(v_alpha, _F32))
+        ev = r.bwd(b["tile_ranges"], b["gid_from_isect"], b["emit_from_isect"], fr.isects, fr.width, fr.height,
+                   vr, vd, va)
+        self._mark("rasterize_bwd", ev, span=True)
+        vp = b["v_proj"] = self.scratch.get("gauss", "v_proj", fr.n, 4 * V_RECORD)
+        ev = r.reduce(r.v_emit, V_RECORD, b["offset_from_rank"], b["gid_from_rank"], fr.visible, vp)
+        self._mark("isect_reduce", ev)
+
+    # ------------------------------------------------------------------------------------------
+    # fused paths
+    # ------------------------------------------------------------------------------------------
+    def render(self, gaussians: Gaussians, camera: Camera, background: Sequence[float] = (0, 0, 0),
+               near: float = 0.01, opacity_override: float | None = None,
+               want_importance: bool = False) -> RenderOutput:
+        fr = self._forward(gaussians, camera, background, near, opacity_override, want_importance)
+        b = fr.bufs
+        H, W = camera.height, camera.width
+        rgb = self._read(b["out_rgb"], (H, W, 3), _F32)
+        depth = self._read(b["out_depth"], (H, W), _F32)
+        alpha = self._read(b["out_alpha"], (H, W), _F32)
+        final_T = self._read(b["out_T"], (H, W), _F32)
+        imp = self._read(b["importance"], (fr.n,), _F32) if want_importance else None
+        self._finish()
+        stats = dict(visible=fr.visible, intersections=fr.isects)
+        self.last_stats = stats
+        self._frame = fr
+        return RenderOutput(rgb=rgb, depth=depth, alpha=alpha, final_T=final_T, importance=imp, stats=stats)
+
+    def _reusable(self, g: Gaussians, key: tuple) -> _Frame | None:
+        """The previous forward, if it was computed on exactly these inputs (CPU devices only)."""
+        fr = self._frame
+        if fr is None or not self.cpu or fr.key != key or fr.n != len(g) or fr.sh_k != g.sh.shape[1]:
+            return None
+        for f in FIELDS:
+            a = np.ascontiguousarray(getattr(g, f))
+            with self.scratch.mapped(fr.bufs["in"][f], a.shape, a.dtype) as m:
+                if not np.array_equal(m.view(_U32), a.view(_U32)):
+                    return None
+        return fr
+
+    def render_vjp(self, gaussians: Gaussians, camera: Camera, v_rgb: np.ndarray,
+                   v_depth: np.ndarray | None = None, v_alpha: np.ndarray | None = None,
+                   background: Sequence[float] = (0, 0, 0), near: float = 0.01,
+                   opacity_override: float | None = None,
+                   grad_fields: Sequence[str] | None = None) -> Gaussians:
+        g = gaussians
+        key = (camera.K.tobytes(), camera.viewmat.tobytes(), camera.width, camera.height,
+               tuple(float(x) for x in background), float(near),
+               None if opacity_override is None else float(opacity_override))
+        fr = self._reusable(g, key)
+        self._events = []
+        if fr is None:
+            fr = self._forward(g, camera, background, near, opacity_override, False)
+        self._frame = None  # the backward reuses scratch that a later reuse would need intact
+        self._raster_bwd(fr, v_rgb, v_depth, v_alpha)
+        out = self._project_bwd_device(fr, opacity_override, grad_fields)
+        n, k = fr.n, fr.sh_k
+        res = {f: self._read(out[f], shp, _F32) for f, shp in
+               (("means", (n, 3)), ("quats", (n, 4)), ("log_scales", (n, 3)), ("opacity_logits", (n,)),
+                ("sh", (n, k, 3)))}
+        self._finish()
+        self.last_stats = dict(visible=fr.visible, intersections=fr.isects)
+        return Gaussians(**res)
+
+    def _project_bwd_device(self, fr: _Frame, override, grad_fields) -> dict:
+        n, s, b = fr.n, self.scratch, fr.bufs
+        mask = 0
+        for f in (FIELDS if grad_fields is None else grad_fields):
+            mask |= GRAD_BITS[f]
+        out = {"means": s.get("gauss", "v_means", n, 12), "quats": s.get("gauss", "v_quats", n, 16),
+               "log_scales": s.get("gauss", "v_log_scales", n, 12),
+               "opacity_logits": s.get("gauss", "v_opacity_logits", n, 4),
+               "sh": s.get("gauss", "v_sh", n, 12 * fr.sh_k)}
+        inp = b["in"]
+        k = self.kernel("project.cl", "project_bwd", SH_K=fr.sh_k)
+        ov = _F32(override if override is not None else 0.0)
+        ev = self._launch(k, n, _I32(n), inp["means"], inp["quats"], inp["log_scales"], inp["opacity_logits"],
+                          inp["sh"], b["cam"], _I32(fr.width), _I32(fr.height), ov, _I32(mask), b["radii"],
+                          b["v_proj"], out["means"], out["quats"], out["log_scales"], out["opacity_logits"],
+                          out["sh"])
+        self._mark("project_bwd", ev)
+        return out
+
+    # ------------------------------------------------------------------------------------------
+    # stage methods (host numpy in / out, same names and meaning as the reference)
+    # ------------------------------------------------------------------------------------------
+    def project_fwd(self, g: Gaussians, cam: Camera, near: float = 0.01,
+                    opacity_override: float | None = None) -> Projected:
+        fr = self._new_frame(len(g), cam.width, cam.height, g.sh.shape[1])
+        fr.bufs["in"] = self._upload_gaussians(g)
+        self._project_device(fr, fr.bufs["in"], cam, near, opacity_override)
+        out = self._read_projected(fr)
+        self._finish()
+        return out
+
+    def _read_projected(self, fr: _Frame) -> Projected:
+        n, b = fr.n, fr.bufs
+        return Projected(means2d=self._read(b["means2d"], (n, 2), _F32), conics=self._read(b["conics"], (n, 3), _F32),
+                         depths=self._read(b["depths"], (n,), _F32), radii=self._read(b["radii"], (n,), _I32),
+                         tile_rect=self._read(b["tile_rect"], (n, 4), _I32),
+                         colors=self._read(b["colors"], (n, 3), _F32),
+                         opacities=self._read(b["opacities"], (n,), _F32))
+
+    def _upload_projected(self, fr: _Frame, proj: Projected) -> None:
+        """Host Projected -> the device buffers project_fwd would have written (float32), plus the
+        depth sort keys project_fwd computes (float bits of t_z for visible rows)."""
+        b = fr.bufs
+        radii = np.asarray(proj.radii, _I32)
+        depths = np.asarray(proj.depths, _F32)
+        keys = np.where(radii > 0, depths.view(_U32), _U32(DEPTH_KEY_CULLED)).astype(_U32)
+        for name, arr, dt in (("means2d", proj.means2d, _F32), ("conics", proj.conics, _F32),
+                              ("depths", depths, _F32), ("radii", radii, _I32),
+                              ("tile_rect", proj.tile_rect, _I32), ("colors", proj.colors, _F32),
+                              ("opacities", proj.opacities, _F32), ("depth_keys", keys, _U32),
+                              ("gid_vals", np.arange(fr.n, dtype=_U32), _U32)):
+            b[name] = self._upload("gauss", name, np.asarray(arr, dt))
+
+    def _upload_bins(self, fr: _Frame, bins: Bins) -> None:
+        b = fr.bufs
+        fr.visible, fr.isects = len(bins.gid_from_rank), len(bins.gid_from_isect)
+        b["gid_from_rank"] = self._upload("gauss", "gid_from_rank_in", np.asarray(bins.gid_from_rank, _U32))
+        b["offset_from_rank"] = self._upload("gauss", "offset_from_rank_in", np.asarray(bins.offset_from_rank, _U32))
+        b["gid_from_isect"] = self._upload("isect", "gid_from_isect_in", np.asarray(bins.gid_from_isect, _I32))
+        b["emit_from_isect"] = self._upload("isect", "emit_from_isect_in", np.asarray(bins.emit_from_isect, _U32))
+        b["tile_ranges"] = self._upload("tile", "tile_ranges_in", np.asarray(bins.tile_ranges, _I32))
+
+    def bin(self, proj: Projected, width: int, height: int) -> Bins:  # noqa: A003 (stage name)
+        n = proj.means2d.shape[0]
+        fr = self._new_frame(n, width, height, 1)
+        self._upload_projected(fr, proj)
+        self._bin_device(fr)
+        out = self._read_bins(fr)
+        self._finish()
+        return out
+
+    def _read_bins(self, fr: _Frame) -> Bins:
+        b, v, k = fr.bufs, fr.visible, fr.isects
+        return Bins(gid_from_rank=self._read(b["gid_from_rank"], (v,), _I32),
+                    offset_from_rank=self._read(b["offset_from_rank"], (v + 1,), _I32),
+                    gid_from_isect=self._read(b["gid_from_isect"], (k,), _I32),
+                    emit_from_isect=self._read(b["emit_from_isect"], (k,), _I32),
+                    tile_ranges=self._read(b["tile_ranges"], (fr.n_tiles, 2), _I32))
+
+    def rasterize_fwd(self, proj: Projected, bins: Bins, width: int, height: int,
+                      background: Sequence[float] = (0.0, 0.0, 0.0), want_importance: bool = False) -> RasterOut:
+        n = proj.means2d.shape[0]
+        fr = self._new_frame(n, width, height, 1)
+        self._upload_projected(fr, proj)
+        self._upload_bins(fr, bins)
+        self._raster_fwd(fr, background, want_importance)
+        b, H, W = fr.bufs, height, width
+        out = RasterOut(rgb=self._read(b["out_rgb"], (H, W, 3), _F32), depth=self._read(b["out_depth"], (H, W), _F32),
+                        alpha=self._read(b["out_alpha"], (H, W), _F32), final_T=self._read(b["out_T"], (H, W), _F32),
+                        last=self._read(b["out_last"], (H, W), _I32),
+                        importance=self._read(b["importance"], (n,), _F32) if want_importance else None)
+        self._finish()
+        return out
+
+    def rasterize_bwd(self, proj: Projected, bins: Bins, raster_out: RasterOut, v_rgb, v_depth, v_alpha,
+                      width: int, height: int, background: Sequence[float] = (0.0, 0.0, 0.0)) -> RasterGrads:
+        """VJP of rasterize_fwd reduced per gid (rows of non-visible Gaussians are zero). The forward
+        images are recomputed on the device from (proj, bins); `raster_out` is not used."""
+        n = proj.means2d.shape[0]
+        fr = self._new_frame(n, width, height, 1)
+        self._upload_projected(fr, proj)
+        self._upload_bins(fr, bins)
+        self._raster_fwd(fr, background, False)
+        self._raster_bwd(fr, v_rgb, v_depth, v_alpha)
+        v = self._read(fr.bufs["v_proj"], (n, V_RECORD), _F32)
+        self._finish()
+        vis = np.zeros(n, bool)
+        vis[np.asarray(bins.gid_from_rank, np.int64)] = True
+        v = np.where(vis[:, None], v, 0.0).astype(_F32)  # rows the reduce did not write
+        return RasterGrads(v_means2d=v[:, 0:2], v_conics=v[:, 2:5], v_colors=v[:, 5:8], v_opacities=v[:, 8],
+                           v_depths=v[:, 9])
+
+    def project_bwd(self, g: Gaussians, cam: Camera, proj: Projected, grads: RasterGrads, near: float = 0.01,
+                    opacity_override: float | None = None, grad_fields: Sequence[str] | None = None) -> Gaussians:
+        """VJP of project_fwd: float32 `Gaussians` of dL/d(raw field). The device recomputes the
+        projection from `g` (its own radii decide culling); `proj` is accepted for the signature."""
+        n = len(g)
+        fr = self._new_frame(n, cam.width, cam.height, g.sh.shape[1])
+        fr.bufs["in"] = self._upload_gaussians(g)
+        self._project_device(fr, fr.bufs["in"], cam, near, opacity_override)
+        vp = np.concatenate([np.asarray(grads.v_means2d, _F32).reshape(n, 2),
+                             np.asarray(grads.v_conics, _F32).reshape(n, 3),
+                             np.asarray(grads.v_colors, _F32).reshape(n, 3),
+                             np.asarray(grads.v_opacities, _F32).reshape(n, 1),
+                             np.asarray(grads.v_depths, _F32).reshape(n, 1)], axis=1)
+        fr.bufs["v_proj"] = self._upload("gauss", "v_proj_in", vp)
+        out = self._project_bwd_device(fr, opacity_override, grad_fields)
+        k = fr.sh_k
+        res = {f: self._read(out[f], shp, _F32) for f, shp in
+               (("means", (n, 3)), ("quats", (n, 4)), ("log_scales", (n, 3)), ("opacity_logits", (n,)),
+                ("sh", (n, k, 3)))}
+        self._finish()
+        return Gaussians(**res)

@@ -1,0 +1,263 @@
+"""Rasterizer: `kernels/rasterize.cl` on one device (forward, backward, importance, isect_reduce).
+
+Device-level API (buffers in, events out; every call enqueues on `handle.queue`, in order):
+
+    r = Rasterizer(handle)                        # kernels built and fetched once
+    r.fwd(means2d, conics, colors, opacities, depths, n,          # [N,2] [N,3] [N,3] [N] [N]
+          tile_ranges, gid_from_isect, emit_from_isect, n_isect,  # [T,2] [K] [K]
+          width, height, background=(0,0,0), importance=False)  -> event
+        writes r.rgb [H,W,3], r.depth, r.alpha, r.final_T [H,W] float32, r.last [H,W] int32,
+        r.packed [N] float16-records, and with importance=True r.imp_emit [K] (alpha*T per emit slot)
+    r.bwd(tile_ranges, gid_from_isect, emit_from_isect, n_isect, width, height,
+          v_rgb=None, v_depth=None, v_alpha=None)                 -> event
+        reads r.packed and r.rgb/depth/final_T/last of the last `fwd` on this Rasterizer (pass
+        `fwd_out=(rgb, depth, final_T, last, packed)` to use others) and writes r.v_emit [K, 10]
+    r.reduce(records, width, offset_from_rank, gid_from_rank, n_rank, out, accumulate=False) -> event
+        out[gid_from_rank[r], :] (+)= sum of records[offset_from_rank[r]:offset_from_rank[r+1], :];
+        rows of `out` for gids with no rank are not touched (zero them first, or accumulate).
+
+Buffers are the persistent `Scratch` ones (grown geometrically, never shrunk); a call's outputs stay
+valid until the next call of the same kind. Host-level helpers for tests and debugging:
+`rasterize_fwd_host(proj, bins, W, H, background, want_importance) -> RasterOut` and
+`rasterize_bwd_host(proj, bins, W, H, v_rgb, v_depth, v_alpha, background) -> RasterGrads`.
+"""
+from __future__ import annotations
+
+from typing import Sequence
+
+import numpy as np
+
+from ..base import TILE_SIZE, V_RECORD, Bins, Projected, RasterGrads, RasterOut, tile_grid
+from .device import open_device
+from .program import library_for
+from .scratch import Scratch
+
+FILE = "rasterize.cl"
+TILE_PIXELS = TILE_SIZE * TILE_SIZE
+PACKED_BYTES = 64  # one float16 record per Gaussian (rasterize_prep)
+
+
+def _nd(n: int, local: int) -> int:
+    return max(local, (n + local - 1) // local * local)
+
+
+class Rasterizer:
+    """The rasterizer kernels of one device. `cpu_schedule` overrides REINGS_CPU_SCHEDULE (tests run
+    both schedules on PoCL); extra `defines` (e.g. RASTER_VEC=16, BWD_BATCH=64) go to every build."""
+
+    def __init__(self, handle, cpu_schedule: bool | None = None, scratch: Scratch | None = None, **defines):
+        import pyopencl as cl
+
+        self.cl = cl
+        self.handle = handle
+        self.queue = handle.queue
+        lib = library_for(handle)
+        d = dict(defines)
+        if cpu_schedule is not None:
+            d["REINGS_CPU_SCHEDULE"] = int(bool(cpu_schedule))
+        self.cpu_schedule = bool(d.get("REINGS_CPU_SCHEDULE", lib.base_defines["REINGS_CPU_SCHEDULE"]))
+        self.scratch = scratch if scratch is not None else Scratch(handle)
+        self._lib, self._defines = lib, d
+        self.k_prep = lib.get(FILE, "rasterize_prep", RASTER_IMPORTANCE=0, **d)
+        self.k_fwd = lib.get(FILE, "rasterize_fwd", RASTER_IMPORTANCE=0, **d)
+        self.k_bwd = lib.get(FILE, "rasterize_bwd", RASTER_IMPORTANCE=0, **d)
+        self.k_reduce = lib.get(FILE, "isect_reduce", RASTER_IMPORTANCE=0, **d)
+        self._k_fwd_imp = None
+        i32, f32 = np.int32, np.float32
+        self.k_prep.set_scalar_arg_dtypes([None] * 6 + [i32])
+        fwd_types = [None] * 4 + [i32] * 4 + [f32] * 3 + [None] * 6
+        self.k_fwd.set_scalar_arg_dtypes(fwd_types)
+        self._fwd_types = fwd_types
+        self.k_bwd.set_scalar_arg_dtypes([None] * 4 + [i32] * 4 + [None] * 7 + [i32, None])
+        self.k_reduce.set_scalar_arg_dtypes([None] * 4 + [i32] * 3)
+        self.local = 1 if self.cpu_schedule else TILE_PIXELS
+        self._dummy = self.scratch.get("small", "raster_dummy", 16, 4)
+        self.n = self.n_isect = self.width = self.height = 0
+
+    # -- buffers ----------------------------------------------------------------------------
+    def _pix(self, name: str, ch: int = 1):
+        return self.scratch.get("pixel", f"raster_{name}", self.width * self.height, 4 * ch)
+
+    @property
+    def rgb(self):
+        return self._pix("rgb", 3)
+
+    @property
+    def depth(self):
+        return self._pix("depth")
+
+    @property
+    def alpha(self):
+        return self._pix("alpha")
+
+    @property
+    def final_T(self):
+        return self._pix("final_T")
+
+    @property
+    def last(self):
+        return self._pix("last")
+
+    @property
+    def packed(self):
+        return self.scratch.get("gauss", "raster_packed", self.n, PACKED_BYTES)
+
+    @property
+    def imp_emit(self):
+        return self.scratch.get("isect", "raster_imp_emit", self.n_isect, 4)
+
+    @property
+    def v_emit(self):
+        return self.scratch.get("isect", "raster_v_emit", self.n_isect, 4 * V_RECORD)
+
+    def _fwd_imp_kernel(self):
+        if self._k_fwd_imp is None:
+            self._k_fwd_imp = self._lib.get(FILE, "rasterize_fwd", RASTER_IMPORTANCE=1, **self._defines)
+            self._k_fwd_imp.set_scalar_arg_dtypes(self._fwd_types)
+        return self._k_fwd_imp
+
+    def _tiles(self, width, height):
+        tx, ty = tile_grid(width, height)
+        return tx, tx * ty
+
+    def _range(self, width, height):
+        """(global, local): a 2D range of tiles, one work-item (CPU) or 256 (GPU) per tile."""
+        tx, ty = tile_grid(width, height)
+        return (max(tx, 1) * self.local, max(ty, 1)), (self.local, 1)
+
+    # -- kernels ----------------------------------------------------------------------------
+    def prep(self, means2d, conics, colors, opacities, depths, n: int, wait_for=None):
+        """rasterize_prep into r.packed (done by `fwd` unless prepared=True)."""
+        self.n = int(n)
+        if self.n == 0:
+            return self.cl.enqueue_marker(self.queue, wait_for=wait_for)
+        return self.k_prep(self.queue, (_nd(self.n, 64),), None, means2d, conics, colors, opacities,
+                           depths, self.packed, np.int32(self.n), wait_for=wait_for)
+
+    def fwd(self, means2d, conics, colors, opacities, depths, n: int, tile_ranges, gid_from_isect,
+            emit_from_isect, n_isect: int, width: int, height: int,
+            background: Sequence[float] = (0.0, 0.0, 0.0), importance: bool = False,
+            prepared: bool = False, wait_for=None):
+        self.width, self.height, self.n_isect = int(width), int(height), int(n_isect)
+        if not prepared:
+            wait_for = [self.prep(means2d, conics, colors, opacities, depths, n, wait_for)]
+        tiles_x, n_tiles = self._tiles(width, height)
+        bg = [np.float32(b) for b in background]
+        k = self._fwd_imp_kernel() if importance else self.k_fwd
+        gid = gid_from_isect if self.n_isect else self._dummy
+        emit = emit_from_isect if self.n_isect else self._dummy
+        imp = self.imp_emit if importance else self._dummy
+        return k(self.queue, *self._range(width, height), self.packed, tile_ranges,
+                 gid, emit, np.int32(width), np.int32(height), np.int32(tiles_x), np.int32(n_tiles),
+                 *bg, self.rgb, self.depth, self.alpha, self.final_T, self.last, imp, wait_for=wait_for)
+
+    def bwd(self, tile_ranges, gid_from_isect, emit_from_isect, n_isect: int, width: int, height: int,
+            v_rgb=None, v_depth=None, v_alpha=None, fwd_out=None, wait_for=None):
+        if (int(width), int(height)) != (self.width, self.height) and fwd_out is None:
+            raise ValueError("Rasterizer.bwd: image size differs from the last fwd; pass fwd_out")
+        self.n_isect = int(n_isect)
+        tiles_x, n_tiles = self._tiles(width, height)
+        rgb, depth, final_T, last, packed = fwd_out or (self.rgb, self.depth, self.final_T, self.last, self.packed)
+        mask = (1 if v_rgb is not None else 0) | (2 if v_depth is not None else 0) | (4 if v_alpha is not None else 0)
+        d = self._dummy
+        gid = gid_from_isect if self.n_isect else d
+        emit = emit_from_isect if self.n_isect else d
+        return self.k_bwd(self.queue, *self._range(width, height), packed, tile_ranges,
+                          gid, emit, np.int32(width), np.int32(height), np.int32(tiles_x), np.int32(n_tiles),
+                          rgb, depth, final_T, last, v_rgb if v_rgb is not None else d,
+                          v_depth if v_depth is not None else d, v_alpha if v_alpha is not None else d,
+                          np.int32(mask), self.v_emit, wait_for=wait_for)
+
+    def reduce(self, records, width: int, offset_from_rank, gid_from_rank, n_rank: int, out,
+               accumulate: bool = False, wait_for=None):
+        if n_rank == 0:
+            return self.cl.enqueue_marker(self.queue, wait_for=wait_for)
+        return self.k_reduce(self.queue, (_nd(n_rank, 64),), None, records, offset_from_rank, gid_from_rank,
+                             out, np.int32(n_rank), np.int32(width), np.int32(bool(accumulate)),
+                             wait_for=wait_for)
+
+
+# ------------------------------------------------------------------------------------------
+# host-level helpers (tests, debugging)
+# ------------------------------------------------------------------------------------------
+_RASTERIZERS: dict[tuple, Rasterizer] = {}
+
+
+def rasterizer_for(device: str = "pocl", cpu_schedule: bool | None = None, **defines) -> Rasterizer:
+    key = (device, cpu_schedule, tuple(sorted(defines.items())))
+    if key not in _RASTERIZERS:
+        _RASTERIZERS[key] = Rasterizer(open_device(device), cpu_schedule=cpu_schedule, **defines)
+    return _RASTERIZERS[key]
+
+
+def _upload(r: Rasterizer, name: str, a: np.ndarray, dtype):
+    a = np.ascontiguousarray(a, dtype=dtype)
+    space = "pixel" if name.startswith("v_") else "small"
+    buf = r.scratch.get(space, f"host_{name}", max(a.size, 1), a.itemsize)
+    if a.size:
+        r.cl.enqueue_copy(r.queue, buf, a)
+    return buf
+
+
+def _upload_inputs(r: Rasterizer, proj: Projected, bins: Bins):
+    f32, i32 = np.float32, np.int32
+    n = proj.means2d.shape[0]
+    bufs = {k: _upload(r, k, getattr(proj, k), f32) for k in ("means2d", "conics", "colors", "opacities", "depths")}
+    for k in ("tile_ranges", "gid_from_isect", "emit_from_isect", "gid_from_rank", "offset_from_rank"):
+        bufs[k] = _upload(r, k, getattr(bins, k), i32)
+    return n, len(bins.gid_from_isect), bufs
+
+
+def _run_fwd(r, proj, bins, width, height, background, importance):
+    n, k, b = _upload_inputs(r, proj, bins)
+    ev = r.fwd(b["means2d"], b["conics"], b["colors"], b["opacities"], b["depths"], n, b["tile_ranges"],
+               b["gid_from_isect"], b["emit_from_isect"], k, width, height, background, importance)
+    return n, k, b, ev
+
+
+def _read(r, buf, shape, dtype):
+    out = np.empty(shape, dtype)
+    if out.size:
+        r.cl.enqueue_copy(r.queue, out, buf)
+    return out
+
+
+def rasterize_fwd_host(proj: Projected, bins: Bins, width: int, height: int,
+                       background: Sequence[float] = (0.0, 0.0, 0.0), want_importance: bool = False,
+                       device: str = "pocl", cpu_schedule: bool | None = None, **defines) -> RasterOut:
+    r = rasterizer_for(device, cpu_schedule, **defines)
+    n, k, b, ev = _run_fwd(r, proj, bins, width, height, background, want_importance)
+    importance = None
+    if want_importance:
+        imp = r.scratch.get("gauss", "host_importance", max(n, 1), 4)
+        r.cl.enqueue_fill_buffer(r.queue, imp, np.float32(0), 0, max(n, 1) * 4)
+        r.reduce(r.imp_emit, 1, b["offset_from_rank"], b["gid_from_rank"], len(bins.gid_from_rank), imp)
+        importance = _read(r, imp, (n,), np.float32)
+    out = RasterOut(rgb=_read(r, r.rgb, (height, width, 3), np.float32),
+                    depth=_read(r, r.depth, (height, width), np.float32),
+                    alpha=_read(r, r.alpha, (height, width), np.float32),
+                    final_T=_read(r, r.final_T, (height, width), np.float32),
+                    last=_read(r, r.last, (height, width), np.int32), importance=importance)
+    if want_importance:
+        out.imp_emit = _read(r, r.imp_emit, (k,), np.float32)  # type: ignore[attr-defined]
+    return out
+
+
+def rasterize_bwd_host(proj: Projected, bins: Bins, width: int, height: int, v_rgb=None, v_depth=None,
+                       v_alpha=None, background: Sequence[float] = (0.0, 0.0, 0.0), device: str = "pocl",
+                       cpu_schedule: bool | None = None, **defines) -> RasterGrads:
+    """Forward then backward then isect_reduce; cotangents None count as zero."""
+    r = rasterizer_for(device, cpu_schedule, **defines)
+    n, k, b, _ = _run_fwd(r, proj, bins, width, height, background, False)
+    vr = _upload(r, "v_rgb", v_rgb, np.float32) if v_rgb is not None else None
+    vd = _upload(r, "v_depth", v_depth, np.float32) if v_depth is not None else None
+    va = _upload(r, "v_alpha", v_alpha, np.float32) if v_alpha is not None else None
+    r.bwd(b["tile_ranges"], b["gid_from_isect"], b["emit_from_isect"], k, width, height, vr, vd, va)
+    g = r.scratch.get("gauss", "host_grads", max(n, 1), 4 * V_RECORD)
+    r.cl.enqueue_fill_buffer(r.queue, g, np.float32(0), 0, max(n, 1) * 4 * V_RECORD)
+    r.reduce(r.v_emit, V_RECORD, b["offset_from_rank"], b["gid_from_rank"], len(bins.gid_from_rank), g)
+    a = _read(r, g, (n, V_RECORD), np.float32)
+    out = RasterGrads(v_means2d=a[:, 0:2].copy(), v_conics=a[:, 2:5].copy(), v_colors=a[:, 5:8].copy(),
+                      v_opacities=a[:, 8].copy(), v_depths=a[:, 9].copy())
+    out.v_emit = _read(r, r.v_emit, (k, V_RECORD), np.float32)  # type: ignore[attr-defined]
+    return out

@@ -1,0 +1,95 @@
+"""Persistent device buffers, grouped by index space and grown geometrically.
+
+    scratch = Scratch(handle)
+    buf = scratch.get("gauss", "means2d", n, 2 * 4)   # [n, 2] float32, capacity >= n rows
+    with scratch.mapped(buf, (n, 2), np.float32) as a: ...   # zero-copy view on CPU devices
+
+Index spaces (reings/backends/base.py): "gauss" (N Gaussians, also ranks), "isect" (K
+intersections, also emit slots), "tile" (T tiles), "pixel" (H*W pixels), "small" (control words,
+camera record). A buffer is keyed by (space, name); its capacity (bytes) only grows, by at least
+1.5x, so a slowly growing N or K never reallocates every call (Brush's crash reports come from
+allocation churn: PERF.md §7 lesson 3). Nothing here is ever freed before the backend is.
+
+On CPU devices (PoCL) buffers are created with ALLOC_HOST_PTR: the runtime's own host memory, so
+`mapped` and host copies are plain memcpys (or none at all) rather than transfers.
+"""
+from __future__ import annotations
+
+from contextlib import contextmanager
+
+import numpy as np
+
+from . import quirks
+
+SPACES = ("gauss", "isect", "tile", "pixel", "small")
+GROWTH = 1.5
+MIN_BYTES = 64  # OpenCL forbids zero-sized buffers
+
+
+class Scratch:
+    """Buffers by (space, name), each with a capacity that only grows."""
+
+    def __init__(self, handle):
+        import pyopencl as cl
+
+        self.handle = handle
+        self.context = handle.context
+        self.flags = cl.mem_flags.READ_WRITE
+        if quirks.is_cpu(handle.device):
+            self.flags |= cl.mem_flags.ALLOC_HOST_PTR
+        self._bufs: dict[tuple[str, str], tuple[object, int]] = {}  # -> (buffer, capacity in bytes)
+        self.allocations = 0  # how many buffers were created (tests check that steady state is 0)
+
+    def get(self, space: str, name: str, rows: int, row_bytes: int):
+        """A buffer of at least `rows` rows of `row_bytes` bytes (contents undefined)."""
+        import pyopencl as cl
+
+        if space not in SPACES:
+            raise ValueError(f"unknown index space {space!r}; one of {SPACES}")
+        key = (space, name)
+        need = max(int(rows) * int(row_bytes), MIN_BYTES)
+        buf, cap = self._bufs.get(key, (None, 0))
+        if buf is None or cap < need:
+            cap = max(need, int(cap * GROWTH))
+            buf = cl.Buffer(self.context, self.flags, cap)
+            self._bufs[key] = (buf, cap)
+            self.allocations += 1
+        return buf
+
+    def nbytes(self) -> int:
+        return sum(b.size for b, _ in self._bufs.values())
+
+    def upload(self, space: str, name: str, array: np.ndarray, wait_for=None):
+        """Copy a host array into the (space, name) buffer (rows = array.shape[0]); returns the
+        buffer. Non-blocking: the host array must stay alive and unchanged until the queue
+        passes this copy (the backend keeps references until its final wait)."""
+        import pyopencl as cl
+
+        a = np.ascontiguousarray(array)
+        if a.ndim == 0:
+            a = a.reshape(1)
+        rows = a.shape[0]
+        row_bytes = a.itemsize * int(np.prod(a.shape[1:], dtype=np.int64))
+        buf = self.get(space, name, rows, max(row_bytes, 1))
+        if a.nbytes:
+            cl.enqueue_copy(self.handle.queue, buf, a, is_blocking=False, wait_for=wait_for)
+        return buf
+
+    @contextmanager
+    def mapped(self, buf, shape, dtype, write: bool = False, wait_for=None):
+        """A numpy view of the first rows of `buf` (zero-copy on CPU devices); valid inside the
+        `with` block only."""
+        import pyopencl as cl
+
+        dtype = np.dtype(dtype)
+        count = int(np.prod(shape, dtype=np.int64))
+        if count == 0:
+            yield np.empty(shape, dtype)
+            return
+        flags = cl.map_flags.WRITE if write else cl.map_flags.READ
+        arr, ev = cl.enqueue_map_buffer(self.handle.queue, buf, flags, 0, shape, dtype,
+                                        wait_for=wait_for, is_blocking=True)
+        try:
+            yield arr
+        finally:
+            arr.base.release(self.handle.queue)

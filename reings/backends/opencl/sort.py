@@ -1,0 +1,287 @@
+"""Our own OpenCL radix sort and exclusive prefix scan (kernels/sort.cl, kernels/scan.cl).
+
+    sorter = RadixSort(handle)                      # once per DeviceHandle (builds on first use)
+    k, v, ev = sorter.sort_pairs(keys_buf, vals_buf, n, begin_bit=0, end_bit=43, key64=True)
+    keys, vals = sorter.sort_pairs_host(keys_np, vals_np, 0, 43)     # numpy in, numpy out
+
+    scan = ExclusiveScan(handle)
+    total, ev = scan(in_buf, out_buf, n)            # out = exclusive prefix sum, total read back
+    _, ev = scan(in_buf, out_buf, n, total_buf=counts, total_at=1, read_total=False)  # no readback
+
+Both are reduce-then-scan (PERF.md §4: no decoupled look-back, PoCL has no forward progress between
+work-groups) and choose their schedule per device: REINGS_CPU_SCHEDULE=1 (PoCL: one work-item per
+block, few large blocks, no barriers) or 0 (GPUs: one work-group per block, local memory). See the
+header comments of the two .cl files for the kernels.
+
+Buffers (n elements):
+    keys   [n] uint32, or uint64 with key64=True
+    vals   [n] uint32 (payload; a gid or an emit slot)
+Sorting is stable and looks only at bits [begin_bit, end_bit) of the key; the other bits are carried
+along untouched. The passes ping-pong between the caller's buffers and scratch buffers that this
+object owns (grown geometrically, never reallocated when large enough). **The input buffers are
+clobbered**, and the result lies either in them or in the scratch pair: use the buffers returned,
+and copy them out before the next sort_pairs call on the same RadixSort if they are the scratch pair.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from . import quirks
+from .program import library_for
+
+_U32 = np.uint32
+
+
+def _grow(cur: int, need: int) -> int:
+    """Geometric growth (1.5x) so a slowly rising n does not reallocate every call."""
+    return max(need, int(cur * 1.5), 1024)
+
+
+class _Scratch:
+    """A device buffer that only ever grows."""
+
+    def __init__(self, ctx):
+        self.ctx = ctx
+        self.buf = None
+        self.nbytes = 0
+
+    def get(self, nbytes: int):
+        import pyopencl as cl
+
+        if self.buf is None or self.nbytes < nbytes:
+            self.nbytes = _grow(self.nbytes, max(nbytes, 4))
+            self.buf = cl.Buffer(self.ctx, cl.mem_flags.READ_WRITE, self.nbytes)
+        return self.buf
+
+
+def _cpu_schedule(handle, cpu_schedule):
+    if cpu_schedule is None:
+        return bool(quirks.build_defines(handle.device)["REINGS_CPU_SCHEDULE"])
+    return bool(cpu_schedule)
+
+
+def _blocks_cpu(handle, n: int, min_chunk: int, per_core: int) -> tuple[int, int]:
+    """(nblocks, chunk) for the CPU schedule: about per_core blocks per core, each >= min_chunk."""
+    cores = max(1, int(handle.device.max_compute_units))
+    nblocks = max(1, min(cores * per_core, -(-n // min_chunk)))
+    chunk = -(-n // nblocks)
+    nblocks = -(-n // chunk)  # drop trailing empty blocks
+    return nblocks, chunk
+
+
+def split_bits(begin_bit: int, end_bit: int, max_bits: int) -> list[tuple[int, int]]:
+    """Passes (shift, pass_bits) covering [begin_bit, end_bit) with digits as even as possible,
+    each at most max_bits wide: 43 bits / 8 -> 8,7,7,7,7,7; 10 bits / 8 -> 5,5."""
+    total = end_bit - begin_bit
+    if total <= 0:
+        return []
+    npass = -(-total // max_bits)
+    out, shift = [], begin_bit
+    for i in range(npass):
+        w = total // npass + (1 if i < total % npass else 0)
+        out.append((shift, w))
+        shift += w
+    return out
+
+
+class ExclusiveScan:
+    """Exclusive prefix sum of uint32 on the device: out[i] = sum(in[:i]) mod 2^32.
+
+    __call__(in_buf, out_buf, n, total_buf=None, total_at=0, read_total=True, wait_for=None)
+        in_buf, out_buf  [n] uint32 (may be the same buffer)
+        total_buf        optional [>= total_at + 1] uint32 device buffer that receives the total
+                         (so a caller can fold it into its one readback); default: own scratch
+        returns (total or None, event); total is read back (a host sync) only if read_total.
+    """
+
+    def __init__(self, handle, cpu_schedule: bool | None = None, wg: int = 256, items: int = 8,
+                 blocks_per_core: int = 4):
+        self.handle = handle
+        self.cpu = _cpu_schedule(handle, cpu_schedule)
+        self.wg, self.items, self.per_core = wg, items, blocks_per_core
+        defines = {"REINGS_CPU_SCHEDULE": int(self.cpu)}
+        if not self.cpu:
+            defines.update(SCAN_WG=wg, SCAN_ITEMS=items)
+        lib = library_for(handle)
+        u, i32 = np.uint32, None
+        self.k_reduce = lib.get("scan.cl", "scan_reduce", **defines)
+        self.k_reduce.set_scalar_arg_dtypes([i32, u, u, i32])
+        self.k_top = lib.get("scan.cl", "scan_top", **defines)
+        self.k_top.set_scalar_arg_dtypes([i32, u, i32, u])
+        self.k_add = lib.get("scan.cl", "scan_add", **defines)
+        self.k_add.set_scalar_arg_dtypes([i32, i32, u, u, i32, i32, u])
+        self._sums = _Scratch(handle.context)
+        self._total = _Scratch(handle.context)
+
+    def __call__(self, in_buf, out_buf, n: int, total_buf=None, total_at: int = 0,
+                 read_total: bool = True, wait_for=None):
+        import pyopencl as cl
+
+        q = self.handle.queue
+        if total_buf is None:
+            total_buf, total_at = self._total.get(4), 0
+        if n == 0:
+            ev = cl.enqueue_fill_buffer(q, total_buf, np.uint32(0), 4 * total_at, 4, wait_for=wait_for)
+        elif self.cpu:
+            nblocks, chunk = _blocks_cpu(self.handle, n, 4096, self.per_core)
+            sums = self._sums.get(4 * nblocks)
+            self.k_reduce(q, (nblocks,), (1,), in_buf, n, chunk, sums, wait_for=wait_for)
+            ev = self.k_add(q, (nblocks,), (1,), in_buf, out_buf, n, chunk, sums, total_buf, total_at)
+        else:
+            block = self.wg * self.items
+            nblocks = -(-n // block)
+            sums = self._sums.get(4 * nblocks)
+            self.k_reduce(q, (nblocks * self.wg,), (self.wg,), in_buf, n, 0, sums, wait_for=wait_for)
+            self.k_top(q, (self.wg,), (self.wg,), sums, nblocks, total_buf, total_at)
+            ev = self.k_add(q, (nblocks * self.wg,), (self.wg,), in_buf, out_buf, n, 0, sums,
+                            total_buf, total_at)
+        if not read_total:
+            return None, ev
+        t = np.empty(1, _U32)
+        cl.enqueue_copy(q, t, total_buf, src_offset=4 * total_at, wait_for=[ev])
+        return int(t[0]), ev
+
+    def host(self, x: np.ndarray) -> tuple[np.ndarray, int]:
+        """numpy convenience: (exclusive scan of x as uint32, total)."""
+        import pyopencl as cl
+
+        x = np.ascontiguousarray(x, dtype=_U32)
+        n = x.size
+        ctx, q = self.handle.context, self.handle.queue
+        buf = cl.Buffer(ctx, cl.mem_flags.READ_WRITE | cl.mem_flags.COPY_HOST_PTR, hostbuf=x) if n else None
+        total, ev = self(buf, buf, n)
+        out = np.empty(n, _U32)
+        if n:
+            cl.enqueue_copy(q, out, buf, wait_for=[ev])
+        return out, total
+
+
+class RadixSort:
+    """Stable LSD radix sort of (key, value) pairs on one device (see the module docstring).
+
+    Built once per DeviceHandle (`RadixSort.for_handle(handle)` caches one); programs for uint32
+    and uint64 keys are built lazily on first use.
+
+    cpu_schedule  None: from the device (REINGS_CPU_SCHEDULE); True/False force a schedule
+    max_bits      widest digit per pass (default: 8 on both schedules)
+    wg, items     GPU schedule work-group size and elements per work-item (block = wg * items)
+    blocks_per_core  CPU schedule: blocks (work-items) per compute unit
+    """
+
+    _cache: dict[int, "RadixSort"] = {}
+
+    @classmethod
+    def for_handle(cls, handle) -> "RadixSort":
+        s = cls._cache.get(id(handle))
+        if s is None:
+            s = cls._cache[id(handle)] = cls(handle)
+        return s
+
+    def __init__(self, handle, cpu_schedule: bool | None = None, max_bits: int | None = None,
+                 wg: int = 256, items: int = 8, blocks_per_core: int = 4):
+        self.handle = handle
+        self.cpu = _cpu_schedule(handle, cpu_schedule)
+        self.max_bits = int(max_bits or 8)
+        assert 1 <= self.max_bits <= 16
+        assert wg * items <= 65536 and wg & (wg - 1) == 0
+        self.wg, self.items, self.per_core = wg, items, blocks_per_core
+        self._kernels: dict[bool, tuple] = {}
+        ctx = handle.context
+        self._keys_tmp, self._vals_tmp = _Scratch(ctx), _Scratch(ctx)
+        self._hist, self._totals = _Scratch(ctx), _Scratch(ctx)
+
+    def kernels(self, key64: bool):
+        ks = self._kernels.get(key64)
+        if ks is None:
+            defines = {"REINGS_CPU_SCHEDULE": int(self.cpu), "KEY64": int(key64), "RADIX_BITS": self.max_bits}
+            if not self.cpu:
+                defines.update(SORT_WG=self.wg, SORT_ITEMS=self.items)
+            lib = library_for(self.handle)
+            u, b = np.uint32, None
+            hist = lib.get("sort.cl", "radix_hist", **defines)
+            hist.set_scalar_arg_dtypes([b, u, u, u, u, b])
+            scan = lib.get("sort.cl", "radix_scan", **defines)
+            scan.set_scalar_arg_dtypes([b, u, u, b])
+            scat = lib.get("sort.cl", "radix_scatter", **defines)
+            scat.set_scalar_arg_dtypes([b, b, b, b, u, u, u, u, b, b])
+            ks = self._kernels[key64] = (hist, scan, scat)
+        return ks
+
+    def geometry(self, n: int) -> tuple[int, int]:
+        """(nblocks, chunk): blocks per pass and elements per block."""
+        if self.cpu:
+            return _blocks_cpu(self.handle, n, 1024, self.per_core)
+        block = self.wg * self.items
+        return -(-n // block), block
+
+    def sort_pairs(self, keys_buf, vals_buf, n: int, begin_bit: int = 0, end_bit: int | None = None,
+                   key64: bool = False, wait_for=None):
+        """Sort n pairs by key bits [begin_bit, end_bit); returns (keys_out, vals_out, event).
+
+        keys_buf  [n] uint32 (uint64 if key64)   vals_buf [n] uint32   -- both clobbered
+        The returned buffers are either the inputs or this object's scratch pair; event is the last
+        enqueued command (None if nothing was enqueued: n <= 1 or an empty bit range).
+        """
+        import pyopencl as cl
+
+        if end_bit is None:
+            end_bit = 64 if key64 else 32
+        if not (0 <= begin_bit <= end_bit <= (64 if key64 else 32)):
+            raise ValueError(f"bad bit range [{begin_bit}, {end_bit}) for {'64' if key64 else '32'}-bit keys")
+        passes = split_bits(begin_bit, end_bit, self.max_bits)
+        if n <= 1 or not passes:
+            ev = cl.enqueue_marker(self.handle.queue, wait_for=wait_for) if wait_for else None
+            return keys_buf, vals_buf, ev
+        if n >= 2**32:
+            raise ValueError("n must be < 2^32")
+        hist_k, scan_k, scat_k = self.kernels(key64)
+        q = self.handle.queue
+        ksize = 8 if key64 else 4
+        nblocks, chunk = self.geometry(n)
+        maxbins = 1 << max(w for _, w in passes)
+        kt = self._keys_tmp.get(n * ksize)
+        vt = self._vals_tmp.get(n * 4)
+        hist = self._hist.get(4 * maxbins * nblocks)
+        totals = self._totals.get(4 * maxbins)
+        src, dst = (keys_buf, vals_buf), (kt, vt)
+        if self.cpu:
+            g, l = (nblocks,), (1,)
+        else:
+            g, l = (nblocks * self.wg,), (self.wg,)
+        ev = None
+        for shift, w in passes:
+            nbins = 1 << w
+            hist_k(q, g, l, src[0], n, chunk, shift, nbins, hist, wait_for=wait_for)
+            wait_for = None
+            if not self.cpu:
+                scan_k(q, (nbins * self.wg,), (self.wg,), hist, nblocks, nbins, totals)
+            ev = scat_k(q, g, l, src[0], src[1], dst[0], dst[1], n, chunk, shift, nbins, hist, totals)
+            src, dst = dst, src
+        return src[0], src[1], ev
+
+    def sort_pairs_host(self, keys: np.ndarray, vals: np.ndarray | None = None, begin_bit: int = 0,
+                        end_bit: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """numpy convenience: keys [n] uint32/uint64, vals [n] uint32 (default arange) -> sorted
+        (keys, vals) copies. Uploads, sorts, reads back (one sync)."""
+        import pyopencl as cl
+
+        keys = np.ascontiguousarray(keys)
+        if keys.dtype not in (np.uint32, np.uint64):
+            raise TypeError(f"keys must be uint32 or uint64, got {keys.dtype}")
+        key64 = keys.dtype == np.uint64
+        n = keys.size
+        vals = np.arange(n, dtype=_U32) if vals is None else np.ascontiguousarray(vals, dtype=_U32)
+        if vals.shape != keys.shape:
+            raise ValueError("keys and vals must have the same shape")
+        if n == 0:
+            return keys.copy(), vals.copy()
+        ctx, q = self.handle.context, self.handle.queue
+        mf = cl.mem_flags
+        kb = cl.Buffer(ctx, mf.READ_WRITE | mf.COPY_HOST_PTR, hostbuf=keys)
+        vb = cl.Buffer(ctx, mf.READ_WRITE | mf.COPY_HOST_PTR, hostbuf=vals)
+        ko, vo, ev = self.sort_pairs(kb, vb, n, begin_bit, end_bit, key64=key64)
+        ok, ov = np.empty_like(keys), np.empty_like(vals)
+        cl.enqueue_copy(q, ok, ko, wait_for=[ev] if ev else None)
+        cl.enqueue_copy(q, ov, vo)
+        q.finish()
+        return ok, ov

@@ -1,0 +1,191 @@
+"""Float64 numpy references of the training losses, each returning (loss, dL/d input).
+
+    ssim_fwd_bwd            mean SSIM of 3DGS (`utils/loss_utils.py` ssim): Gaussian window 11,
+                            sigma 1.5, zero-padded 'same' convolution per channel, C1 = 0.01^2,
+                            C2 = 0.03^2, mean over the whole map; gradient w.r.t. the first image
+    l1_fwd_bwd              mean |x - y| (gradient sign(x - y), 0 at ties, as torch)
+    photometric_fwd_bwd     "dngaussian": L1 + l*(1 - SSIM);  "3dgs": (1 - l)*L1 + l*(1 - SSIM)
+    depth_norm_loss_fwd_bwd one term of DNGaussian's global-local depth normalisation
+                            (`utils/loss_utils.py` patch_norm_mse_loss[_global], METHOD.md §2.4)
+    global_local_depth_loss w_local * local(p1) + w_global * global(p2)
+
+`kernels/loss.cl` must match the first three (tests/test_losses.py); the depth loss is small
+(one H x W image per call) and runs here, vectorised, in production too (`reings.losses`).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+SSIM_WINDOW = 11  # 3DGS window size
+SSIM_SIGMA = 1.5  # 3DGS window sigma
+SSIM_C1 = 0.01 ** 2
+SSIM_C2 = 0.03 ** 2
+
+
+def gaussian_taps(size: int = SSIM_WINDOW, sigma: float = SSIM_SIGMA) -> np.ndarray:
+    """The normalised 1-D Gaussian of 3DGS `gaussian(window_size, sigma)`; the 2-D window is its
+    outer product, so the 2-D convolution is a horizontal then a vertical pass."""
+    x = np.arange(size, dtype=np.float64) - size // 2
+    g = np.exp(-(x ** 2) / (2.0 * sigma ** 2))
+    return g / g.sum()
+
+
+def conv_same(img: np.ndarray, taps: np.ndarray) -> np.ndarray:
+    """Zero-padded 'same' separable convolution of [H, W, ...] over H and W. With symmetric taps
+    this operator is self-adjoint, so the backward pass reuses it."""
+    r = len(taps) // 2
+    h, w = img.shape[:2]
+    pad = [(r, r), (0, 0)] + [(0, 0)] * (img.ndim - 2)
+    p = np.pad(img, pad)
+    tmp = sum(taps[k] * p[k:k + h] for k in range(len(taps)))  # vertical
+    pad = [(0, 0), (r, r)] + [(0, 0)] * (img.ndim - 2)
+    p = np.pad(tmp, pad)
+    return sum(taps[k] * p[:, k:k + w] for k in range(len(taps)))  # horizontal
+
+
+def ssim_map_and_partials(x: np.ndarray, y: np.ndarray):
+    """SSIM map S [H,W,C] and its partials w.r.t. (mu_x, E[x^2], E[xy]) at each pixel."""
+    x = np.asarray(x, np.float64)
+    y = np.asarray(y, np.float64)
+    g = gaussian_taps()
+    mx, my = conv_same(x, g), conv_same(y, g)
+    exx, eyy, exy = conv_same(x * x, g), conv_same(y * y, g), conv_same(x * y, g)
+    sx, sy, sxy = exx - mx * mx, eyy - my * my, exy - mx * my
+    a1, a2 = 2 * mx * my + SSIM_C1, 2 * sxy + SSIM_C2
+    b1, b2 = mx * mx + my * my + SSIM_C1, sx + sy + SSIM_C2
+    d = b1 * b2
+    s = a1 * a2 / d
+    ds_dmx = (2 * my * (a2 - a1) - s * 2 * mx * (b2 - b1)) / d
+    ds_dexx = -s * b1 / d
+    ds_dexy = 2 * a1 / d
+    return s, ds_dmx, ds_dexx, ds_dexy
+
+
+def ssim_fwd_bwd(x: np.ndarray, y: np.ndarray) -> tuple[float, np.ndarray]:
+    """(mean SSIM(x, y), d mean SSIM / dx), x and y [H, W, C]."""
+    x = np.asarray(x, np.float64)
+    y = np.asarray(y, np.float64)
+    s, dmx, dexx, dexy = ssim_map_and_partials(x, y)
+    w = 1.0 / s.size
+    g = gaussian_taps()
+    # mu_x = G*x, E[x^2] = G*(x^2), E[xy] = G*(x y); G is self-adjoint
+    v = conv_same(dmx * w, g) + 2 * x * conv_same(dexx * w, g) + y * conv_same(dexy * w, g)
+    return float(s.mean()), v
+
+
+def l1_fwd_bwd(x: np.ndarray, y: np.ndarray) -> tuple[float, np.ndarray]:
+    d = np.asarray(x, np.float64) - np.asarray(y, np.float64)
+    return float(np.abs(d).mean()), np.sign(d) / d.size
+
+
+def photometric_weights(lambda_dssim: float, form: str) -> tuple[float, float]:
+    """(weight of L1, weight of (1 - SSIM))."""
+    if form == "dngaussian":
+        return 1.0, float(lambda_dssim)
+    if form == "3dgs":
+        return 1.0 - float(lambda_dssim), float(lambda_dssim)
+    raise ValueError(f"photometric form must be 'dngaussian' or '3dgs', got {form!r}")
+
+
+def photometric_fwd_bwd(x, y, lambda_dssim: float = 0.2, form: str = "dngaussian") -> tuple[float, np.ndarray]:
+    wl1, wssim = photometric_weights(lambda_dssim, form)
+    l1, vl1 = l1_fwd_bwd(x, y)
+    s, vs = ssim_fwd_bwd(x, y)
+    return wl1 * l1 + wssim * (1.0 - s), wl1 * vl1 - wssim * vs
+
+
+# {{{ depth: DNGaussian global-local normalisation
+def patchify(img: np.ndarray, p: int) -> np.ndarray:
+    """[H, W] -> [M, p*p] non-overlapping p x p patches, stride p, leftovers dropped
+    (torch `F.unfold(kernel=p, stride=p)`, patches row-major, pixels row-major inside)."""
+    h, w = img.shape
+    ph, pw = h // p, w // p
+    if ph == 0 or pw == 0:
+        raise ValueError(f"patch size {p} is larger than the image {h}x{w}")
+    return img[: ph * p, : pw * p].reshape(ph, p, pw, p).transpose(0, 2, 1, 3).reshape(ph * pw, p * p)
+
+
+def unpatchify(v: np.ndarray, p: int, shape) -> np.ndarray:
+    """Adjoint of `patchify`: [M, p*p] back to [H, W], zeros in the dropped leftovers."""
+    h, w = shape
+    ph, pw = h // p, w // p
+    out = np.zeros(shape, v.dtype)
+    out[: ph * p, : pw * p] = v.reshape(ph, pw, p, p).transpose(0, 2, 1, 3).reshape(ph * p, pw * p)
+    return out
+
+
+def _normalize_fwd(P: np.ndarray, image_std: float | None):
+    """DNGaussian `normalize`: (P - patch mean) / (scale + 0.01 * std(all patch values)), scale =
+    per-patch unbiased std (local) or the given detached whole-image std (global)."""
+    n = P.shape[1]
+    u = P - P.mean(axis=1, keepdims=True)
+    s_all = P.std(ddof=1)
+    s_patch = u.std(axis=1, ddof=1, keepdims=True) if image_std is None else None
+    d = (s_patch if image_std is None else image_std) + 0.01 * s_all
+    return u / d, (u, d, s_patch, s_all, n)
+
+
+def _normalize_bwd(g: np.ndarray, P: np.ndarray, cache, local: bool) -> np.ndarray:
+    u, d, s_patch, s_all, n = cache
+    gu = g / d  # through the numerator
+    gd = -(g * u).sum(axis=1, keepdims=True) / (d * d)  # [M, 1]
+    if local:  # d = s_patch + 0.01 s_all; ds_patch/dP = u / ((n-1) s_patch) (0 where s_patch = 0)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            coef = np.where(s_patch > 0, gd / ((n - 1) * s_patch), 0.0)
+        gu = gu + coef * u
+    # 0.01 * s_all, s_all over every patch value (not detached in DNGaussian)
+    gs_all = 0.01 * gd.sum()
+    if s_all > 0:
+        mean_all = P.mean()
+        g_all = gs_all * (P - mean_all) / ((P.size - 1) * s_all)
+    else:
+        g_all = 0.0
+    # the patch mean: u = P - mean(P) per patch
+    gP = gu - gu.mean(axis=1, keepdims=True)
+    return gP + g_all
+
+
+def depth_norm_loss_fwd_bwd(depth: np.ndarray, target: np.ndarray, patch: int, margin: float,
+                            mode: str = "local", image_std: float | None = None) -> tuple[float, np.ndarray]:
+    """One DNGaussian depth term and its gradient w.r.t. the rendered `depth` [H, W].
+
+    mode "local":  patch_norm_mse_loss        (per-patch std)
+    mode "global": patch_norm_mse_loss_global (whole-image std of each input, detached)
+    Loss = mean of (x_hat - y_hat)^2 over elements with |x_hat - y_hat| > margin.
+
+    Detached exactly as in DNGaussian: the target (mono depth) is constant; in "global" the
+    whole-image std is detached; the margin mask and the count of selected elements are piecewise
+    constant (no gradient).  `image_std` overrides the detached whole-image std of `depth` (for
+    finite-difference tests, which must hold detached quantities fixed).  NOT detached: the patch means, the per-patch stds and the 0.01 * std of
+    all patch values.  Deviations: an empty mask gives loss 0 (torch: NaN) and a zero per-patch std
+    gives that term zero gradient (torch: NaN).
+    """
+    if mode not in ("local", "global"):
+        raise ValueError(f"mode must be 'local' or 'global', got {mode!r}")
+    depth = np.asarray(depth, np.float64)
+    target = np.asarray(target, np.float64)
+    if depth.ndim != 2 or depth.shape != target.shape:
+        raise ValueError(f"depth and target must be [H, W] of one shape, got {depth.shape} and {target.shape}")
+    loc = mode == "local"
+    P = patchify(depth, patch)
+    if not loc and image_std is None:
+        image_std = depth.std(ddof=1)  # detached
+    x, cache = _normalize_fwd(P, None if loc else float(image_std))
+    y, _ = _normalize_fwd(patchify(target, patch), None if loc else target.std(ddof=1))
+    diff = x - y
+    mask = np.abs(diff) > margin
+    cnt = int(mask.sum())
+    if cnt == 0:
+        return 0.0, np.zeros_like(depth)
+    loss = float((diff[mask] ** 2).sum() / cnt)
+    g = np.where(mask, 2.0 * diff / cnt, 0.0)
+    return loss, unpatchify(_normalize_bwd(g, P, cache, loc), patch, depth.shape)
+
+
+def global_local_depth_loss(depth, target, patch_local: int, patch_global: int, margin: float,
+                            w_local: float = 0.1, w_global: float = 1.0) -> tuple[float, np.ndarray]:
+    """DNGaussian's depth loss: w_local * local(patch_local) + w_global * global(patch_global)."""
+    l1, g1 = depth_norm_loss_fwd_bwd(depth, target, patch_local, margin, "local")
+    l2, g2 = depth_norm_loss_fwd_bwd(depth, target, patch_global, margin, "global")
+    return w_local * l1 + w_global * l2, w_local * g1 + w_global * g2
+# }}}

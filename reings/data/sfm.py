@@ -1,0 +1,184 @@
+"""Scene extent from the training views only (METHOD.md §1.3, EHPS's box V), without leakage.
+
+`sfm_extent(train_scene)`:
+1. SfM with known poses on the k training images only (COLMAP `point_triangulator` flow as FSGS
+   `tools/colmap_llff.py`, through pycolmap in `colmap.triangulate_known_poses`): SIFT on each
+   image, exhaustive matching with geometric verification, triangulation with the given
+   intrinsics and poses held fixed. The images are written to a temporary folder as 8-bit PNG.
+2. A robust axis-aligned box of those points: per axis, lo = the k-th smallest coordinate and
+   hi = the k-th largest (order statistics; k = 20 for forward-facing scenes as DNGaussian's
+   LLFF `lo`, k = 100 for DTU as DNGaussian's DTU box; k shrinks to a tenth of the point count
+   when few points exist). The untrimmed min/max come along (`lo_all`, `hi_all`) so that
+   DNGaussian's exact rule (lo = 20th smallest, side = max - min) can be rebuilt.
+3. Fallback when fewer than `min_points` triangulate: the intersection of the training frusta,
+   each cut at its own view's near/far bounds (`Scene.bounds` of the training views only), as an
+   axis-aligned box (`frusta_extent`).
+
+Nothing here reads a file of the dataset: it only sees the `Scene` it is given, which should be
+`scene.subset(train)`.
+"""
+from __future__ import annotations
+
+import os
+import shutil
+import tempfile
+from dataclasses import dataclass
+
+import numpy as np
+
+from .scene import Scene, SceneError
+
+TRIM_OF_KIND = {"dtu": 100}  # order statistic per kind; default 20 (LLFF)
+DEFAULT_TRIM = 20
+DEFAULT_MIN_POINTS = 50  # below this the box of a handful of points is noise: use the frusta
+
+
+@dataclass
+class SfmExtent:
+    """An axis-aligned box [lo, hi] (world units) and the points it came from."""
+
+    lo: np.ndarray  # [3]
+    hi: np.ndarray  # [3]
+    method: str  # "sfm" (triangulated points) or "frusta" (fallback)
+    points: np.ndarray  # [P, 3] float64 (empty for "frusta")
+    colors: np.ndarray  # [P, 3] float32 in [0, 1]
+    lo_all: np.ndarray | None = None  # [3] untrimmed min (sfm only)
+    hi_all: np.ndarray | None = None  # [3] untrimmed max (sfm only)
+    trim: int = 0
+    num_matched_pairs: int = 0
+    num_sfm_points: int = 0  # points triangulated, even when the fallback was used
+
+    @property
+    def n_points(self) -> int:
+        return int(len(self.points))
+
+    @property
+    def size(self) -> np.ndarray:
+        return self.hi - self.lo
+
+    @property
+    def center(self) -> np.ndarray:
+        return 0.5 * (self.lo + self.hi)
+
+
+def robust_aabb(points: np.ndarray, trim: int = DEFAULT_TRIM) -> tuple[np.ndarray, np.ndarray, int]:
+    """(lo, hi, k): per-axis k-th smallest and k-th largest coordinate (1-based k, so k = 1 is min/max).
+
+    k = min(trim, max(1, n // 10)) so that a small cloud keeps 80 % of its spread per axis.
+    """
+    p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    n = len(p)
+    if n == 0:
+        raise ValueError("robust_aabb: no points")
+    k = int(min(max(1, trim), max(1, n // 10)))
+    s = np.sort(p, axis=0)
+    return s[k - 1].copy(), s[n - k].copy(), k
+
+
+def _frustum_samples(cam, near: float, far: float, n_uv: int, n_z: int) -> np.ndarray:
+    """World points on a regular grid filling the frustum of `cam` between depths near and far."""
+    u = np.linspace(0, cam.width, n_uv)
+    v = np.linspace(0, cam.height, n_uv)
+    z = np.linspace(near, far, n_z)
+    uu, vv, zz = np.meshgrid(u, v, z, indexing="ij")
+    pix = np.stack([uu.ravel(), vv.ravel(), np.ones(uu.size)], 1)
+    Xc = (pix @ np.linalg.inv(cam.K).T) * zz.ravel()[:, None]  # camera coords, z = depth
+    R, t = cam.viewmat[:3, :3], cam.viewmat[:3, 3]
+    return (Xc - t) @ R  # world = R^T (Xc - t)
+
+
+def _inside(cam, near: float, far: float, X: np.ndarray, tol: float = 1e-6) -> np.ndarray:
+    Xc = X @ cam.viewmat[:3, :3].T + cam.viewmat[:3, 3]
+    z = Xc[:, 2]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        uv = (Xc @ cam.K.T)[:, :2] / z[:, None]
+    return ((z >= near * (1 - tol)) & (z <= far * (1 + tol)) & (uv[:, 0] >= -tol) & (uv[:, 0] <= cam.width + tol)
+            & (uv[:, 1] >= -tol) & (uv[:, 1] <= cam.height + tol))
+
+
+def frusta_extent(cameras, bounds, n_uv: int = 24, n_z: int = 48) -> tuple[np.ndarray, np.ndarray, str]:
+    """(lo, hi, how) of the intersection of the cameras' frusta cut at their (near, far) bounds.
+
+    Sampled: a grid in each frustum, kept where it lies inside every frustum; how = "intersection".
+    If the frusta do not overlap (how = "union"), the box of all the frusta is returned instead.
+    """
+    bounds = np.asarray(bounds, dtype=np.float64).reshape(-1, 2)
+    if len(bounds) != len(cameras):
+        raise ValueError(f"frusta_extent: {len(bounds)} bounds for {len(cameras)} cameras")
+    if not (np.all(np.isfinite(bounds)) and np.all(bounds[:, 0] > 0) and np.all(bounds[:, 1] > bounds[:, 0])):
+        raise ValueError(f"frusta_extent: bad near/far bounds {bounds.tolist()}")
+    kept, every = [], []
+    for cam, (nr, fr) in zip(cameras, bounds):
+        X = _frustum_samples(cam, nr, fr, n_uv, n_z)
+        every.append(X)
+        m = np.ones(len(X), dtype=bool)
+        for cam2, (nr2, fr2) in zip(cameras, bounds):
+            if cam2 is not cam:
+                m &= _inside(cam2, nr2, fr2, X)
+        kept.append(X[m])
+    K = np.concatenate(kept)
+    if len(K) >= 8:
+        return K.min(0), K.max(0), "intersection"
+    A = np.concatenate(every)
+    return A.min(0), A.max(0), "union"
+
+
+def sfm_extent(train_scene: Scene, min_points: int = DEFAULT_MIN_POINTS, trim: int | None = None,
+               fallback: bool = True, max_features: int = 8192, max_reproj_error: float = 4.0,
+               min_tri_angle: float = 1.5, num_threads: int = 2, work_dir: str | None = None,
+               peak_threshold: float | None = None, guided_matching: bool = True) -> SfmExtent:
+    """Triangulate the training views with their known poses and return a robust box (see module doc).
+
+    Args:
+        train_scene: the training views only (`scene.subset(train)`); 2 or more views.
+        min_points: below this many triangulated points, use the frusta fallback.
+        trim: order statistic for the box (default 20, or 100 for DTU).
+        fallback: if False, raise `SceneError` instead of falling back.
+        work_dir: keep COLMAP's database and model there (default: a temporary folder, removed).
+        peak_threshold: SIFT peak threshold (COLMAP default 0.0067; lower gives more features).
+        guided_matching: re-match guided by the verified two-view geometry (more inliers).
+    """
+    from . import images as imgs
+    from .colmap import triangulate_known_poses
+
+    if len(train_scene) < 2:
+        raise SceneError("sfm_extent: needs at least 2 training views")
+    trim = TRIM_OF_KIND.get(train_scene.kind, DEFAULT_TRIM) if trim is None else int(trim)
+    tmp = work_dir or tempfile.mkdtemp(prefix="reings_sfm_")
+    try:
+        img_dir = os.path.join(tmp, "images")
+        os.makedirs(img_dir, exist_ok=True)
+        names = []
+        for i, (im, n) in enumerate(zip(train_scene.images, train_scene.names)):
+            base = os.path.splitext(os.path.basename(n))[0]
+            name = f"{i:03d}_{base}.png"
+            imgs.write_png(os.path.join(img_dir, name), im)
+            names.append(name)
+        try:
+            res = triangulate_known_poses(img_dir, names, list(train_scene.cameras), tmp,
+                                          max_features=max_features, max_reproj_error=max_reproj_error,
+                                          min_tri_angle=min_tri_angle, num_threads=num_threads,
+                                          peak_threshold=peak_threshold, guided_matching=guided_matching)
+        except SceneError:
+            if not fallback:
+                raise
+            res = {"xyz": np.zeros((0, 3)), "rgb": np.zeros((0, 3), np.float32), "num_matched_pairs": 0}
+    finally:
+        if work_dir is None:
+            shutil.rmtree(tmp, ignore_errors=True)
+    xyz = res["xyz"]
+    ok = np.all(np.isfinite(xyz), axis=1)
+    xyz, rgb = xyz[ok], res["rgb"][ok]
+    n = len(xyz)
+    if n >= max(1, min_points):
+        lo, hi, k = robust_aabb(xyz, trim)
+        return SfmExtent(lo, hi, "sfm", xyz, rgb, xyz.min(0), xyz.max(0), k,
+                         res["num_matched_pairs"], n)
+    if not fallback:
+        raise SceneError(f"sfm_extent: only {n} points triangulated from {len(train_scene)} views (< {min_points})")
+    if train_scene.bounds is None:
+        raise SceneError(f"sfm_extent: only {n} points triangulated and the training views have no near/far "
+                         "bounds for the frusta fallback")
+    lo, hi, _ = frusta_extent(train_scene.cameras, train_scene.bounds)
+    return SfmExtent(lo, hi, "frusta", np.zeros((0, 3)), np.zeros((0, 3), np.float32), None, None, 0,
+                     res["num_matched_pairs"], n)

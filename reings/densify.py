@@ -1,0 +1,191 @@
+"""Densification: screen-space gradient statistics, clone / split / prune (3DGS with DNGaussian's
+thresholds), opacity reset, `clean_views`, an optional cap on the Gaussian count.
+
+Units (METHOD.md §5.4): the 3DGS thresholds (0.0002; DNGaussian 0.0013) assume the norm of
+dL/d(means2d) in NDC-scaled units, i.e. the pixel-space gradient times (W/2, H/2).  `render_vjp`
+returns raw-field gradients only, so the fit loop passes the per-view pixel-space v_means2d (from
+the backend) through `ndc_grad_norm` into `accumulate`, once per photometric backward (DNGaussian:
+only the photometric render feeds the statistics).
+
+Statistics live in `TrainState.stats` (so `apply_index_op` keeps them aligned):
+    grad2d_accum [N] float32  sum of NDC gradient norms over the views where the Gaussian was visible
+    grad2d_count [N] int32    number of those views
+    max_radii2d  [N] float32  largest screen radius seen (for 3DGS's screen-size pruning)
+
+The loop calls, per iteration:  `accumulate(...)` after the photometric backward, then
+`maybe_densify(state, cfg, iteration, extent, rng)` (densify + prune + opacity reset on schedule).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .state import TrainState, apply_index_op, reset_moments
+
+ACCUM, COUNT, RADII = "grad2d_accum", "grad2d_count", "max_radii2d"
+
+
+def _sigmoid(x):
+    return 1.0 / (1.0 + np.exp(-np.asarray(x, np.float64)))
+
+
+def _logit(p):
+    p = np.asarray(p, np.float64)
+    return np.log(p / (1.0 - p))
+
+
+def quat_to_rotmat(quats: np.ndarray) -> np.ndarray:
+    """[N,4] (w,x,y,z), any norm -> [N,3,3] rotation matrices (3DGS `build_rotation`)."""
+    q = np.asarray(quats, np.float64)
+    q = q / np.linalg.norm(q, axis=1, keepdims=True)
+    w, x, y, z = q.T
+    return np.stack([
+        np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)], -1),
+        np.stack([2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)], -1),
+        np.stack([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], -1)], 1)
+
+
+# {{{ statistics
+def init_stats(state: TrainState) -> None:
+    """(Re)set the densification statistics of `state` to zeros."""
+    n = len(state)
+    state.stats[ACCUM] = np.zeros(n, np.float32)
+    state.stats[COUNT] = np.zeros(n, np.int32)
+    state.stats[RADII] = np.zeros(n, np.float32)
+
+
+def ndc_grad_norm(v_means2d: np.ndarray, width: int, height: int) -> np.ndarray:
+    """[N,2] pixel-space dL/d means2d -> [N] norms in 3DGS's NDC-scaled units (x W/2, y H/2)."""
+    v = np.asarray(v_means2d, np.float64)
+    return np.hypot(v[:, 0] * (0.5 * width), v[:, 1] * (0.5 * height)).astype(np.float32)
+
+
+def accumulate(state: TrainState, grad_norms: np.ndarray, visible: np.ndarray, radii: np.ndarray | None = None) -> None:
+    """3DGS `add_densification_stats` for one view: for the visible Gaussians (radius > 0), add
+    the NDC gradient norm and count the view; track the max screen radius."""
+    if ACCUM not in state.stats:
+        init_stats(state)
+    n = len(state)
+    vis = np.asarray(visible, bool)
+    g = np.asarray(grad_norms, np.float32)
+    if vis.shape != (n,) or g.shape != (n,):
+        raise ValueError(f"accumulate: grad_norms {g.shape} and visible {vis.shape} must be ({n},)")
+    state.stats[ACCUM][vis] += g[vis]
+    state.stats[COUNT][vis] += 1
+    if radii is not None:
+        r = np.asarray(radii, np.float32)
+        np.maximum(state.stats[RADII], np.where(vis, r, 0.0), out=state.stats[RADII])
+
+
+def mean_grads(state: TrainState) -> np.ndarray:
+    """accum / count per Gaussian (0 where never visible, as 3DGS's `grads[grads.isnan()] = 0`)."""
+    if ACCUM not in state.stats:
+        return np.zeros(len(state), np.float32)
+    c = state.stats[COUNT]
+    return np.where(c > 0, state.stats[ACCUM] / np.maximum(c, 1), 0.0).astype(np.float32)
+# }}}
+
+
+# {{{ grow and prune
+def _cap_candidates(grads, cand, cost, budget):
+    """Keep the highest-gradient candidates whose summed cost (new rows) fits the budget."""
+    idx = np.flatnonzero(cand)
+    if cost[idx].sum() <= budget:
+        return cand
+    order = idx[np.argsort(-grads[idx], kind="stable")]
+    fits = order[np.cumsum(cost[order]) <= budget]
+    out = np.zeros_like(cand)
+    out[fits] = True
+    return out
+
+
+def densify_and_prune(state: TrainState, cfg, extent: float, rng: np.random.Generator,
+                      size_prune: bool = False) -> dict:
+    """One 3DGS `densify_and_prune` with the thresholds of `cfg` (a DensifyConfig):
+
+    grad = accum / count;  candidates: grad >= grad_threshold (and opacity > split_opacity_thresh
+    when set, DNGaussian);  clone those with max scale <= percent_dense * extent (a copy, zero
+    moments), split the others into split_n children (means sampled from N(0, diag(scale^2))
+    rotated by R, plus the mean; scale / (0.8 * split_n); other fields copied; parent removed);
+    then prune opacity < prune_opacity (and, when size_prune, screen radius > max_screen_size or
+    max scale > max_world_size * extent).  With max_gaussians set, growth is limited to the
+    highest-gradient candidates that fit.  The statistics are reset afterwards.
+    Returns counts {"cloned", "split", "pruned", "n"}."""
+    n0 = len(state)
+    grads = mean_grads(state)
+    p = state.params
+    max_scale = np.exp(p["log_scales"].astype(np.float64)).max(axis=1) if n0 else np.zeros(0)
+    cand = grads >= cfg.grad_threshold
+    if cfg.split_opacity_thresh is not None:
+        cand &= _sigmoid(p["opacity_logits"]) > cfg.split_opacity_thresh
+    small = max_scale <= cfg.percent_dense * extent
+    clone, split = cand & small, cand & ~small
+    if cfg.max_gaussians is not None:
+        cost = np.where(clone, 1, cfg.split_n - 1)
+        keep_c = _cap_candidates(grads, clone | split, cost, max(0, cfg.max_gaussians - n0))
+        clone, split = clone & keep_c, split & keep_c
+
+    # split children (3DGS densify_and_split: tensors repeated N times, i.e. tiled [sel; sel])
+    sel = np.flatnonzero(split)
+    k = cfg.split_n
+    children = {}
+    if len(sel):
+        scales = np.exp(p["log_scales"][sel].astype(np.float64))  # [S,3]
+        stds = np.tile(scales, (k, 1))
+        samples = rng.normal(size=stds.shape) * stds  # [kS,3]
+        rots = np.tile(quat_to_rotmat(p["quats"][sel]), (k, 1, 1))
+        children["means"] = (np.einsum("nij,nj->ni", rots, samples) + np.tile(p["means"][sel], (k, 1))).astype(np.float32)
+        children["log_scales"] = np.log(stds / (0.8 * k)).astype(np.float32)
+        for name in p:
+            if name not in children:
+                children[name] = np.tile(p[name][sel], (k,) + (1,) * (p[name].ndim - 1))
+    apply_index_op(state, keep=~split, duplicate=np.flatnonzero(clone), append=children or None)
+
+    # prune (over the grown set, as 3DGS)
+    p = state.params
+    prune = _sigmoid(p["opacity_logits"]) < cfg.prune_opacity
+    if size_prune:
+        if cfg.max_screen_size is not None:
+            prune |= state.stats[RADII] > cfg.max_screen_size
+        if cfg.max_world_size is not None:
+            prune |= np.exp(p["log_scales"].astype(np.float64)).max(axis=1) > cfg.max_world_size * extent
+    apply_index_op(state, keep=~prune)
+    init_stats(state)
+    return {"cloned": int(clone.sum()), "split": int(len(sel)), "pruned": int(prune.sum()), "n": len(state)}
+
+
+def reset_opacity(state: TrainState, value: float = 0.01) -> None:
+    """3DGS `reset_opacity`: opacity = min(opacity, value), Adam moments of the opacities zeroed."""
+    o = state.params["opacity_logits"]
+    np.minimum(o, np.float32(_logit(value)), out=o)
+    reset_moments(state, "opacity_logits")
+
+
+def clean_views(state: TrainState, visible: np.ndarray) -> int:
+    """DNGaussian `clean_views`: drop Gaussians with zero radius in every training view.
+    visible: [N] (seen by any view) or [V, N] per-view masks (radii > 0).  Returns how many went."""
+    vis = np.asarray(visible, bool)
+    if vis.ndim == 2:
+        vis = vis.any(axis=0)
+    if vis.shape != (len(state),):
+        raise ValueError(f"clean_views: visibility of shape {vis.shape}, expected ({len(state)},) or (V, {len(state)})")
+    removed = int((~vis).sum())
+    if removed:
+        apply_index_op(state, keep=vis)
+    return removed
+
+
+def maybe_densify(state: TrainState, cfg, iteration: int, extent: float, rng: np.random.Generator) -> dict | None:
+    """The 3DGS/DNGaussian schedule after the optimizer step of `iteration` (1-based):
+    densify_and_prune when densify_from < iteration < densify_until and iteration %
+    densify_interval == 0 (size pruning after size_prune_from); opacity reset every
+    opacity_reset_interval iterations (while < densify_until).  Returns the counts or None."""
+    out = None
+    if iteration < cfg.densify_until:
+        if iteration > cfg.densify_from and iteration % cfg.densify_interval == 0:
+            size_prune = cfg.size_prune_from is not None and iteration > cfg.size_prune_from
+            out = densify_and_prune(state, cfg, extent, rng, size_prune=size_prune)
+        if cfg.opacity_reset_interval and iteration % cfg.opacity_reset_interval == 0:
+            reset_opacity(state)
+            out = dict(out or {}, opacity_reset=True)
+    return out
+# }}}

