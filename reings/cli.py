@@ -1,4 +1,4 @@
-"""The `reings` command line: devices, bench, run, eval.
+"""The `reings` command line: devices, bench, run.
 
 Errors a user can cause (missing files, bad arguments, no OpenCL platform) print one line
 `reings: error: ...` and exit with status 2; nothing already written is removed.
@@ -48,12 +48,6 @@ def _cmd_run(args) -> int:
     return pipeline.main_run(args) or 0
 
 
-def _cmd_eval(args) -> int:
-    from . import pipeline
-
-    return pipeline.main_eval(args) or 0
-
-
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="reings", description="Few-shot 3D Gaussian splatting (ReInGS) on OpenCL.")
     sub = p.add_subparsers(dest="command", required=True)
@@ -82,18 +76,6 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--quiet", action="store_true")
     r.set_defaults(func=_cmd_run)
 
-    e = sub.add_parser("eval", help="run every scene of a dataset and write a table in the paper's layout")
-    e.add_argument("--dataset", required=True, choices=["llff", "dtu"])
-    e.add_argument("--root", required=True)
-    e.add_argument("--views", default="3")
-    e.add_argument("--scenes", nargs="*", default=None)
-    e.add_argument("--method", default="reings", choices=["reings", "dngaussian", "3dgs"])
-    e.add_argument("--device", default="pocl")
-    e.add_argument("--depth-prior", default="stereo")
-    e.add_argument("--preset", default="quick", choices=["quick", "paper"])
-    e.add_argument("--out", required=True)
-    e.add_argument("--overwrite", action="store_true")
-    e.set_defaults(func=_cmd_eval)
     return p
 
 

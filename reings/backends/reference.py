@@ -618,7 +618,11 @@ class ReferenceBackend:
                    background: Sequence[float] = (0, 0, 0), near: float = 0.01,
                    opacity_override: float | None = None,
                    grad_fields: Sequence[str] | None = None) -> Gaussians:
-        gr = render_vjp64(gaussians, camera, v_rgb, v_depth, v_alpha, background, near, opacity_override)
+        proj, bins, out, _ = render64(gaussians, camera, background, near, opacity_override, False)
+        rg = rasterize_bwd(proj, bins, out, v_rgb, v_depth, v_alpha, camera.width, camera.height, background)
+        gr = project_bwd(gaussians, camera, proj, rg, near, opacity_override)
+        # screen-space side channel for densification statistics (see reings.train)
+        self.last_screen = (rg.v_means2d.astype(np.float32), np.asarray(proj.radii))
         keep = FIELDS if grad_fields is None else tuple(grad_fields)
         with np.errstate(over="ignore"):
             return Gaussians(*(getattr(gr, f).astype(np.float32) if f in keep

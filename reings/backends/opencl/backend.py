@@ -17,7 +17,7 @@ Forward reuse in render_vjp (documented contract): on CPU devices (PoCL) render_
 device state of the immediately preceding forward of this backend when the camera, background,
 near and opacity override are equal AND every input array is byte-identical to what that forward
 uploaded (compared against the zero-copy mapped input buffers, ~1-3 ms for SH3 at 100k). Any other
-call on this backend in between invalidates the state. On GPUs the forward is always recomputed:
+call on this backend in between invalidates the state (another render_vjp does not). On GPUs the forward is always recomputed:
 the kernels are cheaper than reading the inputs back to verify them. Either way the result is the
 VJP at exactly the given inputs.
 
@@ -72,6 +72,12 @@ def camera_record(cam: Camera, near: float) -> np.ndarray:
     rec[22] = (H - cy) / fy + CLAMP_GUARD * tan_fovy
     rec[23] = cy / fy + CLAMP_GUARD * tan_fovy
     return rec.astype(_F32)
+
+
+def _frame_key(cam: Camera, background, near: float, override) -> tuple:
+    """Everything besides the Gaussians that a forward depends on (forward reuse in render_vjp)."""
+    return (cam.K.tobytes(), cam.viewmat.tobytes(), cam.width, cam.height,
+            tuple(float(x) for x in background), float(near), None if override is None else float(override))
 
 
 @dataclass
@@ -267,9 +273,7 @@ class OpenCLBackend:
         self._project_device(fr, fr.bufs["in"], cam, near, override)
         self._bin_device(fr)
         self._raster_fwd(fr, background, want_importance)
-        fr.key = (cam.K.tobytes(), cam.viewmat.tobytes(), cam.width, cam.height,
-                  tuple(float(x) for x in background), float(near),
-                  None if override is None else float(override))
+        fr.key = _frame_key(cam, background, near, override)
         return fr
 
     # ------------------------------------------------------------------------------------------
@@ -345,14 +349,11 @@ class OpenCLBackend:
                    opacity_override: float | None = None,
                    grad_fields: Sequence[str] | None = None) -> Gaussians:
         g = gaussians
-        key = (camera.K.tobytes(), camera.viewmat.tobytes(), camera.width, camera.height,
-               tuple(float(x) for x in background), float(near),
-               None if opacity_override is None else float(opacity_override))
-        fr = self._reusable(g, key)
+        fr = self._reusable(g, _frame_key(camera, background, near, opacity_override))
         self._events = []
         if fr is None:
             fr = self._forward(g, camera, background, near, opacity_override, False)
-        self._frame = None  # the backward reuses scratch that a later reuse would need intact
+        self._frame = fr  # the backward leaves the forward's buffers intact: a second VJP may reuse it
         self._raster_bwd(fr, v_rgb, v_depth, v_alpha)
         out = self._project_bwd_device(fr, opacity_override, grad_fields)
         n, k = fr.n, fr.sh_k

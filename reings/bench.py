@@ -1,0 +1,351 @@
+"""`reings bench`: the splatting core on the PERF.md §1.7 scenes, per stage and whole fwd+bwd.
+
+    reings bench [--device pocl] [--scenes A,B,C] [--sh 0,3] [--warmup 8] [--repeats 40]
+                 [--sort all|ours|none] [--reference crop|none] [--pairs reference|estimate|none]
+                 [--out FILE.jsonl]
+    python -c "from reings.bench import main; main(['--scenes', 'A', '--repeats', '10'])"
+
+For each scene x SH degree (504x378, near 0.01, black background): `render` then the L1-mean
+cotangent against a fixed random target, then `render_vjp` (the forward is reused on CPU devices,
+see OpenCLBackend). Reported per configuration, as the median over `repeats` after `warmup`:
+  * wall clock of render, of the cotangent, of render_vjp, and of the whole step (Python included,
+    the one control readback and the output reads included);
+  * device time per stage from the queue's profiling events (OpenCLBackend.last_profile);
+  * visible Gaussians, intersections, evaluated (pixel, Gaussian) pairs and pairs/s. Evaluated pairs
+    ("reference") are counted by the float64 reference on the full image (once per scene: the count
+    does not depend on colours), or ("estimate") bounded from the device's own outputs;
+  * the error against the float64 reference on a centred crop (the same camera with the principal
+    point shifted; the full image would take the reference minutes): max abs error of rgb / alpha /
+    depth (depth relative to the largest depth) and per-field gradient cosine and relative L2.
+Per scene, the sort: numpy.argsort(kind="stable") vs our radix sort (reings.backends.opencl.sort)
+vs pyopencl.algorithm.RadixSort on the scene's own (tile << 32 | depth bits) keys in gid emit order
+(gsplat's layout, end bit 32 + ceil(log2 tiles)), plus our pipeline's two 32-bit sorts as they run
+in the render; and once, the same on 1M synthetic keys.
+Output: one JSON object per line (device, driver, versions in each) and a table at the end.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import sys
+import time
+import warnings
+
+import numpy as np
+
+STAGES_FWD = ("project_fwd", "sort_depth", "bin_count", "scan", "bin_emit", "sort_tile", "tile_ranges",
+              "rasterize_fwd")
+STAGES_BWD = ("rasterize_bwd", "isect_reduce", "project_bwd")
+FIELDS = ("means", "quats", "log_scales", "opacity_logits", "sh")
+
+
+def _median(xs):
+    return float(statistics.median(xs)) if xs else float("nan")
+
+
+def device_info(be) -> dict:
+    d, p = be.handle.device, be.handle.platform
+    return dict(device=be.device_name, driver=d.driver_version.strip(), platform_version=p.version.strip(),
+                opencl_c=d.opencl_c_version.strip(), compute_units=int(d.max_compute_units), spec=be.spec)
+
+
+def crop_camera(cam, size: int):
+    """The centred size x size window of `cam` (same intrinsics, principal point shifted)."""
+    from .types import Camera
+
+    w, h = min(size, cam.width), min(size, cam.height)
+    x0, y0 = (cam.width - w) // 2, (cam.height - h) // 2
+    K = cam.K.copy()
+    K[0, 2] -= x0
+    K[1, 2] -= y0
+    return Camera(K, cam.viewmat, w, h)
+
+
+def reference_error(be, g, cam, crop: int) -> dict:
+    """Device vs float64 reference on a centred crop: forward max errors and gradient agreement."""
+    from .backends import reference as ref
+
+    cc = crop_camera(cam, crop)
+    rng = np.random.default_rng(1)
+    v_rgb = rng.normal(size=(cc.height, cc.width, 3)).astype(np.float32)
+    out = be.render(g, cc)
+    _, _, o64, stats = ref.render64(g, cc)
+    zmax = max(1.0, float(np.max(o64.depth / np.maximum(o64.alpha, 1e-6), initial=1.0)))
+    res = dict(crop=[cc.width, cc.height], crop_visible=stats["visible"],
+               crop_intersections=stats["intersections"],
+               max_err_rgb=float(np.abs(out.rgb - o64.rgb).max()),
+               max_err_alpha=float(np.abs(out.alpha - o64.alpha).max()),
+               max_err_depth_rel=float(np.abs(out.depth - o64.depth).max() / zmax),
+               pixels_over_1e4=int(np.count_nonzero(np.abs(out.alpha - o64.alpha) > 1e-4)))
+    gd = be.render_vjp(g, cc, v_rgb)
+    ge = ref.render_vjp64(g, cc, v_rgb)
+    for f in FIELDS:
+        a, e = getattr(gd, f).astype(np.float64).ravel(), getattr(ge, f).ravel()
+        na, ne = np.linalg.norm(a), np.linalg.norm(e)
+        res[f"grad_cos_{f}"] = float(a @ e / (na * ne)) if na > 0 and ne > 0 else float(na == ne)
+        res[f"grad_rel_l2_{f}"] = float(np.linalg.norm(a - e) / ne) if ne > 0 else float(na)
+    return res
+
+
+def reference_pairs(g, cam) -> int:
+    """Evaluated (pixel, Gaussian) pairs of the float64 reference on the full image."""
+    from .backends import reference as ref
+
+    p = ref.project_fwd(g, cam)
+    b = ref.bin(p, cam.width, cam.height)
+    return int(ref.rasterize_fwd(p, b, cam.width, cam.height).evaluated_pairs)
+
+
+def estimate_pairs(be, g, cam) -> int:
+    """Evaluated pairs bounded from the device's outputs: a pixel with final T >= 0.01 cannot have
+    stopped early (T (1 - alpha) >= 1e-4 for every alpha <= 0.99), so it examined its whole tile list;
+    any other pixel is counted as last + 1 (its last blended entry plus the one that stopped it)."""
+    from .backends.base import TILE_SIZE, tile_grid
+
+    p = be.project_fwd(g, cam)
+    b = be.bin(p, cam.width, cam.height)
+    out = be.rasterize_fwd(p, b, cam.width, cam.height)
+    tx, ty = tile_grid(cam.width, cam.height)
+    lens = (b.tile_ranges[:, 1] - b.tile_ranges[:, 0]).reshape(ty, tx)
+    per_px = np.repeat(np.repeat(lens, TILE_SIZE, 0), TILE_SIZE, 1)[:cam.height, :cam.width]
+    cnt = np.where(out.final_T >= 0.01, per_px, np.minimum(out.last + 1, per_px))
+    return int(cnt.sum())
+
+
+# ------------------------------------------------------------------------------------------------
+# sort comparison
+# ------------------------------------------------------------------------------------------------
+def emit_keys_gid_order(be, g, cam) -> tuple[np.ndarray, int]:
+    """(tile << 32 | float bits of depth) per intersection, Gaussians in gid order, tiles row-major
+    (gsplat's isect_tiles layout); returns (keys uint64, tile bits)."""
+    from .backends.base import tile_grid
+    from .backends.opencl.backend import tile_bits
+
+    p = be.project_fwd(g, cam)
+    vis = np.flatnonzero(p.radii > 0)
+    r = p.tile_rect[vis].astype(np.int64)
+    w, h = r[:, 2] - r[:, 0], r[:, 3] - r[:, 1]
+    cnt = w * h
+    owner = np.repeat(np.arange(len(vis)), cnt)
+    local = np.arange(cnt.sum()) - np.repeat(np.cumsum(cnt) - cnt, cnt)
+    tx, _ = tile_grid(cam.width, cam.height)
+    tile = (r[owner, 1] + local // w[owner]) * tx + r[owner, 0] + local % w[owner]
+    dbits = p.depths[vis].astype(np.float32).view(np.uint32).astype(np.uint64)[owner]
+    keys = (tile.astype(np.uint64) << np.uint64(32)) | dbits
+    return keys, tile_bits(tx * tile_grid(cam.width, cam.height)[1])
+
+
+def synthetic_keys(n: int, tbits: int = 10, seed: int = 0) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    tile = rng.integers(0, 1 << tbits, n).astype(np.uint64)
+    depth = rng.uniform(2.0, 8.0, n).astype(np.float32).view(np.uint32).astype(np.uint64)
+    return (tile << np.uint64(32)) | depth
+
+
+def bench_sort(be, keys: np.ndarray, tbits: int, repeats: int, warmup: int, which: str) -> dict:
+    """numpy stable argsort vs our RadixSort vs pyopencl's RadixSort on the same uint64 keys."""
+    import pyopencl as cl
+
+    n = int(keys.size)
+    end_bit = 32 + tbits
+    res = dict(n=n, end_bit=end_bit)
+    ts = []
+    for i in range(max(1, repeats // 4) + 1):
+        t0 = time.perf_counter()
+        order = np.argsort(keys, kind="stable")
+        if i:
+            ts.append(time.perf_counter() - t0)
+    res["numpy_ms"] = 1e3 * _median(ts)
+    if which in ("all", "ours"):
+        from .backends.opencl.sort import RadixSort
+
+        q, ctx = be.queue, be.handle.context
+        mf = cl.mem_flags
+        src_k = cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=keys)
+        vals = np.arange(n, dtype=np.uint32)
+        src_v = cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=vals)
+        kb = cl.Buffer(ctx, mf.READ_WRITE, keys.nbytes)
+        vb = cl.Buffer(ctx, mf.READ_WRITE, vals.nbytes)
+        with warnings.catch_warnings():  # the backend's sorters already retrieved these kernels
+            warnings.simplefilter("ignore")
+            sorter = RadixSort(be.handle)
+            sorter.kernels(True)
+        ts, dev = [], []
+        for i in range(warmup + repeats):
+            cl.enqueue_copy(q, kb, src_k)
+            cl.enqueue_copy(q, vb, src_v)
+            q.finish()
+            t0 = time.perf_counter()
+            ko, vo, ev = sorter.sort_pairs(kb, vb, n, 0, end_bit, key64=True)
+            q.finish()
+            if i >= warmup:
+                ts.append(time.perf_counter() - t0)
+        out = np.empty(n, np.uint32)
+        cl.enqueue_copy(q, out, vo)
+        res["ours_ms"] = 1e3 * _median(ts)
+        res["ours_correct"] = bool(np.array_equal(out, order))
+        res["speedup_vs_numpy"] = res["numpy_ms"] / res["ours_ms"]
+    if which == "all":
+        try:
+            import pyopencl.array as cla
+            from pyopencl.algorithm import RadixSort as PyRadixSort
+
+            prs = PyRadixSort(be.handle.context, "unsigned long *keys, unsigned int *vals", key_expr="keys[i]",
+                              sort_arg_names=["keys", "vals"], key_dtype=np.uint64)
+            ka = cla.to_device(be.queue, keys)
+            va = cla.to_device(be.queue, np.arange(n, dtype=np.uint32))
+            ts = []
+            for i in range(1 + max(1, repeats // 8)):
+                t0 = time.perf_counter()
+                (_, vs), _ = prs(ka, va, key_bits=end_bit, queue=be.queue)
+                be.queue.finish()
+                if i:
+                    ts.append(time.perf_counter() - t0)
+            res["pyopencl_ms"] = 1e3 * _median(ts)
+            res["pyopencl_correct"] = bool(np.array_equal(vs.get(), order))
+        except Exception as e:  # pragma: no cover - depends on the device's compiler
+            res["pyopencl_error"] = f"{type(e).__name__}: {e}"[:200]
+    return res
+
+
+# ------------------------------------------------------------------------------------------------
+# one configuration
+# ------------------------------------------------------------------------------------------------
+def bench_config(be, scene: str, sh: int, args) -> dict:
+    from .bench_scenes import perf_scene
+
+    g, cam = perf_scene(scene, sh_degree=sh, n=args.n)
+    H, W = cam.height, cam.width
+    target = np.random.default_rng(123).uniform(0.0, 1.0, (H, W, 3)).astype(np.float32)
+    inv = np.float32(1.0 / (H * W * 3))
+    rec: dict = dict(kind="render", scene=scene, sh_degree=sh, n=len(g), width=W, height=H)
+    wall = {k: [] for k in ("fwd", "loss", "bwd", "step")}
+    dev = {s: [] for s in STAGES_FWD + STAGES_BWD}
+    for i in range(args.warmup + args.repeats):
+        t0 = time.perf_counter()
+        out = be.render(g, cam)
+        pf = dict(be.last_profile)
+        t1 = time.perf_counter()
+        v_rgb = np.sign(out.rgb - target) * inv  # d/d rgb of mean |rgb - target|
+        t2 = time.perf_counter()
+        be.render_vjp(g, cam, v_rgb)
+        pb = dict(be.last_profile)
+        t3 = time.perf_counter()
+        if i < args.warmup:
+            continue
+        for k, v in (("fwd", t1 - t0), ("loss", t2 - t1), ("bwd", t3 - t2), ("step", t3 - t0)):
+            wall[k].append(1e3 * v)
+        for s in dev:
+            dev[s].append(pf.get(s, pb.get(s, 0.0)))
+    rec.update(visible=out.stats["visible"], intersections=out.stats["intersections"])
+    rec.update({f"wall_{k}_ms": _median(v) for k, v in wall.items()})
+    rec.update({f"dev_{s}_ms": _median(v) for s, v in dev.items()})
+    rec["dev_fwd_ms"] = sum(rec[f"dev_{s}_ms"] for s in STAGES_FWD)
+    rec["dev_bwd_ms"] = sum(rec[f"dev_{s}_ms"] for s in STAGES_BWD)
+    return rec
+
+
+def _fmt(x, nd=1):
+    return "-" if x is None or (isinstance(x, float) and not np.isfinite(x)) else f"{x:.{nd}f}"
+
+
+def print_table(records: list[dict], file=sys.stdout):
+    rr = [r for r in records if r.get("kind") == "render"]
+    if rr:
+        print(f"\n# {rr[0]['device']} | driver {rr[0]['driver']} | {rr[0]['platform_version']}", file=file)
+        hdr = ("scene", "vis", "isects", "pairs", "fwd", "f+b", "proj", "sortD", "bin", "sortT", "rastF",
+               "rastB", "red", "projB", "Mpair/s", "err_rgb", "cos_min")
+        print(" ".join(f"{h:>8}" for h in hdr), file=file)
+        for r in rr:
+            binm = sum(r[f"dev_{s}_ms"] for s in ("bin_count", "scan", "bin_emit", "tile_ranges"))
+            cos = [r[k] for k in r if k.startswith("grad_cos_")]
+            pairs = r.get("evaluated_pairs")
+            row = (f"{r['scene']}-sh{r['sh_degree']}", r["visible"], r["intersections"],
+                   "-" if pairs is None else f"{pairs / 1e6:.1f}M",
+                   _fmt(r["wall_fwd_ms"]), _fmt(r["wall_step_ms"]), _fmt(r["dev_project_fwd_ms"]),
+                   _fmt(r["dev_sort_depth_ms"]), _fmt(binm), _fmt(r["dev_sort_tile_ms"]),
+                   _fmt(r["dev_rasterize_fwd_ms"]), _fmt(r["dev_rasterize_bwd_ms"]), _fmt(r["dev_isect_reduce_ms"]),
+                   _fmt(r["dev_project_bwd_ms"]), _fmt(r.get("pairs_per_s_step", float("nan")) / 1e6),
+                   "-" if "max_err_rgb" not in r else f"{r['max_err_rgb']:.1e}",
+                   "-" if not cos else f"{min(cos):.6f}")
+            print(" ".join(f"{str(x):>8}" for x in row), file=file)
+        print("(ms; fwd / f+b: wall clock of render / render+loss+render_vjp; other stage columns: device "
+              "time from profiling events; Mpair/s: evaluated pairs per second of the whole step)", file=file)
+    sr = [r for r in records if r.get("kind") == "sort"]
+    if sr:
+        print("\n# sort of (tile, depth) keys: ms (wall, median)", file=file)
+        print(f"{'keys':>10} {'n':>9} {'bits':>5} {'numpy':>8} {'ours':>8} {'pyopencl':>9} {'x numpy':>8} "
+              f"{'pipeline 2x32':>13}", file=file)
+        for r in sr:
+            print(f"{r['keys']:>10} {r['n']:>9} {r['end_bit']:>5} {_fmt(r['numpy_ms']):>8} "
+                  f"{_fmt(r.get('ours_ms')):>8} {_fmt(r.get('pyopencl_ms')):>9} "
+                  f"{_fmt(r.get('speedup_vs_numpy'), 2):>8} {_fmt(r.get('pipeline_two_sorts_ms')):>13}", file=file)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(prog="reings bench", description=__doc__.split("\n\n")[0])
+    ap.add_argument("--device", default="pocl", help="pocl, cuda, oclgrind or opencl:P:D")
+    ap.add_argument("--scenes", default="A,B,C", help="comma list of PERF.md §1.7 scenes")
+    ap.add_argument("--sh", default="0,3", help="comma list of SH degrees")
+    ap.add_argument("--n", type=int, default=None, help="override the Gaussian count (smoke runs)")
+    ap.add_argument("--warmup", type=int, default=8)
+    ap.add_argument("--repeats", type=int, default=40)
+    ap.add_argument("--sort", choices=("all", "ours", "none"), default="all",
+                    help="sort comparison: numpy + ours + pyopencl RadixSort, numpy + ours, or none")
+    ap.add_argument("--sort-n", type=int, default=1_000_000, help="synthetic key count (0: skip)")
+    ap.add_argument("--reference", choices=("crop", "none"), default="crop")
+    ap.add_argument("--crop", type=int, default=96, help="crop size for the reference comparison")
+    ap.add_argument("--pairs", choices=("reference", "estimate", "none"), default="reference")
+    ap.add_argument("--out", default=None, help="write the JSON lines here instead of stdout")
+    args = ap.parse_args(argv)
+
+    from .backends.opencl.backend import OpenCLBackend
+
+    be = OpenCLBackend(args.device)
+    info = device_info(be)
+    sink = open(args.out, "a") if args.out else sys.stdout
+    records: list[dict] = []
+
+    def emit(rec):
+        rec = {**info, **rec}
+        records.append(rec)
+        print(json.dumps(rec), file=sink, flush=True)
+
+    from .bench_scenes import perf_scene
+
+    for scene in [s.strip() for s in args.scenes.split(",") if s.strip()]:
+        pairs = None
+        for sh in [int(s) for s in args.sh.split(",") if s.strip()]:
+            rec = bench_config(be, scene, sh, args)
+            if args.pairs != "none" and pairs is None:
+                g, cam = perf_scene(scene, sh_degree=0, n=args.n)
+                pairs = reference_pairs(g, cam) if args.pairs == "reference" else estimate_pairs(be, g, cam)
+            if pairs is not None:
+                rec["evaluated_pairs"] = pairs
+                rec["pairs_source"] = args.pairs
+                rec["pairs_per_s_step"] = pairs / (rec["wall_step_ms"] * 1e-3)
+                rec["pairs_per_s_raster_fwd"] = pairs / max(rec["dev_rasterize_fwd_ms"] * 1e-3, 1e-12)
+            if args.reference == "crop":
+                g, cam = perf_scene(scene, sh_degree=sh, n=args.n)
+                rec.update(reference_error(be, g, cam, args.crop))
+            emit(rec)
+        if args.sort != "none":
+            g, cam = perf_scene(scene, sh_degree=0, n=args.n)
+            keys, tbits = emit_keys_gid_order(be, g, cam)
+            srec = dict(kind="sort", keys=f"scene {scene}", scene=scene,
+                        **bench_sort(be, keys, tbits, args.repeats, args.warmup, args.sort))
+            srec["pipeline_two_sorts_ms"] = (records[-1]["dev_sort_depth_ms"] + records[-1]["dev_sort_tile_ms"]
+                                             if records and records[-1].get("scene") == scene else None)
+            emit(srec)
+    if args.sort != "none" and args.sort_n > 0:
+        keys = synthetic_keys(args.sort_n)
+        emit(dict(kind="sort", keys="synthetic", **bench_sort(be, keys, 10, args.repeats, args.warmup, args.sort)))
+    print_table(records, file=sys.stdout if args.out else sys.stderr)
+    if args.out:
+        sink.close()
+    return 0
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,289 @@
+"""`fit`: the training engine shared by the baselines (3dgs, dngaussian) and the three ReInGS
+optimizations (coarse, fine, final).
+
+One iteration, in DNGaussian's order (METHOD.md §2.4): an optional hard-depth pass (opacity fixed,
+gradient to the means only, its own Adam step), an optional soft-depth pass (gradient to the
+opacities only, its own step), then the photometric pass (+ regularisers) stepping every group,
+densification bookkeeping and the densify/prune schedule. Adam keeps a step count per group.
+
+What is left to others: the per-pixel work (render, render_vjp, photometric loss kernels) is the
+backend's; parameter surgery is `reings.state`; schedules are `reings.optim`.
+"""
+from __future__ import annotations
+
+import json
+import os
+import time
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from .config import TrainConfig
+from .types import Camera, Gaussians
+
+SH_C0 = 0.28209479177387814
+
+
+# {{{ initialisation helpers
+
+def scene_extent(cameras) -> float:
+    """DNGaussian/3DGS `cameras_extent`: 1.1 x the largest distance of a training camera centre
+    from the centroid of the training centres (getNerfppNorm). 1.0 for a single camera."""
+    c = np.array([cam.center for cam in cameras], dtype=np.float64)
+    if len(c) < 2:
+        return 1.0
+    r = np.linalg.norm(c - c.mean(0), axis=1).max()
+    return float(1.1 * r) if r > 0 else 1.0
+
+
+def knn_log_scales(means: np.ndarray, k: int = 3) -> np.ndarray:
+    """log(sqrt(mean squared distance to the k nearest neighbours)), per axis (3DGS init)."""
+    n = len(means)
+    if n < 2:
+        return np.full((n, 3), np.log(0.01), np.float32)
+    from scipy.spatial import cKDTree
+
+    kk = min(k + 1, n)
+    d, _ = cKDTree(means.astype(np.float64)).query(means.astype(np.float64), k=kk)
+    d2 = np.mean(np.square(d[:, 1:]), axis=1)
+    s = np.sqrt(np.maximum(d2, 1e-14))
+    return np.repeat(np.log(s)[:, None], 3, axis=1).astype(np.float32)
+
+
+def gaussians_from_points(points: np.ndarray, colors: np.ndarray | None, sh_degree: int,
+                          rng: np.random.Generator, opacity: float = 0.1) -> Gaussians:
+    """3DGS-style initial Gaussians: identity rotation, opacity 0.1, 3-NN scale, SH DC from the
+    colours (DNGaussian's near-grey rand/255 when colours are None), higher SH zero."""
+    pts = np.asarray(points, np.float32).reshape(-1, 3)
+    n = len(pts)
+    k = (sh_degree + 1) ** 2
+    sh = np.zeros((n, k, 3), np.float32)
+    if colors is None:
+        sh[:, 0] = rng.random((n, 3)) / 255.0  # DNGaussian random init: colour ~ 0.5 grey
+    else:
+        sh[:, 0] = (np.asarray(colors, np.float32).reshape(-1, 3) - 0.5) / SH_C0
+    quats = np.zeros((n, 4), np.float32)
+    quats[:, 0] = 1
+    logit = np.log(opacity / (1 - opacity))
+    return Gaussians(pts, quats, knn_log_scales(pts), np.full(n, logit, np.float32), sh)
+
+
+def random_points_in_box(lo, hi, n: int, rng: np.random.Generator) -> np.ndarray:
+    lo, hi = np.asarray(lo, np.float64), np.asarray(hi, np.float64)
+    return (lo + rng.random((n, 3)) * (hi - lo)).astype(np.float32)
+# }}}
+
+
+@dataclass
+class History:
+    """What `fit` reports: per-logged-iteration loss, train PSNR and Gaussian count; seconds."""
+
+    iteration: list = field(default_factory=list)
+    loss: list = field(default_factory=list)
+    train_psnr: list = field(default_factory=list)
+    n_gaussians: list = field(default_factory=list)
+    seconds: list = field(default_factory=list)  # wall seconds since the start of this fit
+    densify: list = field(default_factory=list)  # (iteration, counts) of each densification
+    eval: list = field(default_factory=list)  # (iteration, seconds, metrics) from eval_fn
+
+    def to_dict(self) -> dict:
+        return {k: getattr(self, k) for k in self.__dataclass_fields__}
+
+
+@dataclass
+class FitResult:
+    gaussians: Gaussians
+    history: History
+    seconds: float
+    state: object = None
+
+
+def _psnr(a, b) -> float:
+    mse = float(np.mean(np.square(np.asarray(a, np.float64) - b)))
+    return float(-10 * np.log10(max(mse, 1e-12)))
+
+
+def _save_checkpoint(path: str, state, rng, history: History, extra: dict) -> None:
+    tmp = path + ".tmp.npz"
+    arrays = state.to_arrays()
+    arrays["rng_state"] = np.frombuffer(json.dumps(rng.bit_generator.state).encode(), np.uint8)
+    arrays["history"] = np.frombuffer(json.dumps(history.to_dict()).encode(), np.uint8)
+    arrays["extra"] = np.frombuffer(json.dumps(extra).encode(), np.uint8)
+    np.savez(tmp, **arrays)
+    os.replace(tmp, path)  # atomic: a crash leaves the previous checkpoint intact
+
+
+def _load_checkpoint(path: str):
+    from .state import TrainState
+
+    with np.load(path) as z:
+        d = {k: z[k] for k in z.files}
+    rng_state = json.loads(bytes(d.pop("rng_state")).decode())
+    hist = History(**json.loads(bytes(d.pop("history")).decode()))
+    extra = json.loads(bytes(d.pop("extra")).decode())
+    return TrainState.from_arrays(d), rng_state, hist, extra
+
+
+def fit(views, config: TrainConfig, device: str = "pocl", init: Gaussians | None = None,
+        depth_targets=None, progress: bool = True, checkpoint: str | None = None,
+        checkpoint_every: int = 250, eval_fn=None, eval_every: int = 0, log_every: int = 10,
+        desc: str = "fit", extent: float | None = None) -> FitResult:
+    """Optimise Gaussians on the training views.
+
+    views: a `Scene` holding ONLY the training views (`scene.subset(train)`), or a list of
+        (image [H,W,3], Camera) pairs.
+    config: a TrainConfig (`reings.config.preset("dngaussian")`, ...).
+    init: initial Gaussians (required).
+    depth_targets: per view [H,W] depth-like maps (a depth prior), or None (no depth terms).
+    checkpoint: path of an .npz; if it exists the fit resumes from it (same seed and device give
+        the same result as an uninterrupted run); it is rewritten every `checkpoint_every` its.
+    eval_fn: optional f(gaussians) -> dict, called every `eval_every` iterations (speed vs error).
+    Returns FitResult(gaussians, history, seconds, state).
+    """
+    from . import densify as D
+    from .backends import get_backend
+    from .losses import depth_loss, photometric_loss, regularizers
+    from .optim import make_optimizer, sh_degree_at
+    from .render import render, render_vjp
+    from .state import TrainState
+
+    if hasattr(views, "images"):
+        images, cameras = list(views.images), list(views.cameras)
+    else:
+        images, cameras = [v[0] for v in views], [v[1] for v in views]
+    if not images:
+        raise ValueError("fit: no training views")
+    for i, (im, cam) in enumerate(zip(images, cameras)):
+        if not isinstance(cam, Camera):
+            raise TypeError(f"fit: view {i} has no reings.Camera")
+        if np.shape(im) != (cam.height, cam.width, 3):
+            raise ValueError(f"fit: view {i} image shape {np.shape(im)} != camera {cam.height}x{cam.width}x3")
+    if init is None or len(init) == 0:
+        raise ValueError("fit: `init` must hold at least one Gaussian")
+    if depth_targets is not None and len(depth_targets) != len(images):
+        raise ValueError(f"fit: {len(depth_targets)} depth targets for {len(images)} views")
+
+    cfg, L = config, config.loss
+    extent = scene_extent(cameras) if extent is None else extent
+    backend = get_backend(device)
+    bg, near = tuple(cfg.background), cfg.near
+    rng = np.random.default_rng(cfg.seed)
+    history = History()
+    if checkpoint and os.path.exists(checkpoint):
+        state, rng_state, history, _ = _load_checkpoint(checkpoint)
+        rng.bit_generator.state = rng_state
+    else:
+        state = TrainState.from_gaussians(init, cfg.sh_degree)
+        D.init_stats(state)
+    opt = make_optimizer(state, cfg.optim, extent)
+    V = len(images)
+    t0 = time.perf_counter() - (history.seconds[-1] if history.seconds else 0.0)
+
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=cfg.iterations, initial=state.iteration, desc=desc, leave=False, dynamic_ncols=True)
+
+    def visibility(g):
+        return np.stack([backend.project_fwd(g, cam, near).radii > 0 for cam in cameras])
+
+    hard_ema = None
+    zeros_rgb = {}
+    try:
+        for it in range(state.iteration + 1, cfg.iterations + 1):
+            opt.update_learning_rate(it)
+            deg = sh_degree_at(it, cfg.sh_degree, cfg.sh_degree_interval)
+            epoch, pos = divmod(it - 1, V)
+            vi = int(np.random.default_rng([cfg.seed, epoch]).permutation(V)[pos])
+            cam, gt = cameras[vi], images[vi]
+            target = None if depth_targets is None else depth_targets[vi]
+            if it == 1 and cfg.densify.clean_views:
+                D.clean_views(state, visibility(state.gaussians(deg)))
+            key = (cam.height, cam.width)
+            if key not in zeros_rgb:
+                zeros_rgb[key] = np.zeros((cam.height, cam.width, 3), np.float32)
+
+            # hard depth: opacity fixed, gradient to the means only (DNGaussian render_for_depth)
+            if L.hard_depth and target is not None and it >= L.hard_depth_from:
+                g = state.gaussians(deg)
+                o = L.hard_depth_opacity
+                out = render(g, cam, device, bg, near, opacity_override=o)
+                lh, vd = depth_loss(out.depth, target, rng, L.depth_patch_range, L.depth_margin,
+                                    L.depth_w_local, L.depth_w_global)
+                hard_ema = lh if hard_ema is None else 0.9 * hard_ema + 0.1 * lh
+                vg = render_vjp(g, cam, zeros_rgb[key], vd, None, device, bg, near, opacity_override=o,
+                                grad_fields=("means",))
+                opt.step(state.grads(vg, ("means",)))
+            # soft depth: real opacities, gradient to the opacities only (render_for_opa)
+            gate = L.soft_depth_ema_gate is None or (hard_ema is not None and hard_ema < L.soft_depth_ema_gate)
+            if L.soft_depth and target is not None and it >= L.soft_depth_from and gate:
+                g = state.gaussians(deg)
+                out = render(g, cam, device, bg, near)
+                ls, vd = depth_loss(out.depth, target, rng, L.depth_patch_range, L.depth_margin,
+                                    L.depth_w_local, L.depth_w_global)
+                vg = render_vjp(g, cam, zeros_rgb[key], vd, None, device, bg, near,
+                                grad_fields=("opacity_logits",))
+                opt.step(state.grads(vg, ("opacity_logits",)))
+
+            # photometric pass (+ regularisers): every group
+            g = state.gaussians(deg)
+            out = render(g, cam, device, bg, near)
+            loss, v_rgb = photometric_loss(out.rgb, gt, L.lambda_dssim, L.photometric_form, device)
+            vg = render_vjp(g, cam, v_rgb, None, None, device, bg, near)
+            grads = state.grads(vg)
+            if L.shape_pena or L.scale_pena or L.opa_pena:
+                lr_, rg = regularizers(state.params, L.shape_pena, L.scale_pena, L.opa_pena)
+                loss += lr_
+                for k, v in rg.items():
+                    grads[k] = grads[k] + v
+            screen = getattr(backend, "last_screen", None)
+            if screen is not None and len(screen[0]) == len(state):
+                v2d, radii = screen
+                D.accumulate(state, D.ndc_grad_norm(v2d, cam.width, cam.height), radii > 0, radii)
+            opt.step(grads)
+            state.iteration = it
+            dens = D.maybe_densify(state, cfg.densify, it, extent, rng)
+            if dens:
+                history.densify.append((it, dens))
+
+            if it % log_every == 0 or it == cfg.iterations:
+                history.iteration.append(it)
+                history.loss.append(float(loss))
+                history.train_psnr.append(_psnr(out.rgb, gt))
+                history.n_gaussians.append(len(state))
+                history.seconds.append(time.perf_counter() - t0)
+            if eval_fn is not None and eval_every and (it % eval_every == 0 or it == cfg.iterations):
+                history.eval.append((it, time.perf_counter() - t0, eval_fn(state.gaussians(deg))))
+            if checkpoint and (it % checkpoint_every == 0 or it == cfg.iterations):
+                _save_checkpoint(checkpoint, state, rng, history, {"desc": desc})
+            if bar is not None:
+                bar.update(1)
+                if it % log_every == 0:
+                    el = time.perf_counter() - t0
+                    bar.set_postfix(loss=f"{loss:.4f}", psnr=f"{_psnr(out.rgb, gt):.2f}", N=len(state),
+                                    its=f"{it / max(el, 1e-9):.1f}")
+    finally:
+        if bar is not None:
+            bar.close()
+    deg = sh_degree_at(cfg.iterations, cfg.sh_degree, cfg.sh_degree_interval)
+    return FitResult(state.gaussians(deg), history, time.perf_counter() - t0, state)
+
+
+def with_iterations(config: TrainConfig, iterations: int) -> TrainConfig:
+    """A copy of `config` with its schedule squeezed into `iterations` (densification window,
+    position-lr decay, depth-term starts and SH steps scaled proportionally)."""
+    f = iterations / max(config.iterations, 1)
+    sc = lambda v: None if v is None else max(1, int(round(v * f)))  # noqa: E731
+    d, o, L = config.densify, config.optim, config.loss
+    return replace(
+        config, iterations=iterations,
+        sh_degree_interval=sc(config.sh_degree_interval),
+        optim=replace(o, position_lr_start=int(round(o.position_lr_start * f)),
+                      position_lr_max_steps=sc(o.position_lr_max_steps)),
+        loss=replace(L, soft_depth_from=sc(L.soft_depth_from), hard_depth_from=max(1, sc(L.hard_depth_from))),
+        densify=replace(d, densify_from=sc(d.densify_from), densify_until=sc(d.densify_until),
+                        densify_interval=max(10, sc(d.densify_interval)),
+                        opacity_reset_interval=sc(d.opacity_reset_interval),
+                        size_prune_from=sc(d.size_prune_from)),
+    )
