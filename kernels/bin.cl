@@ -19,13 +19,12 @@
      tile_ranges   per isect i in [0, K]: [start, end) of every tile from the sorted keys (searchsorted
                    semantics; each tile written exactly once, no atomics) and gid_from_isect
 
-   Defines: TILE_SIZE (16). Nothing here touches floats except the tile rectangle's integers.
+   Defines: none (the tile grid arrives as tiles_x / n_tiles). Integers only: no float math here.
 */
 
-#ifndef TILE_SIZE
-#define TILE_SIZE 16
-#endif
-#define DEPTH_KEY_CULLED 0xFFFFFFFFu
+#include "common.h"
+
+#define DEPTH_KEY_CULLED 0xFFFFFFFFu /* project.cl's key of a culled Gaussian: sorts last */
 
 /* Per rank r in [0, N] (N + 1 work-items): tiles touched by the Gaussian of rank r, and V. */
 __kernel void bin_count(const int n,

@@ -21,25 +21,37 @@
 
    Defines
      SH_K          number of SH coefficients per channel (1, 4, 9 or 16); default 1.
+     PROJ_VW       Gaussians per work-item, 1 or 8 (default 1). 8 on CPU devices (PoCL): the math
+                   runs on float8 lanes (AVX2 through PoCL's vector builtins, ~8x the scalar code,
+                   which PoCL 3.0 does not vectorize across work-items); 1 on GPUs. The code is
+                   written once over the lane types vf / vi; culling is a lane mask, never a branch.
+
+   Culling (radii 0, zero row; matches the reference): any non-finite raw field; |q| < 1e-12;
+   t_z <= near (or not finite); det(Sigma2d) <= 0; a projected value (t, u, v, Sigma2d, conic,
+   lambda_max, colour) not finite in float32; an empty tile rect. det, conic and lambda_max are
+   computed on Sigma2d / max(a, c) so that a huge but representable Sigma2d does not overflow.
+   The backward scales huge cotangents by a power of two (it is linear in them) so that overflow
+   gives +-inf, never NaN.
 
    Not handled here: binning (bin.cl), blending (rasterize.cl). Guards are written positively so
    that NaN fails them; the file must be built without fast-math options.
 */
+#include "common.h"
 
 #ifndef SH_K
 #define SH_K 1
 #endif
-#ifndef TILE_SIZE
-#define TILE_SIZE 16
-#endif
 
-#define PROJ_EPS2D 0.3f            /* low-pass dilation on the 2D covariance diagonal (3DGS) */
+#define PROJ_EPS2D EPS2D           /* low-pass dilation on the 2D covariance diagonal (common.h) */
 #define PROJ_LAMBDA_FLOOR 0.1f     /* floor of the eigenvalue spread term (3DGS radius rule) */
 #define PROJ_SIGMAS 3.0f           /* radius = ceil(3 sqrt(lambda_max)) */
 #define PROJ_QUAT_NORM_MIN 1e-12f  /* below this |q| the rotation is undefined: cull (reference QUAT_NORM_MIN) */
 #define DEPTH_KEY_CULLED 0xFFFFFFFFu /* sorts after every positive float's bits */
+/* LLVM declines to inline the big helpers on its own (cost above its threshold): force it, one
+   straight function per kernel. */
+#define PROJ_INLINE inline __attribute__((always_inline))
 
-/* Camera record (float32, built by OpenCLBackend._camera_record):
+/* Camera record (float32, built by reings.backends.opencl.backend.camera_record):
    [0..8] Rc row-major, [9..11] tc, [12] fx, [13] fy, [14] cx, [15] cy, [16..18] camera centre,
    [19] near, [20] lim_x_pos, [21] lim_x_neg, [22] lim_y_pos, [23] lim_y_neg */
 #define CAM_RECORD 24
@@ -60,22 +72,76 @@
 #define SH_C3_5 1.445305721320277f
 #define SH_C3_6 -0.5900435899266435f
 
+/* ---------------------------------------------------------------------------------------------
+   lane types: vf / vi hold PROJ_VW Gaussians. Comparisons give masks (scalar 0/1, vector 0/-1);
+   masks combine with & | ! and feed select(); ANY() reduces one.
+   --------------------------------------------------------------------------------------------- */
+#ifndef PROJ_VW
+#define PROJ_VW 1
+#endif
+#if PROJ_VW == 8
+typedef float8 vf;
+typedef int8 vi;
+typedef uint8 vu;
+#define VLANES ((vi)(0, 1, 2, 3, 4, 5, 6, 7))
+#define ANY(m) any(m)
+#define CVT_I(x) convert_int8(x)
+#define AS_U(x) as_uint8(x)
+#define AS_I(x) as_int8(x)
+#define AS_F(x) as_float8(x)
+#define GATHER(base, idx)                                                                         \
+    ((vf)((base)[(idx).s0], (base)[(idx).s1], (base)[(idx).s2], (base)[(idx).s3], (base)[(idx).s4], \
+          (base)[(idx).s5], (base)[(idx).s6], (base)[(idx).s7]))
+#define GATHER_I(base, idx)                                                                       \
+    ((vi)((base)[(idx).s0], (base)[(idx).s1], (base)[(idx).s2], (base)[(idx).s3], (base)[(idx).s4], \
+          (base)[(idx).s5], (base)[(idx).s6], (base)[(idx).s7]))
+#define STORE_F(x, tmp) vstore8((x), 0, (tmp))
+#define STORE_I(x, tmp) vstore8((x), 0, (tmp))
+#define STORE_U(x, tmp) vstore8((x), 0, (tmp))
+#elif PROJ_VW == 1
+typedef float vf;
+typedef int vi;
+typedef uint vu;
+#define VLANES 0
+#define ANY(m) (m)
+#define CVT_I(x) ((int)(x))
+#define AS_U(x) as_uint(x)
+#define AS_I(x) as_int(x)
+#define AS_F(x) as_float(x)
+#define GATHER(base, idx) ((base)[(idx)])
+#define GATHER_I(base, idx) ((base)[(idx)])
+#define STORE_F(x, tmp) ((tmp)[0] = (x))
+#define STORE_I(x, tmp) ((tmp)[0] = (x))
+#define STORE_U(x, tmp) ((tmp)[0] = (x))
+#else
+#error "PROJ_VW must be 1 or 8"
+#endif
+
+/* out[(g0 + l) * stride + off] = lane l of x, for the lanes that are real Gaussians */
+#define SCATTER_F(out, stride, off, x)                                                   \
+    do {                                                                                 \
+        float tmp_[PROJ_VW];                                                             \
+        STORE_F((x), tmp_);                                                              \
+        for (int l_ = 0; l_ < nl; ++l_) (out)[(size_t)(g0 + l_) * (stride) + (off)] = tmp_[l_]; \
+    } while (0)
+#define SCATTER_I(out, stride, off, x)                                                   \
+    do {                                                                                 \
+        int tmp_[PROJ_VW];                                                               \
+        STORE_I((x), tmp_);                                                              \
+        for (int l_ = 0; l_ < nl; ++l_) (out)[(size_t)(g0 + l_) * (stride) + (off)] = tmp_[l_]; \
+    } while (0)
+#define SCATTER_U(out, stride, off, x)                                                   \
+    do {                                                                                 \
+        uint tmp_[PROJ_VW];                                                              \
+        STORE_U((x), tmp_);                                                              \
+        for (int l_ = 0; l_ < nl; ++l_) (out)[(size_t)(g0 + l_) * (stride) + (off)] = tmp_[l_]; \
+    } while (0)
+
 /* |x| <= FLT_MAX is false for NaN and +-Inf */
-inline bool finite1(float x) { return fabs(x) <= FLT_MAX; }
+#define FINITE(x) (fabs(x) <= FLT_MAX)
 
-/* All raw fields of Gaussian g finite? */
-inline bool inputs_finite(int g, __global const float *means, __global const float *quats,
-                          __global const float *log_scales, __global const float *opacity_logits,
-                          __global const float *sh) {
-    bool ok = finite1(opacity_logits[g]);
-    for (int i = 0; i < 3; ++i) ok = ok && finite1(means[3 * g + i]) && finite1(log_scales[3 * g + i]);
-    for (int i = 0; i < 4; ++i) ok = ok && finite1(quats[4 * g + i]);
-    for (int i = 0; i < SH_K * 3; ++i) ok = ok && finite1(sh[(size_t)g * (SH_K * 3) + i]);
-    return ok;
-}
-
-/* SH basis values at the unit direction d, order of 3DGS (METHOD.md §5.5) */
-inline void sh_basis(float x, float y, float z, float *b) {
+/* SH basis values at the unit direction (x, y, z), order of 3DGS (METHOD.md §5.5) */
+PROJ_INLINE void sh_basis(vf x, vf y, vf z, vf *b) {
     b[0] = SH_C0;
 #if SH_K > 1
     b[1] = -SH_C1 * y;
@@ -83,7 +149,7 @@ inline void sh_basis(float x, float y, float z, float *b) {
     b[3] = -SH_C1 * x;
 #endif
 #if SH_K > 4
-    float xx = x * x, yy = y * y, zz = z * z;
+    vf xx = x * x, yy = y * y, zz = z * z;
     b[4] = SH_C2_0 * x * y;
     b[5] = SH_C2_1 * y * z;
     b[6] = SH_C2_2 * (2.0f * zz - xx - yy);
@@ -101,67 +167,77 @@ inline void sh_basis(float x, float y, float z, float *b) {
 #endif
 }
 
-/* Everything project_fwd computes for one Gaussian, kept for the backward. */
+/* Everything project_fwd computes for PROJ_VW Gaussians, kept for the backward. */
 typedef struct {
-    float qn[4];   /* normalised quaternion (w, x, y, z) */
-    float qnorm;   /* |q| */
-    float R[9];    /* rotation of qn, row-major */
-    float s[3];    /* exp(log_scales) */
-    float M[9];    /* R S */
-    float t[3];    /* camera-space mean */
-    float txc, tyc;/* clamped t_x, t_y (J is evaluated there) */
-    bool clx, cly; /* clamp active */
-    float J[6];    /* 2x3: J00 J01 J02 / J10 J11 J12 */
-    float Sc[9];   /* Rc Sigma Rc^T */
-    float a, b, c; /* Sigma2d (with EPS2D) */
-    float det;
-    float A, B, C; /* conic */
-    float u, v;
-    float radius;
-    int rect[4];
-    float dir[3];  /* unit direction mean - campos */
-    float dnorm;   /* |mean - campos| */
-    float raw[3];  /* SH sum + 0.5, before the clamp */
+    vf qn[4];      /* normalised quaternion (w, x, y, z) */
+    vf qnorm;      /* |q| */
+    vf R[9];       /* rotation of qn, row-major */
+    vf s[3];       /* exp(log_scales) */
+    vf M[9];       /* R S */
+    vf t[3];       /* camera-space mean */
+    vf txc, tyc;   /* clamped t_x, t_y (J is evaluated there) */
+    vi clx, cly;   /* clamp active (mask) */
+    vf J[6];       /* 2x3: J00 J01 J02 / J10 J11 J12 */
+    vf Sc[9];      /* Rc Sigma Rc^T */
+    vf a, b, c;    /* Sigma2d (with EPS2D) */
+    vf A, B, C;    /* conic */
+    vf u, v;
+    vf radius;
+    vf rect[4];    /* tile rect, integral values in float (clamped to the grid) */
+    vf dir[3];     /* unit direction mean - campos */
+    vf dnorm;      /* |mean - campos| */
+    vf raw[3];     /* SH sum + 0.5, before the clamp */
 } proj_t;
 
-/* Forward math for one Gaussian. Returns false if the Gaussian is culled. */
-inline bool project_one(int g, __global const float *means, __global const float *quats,
-                        __global const float *log_scales, __global const float *opacity_logits,
-                        __global const float *sh, __constant const float *cam, int width, int height,
-                        proj_t *p) {
-    if (!inputs_finite(g, means, quats, log_scales, opacity_logits, sh)) return false;
-    float mu[3] = {means[3 * g], means[3 * g + 1], means[3 * g + 2]};
+/* Forward math for the lanes `gid` (indices already clamped into [0, n)). Returns the mask of the
+   lanes that stay visible; culled lanes hold garbage (possibly inf / NaN), never used. */
+PROJ_INLINE vi project_one(vi gid, __global const float *means, __global const float *quats,
+                           __global const float *log_scales, __global const float *opacity_logits,
+                           __global const float *sh, __constant const float *cam, int width, int height,
+                           proj_t *p) {
+    /* every raw field finite */
+    vi ok = FINITE(GATHER(opacity_logits, gid));
+    vf mu[3];
+    for (int i = 0; i < 3; ++i) {
+        mu[i] = GATHER(means, 3 * gid + i);
+        ok &= FINITE(mu[i]) & FINITE(GATHER(log_scales, 3 * gid + i));
+    }
+    vf q[4];
+    for (int i = 0; i < 4; ++i) {
+        q[i] = GATHER(quats, 4 * gid + i);
+        ok &= FINITE(q[i]);
+    }
+    for (int i = 0; i < SH_K * 3; ++i) ok &= FINITE(GATHER(sh, gid * (SH_K * 3) + i));
 
     /* camera-space mean and near cull */
     for (int i = 0; i < 3; ++i)
         p->t[i] = cam[3 * i] * mu[0] + cam[3 * i + 1] * mu[1] + cam[3 * i + 2] * mu[2] + cam[9 + i];
     const float near = cam[19];
-    if (!(p->t[2] > near && p->t[2] <= FLT_MAX)) return false;  /* behind or at the near plane (NaN fails) */
+    ok &= (p->t[2] > near) & FINITE(p->t[2]);  /* behind or at the near plane (NaN fails) */
 
     /* quaternion -> rotation; |q| computed scaled by max |q_i| so that neither huge nor tiny
        (denormal) components overflow or underflow the sum of squares */
-    float w = quats[4 * g], x = quats[4 * g + 1], y = quats[4 * g + 2], z = quats[4 * g + 3];
-    float qmax = fmax(fmax(fabs(w), fabs(x)), fmax(fabs(y), fabs(z)));
-    if (!(qmax > 0.0f)) return false;
-    float iqm = 1.0f / qmax;
-    w *= iqm; x *= iqm; y *= iqm; z *= iqm;
-    float n2 = w * w + x * x + y * y + z * z; /* in [1, 4] */
-    float qn = sqrt(n2);
+    vf qmax = fmax(fmax(fabs(q[0]), fabs(q[1])), fmax(fabs(q[2]), fabs(q[3])));
+    ok &= qmax > 0.0f;
+    vf iqm = 1.0f / qmax;
+    vf w = q[0] * iqm, x = q[1] * iqm, y = q[2] * iqm, z = q[3] * iqm;
+    vf n2 = w * w + x * x + y * y + z * z; /* in [1, 4] */
+    vf qn = sqrt(n2);
     p->qnorm = qmax * qn;
-    if (!(p->qnorm >= PROJ_QUAT_NORM_MIN)) return false;  /* undefined rotation */
+    ok &= p->qnorm >= PROJ_QUAT_NORM_MIN;  /* undefined rotation */
     w /= qn; x /= qn; y /= qn; z /= qn;
     p->qn[0] = w; p->qn[1] = x; p->qn[2] = y; p->qn[3] = z;
-    float *R = p->R;
+    vf *R = p->R;
     R[0] = 1.0f - 2.0f * (y * y + z * z); R[1] = 2.0f * (x * y - w * z); R[2] = 2.0f * (x * z + w * y);
     R[3] = 2.0f * (x * y + w * z); R[4] = 1.0f - 2.0f * (x * x + z * z); R[5] = 2.0f * (y * z - w * x);
     R[6] = 2.0f * (x * z - w * y); R[7] = 2.0f * (y * z + w * x); R[8] = 1.0f - 2.0f * (x * x + y * y);
 
-    for (int j = 0; j < 3; ++j) p->s[j] = exp(log_scales[3 * g + j]);
+    for (int j = 0; j < 3; ++j) p->s[j] = exp(GATHER(log_scales, 3 * gid + j));
     for (int i = 0; i < 3; ++i)
         for (int j = 0; j < 3; ++j) p->M[3 * i + j] = R[3 * i + j] * p->s[j];
 
     /* world covariance Sigma = M M^T, then camera covariance Sc = Rc Sigma Rc^T = (Rc M)(Rc M)^T */
-    float W[9];
+    vf W[9];
     for (int i = 0; i < 3; ++i)
         for (int j = 0; j < 3; ++j)
             W[3 * i + j] = cam[3 * i] * p->M[j] + cam[3 * i + 1] * p->M[3 + j] + cam[3 * i + 2] * p->M[6 + j];
@@ -171,73 +247,78 @@ inline bool project_one(int g, __global const float *means, __global const float
 
     /* projection with the gsplat guard band */
     const float fx = cam[12], fy = cam[13], cx = cam[14], cy = cam[15];
-    const float tz = p->t[2];
-    const float rz = 1.0f / tz;
-    float xz = p->t[0] * rz, yz = p->t[1] * rz;
-    p->clx = !(xz >= -cam[21] && xz <= cam[20]);
-    p->cly = !(yz >= -cam[23] && yz <= cam[22]);
+    const vf tz = p->t[2];
+    const vf rz = 1.0f / tz;
+    vf xz = p->t[0] * rz, yz = p->t[1] * rz;
+    p->clx = !((xz >= -cam[21]) & (xz <= cam[20]));
+    p->cly = !((yz >= -cam[23]) & (yz <= cam[22]));
     p->txc = tz * clamp(xz, -cam[21], cam[20]);
     p->tyc = tz * clamp(yz, -cam[23], cam[22]);
     p->u = fx * p->t[0] * rz + cx;
     p->v = fy * p->t[1] * rz + cy;
-    float *J = p->J;
+    vf *J = p->J;
     J[0] = fx * rz; J[1] = 0.0f; J[2] = -fx * p->txc * rz * rz;
     J[3] = 0.0f; J[4] = fy * rz; J[5] = -fy * p->tyc * rz * rz;
 
     /* Sigma2d = J Sc J^T (+ EPS2D on the diagonal) */
-    float JS[6];
+    vf JS[6];
     for (int i = 0; i < 2; ++i)
         for (int j = 0; j < 3; ++j)
             JS[3 * i + j] = J[3 * i] * p->Sc[j] + J[3 * i + 1] * p->Sc[3 + j] + J[3 * i + 2] * p->Sc[6 + j];
     p->a = JS[0] * J[0] + JS[1] * J[1] + JS[2] * J[2] + PROJ_EPS2D;
     p->b = JS[0] * J[3] + JS[1] * J[4] + JS[2] * J[5];
     p->c = JS[3] * J[3] + JS[4] * J[4] + JS[5] * J[5] + PROJ_EPS2D;
-    if (!(finite1(p->a) && finite1(p->b) && finite1(p->c))) return false;
+    ok &= FINITE(p->a) & FINITE(p->b) & FINITE(p->c);
     /* det, conic and lambda_max computed on Sigma2d / m, m = max(a, c) >= EPS2D, so that a huge
        but representable Sigma2d does not overflow det = ac - b^2 */
-    const float m = fmax(p->a, p->c), im = 1.0f / m;
-    const float a1 = p->a * im, b1 = p->b * im, c1 = p->c * im;
-    const float det1 = a1 * c1 - b1 * b1;
-    if (!(det1 > 0.0f)) return false;  /* degenerate (NaN fails) */
-    p->det = det1 * m * m;             /* may be inf for a huge Gaussian; only used via det1 */
-    const float idet = 1.0f / (det1 * m);
+    const vf m = fmax(p->a, p->c), im = 1.0f / m;
+    const vf a1 = p->a * im, b1 = p->b * im, c1 = p->c * im;
+    const vf det1 = a1 * c1 - b1 * b1;
+    ok &= det1 > 0.0f;  /* degenerate (NaN fails) */
+    const vf idet = 1.0f / (det1 * m);
     p->A = c1 * idet; p->B = -b1 * idet; p->C = a1 * idet;
 
     /* radius and tile rectangle: lambda_max = m (mid1 + sqrt(max(0.1 / m^2, mid1^2 - det1))) */
-    float mid1 = 0.5f * (a1 + c1);
-    float lam = m * (mid1 + sqrt(fmax(PROJ_LAMBDA_FLOOR * im * im, mid1 * mid1 - det1)));
-    float r = ceil(PROJ_SIGMAS * sqrt(lam));
-    if (!(lam <= FLT_MAX && finite1(p->u) && finite1(p->v) && finite1(p->A) && finite1(p->B) && finite1(p->C)))
-        return false;
+    vf mid1 = 0.5f * (a1 + c1);
+    vf lam = m * (mid1 + sqrt(fmax(PROJ_LAMBDA_FLOOR * im * im, mid1 * mid1 - det1)));
+    vf r = ceil(PROJ_SIGMAS * sqrt(lam));
+    ok &= (lam <= FLT_MAX) & FINITE(p->u) & FINITE(p->v) & FINITE(p->A) & FINITE(p->B) & FINITE(p->C);
     p->radius = r;
     const int tiles_x = (width + TILE_SIZE - 1) / TILE_SIZE, tiles_y = (height + TILE_SIZE - 1) / TILE_SIZE;
     const float inv_tile = 1.0f / (float)TILE_SIZE;
-    /* clamp in float before the int conversion (a huge r would overflow an int) */
-    p->rect[0] = (int)clamp(floor((p->u - r) * inv_tile), 0.0f, (float)tiles_x);
-    p->rect[1] = (int)clamp(floor((p->v - r) * inv_tile), 0.0f, (float)tiles_y);
-    p->rect[2] = (int)clamp(ceil((p->u + r) * inv_tile), 0.0f, (float)tiles_x);
-    p->rect[3] = (int)clamp(ceil((p->v + r) * inv_tile), 0.0f, (float)tiles_y);
-    if (!(p->rect[2] > p->rect[0] && p->rect[3] > p->rect[1])) return false;  /* off screen */
+    /* clamped in float (a huge r would overflow an int); integral values */
+    p->rect[0] = clamp(floor((p->u - r) * inv_tile), 0.0f, (float)tiles_x);
+    p->rect[1] = clamp(floor((p->v - r) * inv_tile), 0.0f, (float)tiles_y);
+    p->rect[2] = clamp(ceil((p->u + r) * inv_tile), 0.0f, (float)tiles_x);
+    p->rect[3] = clamp(ceil((p->v + r) * inv_tile), 0.0f, (float)tiles_y);
+    ok &= (p->rect[2] > p->rect[0]) & (p->rect[3] > p->rect[1]);  /* off screen (NaN fails) */
 
     /* SH colour at the view direction */
-    float d[3] = {mu[0] - cam[16], mu[1] - cam[17], mu[2] - cam[18]};
-    float dn = sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
+    vf d[3] = {mu[0] - cam[16], mu[1] - cam[17], mu[2] - cam[18]};
+    vf dn = sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
     p->dnorm = dn;
-    float idn = dn > 0.0f ? 1.0f / dn : 0.0f;
+    vf idn = select((vf)0.0f, 1.0f / dn, dn > 0.0f);
     for (int i = 0; i < 3; ++i) p->dir[i] = d[i] * idn;
-    float bas[SH_K];
+    vf bas[SH_K];
     sh_basis(p->dir[0], p->dir[1], p->dir[2], bas);
-    __global const float *shg = sh + (size_t)g * (SH_K * 3);
     for (int ch = 0; ch < 3; ++ch) {
-        float acc = 0.0f;
-        for (int k = 0; k < SH_K; ++k) acc += bas[k] * shg[3 * k + ch];
+        vf acc = 0.0f;
+        for (int k = 0; k < SH_K; ++k) acc += bas[k] * GATHER(sh, gid * (SH_K * 3) + (3 * k + ch));
         p->raw[ch] = acc + 0.5f;
     }
-    return finite1(p->raw[0]) && finite1(p->raw[1]) && finite1(p->raw[2]) && finite1(p->t[0]) &&
-           finite1(p->t[1]);
+    ok &= FINITE(p->raw[0]) & FINITE(p->raw[1]) & FINITE(p->raw[2]) & FINITE(p->t[0]) & FINITE(p->t[1]);
+    return ok;
 }
 
-/* Forward projection, one work-item per Gaussian. */
+/* Lanes of work-item `wi`: g0 = first gid, nl = how many are real, gid = clamped lane gids */
+#define LANES(n)                                                        \
+    const int g0 = (int)get_global_id(0) * PROJ_VW;                     \
+    if (g0 >= (n)) return;                                              \
+    const int nl = min(PROJ_VW, (n) - g0);                              \
+    const vi gid = min((vi)g0 + VLANES, (vi)((n) - 1));                 \
+    const vi lane_ok = ((vi)g0 + VLANES) < (vi)(n)
+
+/* Forward projection, one work-item per PROJ_VW Gaussians. */
 __kernel void project_fwd(const int n,
                           __global const float *means,          /* [N, 3] */
                           __global const float *quats,          /* [N, 4] (w, x, y, z) */
@@ -256,35 +337,31 @@ __kernel void project_fwd(const int n,
                           __global float *opacities,            /* [N] */
                           __global uint *depth_keys,            /* [N] sort keys */
                           __global uint *gid_vals) {            /* [N] sort values = gid */
-    const int g = get_global_id(0);
-    if (g >= n) return;
+    LANES(n);
     proj_t p;
-    bool vis = project_one(g, means, quats, log_scales, opacity_logits, sh, cam, width, height, &p);
-    gid_vals[g] = (uint)g;
-    if (!vis) {
-        means2d[2 * g] = 0.0f; means2d[2 * g + 1] = 0.0f;
-        conics[3 * g] = 0.0f; conics[3 * g + 1] = 0.0f; conics[3 * g + 2] = 0.0f;
-        depths[g] = 0.0f;
-        radii[g] = 0;
-        tile_rect[4 * g] = 0; tile_rect[4 * g + 1] = 0; tile_rect[4 * g + 2] = 0; tile_rect[4 * g + 3] = 0;
-        colors[3 * g] = 0.0f; colors[3 * g + 1] = 0.0f; colors[3 * g + 2] = 0.0f;
-        opacities[g] = 0.0f;
-        depth_keys[g] = DEPTH_KEY_CULLED;
-        return;
-    }
-    means2d[2 * g] = p.u; means2d[2 * g + 1] = p.v;
-    conics[3 * g] = p.A; conics[3 * g + 1] = p.B; conics[3 * g + 2] = p.C;
-    depths[g] = p.t[2];
-    radii[g] = p.radius >= 2147483648.0f ? INT_MAX : (int)p.radius;  /* saturate like the reference */
-    for (int i = 0; i < 4; ++i) tile_rect[4 * g + i] = p.rect[i];
-    for (int ch = 0; ch < 3; ++ch) colors[3 * g + ch] = fmax(p.raw[ch], 0.0f);
-    opacities[g] = opacity_override > 0.0f ? opacity_override : 1.0f / (1.0f + exp(-opacity_logits[g]));
-    depth_keys[g] = as_uint(p.t[2]);  /* t_z > near > 0: the float bits order like the floats */
+    const vi vis = project_one(gid, means, quats, log_scales, opacity_logits, sh, cam, width, height, &p) & lane_ok;
+    const vf zero = 0.0f;
+    SCATTER_U(gid_vals, 1, 0, AS_U((vi)g0 + VLANES));
+    SCATTER_F(means2d, 2, 0, select(zero, p.u, vis));
+    SCATTER_F(means2d, 2, 1, select(zero, p.v, vis));
+    SCATTER_F(conics, 3, 0, select(zero, p.A, vis));
+    SCATTER_F(conics, 3, 1, select(zero, p.B, vis));
+    SCATTER_F(conics, 3, 2, select(zero, p.C, vis));
+    SCATTER_F(depths, 1, 0, select(zero, p.t[2], vis));
+    /* radius saturates like the reference's int32 cast */
+    const vi rad = select(CVT_I(fmin(p.radius, 2147483520.0f)), (vi)INT_MAX, p.radius >= 2147483648.0f);
+    SCATTER_I(radii, 1, 0, select((vi)0, rad, vis));
+    for (int i = 0; i < 4; ++i) SCATTER_I(tile_rect, 4, i, select((vi)0, CVT_I(p.rect[i]), vis));
+    for (int ch = 0; ch < 3; ++ch) SCATTER_F(colors, 3, ch, select(zero, fmax(p.raw[ch], 0.0f), vis));
+    const vf op = opacity_override > 0.0f ? (vf)opacity_override : 1.0f / (1.0f + exp(-GATHER(opacity_logits, gid)));
+    SCATTER_F(opacities, 1, 0, select(zero, op, vis));
+    /* t_z > near > 0: the float bits order like the floats */
+    SCATTER_U(depth_keys, 1, 0, select((vu)DEPTH_KEY_CULLED, AS_U(p.t[2]), vis));
 }
 
-/* Backward projection, one work-item per Gaussian: raw-field gradients from the per-Gaussian
-   cotangents. grad_mask bits: 1 means, 2 quats, 4 log_scales, 8 opacity_logits, 16 sh (a field
-   whose bit is clear gets zeros). Culled Gaussians (radii == 0) get zeros. */
+/* Backward projection, one work-item per PROJ_VW Gaussians: raw-field gradients from the
+   per-Gaussian cotangents. grad_mask bits: 1 means, 2 quats, 4 log_scales, 8 opacity_logits, 16 sh
+   (a field whose bit is clear gets zeros). Culled Gaussians (radii == 0) get zeros. */
 __kernel void project_bwd(const int n,
                           __global const float *means,          /* [N, 3] */
                           __global const float *quats,          /* [N, 4] */
@@ -296,75 +373,85 @@ __kernel void project_bwd(const int n,
                           const float opacity_override,         /* > 0: opacity grad is zero */
                           const int grad_mask,
                           __global const int *radii,            /* [N] from project_fwd */
-                          __global const float *v_proj,         /* [N, V_PROJ] */
+                          __global const float *v_proj,         /* [N, V_PROJ] (rows of culled gids unread) */
                           __global float *v_means,              /* [N, 3] */
                           __global float *v_quats,              /* [N, 4] */
                           __global float *v_log_scales,         /* [N, 3] */
                           __global float *v_opacity_logits,     /* [N] */
                           __global float *v_sh) {               /* [N, SH_K, 3] */
-    const int g = get_global_id(0);
-    if (g >= n) return;
-    proj_t p;
-    bool vis = radii[g] > 0 &&
-               project_one(g, means, quats, log_scales, opacity_logits, sh, cam, width, height, &p);
-    __global float *vsh = v_sh + (size_t)g * (SH_K * 3);
-    if (!vis) {
-        for (int i = 0; i < 3; ++i) { v_means[3 * g + i] = 0.0f; v_log_scales[3 * g + i] = 0.0f; }
-        for (int i = 0; i < 4; ++i) v_quats[4 * g + i] = 0.0f;
-        v_opacity_logits[g] = 0.0f;
-        for (int i = 0; i < SH_K * 3; ++i) vsh[i] = 0.0f;
+    LANES(n);
+    const vf zero = 0.0f;
+    vi vis = (GATHER_I(radii, gid) > 0) & lane_ok;
+    if (!ANY(vis)) { /* all culled: zeros (the common case for off-screen blocks) */
+        for (int i = 0; i < 3; ++i) { SCATTER_F(v_means, 3, i, zero); SCATTER_F(v_log_scales, 3, i, zero); }
+        for (int i = 0; i < 4; ++i) SCATTER_F(v_quats, 4, i, zero);
+        SCATTER_F(v_opacity_logits, 1, 0, zero);
+        for (int i = 0; i < SH_K * 3; ++i) SCATTER_F(v_sh, SH_K * 3, i, zero);
         return;
     }
+    proj_t p;
+    vis &= project_one(gid, means, quats, log_scales, opacity_logits, sh, cam, width, height, &p);
+
     /* The backward is linear in the cotangents. Huge ones (a colour near FLT_MAX makes its
        neighbours' cotangents overflow) are scaled by an exact power of two, the chain runs on the
        scaled values and the results are scaled back: they may overflow to +-inf, never to
-       inf - inf = NaN. +-inf cotangents saturate at +-FLT_MAX first. NaN stays NaN. */
-    __global const float *vp = v_proj + (size_t)g * V_PROJ;
-    float vin[V_PROJ], vmax = 0.0f;
+       inf - inf = NaN. +-inf cotangents saturate at +-FLT_MAX first. NaN stays NaN. The rows of
+       culled lanes are never read (isect_reduce does not write them): such lanes use 0. */
+    const vi vgid = select(gid, (vi)(-1), !vis);  /* -1 marks a lane whose row must not be read */
+    vf vin[V_PROJ], vmax = 0.0f;
     for (int i = 0; i < V_PROJ; ++i) {
-        float x = vp[i];
-        x = isinf(x) ? copysign(FLT_MAX, x) : x;
+#if PROJ_VW == 8
+        float tmp[8];
+        int idx[8];
+        vstore8(vgid, 0, idx);
+        for (int l = 0; l < 8; ++l) tmp[l] = idx[l] >= 0 ? v_proj[(size_t)idx[l] * V_PROJ + i] : 0.0f;
+        vf x = vload8(0, tmp);
+#else
+        vf x = vgid >= 0 ? v_proj[(size_t)vgid * V_PROJ + i] : 0.0f;
+#endif
+        x = select(x, copysign((vf)FLT_MAX, x), isinf(x));
         vmax = fmax(vmax, fabs(x));
         vin[i] = x;
     }
-    float vscale = 1.0f;
-    if (vmax > 0x1p60f) {
-        int e;
-        frexp(vmax, &e);
-        vscale = ldexp(1.0f, e - 2); /* <= 2^126 (finite); vmax / vscale in [2, 4) */
-        for (int i = 0; i < V_PROJ; ++i) vin[i] /= vscale;
-    }
-    const float v_u = vin[0], v_v = vin[1], v_A = vin[2], v_B = vin[3], v_C = vin[4];
-    const float v_col[3] = {vin[5], vin[6], vin[7]};
-    const float v_op = vin[8], v_depth = vin[9];
+    /* vmax in [2^E, 2^(E+1)) (normal when > 2^60): vscale = 2^(E-1) <= 2^126 (finite), built from the
+       exponent bits (Oclgrind cannot check a vector frexp); vmax / vscale in [2, 4) */
+    const vi ebits = (AS_I(vmax) >> 23) & 0xff;
+    const vf vscale = select((vf)1.0f, AS_F((ebits - 1) << 23), vmax > 0x1p60f);
+    for (int i = 0; i < V_PROJ; ++i) vin[i] /= vscale;
+    const vf v_u = vin[0], v_v = vin[1], v_A = vin[2], v_B = vin[3], v_C = vin[4];
+    const vf v_col[3] = {vin[5], vin[6], vin[7]};
+    const vf v_op = vin[8], v_depth = vin[9];
 
     /* opacity */
-    float vlogit = 0.0f;
+    vf vlogit = 0.0f;
     if (!(opacity_override > 0.0f)) {
-        float op = 1.0f / (1.0f + exp(-opacity_logits[g]));
+        vf op = 1.0f / (1.0f + exp(-GATHER(opacity_logits, gid)));
         vlogit = v_op * op * (1.0f - op);
     }
-    v_opacity_logits[g] = (grad_mask & 8) ? vlogit * vscale : 0.0f;
+    const vi keep_op = vis & (vi)((grad_mask & 8) ? -1 : 0);
+    SCATTER_F(v_opacity_logits, 1, 0, select(zero, vlogit * vscale, keep_op));
 
     /* colour: zero gradient where the 0 clamp is active */
-    float vc[3];
-    for (int ch = 0; ch < 3; ++ch) vc[ch] = p.raw[ch] >= 0.0f ? v_col[ch] : 0.0f;
-    float bas[SH_K];
+    vf vc[3];
+    for (int ch = 0; ch < 3; ++ch) vc[ch] = select(zero, v_col[ch], p.raw[ch] >= 0.0f);
+    vf bas[SH_K];
     sh_basis(p.dir[0], p.dir[1], p.dir[2], bas);
+    const vi keep_sh = vis & (vi)((grad_mask & 16) ? -1 : 0);
     for (int k = 0; k < SH_K; ++k)
-        for (int ch = 0; ch < 3; ++ch) vsh[3 * k + ch] = (grad_mask & 16) ? bas[k] * vc[ch] * vscale : 0.0f;
+        for (int ch = 0; ch < 3; ++ch) SCATTER_F(v_sh, SH_K * 3, 3 * k + ch, select(zero, bas[k] * vc[ch] * vscale, keep_sh));
 
-    float vmu[3] = {0.0f, 0.0f, 0.0f};
+    vf vmu[3] = {0.0f, 0.0f, 0.0f};
 #if SH_K > 1
     {
         /* d colour / d dir: v_b[k] = sum_ch sh[k][ch] vc[ch], then the basis Jacobian */
-        __global const float *shg = sh + (size_t)g * (SH_K * 3);
-        float vb[SH_K];
-        for (int k = 0; k < SH_K; ++k) vb[k] = shg[3 * k] * vc[0] + shg[3 * k + 1] * vc[1] + shg[3 * k + 2] * vc[2];
-        const float x = p.dir[0], y = p.dir[1], z = p.dir[2];
-        float gx = -SH_C1 * vb[3], gy = -SH_C1 * vb[1], gz = SH_C1 * vb[2];
+        vf vb[SH_K];
+        for (int k = 0; k < SH_K; ++k)
+            vb[k] = GATHER(sh, gid * (SH_K * 3) + 3 * k) * vc[0] + GATHER(sh, gid * (SH_K * 3) + 3 * k + 1) * vc[1] +
+                    GATHER(sh, gid * (SH_K * 3) + 3 * k + 2) * vc[2];
+        const vf x = p.dir[0], y = p.dir[1], z = p.dir[2];
+        vf gx = -SH_C1 * vb[3], gy = -SH_C1 * vb[1], gz = SH_C1 * vb[2];
 #if SH_K > 4
-        const float xx = x * x, yy = y * y, zz = z * z;
+        const vf xx = x * x, yy = y * y, zz = z * z;
         gx += SH_C2_0 * y * vb[4] + SH_C2_2 * (-2.0f * x) * vb[6] + SH_C2_3 * z * vb[7] + SH_C2_4 * 2.0f * x * vb[8];
         gy += SH_C2_0 * x * vb[4] + SH_C2_1 * z * vb[5] + SH_C2_2 * (-2.0f * y) * vb[6] - SH_C2_4 * 2.0f * y * vb[8];
         gz += SH_C2_1 * y * vb[5] + SH_C2_2 * 4.0f * z * vb[6] + SH_C2_3 * x * vb[7];
@@ -381,66 +468,58 @@ __kernel void project_bwd(const int n,
               SH_C3_3 * (6.0f * zz - 3.0f * xx - 3.0f * yy) * vb[12] + SH_C3_4 * 8.0f * x * z * vb[13] +
               SH_C3_5 * (xx - yy) * vb[14];
 #endif
-        /* through dir = d / |d| */
-        if (p.dnorm > 0.0f) {
-            float dot = x * gx + y * gy + z * gz, idn = 1.0f / p.dnorm;
-            vmu[0] += (gx - x * dot) * idn;
-            vmu[1] += (gy - y * dot) * idn;
-            vmu[2] += (gz - z * dot) * idn;
-        }
+        /* through dir = d / |d| (no gradient where |d| == 0) */
+        const vf dot = x * gx + y * gy + z * gz;
+        const vf idn = select(zero, 1.0f / p.dnorm, p.dnorm > 0.0f);
+        vmu[0] += (gx - x * dot) * idn;
+        vmu[1] += (gy - y * dot) * idn;
+        vmu[2] += (gz - z * dot) * idn;
     }
 #endif
 
     /* conic -> Sigma2d (a, b, c): conic = inverse of [[a, b], [b, c]] */
-    const float A = p.A, B = p.B, C = p.C;
-    const float va = -(A * A * v_A + A * B * v_B + B * B * v_C);
-    const float vb2 = -(2.0f * A * B * v_A + (A * C + B * B) * v_B + 2.0f * B * C * v_C);
-    const float vc2 = -(B * B * v_A + B * C * v_B + C * C * v_C);
+    const vf A = p.A, B = p.B, C = p.C;
+    const vf va = -(A * A * v_A + A * B * v_B + B * B * v_C);
+    const vf vb2 = -(2.0f * A * B * v_A + (A * C + B * B) * v_B + 2.0f * B * C * v_C);
+    const vf vc2 = -(B * B * v_A + B * C * v_B + C * C * v_C);
     /* V: gradient w.r.t. the symmetric 2x2 matrix with independent entries (b split in two) */
-    const float V00 = va, V01 = 0.5f * vb2, V11 = vc2;
+    const vf V00 = va, V01 = 0.5f * vb2, V11 = vc2;
 
     /* Sigma2d = J Sc J^T: v_Sc = J^T V J, v_J = 2 V J Sc */
-    const float *J = p.J;
-    float VJ[6]; /* V J, 2x3 */
+    const vf *J = p.J;
+    vf VJ[6]; /* V J, 2x3 */
     for (int j = 0; j < 3; ++j) {
         VJ[j] = V00 * J[j] + V01 * J[3 + j];
         VJ[3 + j] = V01 * J[j] + V11 * J[3 + j];
     }
-    float vJ[6];
+    vf vJ[6];
     for (int i = 0; i < 2; ++i)
         for (int j = 0; j < 3; ++j)
             vJ[3 * i + j] = 2.0f * (VJ[3 * i] * p.Sc[j] + VJ[3 * i + 1] * p.Sc[3 + j] + VJ[3 * i + 2] * p.Sc[6 + j]);
-    float vSc[9];
+    vf vSc[9];
     for (int i = 0; i < 3; ++i)
         for (int j = 0; j < 3; ++j) vSc[3 * i + j] = J[i] * VJ[j] + J[3 + i] * VJ[3 + j];
 
     /* camera-space mean: u, v, depth and J */
     const float fx = cam[12], fy = cam[13];
-    const float tz = p.t[2], rz = 1.0f / tz, rz2 = rz * rz, rz3 = rz2 * rz;
-    float vt[3];
+    const vf tz = p.t[2], rz = 1.0f / tz, rz2 = rz * rz, rz3 = rz2 * rz;
+    vf vt[3];
     vt[0] = fx * rz * v_u;
     vt[1] = fy * rz * v_v;
     vt[2] = -fx * p.t[0] * rz2 * v_u - fy * p.t[1] * rz2 * v_v + v_depth;
     /* J00 = fx/tz, J02 = -fx txc/tz^2 (txc = tx unclamped, tz*L clamped) */
     vt[2] += -fx * rz2 * vJ[0] - fy * rz2 * vJ[4];
-    if (p.clx) {
-        vt[2] += fx * p.txc * rz3 * vJ[2];
-    } else {
-        vt[0] += -fx * rz2 * vJ[2];
-        vt[2] += 2.0f * fx * p.t[0] * rz3 * vJ[2];
-    }
-    if (p.cly) {
-        vt[2] += fy * p.tyc * rz3 * vJ[5];
-    } else {
-        vt[1] += -fy * rz2 * vJ[5];
-        vt[2] += 2.0f * fy * p.t[1] * rz3 * vJ[5];
-    }
+    vt[0] += select(-fx * rz2 * vJ[2], zero, p.clx);
+    vt[2] += select(2.0f * fx * p.t[0] * rz3 * vJ[2], fx * p.txc * rz3 * vJ[2], p.clx);
+    vt[1] += select(-fy * rz2 * vJ[5], zero, p.cly);
+    vt[2] += select(2.0f * fy * p.t[1] * rz3 * vJ[5], fy * p.tyc * rz3 * vJ[5], p.cly);
     /* t = Rc mu + tc */
     for (int j = 0; j < 3; ++j) vmu[j] += cam[j] * vt[0] + cam[3 + j] * vt[1] + cam[6 + j] * vt[2];
-    for (int j = 0; j < 3; ++j) v_means[3 * g + j] = (grad_mask & 1) ? vmu[j] * vscale : 0.0f;
+    const vi keep_mu = vis & (vi)((grad_mask & 1) ? -1 : 0);
+    for (int j = 0; j < 3; ++j) SCATTER_F(v_means, 3, j, select(zero, vmu[j] * vscale, keep_mu));
 
     /* Sc = Rc Sigma Rc^T: v_Sigma = Rc^T v_Sc Rc */
-    float T1[9], vS[9];
+    vf T1[9], vS[9];
     for (int i = 0; i < 3; ++i)
         for (int j = 0; j < 3; ++j) /* T1 = Rc^T v_Sc */
             T1[3 * i + j] = cam[i] * vSc[j] + cam[3 + i] * vSc[3 + j] + cam[6 + i] * vSc[6 + j];
@@ -448,30 +527,32 @@ __kernel void project_bwd(const int n,
         for (int j = 0; j < 3; ++j) /* vS = T1 Rc */
             vS[3 * i + j] = T1[3 * i] * cam[j] + T1[3 * i + 1] * cam[3 + j] + T1[3 * i + 2] * cam[6 + j];
     /* Sigma = M M^T: v_M = (vS + vS^T) M */
-    float vM[9];
+    vf vM[9];
     for (int i = 0; i < 3; ++i)
         for (int j = 0; j < 3; ++j) {
-            float acc = 0.0f;
+            vf acc = 0.0f;
             for (int k = 0; k < 3; ++k) acc += (vS[3 * i + k] + vS[3 * k + i]) * p.M[3 * k + j];
             vM[3 * i + j] = acc;
         }
     /* M = R S */
+    const vi keep_ls = vis & (vi)((grad_mask & 4) ? -1 : 0);
     for (int j = 0; j < 3; ++j) {
-        float vs = p.R[j] * vM[j] + p.R[3 + j] * vM[3 + j] + p.R[6 + j] * vM[6 + j];
-        v_log_scales[3 * g + j] = (grad_mask & 4) ? vs * p.s[j] * vscale : 0.0f;
+        vf vs = p.R[j] * vM[j] + p.R[3 + j] * vM[3 + j] + p.R[6 + j] * vM[6 + j];
+        SCATTER_F(v_log_scales, 3, j, select(zero, vs * p.s[j] * vscale, keep_ls));
     }
-    float G[9];
+    vf G[9];
     for (int i = 0; i < 3; ++i)
         for (int j = 0; j < 3; ++j) G[3 * i + j] = vM[3 * i + j] * p.s[j];
     /* R(qn) -> qn */
-    const float w = p.qn[0], x = p.qn[1], y = p.qn[2], z = p.qn[3];
-    float vq[4];
+    const vf w = p.qn[0], x = p.qn[1], y = p.qn[2], z = p.qn[3];
+    vf vq[4];
     vq[0] = 2.0f * (-z * G[1] + y * G[2] + z * G[3] - x * G[5] - y * G[6] + x * G[7]);
     vq[1] = 2.0f * (y * G[1] + z * G[2] + y * G[3] - 2.0f * x * G[4] - w * G[5] + z * G[6] + w * G[7] - 2.0f * x * G[8]);
     vq[2] = 2.0f * (-2.0f * y * G[0] + x * G[1] + w * G[2] + x * G[3] + z * G[5] - w * G[6] + z * G[7] - 2.0f * y * G[8]);
     vq[3] = 2.0f * (-2.0f * z * G[0] - w * G[1] + x * G[2] + w * G[3] - 2.0f * z * G[4] + y * G[5] + x * G[6] + y * G[7]);
     /* qn = q / |q| */
-    float dq = w * vq[0] + x * vq[1] + y * vq[2] + z * vq[3];
-    float iq = 1.0f / p.qnorm;
-    for (int i = 0; i < 4; ++i) v_quats[4 * g + i] = (grad_mask & 2) ? (vq[i] - p.qn[i] * dq) * iq * vscale : 0.0f;
+    const vf dq = w * vq[0] + x * vq[1] + y * vq[2] + z * vq[3];
+    const vf iq = 1.0f / p.qnorm;
+    const vi keep_q = vis & (vi)((grad_mask & 2) ? -1 : 0);
+    for (int i = 0; i < 4; ++i) SCATTER_F(v_quats, 4, i, select(zero, (vq[i] - p.qn[i] * dq) * iq * vscale, keep_q));
 }

@@ -300,9 +300,11 @@ def main(argv=None) -> int:
     ap.add_argument("--out", default=None, help="write the JSON lines here instead of stdout")
     args = ap.parse_args(argv)
 
-    from .backends.opencl.backend import OpenCLBackend
+    from .backends import get_backend
 
-    be = OpenCLBackend(args.device)
+    be = get_backend(args.device)  # the registry's instance: kernels and buffers shared with render()
+    if not hasattr(be, "last_profile"):
+        raise SystemExit(f"reings bench: {args.device!r} is not an OpenCL device")
     info = device_info(be)
     sink = open(args.out, "a") if args.out else sys.stdout
     records: list[dict] = []

@@ -175,6 +175,26 @@ def test_project_bwd_grad_fields(device, grad_fields):
             assert not getattr(dev, f).any()
 
 
+@pytest.mark.parametrize("vw", [1, 8])
+def test_project_lane_widths(device, vw):
+    """project.cl is written once over PROJ_VW lanes (8 on CPUs, 1 on GPUs): both widths on this
+    device, on a scene whose size is not a multiple of 8 and on the culling cases."""
+    be = get_backend(device)
+    old = be.proj_vw
+    be.proj_vw = vw
+    try:
+        g, cam = random_scene(203, 64, 48, seed=8, sh_degree=3, scale_median=0.1, viewmat=rotation_viewmat())
+        check_project_fwd(device, g, cam, name=f"vw{vw}")
+        check_project_bwd(device, g, cam, name=f"vw{vw}")
+        for name in ("near_plane", "quat_tiny", "offscreen_clamp", "one", "camera_centre"):
+            c = case(name)
+            dev, _, _ = check_project_fwd(device, c.gaussians, c.camera, name=f"vw{vw} {name}")
+            np.testing.assert_array_equal(dev.radii > 0, c.expect_visible, err_msg=name)
+            check_project_bwd(device, c.gaussians, c.camera, name=f"vw{vw} {name}")
+    finally:
+        be.proj_vw = old
+
+
 # ------------------------------------------------------------------------------------------------
 # hard cases and poison values
 # ------------------------------------------------------------------------------------------------
@@ -241,10 +261,15 @@ def test_project_oclgrind():
         import numpy as np
         from cases import random_scene, case
         from test_project import check_project_fwd, check_project_bwd
-        for deg in (0, 3):
-            g, cam = random_scene(40, 40, 24, seed=deg, sh_degree=deg, scale_median=0.1)
-            check_project_fwd("oclgrind", g, cam, name=f"oclgrind sh{deg}")
-            check_project_bwd("oclgrind", g, cam, opacity_override=0.99 if deg else None, name=f"oclgrind sh{deg}")
-        c = case("quat_tiny")
-        check_project_fwd("oclgrind", c.gaussians, c.camera, name="quat_tiny")
+        from reings.backends import get_backend
+        be = get_backend("oclgrind")
+        for vw in (1, 8):  # the GPU (scalar) and CPU (float8) lane widths
+            be.proj_vw = vw
+            for deg in (0, 3):
+                g, cam = random_scene(21, 40, 24, seed=deg, sh_degree=deg, scale_median=0.1)
+                check_project_fwd("oclgrind", g, cam, name=f"oclgrind vw{vw} sh{deg}")
+                check_project_bwd("oclgrind", g, cam, opacity_override=0.99 if deg else None,
+                                  name=f"oclgrind vw{vw} sh{deg}")
+            c = case("quat_tiny")
+            check_project_fwd("oclgrind", c.gaussians, c.camera, name="quat_tiny")
     """)

@@ -236,3 +236,24 @@ def test_render_empty_and_one(device):
     assert out.importance.shape == (0,) and out.stats == dict(visible=0, intersections=0)
     gr = be.render_vjp(Gaussians.empty(2), cam, cotangents(cam)[0])
     assert gr.sh.shape == (0, 9, 3)
+
+
+def test_bench_smoke(device, tmp_path):
+    """`reings bench` end to end at a tiny size: JSON lines with the documented keys."""
+    import json
+
+    from reings.bench import main
+
+    out = tmp_path / "bench.jsonl"
+    assert main(["--device", device, "--scenes", "A", "--sh", "0", "--n", "1500", "--warmup", "0",
+                 "--repeats", "1", "--sort", "ours", "--sort-n", "4000", "--pairs", "estimate", "--crop", "32",
+                 "--out", str(out)]) == 0
+    recs = [json.loads(line) for line in out.read_text().splitlines()]
+    kinds = [r["kind"] for r in recs]
+    assert kinds == ["render", "sort", "sort"]
+    r = recs[0]
+    for k in ("device", "driver", "visible", "intersections", "evaluated_pairs", "wall_step_ms",
+              "dev_project_fwd_ms", "dev_rasterize_bwd_ms", "max_err_rgb", "grad_cos_means"):
+        assert k in r, k
+    assert r["max_err_rgb"] < 1e-3 and r["grad_cos_means"] > 0.999
+    assert all(s["ours_correct"] for s in recs[1:])

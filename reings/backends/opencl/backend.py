@@ -14,16 +14,20 @@ Stage methods with the reference's names take and return host numpy (tests, debu
     render_vjp: [forward] -> rasterize_bwd -> isect_reduce -> project_bwd -> one final batch of reads
 
 Forward reuse in render_vjp (documented contract): on CPU devices (PoCL) render_vjp reuses the
-device state of the immediately preceding forward of this backend when the camera, background,
-near and opacity override are equal AND every input array is byte-identical to what that forward
-uploaded (compared against the zero-copy mapped input buffers, ~1-3 ms for SH3 at 100k). Any other
-call on this backend in between invalidates the state (another render_vjp does not). On GPUs the forward is always recomputed:
-the kernels are cheaper than reading the inputs back to verify them. Either way the result is the
-VJP at exactly the given inputs.
+device state of the last forward of this backend when the camera, background, near and opacity
+override are equal AND every input array is byte-identical to what that forward uploaded (compared
+against the zero-copy mapped input buffers, ~1-3 ms for SH3 at 100k). A stage-method call or a
+render in between replaces that state; render_vjp itself leaves it intact. On GPUs the forward is
+always recomputed: the kernels are cheaper than reading the inputs back to verify them. Either way
+the result is the VJP at exactly the given inputs (an in-place edit of an input is detected).
 
-Device time per stage: after each call, `last_profile` maps stage name -> milliseconds between the
-end of the previous stage and the end of this one on the device timeline (profiling events of the
-in-order queue), and `last_stats` holds the counts.
+Device time per stage: after each call, `last_profile` maps stage name -> milliseconds on the
+device timeline (profiling events of the in-order queue): a single-kernel stage's own duration, or
+for a multi-command stage (the sorts, the scan, rasterize) the time from the end of the previous
+stage to its last command's end. `last_stats` holds the counts (visible, intersections).
+
+Memory: every device buffer comes from `Scratch` (persistent, per index space, grown by >= 1.5x),
+so steady-state calls allocate nothing.
 
 Not here: input validation (reings/render.py), kernel math (kernels/*.cl), sorting/scan
 (sort.py), rasterization (rasterize.py).
@@ -116,6 +120,8 @@ class OpenCLBackend:
             self.tile_sorter.kernels(False)
         self.scan = ExclusiveScan(self.handle)
         self.wg = 256 if self.cpu else 128  # PoCL: fewer, larger work-groups (dispatch cost ~us each)
+        self.proj_vw = 8 if self.cpu else 1  # Gaussians per work-item in project.cl (float8 lanes on CPUs)
+        self.proj_wg = 64 if self.cpu else 128  # project.cl work-group (64 x 8 Gaussians on CPUs)
         self._kernels: dict = {}
         self._raster = None
         self._frame: _Frame | None = None
@@ -210,12 +216,12 @@ class OpenCLBackend:
         b["opacities"] = s.get("gauss", "opacities", n, 4)
         b["depth_keys"] = s.get("gauss", "depth_keys", n, 4)
         b["gid_vals"] = s.get("gauss", "gid_vals", n, 4)
-        k = self.kernel("project.cl", "project_fwd", SH_K=fr.sh_k)
+        k = self.kernel("project.cl", "project_fwd", SH_K=fr.sh_k, PROJ_VW=self.proj_vw)
         ov = _F32(override if override is not None else 0.0)
-        ev = self._launch(k, n, _I32(n), inp["means"], inp["quats"], inp["log_scales"],
+        ev = self._launch(k, -(-n // self.proj_vw), _I32(n), inp["means"], inp["quats"], inp["log_scales"],
                           inp["opacity_logits"], inp["sh"], b["cam"], _I32(fr.width), _I32(fr.height), ov,
                           b["means2d"], b["conics"], b["depths"], b["radii"], b["tile_rect"], b["colors"],
-                          b["opacities"], b["depth_keys"], b["gid_vals"])
+                          b["opacities"], b["depth_keys"], b["gid_vals"], wg=self.proj_wg)
         self._mark("project_fwd", ev)
 
     def _bin_device(self, fr: _Frame) -> None:
@@ -374,12 +380,12 @@ class OpenCLBackend:
                "opacity_logits": s.get("gauss", "v_opacity_logits", n, 4),
                "sh": s.get("gauss", "v_sh", n, 12 * fr.sh_k)}
         inp = b["in"]
-        k = self.kernel("project.cl", "project_bwd", SH_K=fr.sh_k)
+        k = self.kernel("project.cl", "project_bwd", SH_K=fr.sh_k, PROJ_VW=self.proj_vw)
         ov = _F32(override if override is not None else 0.0)
-        ev = self._launch(k, n, _I32(n), inp["means"], inp["quats"], inp["log_scales"], inp["opacity_logits"],
+        ev = self._launch(k, -(-n // self.proj_vw), _I32(n), inp["means"], inp["quats"], inp["log_scales"], inp["opacity_logits"],
                           inp["sh"], b["cam"], _I32(fr.width), _I32(fr.height), ov, _I32(mask), b["radii"],
                           b["v_proj"], out["means"], out["quats"], out["log_scales"], out["opacity_logits"],
-                          out["sh"])
+                          out["sh"], wg=self.proj_wg)
         self._mark("project_bwd", ev)
         return out
 
@@ -484,11 +490,12 @@ class OpenCLBackend:
         fr = self._new_frame(n, cam.width, cam.height, g.sh.shape[1])
         fr.bufs["in"] = self._upload_gaussians(g)
         self._project_device(fr, fr.bufs["in"], cam, near, opacity_override)
-        vp = np.concatenate([np.asarray(grads.v_means2d, _F32).reshape(n, 2),
-                             np.asarray(grads.v_conics, _F32).reshape(n, 3),
-                             np.asarray(grads.v_colors, _F32).reshape(n, 3),
-                             np.asarray(grads.v_opacities, _F32).reshape(n, 1),
-                             np.asarray(grads.v_depths, _F32).reshape(n, 1)], axis=1)
+        with np.errstate(over="ignore"):  # float64 cotangents beyond FLT_MAX become +-inf (kernel saturates)
+            vp = np.concatenate([np.asarray(grads.v_means2d, _F32).reshape(n, 2),
+                                 np.asarray(grads.v_conics, _F32).reshape(n, 3),
+                                 np.asarray(grads.v_colors, _F32).reshape(n, 3),
+                                 np.asarray(grads.v_opacities, _F32).reshape(n, 1),
+                                 np.asarray(grads.v_depths, _F32).reshape(n, 1)], axis=1)
         fr.bufs["v_proj"] = self._upload("gauss", "v_proj_in", vp)
         out = self._project_bwd_device(fr, opacity_override, grad_fields)
         k = fr.sh_k

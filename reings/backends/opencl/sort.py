@@ -1,10 +1,10 @@
 """Our own OpenCL radix sort and exclusive prefix scan (kernels/sort.cl, kernels/scan.cl).
 
-    sorter = RadixSort(handle)                      # once per DeviceHandle (builds on first use)
+    sorter = RadixSort.for_handle(handle)           # once per DeviceHandle (builds on first use)
     k, v, ev = sorter.sort_pairs(keys_buf, vals_buf, n, begin_bit=0, end_bit=43, key64=True)
     keys, vals = sorter.sort_pairs_host(keys_np, vals_np, 0, 43)     # numpy in, numpy out
 
-    scan = ExclusiveScan(handle)
+    scan = ExclusiveScan.for_handle(handle)
     total, ev = scan(in_buf, out_buf, n)            # out = exclusive prefix sum, total read back
     _, ev = scan(in_buf, out_buf, n, total_buf=counts, total_at=1, read_total=False)  # no readback
 
@@ -30,6 +30,20 @@ from . import quirks
 from .program import library_for
 
 _U32 = np.uint32
+
+
+_KERNELS: dict[tuple, object] = {}
+
+
+def _kernel(handle, filename: str, name: str, scalar_dtypes: list, **defines):
+    """One cl.Kernel per (context, file, kernel, defines), shared by every RadixSort / ExclusiveScan
+    of that context (pyopencl warns on, and pays for, repeated retrieval)."""
+    key = (id(handle.context), filename, name, tuple(sorted(defines.items())))
+    k = _KERNELS.get(key)
+    if k is None:
+        k = _KERNELS[key] = library_for(handle).get(filename, name, **defines)
+        k.set_scalar_arg_dtypes(scalar_dtypes)
+    return k
 
 
 def _grow(cur: int, need: int) -> int:
@@ -92,7 +106,17 @@ class ExclusiveScan:
         total_buf        optional [>= total_at + 1] uint32 device buffer that receives the total
                          (so a caller can fold it into its one readback); default: own scratch
         returns (total or None, event); total is read back (a host sync) only if read_total.
+    Built once per DeviceHandle: `ExclusiveScan.for_handle(handle)` caches one.
     """
+
+    _cache: dict[int, "ExclusiveScan"] = {}
+
+    @classmethod
+    def for_handle(cls, handle) -> "ExclusiveScan":
+        s = cls._cache.get(id(handle))
+        if s is None:
+            s = cls._cache[id(handle)] = cls(handle)
+        return s
 
     def __init__(self, handle, cpu_schedule: bool | None = None, wg: int = 256, items: int = 8,
                  blocks_per_core: int = 4):
@@ -102,14 +126,10 @@ class ExclusiveScan:
         defines = {"REINGS_CPU_SCHEDULE": int(self.cpu)}
         if not self.cpu:
             defines.update(SCAN_WG=wg, SCAN_ITEMS=items)
-        lib = library_for(handle)
-        u, i32 = np.uint32, None
-        self.k_reduce = lib.get("scan.cl", "scan_reduce", **defines)
-        self.k_reduce.set_scalar_arg_dtypes([i32, u, u, i32])
-        self.k_top = lib.get("scan.cl", "scan_top", **defines)
-        self.k_top.set_scalar_arg_dtypes([i32, u, i32, u])
-        self.k_add = lib.get("scan.cl", "scan_add", **defines)
-        self.k_add.set_scalar_arg_dtypes([i32, i32, u, u, i32, i32, u])
+        u, b = np.uint32, None  # b: a buffer argument
+        self.k_reduce = _kernel(handle, "scan.cl", "scan_reduce", [b, u, u, b], **defines)
+        self.k_top = _kernel(handle, "scan.cl", "scan_top", [b, u, b, u], **defines)
+        self.k_add = _kernel(handle, "scan.cl", "scan_add", [b, b, u, u, b, b, u], **defines)
         self._sums = _Scratch(handle.context)
         self._total = _Scratch(handle.context)
 
@@ -196,15 +216,12 @@ class RadixSort:
             defines = {"REINGS_CPU_SCHEDULE": int(self.cpu), "KEY64": int(key64), "RADIX_BITS": self.max_bits}
             if not self.cpu:
                 defines.update(SORT_WG=self.wg, SORT_ITEMS=self.items)
-            lib = library_for(self.handle)
-            u, b = np.uint32, None
-            hist = lib.get("sort.cl", "radix_hist", **defines)
-            hist.set_scalar_arg_dtypes([b, u, u, u, u, b])
-            scan = lib.get("sort.cl", "radix_scan", **defines)
-            scan.set_scalar_arg_dtypes([b, u, u, b])
-            scat = lib.get("sort.cl", "radix_scatter", **defines)
-            scat.set_scalar_arg_dtypes([b, b, b, b, u, u, u, u, b, b])
-            ks = self._kernels[key64] = (hist, scan, scat)
+            u, b, h = np.uint32, None, self.handle  # b: a buffer argument
+            ks = self._kernels[key64] = (
+                _kernel(h, "sort.cl", "radix_hist", [b, u, u, u, u, b], **defines),
+                _kernel(h, "sort.cl", "radix_scan", [b, u, u, b], **defines),
+                _kernel(h, "sort.cl", "radix_scatter", [b, b, b, b, u, u, u, u, b, b], **defines),
+            )
         return ks
 
     def geometry(self, n: int) -> tuple[int, int]:
