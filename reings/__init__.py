@@ -25,8 +25,10 @@ _LAZY = {
     "sfm_extent": "reings.data.sfm",
     "get_depth_prior": "reings.data.depth_prior",
     "evaluate_images": "reings.metrics",
+    "fit": "reings.train",
+    "run": "reings.pipeline",
 }
-_SUBMODULES = ("metrics",)
+_SUBMODULES = ("metrics", "pipeline")
 
 __all__ = sorted(_LAZY) + list(_SUBMODULES)
 
