@@ -89,24 +89,8 @@ __kernel void scan_add(__global const uint *in,         // [n]  (may alias out)
 
 /* ------------------------------------------------------- GPU schedule: work-group = block */
 
-/* Exclusive scan of one uint per work-item over the work-group; *sum gets the group total.
- * tmp: SCAN_WG uints of local memory. Hillis-Steele, 2*log2(SCAN_WG) barriers. */
-inline uint wg_exclusive_scan(uint x, __local uint *tmp, uint *sum)
-{
-    const uint lid = get_local_id(0);
-    tmp[lid] = x;
-    barrier(CLK_LOCAL_MEM_FENCE);
-    for (uint off = 1; off < SCAN_WG; off <<= 1) {
-        const uint t = lid >= off ? tmp[lid - off] : 0u;
-        barrier(CLK_LOCAL_MEM_FENCE);
-        tmp[lid] += t;
-        barrier(CLK_LOCAL_MEM_FENCE);
-    }
-    const uint incl = tmp[lid];
-    *sum = tmp[SCAN_WG - 1];
-    barrier(CLK_LOCAL_MEM_FENCE); /* tmp may be reused right after */
-    return incl - x;
-}
+#define WG_SCAN_SIZE SCAN_WG
+#include "wg_scan.h"
 
 __kernel __attribute__((reqd_work_group_size(SCAN_WG, 1, 1)))
 void scan_reduce(__global const uint *in,   // [n]

@@ -138,24 +138,8 @@ __kernel void radix_scatter(__global const key_t *keys_in, // [n]
 
 /* ------------------------------------------------------- GPU schedule: work-group = block */
 
-/* Exclusive scan of one uint per work-item over the work-group; *sum gets the group total.
- * tmp: SORT_WG uints of local memory. (Same helper as scan.cl's wg_exclusive_scan.) */
-inline uint wg_exclusive_scan(uint x, __local uint *tmp, uint *sum)
-{
-    const uint lid = get_local_id(0);
-    tmp[lid] = x;
-    barrier(CLK_LOCAL_MEM_FENCE);
-    for (uint off = 1; off < SORT_WG; off <<= 1) {
-        const uint t = lid >= off ? tmp[lid - off] : 0u;
-        barrier(CLK_LOCAL_MEM_FENCE);
-        tmp[lid] += t;
-        barrier(CLK_LOCAL_MEM_FENCE);
-    }
-    const uint incl = tmp[lid];
-    *sum = tmp[SORT_WG - 1];
-    barrier(CLK_LOCAL_MEM_FENCE); /* tmp may be reused right after */
-    return incl - x;
-}
+#define WG_SCAN_SIZE SORT_WG
+#include "wg_scan.h"
 
 __kernel __attribute__((reqd_work_group_size(SORT_WG, 1, 1)))
 void radix_hist(__global const key_t *keys, // [n]

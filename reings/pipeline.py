@@ -15,6 +15,7 @@ device, config), `checkpoints/` (resume after an interruption).
 """
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import resource
@@ -85,7 +86,7 @@ def _zscore(x, m):
 def ivps_points(g, train, priors, rc: ReInGSConfig, device, bg, near, rng):
     """IVPS (Eq. 4-6): per view, Omega_P = delta*Omega_D + (1-delta)*Omega_T; draw ~10% of the
     pixels without replacement with p ~ Omega_P; back-project with the hard-render depth."""
-    from .render import render
+    from .rendering import render
 
     pts, cols = [], []
     for vi, (img, cam) in enumerate(zip(train.images, train.cameras)):
@@ -121,7 +122,7 @@ def ivps_points(g, train, priors, rc: ReInGSConfig, device, bg, near, rng):
 def cvps_select(g, train, rc: ReInGSConfig, device, bg, near, rng):
     """CVPS (Eq. 7-8): Omega_G = sum over views and pixels of alpha*T per Gaussian; draw 40%
     without replacement with p ~ Omega_G (+ a tiny epsilon so zero-score Gaussians are possible)."""
-    from .render import render
+    from .rendering import render
 
     omega = np.zeros(len(g), np.float64)
     for cam in train.cameras:
@@ -137,17 +138,22 @@ def _config_for(method: str, iters: int, sh_degree: int):
 
     if method == "3dgs":
         base = preset("3dgs")
-        from dataclasses import replace as rp
-
-        base = rp(base, densify=rp(base.densify, densify_until=base.iterations // 2))
+        base = replace(base, densify=replace(base.densify, densify_until=base.iterations // 2))
     else:
         base = preset("dngaussian")
     return replace(with_iterations(base, iters), sh_degree=sh_degree)
 
 
+def _soft_stage_config(iters: int, sh_degree: int):
+    """Fine and final ReInGS optimizations: DNGaussian's recipe with soft depth only (paper Eq. 9),
+    no clean_views (their initial points come from the training views)."""
+    c = _config_for("dngaussian", iters, sh_degree)
+    return replace(c, loss=replace(c.loss, hard_depth=False), densify=replace(c.densify, clean_views=False))
+
+
 def _evaluate(g, test, device, bg, near, out_dir=None, with_lpips=True):
-    from .metrics import evaluate_images
-    from .render import render
+    from .metrics import LPIPSModelNotFound, evaluate_images
+    from .rendering import render
 
     preds, depths = [], []
     for cam in test.cameras:
@@ -156,9 +162,7 @@ def _evaluate(g, test, device, bg, near, out_dir=None, with_lpips=True):
         depths.append(r.depth / np.maximum(r.alpha, 1e-6))
     try:
         m = evaluate_images(preds, list(test.images), masks=test.masks, with_lpips=with_lpips)
-    except Exception as e:  # LPIPS model absent: report without it
-        if not with_lpips:
-            raise
+    except LPIPSModelNotFound as e:  # no LPIPS model on this machine: report without it
         m = evaluate_images(preds, list(test.images), masks=test.masks, with_lpips=False)
         m["lpips_error"] = str(e)
     if out_dir:
@@ -264,25 +268,18 @@ def run(data=None, dataset=None, method="reings", views=3, device="pocl", depth_
             init2 = g1
         timings["ivps"] = time.perf_counter() - t
         counts["ivps"] = len(init2)
-        fine_base = _config_for("dngaussian", i2, sh_degree)
-        fine_cfg = replace(fine_base, loss=replace(fine_base.loss, hard_depth=False),
-                           densify=replace(fine_base.densify, clean_views=False))
-        g2 = stage_fit("fine", fine_cfg, init2, True)
+        g2 = stage_fit("fine", _soft_stage_config(i2, sh_degree), init2, True)
         t = time.perf_counter()
         if rc.cvps:
             sel = cvps_select(g2, train, rc, device, bg, near, rng)
             sh = g2.sh[sel].copy()
-            sh[:, 1:] = 0
-            init3 = gaussians_from_points(g2.means[sel], None, sh_degree, rng)
-            init3 = type(init3)(init3.means, init3.quats, init3.log_scales, init3.opacity_logits, sh)
+            sh[:, 1:] = 0  # keep the colour (DC), reset the view dependence
+            init3 = dataclasses.replace(gaussians_from_points(g2.means[sel], None, sh_degree, rng), sh=sh)
         else:
             init3 = g2
         timings["cvps"] = time.perf_counter() - t
         counts["cvps"] = len(init3)
-        final_base = _config_for("dngaussian", i3, sh_degree)
-        final_cfg = replace(final_base, loss=replace(final_base.loss, hard_depth=False),
-                            densify=replace(final_base.densify, clean_views=False))
-        g = stage_fit("final", final_cfg, init3, True)
+        g = stage_fit("final", _soft_stage_config(i3, sh_degree), init3, True)
 
     t = time.perf_counter()
     m = _evaluate(g, test, device, bg, near, out, with_lpips=with_lpips)

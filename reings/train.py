@@ -144,7 +144,7 @@ def fit(views, config: TrainConfig, device: str = "pocl", init: Gaussians | None
     from .backends import get_backend
     from .losses import depth_loss, photometric_loss, regularizers
     from .optim import make_optimizer, sh_degree_at
-    from .render import render, render_vjp
+    from .rendering import render, render_vjp
     from .state import TrainState
 
     if hasattr(views, "images"):

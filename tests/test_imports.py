@@ -40,3 +40,15 @@ def test_devices_lists_pocl():
     r = subprocess.run([sys.executable, "-m", "reings.cli", "devices"], capture_output=True, text=True)
     assert r.returncode == 0, r.stderr
     assert "Portable Computing Language" in r.stdout
+
+
+def test_no_submodule_shadows_a_public_function():
+    """A submodule named like a lazily exported function (say `reings/render.py` next to
+    `reings.render`) is bound over that function by the first `from .render import ...`."""
+    import importlib.util
+
+    import reings
+
+    clash = [n for n in reings.__all__ if n not in reings._SUBMODULES
+             and importlib.util.find_spec(f"reings.{n}") is not None]
+    assert not clash

@@ -586,10 +586,15 @@ def render64(g, cam: Camera, background=(0.0, 0.0, 0.0), near: float = 0.01, opa
 def render_vjp64(g, cam: Camera, v_rgb, v_depth=None, v_alpha=None, background=(0.0, 0.0, 0.0),
                  near: float = 0.01, opacity_override=None, alpha_min: float = ALPHA_MIN) -> Params64:
     """float64 VJP of `render64` w.r.t. the raw fields: Params64 of gradients."""
+    return _vjp64(g, cam, v_rgb, v_depth, v_alpha, background, near, opacity_override, alpha_min)[0]
+
+
+def _vjp64(g, cam, v_rgb, v_depth, v_alpha, background, near, opacity_override, alpha_min=ALPHA_MIN):
+    """(Params64 gradients, Projected, RasterGrads) of one render."""
     proj, bins, out, _ = render64(g, cam, background, near, opacity_override, False, alpha_min)
     grads = rasterize_bwd(proj, bins, out, v_rgb, v_depth, v_alpha, cam.width, cam.height,
                           background, alpha_min)
-    return project_bwd(g, cam, proj, grads, near, opacity_override)
+    return project_bwd(g, cam, proj, grads, near, opacity_override), proj, grads
 
 
 class ReferenceBackend:
@@ -618,11 +623,9 @@ class ReferenceBackend:
                    background: Sequence[float] = (0, 0, 0), near: float = 0.01,
                    opacity_override: float | None = None,
                    grad_fields: Sequence[str] | None = None) -> Gaussians:
-        proj, bins, out, _ = render64(gaussians, camera, background, near, opacity_override, False)
-        rg = rasterize_bwd(proj, bins, out, v_rgb, v_depth, v_alpha, camera.width, camera.height, background)
-        gr = project_bwd(gaussians, camera, proj, rg, near, opacity_override)
+        gr, proj, rg = _vjp64(gaussians, camera, v_rgb, v_depth, v_alpha, background, near, opacity_override)
         # screen-space side channel for densification statistics (see reings.train)
-        self.last_screen = (rg.v_means2d.astype(np.float32), np.asarray(proj.radii))
+        self.last_screen = (rg.v_means2d.astype(np.float32), np.asarray(proj.radii)) if grad_fields is None else None
         keep = FIELDS if grad_fields is None else tuple(grad_fields)
         with np.errstate(over="ignore"):
             return Gaussians(*(getattr(gr, f).astype(np.float32) if f in keep

@@ -25,6 +25,7 @@ import tempfile
 import numpy as np
 
 from ..types import Camera
+from .llff import _image_folder
 from .scene import Scene, SceneError, make_camera
 
 # models whose geometry is a pinhole; the others carry distortion or non-pinhole projection
@@ -178,18 +179,6 @@ def read_points(path: str) -> tuple[np.ndarray, np.ndarray]:
     return xyz, rgb.astype(np.float32) / 255.0
 
 
-def _find_image_dir(path: str, factor: int) -> tuple[str, float]:
-    """(folder, extra downscale to apply): `images_{factor}` as is, else `images` scaled 1/factor."""
-    if factor and factor > 1:
-        d = os.path.join(path, f"images_{factor}")
-        if os.path.isdir(d):
-            return d, 1.0
-    d = os.path.join(path, "images")
-    if not os.path.isdir(d):
-        raise SceneError(f"{d}: image folder not found (nor images_{factor})")
-    return d, 1.0 / factor if factor and factor > 1 else 1.0
-
-
 def load_colmap_scene(path: str, factor: int = 8, ignore_distortion: bool = False, images: str | None = None) -> Scene:
     """A COLMAP scene folder (`images/` + `sparse/0/`, binary or text) as a `Scene`, sorted by name.
 
@@ -203,7 +192,7 @@ def load_colmap_scene(path: str, factor: int = 8, ignore_distortion: bool = Fals
     if model_dir is None:
         raise SceneError(f"{path}: no COLMAP model (sparse/0/cameras.bin or .txt)")
     rec = read_model(model_dir)
-    img_dir, extra = (images, 1.0) if images else _find_image_dir(path, factor)
+    img_dir, extra = (images, 1.0) if images else _image_folder(path, factor)
     entries = sorted(rec.images.values(), key=lambda im: im.name)
     if not entries:
         raise SceneError(f"{model_dir}: COLMAP model has no images")

@@ -29,7 +29,7 @@ stage to its last command's end. `last_stats` holds the counts (visible, interse
 Memory: every device buffer comes from `Scratch` (persistent, per index space, grown by >= 1.5x),
 so steady-state calls allocate nothing.
 
-Not here: input validation (reings/render.py), kernel math (kernels/*.cl), sorting/scan
+Not here: input validation (reings/rendering.py), kernel math (kernels/*.cl), sorting/scan
 (sort.py), rasterization (rasterize.py).
 """
 from __future__ import annotations
@@ -366,7 +366,16 @@ class OpenCLBackend:
         res = {f: self._read(out[f], shp, _F32) for f, shp in
                (("means", (n, 3)), ("quats", (n, 4)), ("log_scales", (n, 3)), ("opacity_logits", (n,)),
                 ("sh", (n, k, 3)))}
+        screen = None
+        if grad_fields is None:  # the photometric pass: densification needs dL/d means2d and radii
+            screen = (self._read(fr.bufs["v_proj"], (n, V_RECORD), _F32), self._read(fr.bufs["radii"], (n,), _I32))
         self._finish()
+        if screen is not None:
+            v_proj, radii = screen
+            # isect_reduce leaves the rows of culled Gaussians untouched: zero them
+            self.last_screen = (np.where(radii[:, None] > 0, v_proj[:, :2], 0).astype(np.float32), radii)
+        else:
+            self.last_screen = None
         self.last_stats = dict(visible=fr.visible, intersections=fr.isects)
         return Gaussians(**res)
 
