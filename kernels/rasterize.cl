@@ -22,7 +22,8 @@
  *                   behind a Gaussian comes from the forward output minus what was blended so far,
  *                   folded with the cotangents into one scalar R per pixel.
  *   isect_reduce    out[gid_from_rank[r], :] (+)= sum of records[offset_from_rank[r] ..
- *                   offset_from_rank[r+1], :], records of width `width` (10: gradients, 1: importance).
+ *                   offset_from_rank[r+1], :], records of width `width` (10: gradients, 1: importance);
+ *                   a sum that overflows is redone scaled (see Overflow): +-inf or finite, never NaN.
  *
  * Defines (defaults): REINGS_CPU_SCHEDULE (0), REINGS_NV_PTX (0) from quirks.build_defines;
  *   RASTER_IMPORTANCE (0); RASTER_VEC (8, CPU pixel lanes: 8 = AVX2, 16 = AVX-512);
@@ -35,6 +36,19 @@
  *   GPU: one 256-work-item group per tile, a work-item per pixel, Gaussians staged in local memory
  *        by batches, whole-tile early exit; per-Gaussian work-group sums by warp shuffles
  *        (shfl.sync.bfly, REINGS_NV_PTX) + a local combine across warps, else a local tree.
+ * Overflow (rasterize_bwd, isect_reduce): finite inputs can still overflow float32 in the backward.
+ *   A colour near FLT_MAX makes v.c, R and d out/d alpha overflow, and one Gaussian's per-pixel terms
+ *   reach +inf and -inf: inf - inf and 0 * inf used to give NaN. The backward is linear in the
+ *   cotangents and, on the d/d alpha path, in the colours, depths and forward outputs. So a tile runs
+ *   once unscaled (the common case: results unchanged, the scales are literal 1s that fold away);
+ *   only if one of its records is not finite does it run again with the cotangents scaled by sv and
+ *   the colours, depths and outputs by sk, exact powers of two that bring both below 2^29. Then every
+ *   intermediate stays below ~2^122 (boxes of at most 1e7 px, conics of project_fwd: at most
+ *   1/EPS2D), and the records are scaled back: +-inf where the gradient itself exceeds FLT_MAX,
+ *   never NaN. +-inf cotangents saturate at +-FLT_MAX; NaN inputs stay NaN. isect_reduce re-sums a
+ *   row whose plain sum is not finite the same way (terms saturated, one power-of-two scale).
+ *   Accuracy there is float32's: a Gaussian behind a huge colour gets its R by cancellation of huge
+ *   values (finite, error ~1e-7 of that colour times its cotangent).
  * Not handled: non-finite inputs are culled by the projection (the box test still rejects NaN
  * opacity/means); tile lists must be sorted front to back.
  */
@@ -106,6 +120,25 @@ __kernel void rasterize_prep(__global const float *means2d,   // [N, 2]
 }
 
 /* ------------------------------------------------------------------------------------------ */
+/* overflow helpers (rasterize_bwd pass 1, isect_reduce)                                       */
+
+/* +-inf -> +-FLT_MAX; finite values and NaN unchanged */
+inline float sat_inf(float x) { return isinf(x) ? copysign(FLT_MAX, x) : x; }
+
+/* x * s for s an exact power of two (rasterize_bwd's scales). s != 1 only in a rescaled pass, whose
+ * bounds put every +-inf input at a scale below 1: there +-inf saturates at +-FLT_MAX first. With a
+ * literal s = 1 (the first pass) this folds to plain x. */
+inline float scaled(float x, float s) { return s == 1.0f ? x : sat_inf(x) * s; }
+
+/* m in [0, FLT_MAX], not NaN, with exponent E (m in [2^E, 2^(E+1))): 2^(target - E) when E > target,
+ * else 1. An exact power of two that brings m below 2^(target + 1); its reciprocal is exact too.
+ * Built from the exponent bits (no frexp: Oclgrind). */
+inline float pow2_scale_down(float m, int target) {
+    const int e = ((as_int(m) >> 23) & 0xff) - 127;
+    return e > target ? as_float((target - e + 127) << 23) : 1.0f;
+}
+
+/* ------------------------------------------------------------------------------------------ */
 /* isect_reduce: segmented sum of per-emit records into per-Gaussian rows                      */
 
 __kernel void isect_reduce(__global const float *records,       // [K_emit, width]
@@ -118,8 +151,20 @@ __kernel void isect_reduce(__global const float *records,       // [K_emit, widt
     const int a = offset_from_rank[r], b = offset_from_rank[r + 1];
     const int gid = gid_from_rank[r];
     for (int f = 0; f < width; ++f) {
-        float s = accumulate ? out[gid * width + f] : 0.0f;
+        const float s0 = accumulate ? out[gid * width + f] : 0.0f;
+        float s = s0;
         for (int e = a; e < b; ++e) s += records[e * width + f];
+        if (!isfinite(s)) {
+            /* rare: the sum overflowed (+inf and -inf records, or partial sums, would give NaN).
+               Again with +-inf saturated to +-FLT_MAX and every term scaled by one exact power of
+               two (at most 2^101 each): the result overflows to +-inf, never to NaN; NaN stays NaN. */
+            float m = fabs(sat_inf(s0));
+            for (int e = a; e < b; ++e) m = fmax(m, fabs(sat_inf(records[e * width + f]))); /* fmax skips NaN */
+            const float sc = pow2_scale_down(m, 100);
+            float t = sat_inf(s0) * sc;
+            for (int e = a; e < b; ++e) t += sat_inf(records[e * width + f]) * sc;
+            s = t * (1.0f / sc);
+        }
         out[gid * width + f] = s;
     }
 }
@@ -292,28 +337,18 @@ __kernel void rasterize_fwd(__global const float16 *packed,      // [N] from ras
     }
 }
 
-__kernel void rasterize_bwd(__global const float16 *packed,      // [N] from rasterize_prep
-                            __global const int *tile_ranges,     // [T, 2]
-                            __global const int *gid_from_isect,  // [K]
-                            __global const int *emit_from_isect, // [K]
-                            const int width, const int height, const int tiles_x, const int n_tiles,
-                            __global const float *out_rgb,   // [H, W, 3] forward output
-                            __global const float *out_depth, // [H, W]
-                            __global const float *out_T,     // [H, W]
-                            __global const int *out_last,    // [H, W]
-                            __global const float *v_rgb,     // [H, W, 3] (bit 0 of v_mask)
-                            __global const float *v_depth,   // [H, W]    (bit 1)
-                            __global const float *v_alpha,   // [H, W]    (bit 2)
-                            const int v_mask,
-                            __global float *v_emit) // [K, V_RECORD]
-{
-    /* a 2D range (tx, ty): no div/rem of the tile id (LLVM's `freeze`, which Oclgrind rejects) */
-    const int tx = get_global_id(0), ty = get_global_id(1);
-    const int tile = ty * tiles_x + tx;
-    if (tx >= tiles_x || tile >= n_tiles) return;
-    const int x0 = tx * TILE_SIZE, y0 = ty * TILE_SIZE;
+/* One tile of rasterize_bwd with the cotangents scaled by sv and the colours, depths and outputs by
+ * sk (see "Overflow" at the top); writes the records of positions [start, *stop_at) and returns 1 if
+ * one of them is not finite. Called with literal 1s first, so that the common case compiles to the
+ * unscaled loop. */
+static inline __attribute__((always_inline)) int
+bwd_tile(__global const float16 *packed, __global const int *gid_from_isect, __global const int *emit_from_isect,
+         const int width, const int height, __global const float *out_rgb, __global const float *out_depth,
+         __global const float *out_T, __global const int *out_last, __global const float *v_rgb,
+         __global const float *v_depth, __global const float *v_alpha, const int v_mask, __global float *v_emit,
+         const int x0, const int y0, const int start, int *stop_at, const float sv, const float sk) {
     /* per pixel: T before the current Gaussian; R = v.(output - blended so far) - v_alpha T_final;
-     * last (0 outside the image: never valid); the cotangents */
+     * last (0 outside the image: never valid); the cotangents (all scaled: v by sv, colours by sk) */
     vf Tv[NVEC], Rv[NVEC], VR[NVEC], VG[NVEC], VB[NVEC], VD[NVEC];
     vi Lv[NVEC];
     vi lmax = (vi)(0);
@@ -331,16 +366,17 @@ __kernel void rasterize_bwd(__global const float16 *packed,      // [N] from ras
                 const int p = py * width + px0 + l;
                 float r = 0.0f;
                 if (v_mask & 1) {
-                    vr[l] = v_rgb[3 * p];
-                    vg[l] = v_rgb[3 * p + 1];
-                    vb[l] = v_rgb[3 * p + 2];
-                    r += vr[l] * out_rgb[3 * p] + vg[l] * out_rgb[3 * p + 1] + vb[l] * out_rgb[3 * p + 2];
+                    vr[l] = scaled(v_rgb[3 * p], sv);
+                    vg[l] = scaled(v_rgb[3 * p + 1], sv);
+                    vb[l] = scaled(v_rgb[3 * p + 2], sv);
+                    r += vr[l] * scaled(out_rgb[3 * p], sk) + vg[l] * scaled(out_rgb[3 * p + 1], sk) +
+                         vb[l] * scaled(out_rgb[3 * p + 2], sk);
                 }
                 if (v_mask & 2) {
-                    vd[l] = v_depth[p];
-                    r += vd[l] * out_depth[p];
+                    vd[l] = scaled(v_depth[p], sv);
+                    r += vd[l] * scaled(out_depth[p], sk);
                 }
-                if (v_mask & 4) r -= v_alpha[p] * out_T[p];
+                if (v_mask & 4) r -= scaled(v_alpha[p], sv) * scaled(out_T[p], sk);
                 R[l] = r;
                 L[l] = out_last[p];
             }
@@ -354,12 +390,14 @@ __kernel void rasterize_bwd(__global const float16 *packed,      // [N] from ras
         Lv[c] = VLOAD(0, L);
         lmax = max(lmax, Lv[c]);
     }
-    const int start = tile_ranges[2 * tile], end = tile_ranges[2 * tile + 1];
     /* Gaussians at positions >= max(last) touch no pixel: their records are 0 */
-    const int stop_at = start + hmax(lmax);
-    int i = start;
-    for (; i < stop_at; ++i) {
+    *stop_at = start + hmax(lmax);
+    const float iv = 1.0f / sv, ik = 1.0f / sk; /* exact: powers of two */
+    int bad = 0;
+    for (int i = start; i < *stop_at; ++i) {
         const float16 g = packed[gid_from_isect[i]];
+        const float cr = scaled(g.s6, sk), cg = scaled(g.s7, sk), cb = scaled(g.s8, sk);
+        const float cz = scaled(g.s9, sk);
         const int k = i - start;
         vf a_u = 0.0f, a_v = 0.0f, a_A = 0.0f, a_B = 0.0f, a_C = 0.0f;
         vf a_r = 0.0f, a_g = 0.0f, a_b = 0.0f, a_o = 0.0f, a_z = 0.0f;
@@ -381,7 +419,7 @@ __kernel void rasterize_bwd(__global const float16 *packed,      // [N] from ras
                     const vf T = Tv[c], R = Rv[c];
                     const vf w = select((vf)(0.0f), alpha * T, ok);
                     const vf vr = VR[c], vg = VG[c], vb = VB[c], vd = VD[c];
-                    const vf vc = vr * g.s6 + vg * g.s7 + vb * g.s8 + vd * g.s9;
+                    const vf vc = vr * cr + vg * cg + vb * cb + vd * cz;
                     const vf Rn = R - vc * w;
                     a_r += vr * w;
                     a_g += vg * w;
@@ -401,19 +439,95 @@ __kernel void rasterize_bwd(__global const float16 *packed,      // [N] from ras
                 }
             }
         }
+        /* back to unscaled units: the d/d alpha path carries sv * sk, the colour/depth path sv */
+        float o[V_RECORD];
+        o[0] = hsum(a_u) * iv * ik;
+        o[1] = hsum(a_v) * iv * ik;
+        o[2] = hsum(a_A) * iv * ik;
+        o[3] = hsum(a_B) * iv * ik;
+        o[4] = hsum(a_C) * iv * ik;
+        o[5] = hsum(a_r) * iv;
+        o[6] = hsum(a_g) * iv;
+        o[7] = hsum(a_b) * iv;
+        o[8] = hsum(a_o) * iv * ik;
+        o[9] = hsum(a_z) * iv;
         __global float *rec = v_emit + (size_t)emit_from_isect[i] * V_RECORD;
-        rec[0] = hsum(a_u);
-        rec[1] = hsum(a_v);
-        rec[2] = hsum(a_A);
-        rec[3] = hsum(a_B);
-        rec[4] = hsum(a_C);
-        rec[5] = hsum(a_r);
-        rec[6] = hsum(a_g);
-        rec[7] = hsum(a_b);
-        rec[8] = hsum(a_o);
-        rec[9] = hsum(a_z);
+        for (int f = 0; f < V_RECORD; ++f) {
+            bad |= !isfinite(o[f]);
+            rec[f] = o[f];
+        }
     }
-    for (; i < end; ++i) {
+    return bad;
+}
+
+/* Pass 1 of rasterize_bwd: bounds of |v| (*mv_out) and of |colour, depth, output, 1| (*mk_out)
+ * over the tile's pixels and its Gaussians [start, stop_at); fmax skips NaN (a NaN input stays NaN). */
+static inline void bwd_tile_bounds(__global const float16 *packed, __global const int *gid_from_isect,
+                                   const int width, const int height, __global const float *out_rgb,
+                                   __global const float *out_depth, __global const float *v_rgb,
+                                   __global const float *v_depth, __global const float *v_alpha, const int v_mask,
+                                   const int x0, const int y0, const int start, const int stop_at, float *mv_out,
+                                   float *mk_out) {
+    float mv = 0.0f, mk = 1.0f;
+    for (int r = 0; r < TILE_SIZE && y0 + r < height; ++r) {
+        for (int x = 0; x < TILE_SIZE && x0 + x < width; ++x) {
+            const int p = (y0 + r) * width + x0 + x;
+            if (v_mask & 1)
+                for (int ch = 0; ch < 3; ++ch) {
+                    mv = fmax(mv, fabs(sat_inf(v_rgb[3 * p + ch])));
+                    mk = fmax(mk, fabs(sat_inf(out_rgb[3 * p + ch])));
+                }
+            if (v_mask & 2) {
+                mv = fmax(mv, fabs(sat_inf(v_depth[p])));
+                mk = fmax(mk, fabs(sat_inf(out_depth[p])));
+            }
+            if (v_mask & 4) mv = fmax(mv, fabs(sat_inf(v_alpha[p])));
+        }
+    }
+    for (int i = start; i < stop_at; ++i) {
+        const float16 g = packed[gid_from_isect[i]];
+        mk = fmax(mk, fmax(fmax(fabs(sat_inf(g.s6)), fabs(sat_inf(g.s7))),
+                           fmax(fabs(sat_inf(g.s8)), fabs(sat_inf(g.s9)))));
+    }
+    *mv_out = mv;
+    *mk_out = mk;
+}
+
+__kernel void rasterize_bwd(__global const float16 *packed,      // [N] from rasterize_prep
+                            __global const int *tile_ranges,     // [T, 2]
+                            __global const int *gid_from_isect,  // [K]
+                            __global const int *emit_from_isect, // [K]
+                            const int width, const int height, const int tiles_x, const int n_tiles,
+                            __global const float *out_rgb,   // [H, W, 3] forward output
+                            __global const float *out_depth, // [H, W]
+                            __global const float *out_T,     // [H, W]
+                            __global const int *out_last,    // [H, W]
+                            __global const float *v_rgb,     // [H, W, 3] (bit 0 of v_mask)
+                            __global const float *v_depth,   // [H, W]    (bit 1)
+                            __global const float *v_alpha,   // [H, W]    (bit 2)
+                            const int v_mask,
+                            __global float *v_emit) // [K, V_RECORD]
+{
+    /* a 2D range (tx, ty): no div/rem of the tile id (LLVM's `freeze`, which Oclgrind rejects) */
+    const int tx = get_global_id(0), ty = get_global_id(1);
+    const int tile = ty * tiles_x + tx;
+    if (tx >= tiles_x || tile >= n_tiles) return;
+    const int x0 = tx * TILE_SIZE, y0 = ty * TILE_SIZE;
+    const int start = tile_ranges[2 * tile], end = tile_ranges[2 * tile + 1];
+    int stop_at = start;
+    /* pass 0 unscaled (exact: the common case ends here); pass 1 only if a record overflowed and the
+     * bounds call for scaling (otherwise the non-finite record came from non-finite inputs) */
+    if (bwd_tile(packed, gid_from_isect, emit_from_isect, width, height, out_rgb, out_depth, out_T, out_last,
+                 v_rgb, v_depth, v_alpha, v_mask, v_emit, x0, y0, start, &stop_at, 1.0f, 1.0f)) {
+        float mv, mk;
+        bwd_tile_bounds(packed, gid_from_isect, width, height, out_rgb, out_depth, v_rgb, v_depth, v_alpha,
+                        v_mask, x0, y0, start, stop_at, &mv, &mk);
+        const float sv = pow2_scale_down(mv, 28), sk = pow2_scale_down(mk, 28); /* below 2^29 */
+        if (sv != 1.0f || sk != 1.0f)
+            bwd_tile(packed, gid_from_isect, emit_from_isect, width, height, out_rgb, out_depth, out_T, out_last,
+                     v_rgb, v_depth, v_alpha, v_mask, v_emit, x0, y0, start, &stop_at, sv, sk);
+    }
+    for (int i = stop_at; i < end; ++i) {
         __global float *rec = v_emit + (size_t)emit_from_isect[i] * V_RECORD;
         for (int f = 0; f < V_RECORD; ++f) rec[f] = 0.0f;
     }
@@ -581,67 +695,48 @@ rasterize_fwd(__global const float16 *packed,      // [N] from rasterize_prep
     }
 }
 
-__kernel __attribute__((reqd_work_group_size(TILE_PIXELS, 1, 1))) void
-rasterize_bwd(__global const float16 *packed,      // [N] from rasterize_prep
-              __global const int *tile_ranges,     // [T, 2]
-              __global const int *gid_from_isect,  // [K]
-              __global const int *emit_from_isect, // [K]
-              const int width, const int height, const int tiles_x, const int n_tiles,
-              __global const float *out_rgb,   // [H, W, 3] forward output
-              __global const float *out_depth, // [H, W]
-              __global const float *out_T,     // [H, W]
-              __global const int *out_last,    // [H, W]
-              __global const float *v_rgb,     // [H, W, 3] (bit 0 of v_mask)
-              __global const float *v_depth,   // [H, W]    (bit 1)
-              __global const float *v_alpha,   // [H, W]    (bit 2)
-              const int v_mask,
-              __global float *v_emit) // [K, V_RECORD]
-{
-    __local float16 sh[BWD_BATCH];
-    __local float part[NPART * BWD_BATCH * V_RECORD];
-#if !REINGS_NV_PTX
-    __local float red[V_RECORD * TILE_PIXELS];
-#else
-    __local float *red = 0;
-#endif
-    __local int max_last;
-    /* groups on a 2D range (tx, ty): no div/rem of the tile id (LLVM `freeze`, rejected by Oclgrind) */
-    const int tx = get_group_id(0), ty = get_group_id(1);
-    const int tile = ty * tiles_x + tx;
-    const int lid = get_local_id(0);
-    const int x0 = tx * TILE_SIZE, y0 = ty * TILE_SIZE;
-    /* unsigned: a signed div/rem pair turns into LLVM `freeze` (Oclgrind rejects it) */
-    const int px = x0 + (int)((uint)lid % TILE_SIZE), py = y0 + (int)((uint)lid / TILE_SIZE);
-    const int inside = px < width && py < height;
+/* One tile of rasterize_bwd (the calling work-group) with the cotangents scaled by sv and the
+ * colours, depths and outputs by sk (see "Overflow" at the top): writes the records of positions
+ * [start, stop_at) and sets *bad if one is not finite. Every work-item calls it (barriers inside).
+ * Called with literal 1s first, so that the common case compiles to the unscaled loop. */
+static inline __attribute__((always_inline)) void
+bwd_group(__global const float16 *packed, __global const int *gid_from_isect,
+          __global const int *emit_from_isect, __global const float *out_rgb, __global const float *out_depth,
+          __global const float *out_T, __global const float *v_rgb, __global const float *v_depth,
+          __global const float *v_alpha, const int v_mask, __global float *v_emit, const int inside, const int pix,
+          const int px, const int py, const int last, const int start, const int stop_at, const int lid,
+          __local float16 *sh, __local float *part, __local float *red, volatile __local int *bad, const float sv,
+          const float sk) {
     const float fx = (float)px + 0.5f, fy = (float)py + 0.5f;
+    /* the pixel's cotangents (scaled by sv), R = v.(output - blended so far) - v_alpha T_final
+     * (scaled by sv sk), T before the current Gaussian */
     float vr = 0.0f, vg = 0.0f, vb = 0.0f, vd = 0.0f, R = 0.0f, T = 1.0f;
-    int last = 0;
     if (inside) {
-        const int p = py * width + px;
         if (v_mask & 1) {
-            vr = v_rgb[3 * p];
-            vg = v_rgb[3 * p + 1];
-            vb = v_rgb[3 * p + 2];
-            R += vr * out_rgb[3 * p] + vg * out_rgb[3 * p + 1] + vb * out_rgb[3 * p + 2];
+            vr = scaled(v_rgb[3 * pix], sv);
+            vg = scaled(v_rgb[3 * pix + 1], sv);
+            vb = scaled(v_rgb[3 * pix + 2], sv);
+            R += vr * scaled(out_rgb[3 * pix], sk) + vg * scaled(out_rgb[3 * pix + 1], sk) +
+                 vb * scaled(out_rgb[3 * pix + 2], sk);
         }
         if (v_mask & 2) {
-            vd = v_depth[p];
-            R += vd * out_depth[p];
+            vd = scaled(v_depth[pix], sv);
+            R += vd * scaled(out_depth[pix], sk);
         }
-        if (v_mask & 4) R -= v_alpha[p] * out_T[p];
-        last = out_last[p];
+        if (v_mask & 4) R -= scaled(v_alpha[pix], sv) * scaled(out_T[pix], sk);
     }
-    if (lid == 0) max_last = 0;
-    barrier(CLK_LOCAL_MEM_FENCE);
-    atomic_max(&max_last, last);
-    barrier(CLK_LOCAL_MEM_FENCE);
-    const int start = tile_ranges[2 * tile], end = tile_ranges[2 * tile + 1];
-    const int stop_at = start + max_last; /* positions >= max(last) touch no pixel */
-    int b0 = start;
-    for (; b0 < stop_at; b0 += BWD_BATCH) {
+    const float iv = 1.0f / sv, ik = 1.0f / sk; /* exact: powers of two */
+    for (int b0 = start; b0 < stop_at; b0 += BWD_BATCH) {
         const int nb = min(BWD_BATCH, stop_at - b0);
-        barrier(CLK_LOCAL_MEM_FENCE); /* the previous batch is done with sh / part */
-        if (lid < nb) sh[lid] = packed[gid_from_isect[b0 + lid]];
+        barrier(CLK_LOCAL_MEM_FENCE); /* the previous batch (or call) is done with sh / part */
+        if (lid < nb) {
+            float16 g = packed[gid_from_isect[b0 + lid]];
+            g.s6 = scaled(g.s6, sk); /* colours and depth scaled once per Gaussian */
+            g.s7 = scaled(g.s7, sk);
+            g.s8 = scaled(g.s8, sk);
+            g.s9 = scaled(g.s9, sk);
+            sh[lid] = g;
+        }
         barrier(CLK_LOCAL_MEM_FENCE);
         for (int j = 0; j < nb; ++j) {
             const float16 g = sh[j];
@@ -684,8 +779,93 @@ rasterize_bwd(__global const float16 *packed,      // [N] from rasterize_prep
             const int j = e / V_RECORD, f = e - j * V_RECORD;
             float s = 0.0f;
             for (int p = 0; p < NPART; ++p) s += part[(p * BWD_BATCH + j) * V_RECORD + f];
+            /* back to unscaled units: the colour/depth fields (5, 6, 7, 9) carry sv, the rest sv sk */
+            s *= iv;
+            if (f < 5 || f == 8) s *= ik;
+            if (!isfinite(s)) atomic_or(bad, 1);
             v_emit[(size_t)emit_from_isect[b0 + j] * V_RECORD + f] = s;
         }
+    }
+}
+
+__kernel __attribute__((reqd_work_group_size(TILE_PIXELS, 1, 1))) void
+rasterize_bwd(__global const float16 *packed,      // [N] from rasterize_prep
+              __global const int *tile_ranges,     // [T, 2]
+              __global const int *gid_from_isect,  // [K]
+              __global const int *emit_from_isect, // [K]
+              const int width, const int height, const int tiles_x, const int n_tiles,
+              __global const float *out_rgb,   // [H, W, 3] forward output
+              __global const float *out_depth, // [H, W]
+              __global const float *out_T,     // [H, W]
+              __global const int *out_last,    // [H, W]
+              __global const float *v_rgb,     // [H, W, 3] (bit 0 of v_mask)
+              __global const float *v_depth,   // [H, W]    (bit 1)
+              __global const float *v_alpha,   // [H, W]    (bit 2)
+              const int v_mask,
+              __global float *v_emit) // [K, V_RECORD]
+{
+    __local float16 sh[BWD_BATCH];
+    __local float part[NPART * BWD_BATCH * V_RECORD];
+#if !REINGS_NV_PTX
+    __local float red[V_RECORD * TILE_PIXELS];
+#else
+    __local float *red = 0;
+#endif
+    __local int max_last, bad, mv_bits, mk_bits;
+    /* groups on a 2D range (tx, ty): no div/rem of the tile id (LLVM `freeze`, rejected by Oclgrind) */
+    const int tx = get_group_id(0), ty = get_group_id(1);
+    const int tile = ty * tiles_x + tx;
+    const int lid = get_local_id(0);
+    const int x0 = tx * TILE_SIZE, y0 = ty * TILE_SIZE;
+    /* unsigned: a signed div/rem pair turns into LLVM `freeze` (Oclgrind rejects it) */
+    const int px = x0 + (int)((uint)lid % TILE_SIZE), py = y0 + (int)((uint)lid / TILE_SIZE);
+    const int inside = px < width && py < height;
+    const int pix = py * width + px; /* read only when inside */
+    const int last = inside ? out_last[pix] : 0;
+    if (lid == 0) {
+        max_last = 0;
+        bad = 0;
+        mv_bits = 0;
+        mk_bits = as_int(1.0f);
+    }
+    barrier(CLK_LOCAL_MEM_FENCE);
+    atomic_max(&max_last, last);
+    barrier(CLK_LOCAL_MEM_FENCE);
+    const int start = tile_ranges[2 * tile], end = tile_ranges[2 * tile + 1];
+    const int stop_at = start + max_last; /* positions >= max(last) touch no pixel */
+    /* pass 0 unscaled (exact: the common case ends here); pass 1 only if a record overflowed and the
+     * bounds call for scaling (otherwise the non-finite record came from non-finite inputs). The
+     * branches read local values after a barrier: uniform over the work-group. */
+    bwd_group(packed, gid_from_isect, emit_from_isect, out_rgb, out_depth, out_T, v_rgb, v_depth, v_alpha, v_mask,
+              v_emit, inside, pix, px, py, last, start, stop_at, lid, sh, part, red, &bad, 1.0f, 1.0f);
+    barrier(CLK_LOCAL_MEM_FENCE); /* bad is final */
+    if (bad) {
+        /* bounds of |v| and of |colour, depth, output, 1| over the tile; fmax skips NaN */
+        float mv = 0.0f, mk = 0.0f;
+        if (inside) {
+            if (v_mask & 1)
+                for (int ch = 0; ch < 3; ++ch) {
+                    mv = fmax(mv, fabs(sat_inf(v_rgb[3 * pix + ch])));
+                    mk = fmax(mk, fabs(sat_inf(out_rgb[3 * pix + ch])));
+                }
+            if (v_mask & 2) {
+                mv = fmax(mv, fabs(sat_inf(v_depth[pix])));
+                mk = fmax(mk, fabs(sat_inf(out_depth[pix])));
+            }
+            if (v_mask & 4) mv = fmax(mv, fabs(sat_inf(v_alpha[pix])));
+        }
+        for (int e = start + lid; e < stop_at; e += TILE_PIXELS) {
+            const float16 g = packed[gid_from_isect[e]];
+            mk = fmax(mk, fmax(fmax(fabs(sat_inf(g.s6)), fabs(sat_inf(g.s7))),
+                               fmax(fabs(sat_inf(g.s8)), fabs(sat_inf(g.s9)))));
+        }
+        atomic_max(&mv_bits, as_int(mv)); /* non-negative floats order like their bits */
+        atomic_max(&mk_bits, as_int(mk));
+        barrier(CLK_LOCAL_MEM_FENCE);
+        const float sv = pow2_scale_down(as_float(mv_bits), 28), sk = pow2_scale_down(as_float(mk_bits), 28);
+        if (sv != 1.0f || sk != 1.0f)
+            bwd_group(packed, gid_from_isect, emit_from_isect, out_rgb, out_depth, out_T, v_rgb, v_depth, v_alpha,
+                      v_mask, v_emit, inside, pix, px, py, last, start, stop_at, lid, sh, part, red, &bad, sv, sk);
     }
     /* Gaussians at positions >= max(last): zero records */
     for (int e = stop_at + lid; e < end; e += TILE_PIXELS) {

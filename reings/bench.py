@@ -2,7 +2,7 @@
 
     reings bench [--device pocl] [--scenes A,B,C] [--sh 0,3] [--warmup 8] [--repeats 40]
                  [--sort all|ours|none] [--reference crop|none] [--pairs reference|estimate|none]
-                 [--out FILE.jsonl]
+                 [--step] [--out FILE.jsonl]
     python -c "from reings.bench import main; main(['--scenes', 'A', '--repeats', '10'])"
 
 For each scene x SH degree (504x378, near 0.01, black background): `render` then the L1-mean
@@ -21,6 +21,10 @@ Per scene, the sort: numpy.argsort(kind="stable") vs our radix sort (reings.back
 vs pyopencl.algorithm.RadixSort on the scene's own (tile << 32 | depth bits) keys in gid emit order
 (gsplat's layout, end bit 32 + ceil(log2 tiles)), plus our pipeline's two 32-bit sorts as they run
 in the render; and once, the same on 1M synthetic keys.
+With --step, per configuration also the device engine's training step (bench_train_step:
+DeviceTrainer.step_l1 = forward from device-resident parameters, L1 on the device, backward, Adam
+kernel over all groups; median wall per step with a finish, device time per stage, launches and host
+syncs per step); bench/peer_step.py puts gsplat's step beside it.
 Output: one JSON object per line (device, driver, versions in each) and a table at the end.
 """
 from __future__ import annotations
@@ -246,6 +250,197 @@ def bench_config(be, scene: str, sh: int, args) -> dict:
     return rec
 
 
+# ------------------------------------------------------------------------------------------------
+# the training step (device-resident engine), gsplat's step workload
+# ------------------------------------------------------------------------------------------------
+class ClCalls:
+    """Counts the OpenCL commands and host syncs issued inside a `with` block, by wrapping pyopencl's
+    entry points (every kernel launch goes through pyopencl._cl.enqueue_nd_range_kernel, whether
+    from `kernel(queue, ...)` or `enqueue_nd_range_kernel`).
+
+        launches   kernel launches            copies  enqueue_copy calls (reads_blocking: the
+        fills      enqueue_fill_buffer        blocking device -> host ones among them)
+        maps       enqueue_map_buffer         finishes  queue.finish();  waits  Event.wait / cl.wait_for_events
+        syncs      reads_blocking + blocking writes + blocking maps + finishes + waits
+    """
+
+    KEYS = ("launches", "copies", "reads_blocking", "writes_blocking", "fills", "maps", "maps_blocking",
+            "finishes", "waits")
+
+    def __init__(self):
+        self.n = dict.fromkeys(self.KEYS, 0)
+        self._saved = []
+
+    @property
+    def syncs(self) -> int:
+        n = self.n
+        return n["reads_blocking"] + n["writes_blocking"] + n["maps_blocking"] + n["finishes"] + n["waits"]
+
+    def as_dict(self, per: int = 1) -> dict:
+        d = {k: v / per for k, v in self.n.items()}
+        d["syncs"] = self.syncs / per
+        return d
+
+    def _patch(self, obj, name, wrapper_factory):
+        orig = getattr(obj, name)
+        self._saved.append((obj, name, orig))
+        setattr(obj, name, wrapper_factory(orig))
+
+    def __enter__(self):
+        import pyopencl as cl
+        import pyopencl._cl as _cl
+
+        n = self.n
+
+        def launch(orig):
+            def f(*a, **k):
+                n["launches"] += 1
+                return orig(*a, **k)
+            return f
+
+        def copy(orig):
+            def f(queue, dest, src, **k):
+                n["copies"] += 1
+                if k.get("is_blocking", True):
+                    if isinstance(dest, np.ndarray):
+                        n["reads_blocking"] += 1
+                    elif isinstance(src, np.ndarray):
+                        n["writes_blocking"] += 1
+                return orig(queue, dest, src, **k)
+            return f
+
+        def count(key):
+            def fac(orig):
+                def f(*a, **k):
+                    n[key] += 1
+                    return orig(*a, **k)
+                return f
+            return fac
+
+        def mapb(orig):
+            def f(*a, **k):
+                n["maps"] += 1
+                if k.get("is_blocking", True):
+                    n["maps_blocking"] += 1
+                return orig(*a, **k)
+            return f
+
+        self._patch(_cl, "enqueue_nd_range_kernel", launch)
+        self._patch(cl, "enqueue_copy", copy)
+        self._patch(cl, "enqueue_fill_buffer", count("fills"))
+        self._patch(cl, "enqueue_map_buffer", mapb)
+        self._patch(cl.CommandQueue, "finish", count("finishes"))
+        self._patch(cl.Event, "wait", count("waits"))
+        self._patch(cl, "wait_for_events", count("waits"))
+        return self
+
+    def __exit__(self, *exc):
+        for obj, name, orig in reversed(self._saved):
+            setattr(obj, name, orig)
+        self._saved = []
+        return False
+
+
+def step_target(cam, seed: int = 123) -> np.ndarray:
+    """The fixed random [H,W,3] float32 target of the training-step benchmark (U(0, 1))."""
+    return np.random.default_rng(seed).uniform(0.0, 1.0, (cam.height, cam.width, 3)).astype(np.float32)
+
+
+def make_step_trainer(be, g, target, lr: float = 1e-3, eps: float = 1e-15, adam: str = "kernel"):
+    """(DeviceTrainer, Adam) holding Gaussians `g` (all SH coefficients trained) and `target` as
+    training image 0, every group at learning rate `lr` (gsplat peer: torch Adam lr 1e-3, eps 1e-15)."""
+    from .backends.opencl.trainer import DeviceTrainer
+    from .densify import init_stats
+    from .optim import Adam
+    from .state import PARAM_NAMES, TrainState
+
+    st = TrainState.from_gaussians(g)
+    init_stats(st)
+    t = DeviceTrainer(be, [target], adam=adam)
+    t.upload(st)
+    opt = Adam(st.params, {k: lr for k in PARAM_NAMES}, state=st.adam, eps=eps)
+    return t, opt
+
+
+def bench_train_step(be, g, cam, target=None, warmup: int = 8, repeats: int = 40, breakdown: bool = True,
+                     count: bool = True, adam: str = "kernel") -> dict:
+    """Our training step on the device engine (DeviceTrainer.step_l1: forward from the device
+    parameters, L1 vs `target`, backward, Adam over all groups; no loss read), timed like
+    bench/peer_gsplat.py's: median wall clock per step with a queue.finish() after each, after
+    `warmup` steps. Also: OpenCL launches / host syncs per step (ClCalls), the host time per step
+    until the final finish is called ("step_host_enqueue_ms": enqueueing plus the binning's wait for
+    (V, K)), and with `breakdown` a
+    second run with profiling events -> device ms per stage ("dev_<stage>_ms"), their sum, and the
+    device span (first kernel start to last kernel end). The parameters move with every step
+    (restore them with trainer.upload if needed)."""
+    target = step_target(cam) if target is None else target
+    t, opt = make_step_trainer(be, g, target, adam=adam)
+    q = be.queue
+    for _ in range(warmup):
+        t.step_l1(cam, 0, opt)
+    q.finish()
+    wall, host = [], []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        fr, _ = t.step_l1(cam, 0, opt)
+        t1 = time.perf_counter()
+        q.finish()
+        t2 = time.perf_counter()
+        wall.append(1e3 * (t2 - t0))
+        host.append(1e3 * (t1 - t0))
+    rec = dict(step_wall_ms=_median(wall), step_wall_min_ms=min(wall) if wall else float("nan"),
+               step_host_enqueue_ms=_median(host), visible=fr.visible, intersections=fr.isects,
+               n=t.n, sh_k=t.kmax, width=cam.width, height=cam.height)
+    if count:
+        with ClCalls() as cc:
+            reps = max(1, min(repeats, 5))
+            for _ in range(reps):
+                t.step_l1(cam, 0, opt)
+            q.finish()
+        rec["per_step"] = cc.as_dict(reps)
+        rec["per_step"]["finishes"] -= 1 / reps  # the final finish of the counted block
+        rec["per_step"]["syncs"] -= 1 / reps
+    if breakdown:
+        prof: dict = {}
+        t.profile = prof
+        spans = []
+        reps = max(1, min(repeats, 10))
+        for _ in range(reps):
+            t.finish()
+            prof.pop("device_ms", None)
+            t.step_l1(cam, 0, opt)
+            evs = list(be._events) + [(st, ev, False) for st, ev in t._events]
+            t.queue.finish()
+            try:
+                starts = [e.profile.start for _, e, _ in evs]
+                ends = [e.profile.end for _, e, _ in evs]
+                spans.append((max(ends) - min(starts)) * 1e-6)
+            except Exception:  # profiling unavailable
+                pass
+            t.finish()
+            for st, ms in prof.get("device_ms", {}).items():
+                rec.setdefault(f"dev_{st}_ms_all", []).append(ms)
+        t.profile = None
+        for key in [k for k in rec if k.endswith("_ms_all")]:
+            rec[key[:-4]] = _median(rec.pop(key))
+        rec["dev_sum_ms"] = sum(v for k, v in rec.items() if k.startswith("dev_") and k.endswith("_ms")
+                                and k != "dev_sum_ms")
+        rec["dev_span_ms"] = _median(spans)
+    return rec
+
+
+def step_reference_error(be, g, cam, crop: int = 96) -> dict:
+    """Our device engine's forward image (device parameters, as the step renders them) vs the
+    float64 reference on the centred crop x crop window (0: the full image): max abs rgb error."""
+    from .backends import reference as ref
+
+    cc = crop_camera(cam, crop) if crop else cam
+    t, _ = make_step_trainer(be, g, np.zeros((cc.height, cc.width, 3), np.float32))
+    rgb = t.read_rgb(t.forward(cc, t.kmax, (0.0, 0.0, 0.0), 0.01))
+    _, _, o64, _ = ref.render64(g, cc)
+    return dict(ref_crop=[cc.width, cc.height], max_err_rgb_vs_f64=float(np.abs(rgb - o64.rgb).max()))
+
+
 def _fmt(x, nd=1):
     return "-" if x is None or (isinstance(x, float) and not np.isfinite(x)) else f"{x:.{nd}f}"
 
@@ -272,6 +467,19 @@ def print_table(records: list[dict], file=sys.stdout):
             print(" ".join(f"{str(x):>8}" for x in row), file=file)
         print("(ms; fwd / f+b: wall clock of render / render+loss+render_vjp; other stage columns: device "
               "time from profiling events; Mpair/s: evaluated pairs per second of the whole step)", file=file)
+    st = [r for r in records if r.get("kind") == "step"]
+    if st:
+        print("\n# training step on the device engine (forward, L1, backward, Adam over all groups): ms", file=file)
+        print(f"{'scene':>8} {'vis':>8} {'isects':>8} {'wall':>8} {'enqueue':>8} {'dev sum':>8} {'dev span':>8} "
+              f"{'launch':>7} {'syncs':>6}", file=file)
+        for r in st:
+            ps = r.get("per_step", {})
+            print(f"{r['scene'] + '-sh' + str(r['sh_degree']):>8} {r['visible']:>8} {r['intersections']:>8} "
+                  f"{_fmt(r['step_wall_ms'], 2):>8} {_fmt(r['step_host_enqueue_ms'], 2):>8} "
+                  f"{_fmt(r.get('dev_sum_ms'), 2):>8} {_fmt(r.get('dev_span_ms'), 2):>8} "
+                  f"{_fmt(ps.get('launches'), 0):>7} {_fmt(ps.get('syncs'), 0):>6}", file=file)
+        print("(wall: median per step incl. a queue.finish; enqueue: host time until the finish; dev sum: device "
+              "time per stage from profiling events; dev span: first kernel start to last kernel end)", file=file)
     sr = [r for r in records if r.get("kind") == "sort"]
     if sr:
         print("\n# sort of (tile, depth) keys: ms (wall, median)", file=file)
@@ -297,6 +505,9 @@ def main(argv=None) -> int:
     ap.add_argument("--reference", choices=("crop", "none"), default="crop")
     ap.add_argument("--crop", type=int, default=96, help="crop size for the reference comparison")
     ap.add_argument("--pairs", choices=("reference", "estimate", "none"), default="reference")
+    ap.add_argument("--step", action="store_true",
+                    help="also time the device engine's training step (forward, L1, backward, Adam kernel: "
+                         "DeviceTrainer.step_l1, gsplat's step workload; bench/peer_step.py runs gsplat beside it)")
     ap.add_argument("--out", default=None, help="write the JSON lines here instead of stdout")
     args = ap.parse_args(argv)
 
@@ -332,6 +543,10 @@ def main(argv=None) -> int:
                 g, cam = perf_scene(scene, sh_degree=sh, n=args.n)
                 rec.update(reference_error(be, g, cam, args.crop))
             emit(rec)
+            if args.step:
+                g, cam = perf_scene(scene, sh_degree=sh, n=args.n)
+                srec = bench_train_step(be, g, cam, warmup=args.warmup, repeats=args.repeats)
+                emit(dict(kind="step", scene=scene, sh_degree=sh, **srec))
         if args.sort != "none":
             g, cam = perf_scene(scene, sh_degree=0, n=args.n)
             keys, tbits = emit_keys_gid_order(be, g, cam)

@@ -1,7 +1,8 @@
-"""The `reings` command line: devices, bench, run.
+"""The `reings` command line: devices, bench, run, eval.
 
-Errors a user can cause (missing files, bad arguments, no OpenCL platform) print one line
-`reings: error: ...` and exit with status 2; nothing already written is removed.
+Errors a user can cause (missing files, bad arguments, no OpenCL platform, an --out that already
+holds a finished run) print one line `reings: error: ...` and exit with status 2; they are
+checked before anything is written, and nothing already written is removed.
 """
 from __future__ import annotations
 
@@ -48,6 +49,55 @@ def _cmd_run(args) -> int:
     return pipeline.main_run(args) or 0
 
 
+def _cmd_eval(args) -> int:
+    from . import evaluate
+
+    return evaluate.main_eval(args) or 0
+
+
+def _positive_int(text: str) -> int:
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+    if v < 1:
+        raise argparse.ArgumentTypeError(f"must be >= 1, got {v}")
+    return v
+
+
+def _nonneg_int(text: str) -> int:
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+    if v < 0:
+        raise argparse.ArgumentTypeError(f"must be >= 0, got {v}")
+    return v
+
+
+def _add_common_fit_args(r, methods_flag: str) -> None:
+    """Options shared by `run` and `eval`."""
+    r.add_argument("--device", default="pocl", help="pocl | cuda | cuda:N | opencl:P:D | reference")
+    r.add_argument("--depth-prior", default="stereo", help="stereo | onnx:PATH | none | exact (procedural only)")
+    r.add_argument("--preset", default="quick", choices=["quick", "paper"],
+                   help="iteration counts: quick (3dgs/dngaussian 600, reings 200/200/600) or paper (6000 per stage)")
+    r.add_argument("--iterations", type=_positive_int, default=None, help="override the preset's iteration count per stage")
+    r.add_argument("--eval-every", type=_nonneg_int, default=None,
+                   help="test-PSNR probe every N iterations for the PSNR-vs-seconds plot (default: ~15 per stage; 0: off)")
+    r.add_argument("--seed", type=int, default=0)
+    r.add_argument("--init-points", type=_positive_int, default=5000,
+                   help="random initial points of dngaussian/3dgs and of reings without EHPS (DNGaussian LLFF: ~5000)")
+    r.add_argument("--sh-degree", type=int, choices=[0, 1, 2, 3], default=None,
+                   help="maximum SH degree (default: 0 with --preset quick, 3 with paper)")
+    r.add_argument("--factor", type=_positive_int, default=8, help="LLFF image downsampling factor")
+    r.add_argument("--no-lpips", action="store_true", help="skip LPIPS (and AVGE)")
+    r.add_argument("--quiet", action="store_true", help="no progress bars or stage lines")
+    for k, what in (("ehps", "EHPS coarse init (random points instead)"),
+                    ("ivps", "IVPS re-initialisation (fine stage starts from the coarse Gaussians)"),
+                    ("cvps", "CVPS re-initialisation (final stage starts from the fine Gaussians)")):
+        r.add_argument(f"--no-{k}", action="store_true", help=f"ablation: no {what}; applies to {methods_flag} reings")
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="reings", description="Few-shot 3D Gaussian splatting (ReInGS) on OpenCL.")
     sub = p.add_subparsers(dest="command", required=True)
@@ -60,21 +110,32 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("rest", nargs=argparse.REMAINDER)
     b.set_defaults(func=_cmd_bench)
 
-    r = sub.add_parser("run", help="fit one scene and evaluate its test views")
-    r.add_argument("--method", default="reings", choices=["reings", "dngaussian", "3dgs"])
+    r = sub.add_parser("run", help="fit one scene and evaluate its test views (docs/pipeline.md)")
+    r.add_argument("--method", default="reings",
+                   help="reings | dngaussian | 3dgs, or an ablation: reings-no-ehps, reings-no-ivps, reings-no-cvps")
     r.add_argument("--data", default=None, help="scene folder; omitted: the built-in procedural scene")
     r.add_argument("--dataset", default=None, choices=["llff", "dtu", "colmap", "blender", "procedural"])
-    r.add_argument("--factor", type=int, default=8, help="LLFF image downsampling factor")
-    r.add_argument("--views", type=int, default=3, help="number of training views")
-    r.add_argument("--device", default="pocl", help="pocl | cuda | opencl:P:D | reference")
-    r.add_argument("--depth-prior", default="stereo", help="stereo | onnx:PATH | none")
-    r.add_argument("--preset", default="quick", choices=["quick", "paper"])
-    r.add_argument("--iterations", type=int, default=None, help="override the preset's iteration count per stage")
-    r.add_argument("--seed", type=int, default=0)
-    r.add_argument("--out", required=True, help="output folder")
-    r.add_argument("--overwrite", action="store_true", help="allow writing into a non-empty --out")
-    r.add_argument("--quiet", action="store_true")
+    r.add_argument("--views", type=int, default=3, help="number of training views (>= 2)")
+    r.add_argument("--out", required=True, help="output folder (a rerun resumes an interrupted run there)")
+    r.add_argument("--overwrite", action="store_true", help="redo a finished run in --out (starts over)")
+    _add_common_fit_args(r, "--method")
     r.set_defaults(func=_cmd_run)
+
+    e = sub.add_parser("eval", help="run every scene x view count x method of a dataset and tabulate (docs/pipeline.md)")
+    e.add_argument("--dataset", default=None, choices=["llff", "dtu", "colmap", "blender", "procedural"],
+                   help="dataset of the scenes under --root (default: detected per scene)")
+    e.add_argument("--root", default=None, help="folder of scene folders (e.g. nerf_llff_data/)")
+    e.add_argument("--scenes", default=None, help="comma list of scene folder names (default: every scene under --root)")
+    e.add_argument("--views", default="3", help="comma list of training-view counts, e.g. 2,3,4")
+    e.add_argument("--methods", "--method", dest="methods", default="reings",
+                   help="comma list: reings, dngaussian, 3dgs, reings-no-ehps, reings-no-ivps, reings-no-cvps, ...")
+    e.add_argument("--out", required=True, help="results folder: one run folder per dataset/method/views/scene")
+    e.add_argument("--table-only", action="store_true", help="only rebuild results.json/results.md from the runs in --out")
+    e.add_argument("--prepare-only", action="store_true",
+                   help="only fill the depth-prior and SfM caches of every scene x view count (no training)")
+    e.add_argument("--keep-going", action="store_true", help="go on with the other runs when one fails")
+    _add_common_fit_args(e, "--methods")
+    e.set_defaults(func=_cmd_eval)
 
     return p
 
@@ -91,7 +152,8 @@ def main(argv=None) -> int:
     except CLIError as e:
         print(f"reings: error: {e}", file=sys.stderr)
         return 2
-    except (FileNotFoundError, ValueError) as e:
+    except (FileNotFoundError, FileExistsError, NotADirectoryError, IsADirectoryError, PermissionError,
+            ValueError) as e:
         print(f"reings: error: {e}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
@@ -99,7 +161,7 @@ def main(argv=None) -> int:
         return 130
     except Exception as e:  # device errors carry their own class names
         name = type(e).__name__
-        if name in ("DeviceNotFound", "KernelBuildError", "SceneError"):
+        if name in ("DeviceNotFound", "KernelBuildError", "SceneError", "DepthPriorError", "LPIPSModelNotFound"):
             print(f"reings: error: {e}", file=sys.stderr)
             return 2
         raise

@@ -3,7 +3,9 @@
 
     photometric_loss(rgb, gt, lambda_dssim, form, device)  -> (loss, v_rgb [H,W,3])
         L1 + SSIM of 3DGS; OpenCL kernels (`kernels/loss.cl`) on OpenCL devices, the float64
-        reference (`reings.backends.reference_loss`) on device "reference".
+        reference (`reings.backends.reference_loss`) on device "reference". The device-resident
+        form (`photometric_cl(device).enqueue(x_buf, y_buf, v_buf, ...)`, then `read_loss()`)
+        takes and writes device buffers; the training engine uses it.
     depth_loss(depth, target, rng, patch_range, margin, w_local, w_global) -> (loss, v_depth [H,W])
         DNGaussian's global-local depth normalisation (METHOD.md §2.4), a random patch size per term;
         vectorised numpy (one small image per call), in float64.
@@ -62,26 +64,64 @@ class PhotometricCL:
         cl, q = self.cl, self.handle.queue
         h, w = rgb.shape[:2]
         self._alloc(h, w)
-        n = h * w * 3
-        W, H = np.int32(w), np.int32(h)
         cl.enqueue_copy(q, self.x, np.ascontiguousarray(rgb, np.float32))
         cl.enqueue_copy(q, self.y, np.ascontiguousarray(gt, np.float32))
-        g2 = (w, h)
-        self.k["ssim_hpass_fwd"](q, g2, None, self.x, self.y, self.taps, self.h5, W, H)
-        self.k["ssim_vpass_fwd"](q, g2, None, self.h5, self.taps, self.smap, self.d3, np.float32(-w_ssim / n), W, H)
-        self.k["ssim_hpass_bwd"](q, g2, None, self.d3, self.taps, self.h3, W, H)
-        self.k["ssim_vpass_bwd"](q, g2, None, self.h3, self.x, self.y, self.taps, self.v, np.float32(w_l1 / n), W, H)
-        self.k["loss_row_sums"](q, (h,), None, self.smap, self.x, self.y, self.partial, W, H)
+        self.enqueue(self.x, self.y, self.v, h, w, w_l1, w_ssim)
         v = np.empty((h, w, 3), np.float32)
-        part = np.empty((h, 2), np.float32)
         cl.enqueue_copy(q, v, self.v)
-        cl.enqueue_copy(q, part, self.partial)  # blocking: waits for the queue
+        return self.read_loss(), v
+
+    def enqueue(self, x, y, v, h: int, w: int, w_l1: float, w_ssim: float):
+        """Device-resident form: x (rendered) and y (ground truth) are [H,W,3] float32 buffers of
+        this device's context, dL/dx is written into the buffer v; nothing is read back. The per-row
+        partial sums stay on the device for `read_loss` (valid until the next call). Returns the
+        last kernel's event."""
+        q = self.handle.queue
+        self._alloc(h, w)
+        n = h * w * 3
+        W, H = np.int32(w), np.int32(h)
+        g2 = (w, h)
+        k = self._typed
+        k("ssim_hpass_fwd", q, g2, x, y, self.taps, self.h5, W, H)
+        k("ssim_vpass_fwd", q, g2, self.h5, self.taps, self.smap, self.d3, np.float32(-w_ssim / n), W, H)
+        k("ssim_hpass_bwd", q, g2, self.d3, self.taps, self.h3, W, H)
+        k("ssim_vpass_bwd", q, g2, self.h3, x, y, self.taps, v, np.float32(w_l1 / n), W, H)
+        ev = k("loss_row_sums", q, (h,), self.smap, x, y, self.partial, W, H)
+        self._weights = (float(w_l1), float(w_ssim))
+        return ev
+
+    def _typed(self, name: str, q, gsize, *args):
+        """Launch kernel `name` through pyopencl's typed invoker (set once per kernel: the generic
+        one costs ~6.5 us per scalar argument, see backend.typed_invoker)."""
+        kern = self.k[name]
+        if not getattr(kern, "_reings_typed", False):
+            from .backends.opencl.backend import typed_invoker
+
+            typed_invoker(kern, args)
+        return kern(q, gsize, None, *args)
+
+    def read_loss(self) -> float:
+        """The loss of the last `enqueue` / call (a blocking read of H x 2 partial sums, added in
+        float64 on the host)."""
+        h, w = self._shape
+        n = h * w * 3
+        part = np.empty((h, 2), np.float32)
+        self.cl.enqueue_copy(self.handle.queue, part, self.partial)  # blocking: waits for the queue
         sums = part.astype(np.float64).sum(axis=0)
         ssim, l1 = sums[0] / n, sums[1] / n
-        return float(w_l1 * l1 + w_ssim * (1.0 - ssim)), v
+        w_l1, w_ssim = self._weights
+        return float(w_l1 * l1 + w_ssim * (1.0 - ssim))
 
 
 _CL: dict[str, PhotometricCL] = {}
+
+
+def photometric_cl(device: str) -> PhotometricCL:
+    """The (cached) PhotometricCL of an OpenCL device string (shares the backend's context)."""
+    cl = _CL.get(device)
+    if cl is None:
+        cl = _CL[device] = PhotometricCL(device)
+    return cl
 
 
 def photometric_loss(rgb: np.ndarray, gt: np.ndarray, lambda_dssim: float = 0.2, form: str = "dngaussian",
@@ -99,10 +139,7 @@ def photometric_loss(rgb: np.ndarray, gt: np.ndarray, lambda_dssim: float = 0.2,
     if device == "reference":
         loss, v = ref.photometric_fwd_bwd(rgb, gt, lambda_dssim, form)
         return loss, v.astype(np.float32)
-    cl = _CL.get(device)
-    if cl is None:
-        cl = _CL[device] = PhotometricCL(device)
-    return cl(rgb, gt, w_l1, w_ssim)
+    return photometric_cl(device)(rgb, gt, w_l1, w_ssim)
 # }}}
 
 # {{{ depth

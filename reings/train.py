@@ -6,6 +6,12 @@ gradient to the means only, its own Adam step), an optional soft-depth pass (gra
 opacities only, its own step), then the photometric pass (+ regularisers) stepping every group,
 densification bookkeeping and the densify/prune schedule. Adam keeps a step count per group.
 
+Two engines compute that same iteration (`fit(engine=...)`): "host" moves numpy Gaussians through
+render / render_vjp and steps a numpy Adam; "device" (the default on OpenCL devices) keeps the
+parameters, gradients, Adam moments, densification statistics and training images on the device
+(reings/backends/opencl/trainer.py: Adam in kernels/adam.cl, penalties and statistics in
+kernels/train.cl) and reads the state back only for densification, eval, checkpoints and the result.
+
 What is left to others: the per-pixel work (render, render_vjp, photometric loss kernels) is the
 backend's; parameter surgery is `reings.state`; schedules are `reings.optim`.
 """
@@ -124,10 +130,48 @@ def _load_checkpoint(path: str):
     return TrainState.from_arrays(d), rng_state, hist, extra
 
 
+ENGINES = ("auto", "host", "device")
+
+
+def _densify_due(d, it: int) -> bool:
+    """Whether `reings.densify.maybe_densify` would touch the state after iteration `it` (the same
+    conditions), so the device engine reads the state back only then."""
+    if it >= d.densify_until:
+        return False
+    if it > d.densify_from and it % d.densify_interval == 0:
+        return True
+    return bool(d.opacity_reset_interval and it % d.opacity_reset_interval == 0)
+
+
+class _Phases:
+    """profile[name] += wall seconds of a block (host engine: every call is blocking already)."""
+
+    def __init__(self, profile: dict | None):
+        self.profile = profile
+
+    def __call__(self, name: str):
+        from contextlib import contextmanager
+
+        @contextmanager
+        def block():
+            t = time.perf_counter()
+            try:
+                yield
+            finally:
+                self.profile[name] = self.profile.get(name, 0.0) + time.perf_counter() - t
+
+        if self.profile is None:
+            from contextlib import nullcontext
+
+            return nullcontext()
+        return block()
+
+
 def fit(views, config: TrainConfig, device: str = "pocl", init: Gaussians | None = None,
         depth_targets=None, progress: bool = True, checkpoint: str | None = None,
         checkpoint_every: int = 250, eval_fn=None, eval_every: int = 0, log_every: int = 10,
-        desc: str = "fit", extent: float | None = None) -> FitResult:
+        desc: str = "fit", extent: float | None = None, engine: str = "auto", adam: str = "auto",
+        profile: dict | None = None) -> FitResult:
     """Optimise Gaussians on the training views.
 
     views: a `Scene` holding ONLY the training views (`scene.subset(train)`), or a list of
@@ -135,9 +179,20 @@ def fit(views, config: TrainConfig, device: str = "pocl", init: Gaussians | None
     config: a TrainConfig (`reings.config.preset("dngaussian")`, ...).
     init: initial Gaussians (required).
     depth_targets: per view [H,W] depth-like maps (a depth prior), or None (no depth terms).
-    checkpoint: path of an .npz; if it exists the fit resumes from it (same seed and device give
-        the same result as an uninterrupted run); it is rewritten every `checkpoint_every` its.
+    checkpoint: path of an .npz; if it exists the fit resumes from it (same seed, device and
+        engine give the same result as an uninterrupted run); it is rewritten every
+        `checkpoint_every` its.
     eval_fn: optional f(gaussians) -> dict, called every `eval_every` iterations (speed vs error).
+    engine: "host" (every pass: numpy Gaussians -> render / render_vjp -> numpy Adam), "device"
+        (parameters, gradients, Adam moments, densification statistics and the training images
+        stay on the OpenCL device: reings.backends.opencl.trainer), or "auto": "device" on OpenCL
+        devices, "host" on device "reference". Both compute the same iteration (tests/test_device_fit.py).
+    adam: where the device engine runs Adam: "kernel" (kernels/adam.cl), "numpy" (numpy on the
+        mapped buffers), "auto" (the kernel on GPUs, the faster one measured on CPU devices).
+        The host engine's Adam is numpy.
+    profile: optional dict that receives wall seconds per phase (and, device engine, device
+        milliseconds per kernel stage under "device_ms"); the device engine then waits for the
+        queue around each phase.
     Returns FitResult(gaussians, history, seconds, state).
     """
     from . import densify as D
@@ -162,6 +217,12 @@ def fit(views, config: TrainConfig, device: str = "pocl", init: Gaussians | None
         raise ValueError("fit: `init` must hold at least one Gaussian")
     if depth_targets is not None and len(depth_targets) != len(images):
         raise ValueError(f"fit: {len(depth_targets)} depth targets for {len(images)} views")
+    if engine not in ENGINES:
+        raise ValueError(f"fit: engine must be one of {ENGINES}, got {engine!r}")
+    if engine == "auto":
+        engine = "host" if device == "reference" else "device"
+    if engine == "device" and device == "reference":
+        raise ValueError("fit: the device engine needs an OpenCL device, not 'reference'")
 
     cfg, L = config, config.loss
     extent = scene_extent(cameras) if extent is None else extent
@@ -179,14 +240,20 @@ def fit(views, config: TrainConfig, device: str = "pocl", init: Gaussians | None
     V = len(images)
     t0 = time.perf_counter() - (history.seconds[-1] if history.seconds else 0.0)
 
+    def visibility(g):
+        return np.stack([backend.project_fwd(g, cam, near).radii > 0 for cam in cameras])
+
+    if engine == "device":
+        return _fit_device(backend, images, cameras, depth_targets, cfg, state, opt, rng, history, t0,
+                           visibility, progress, checkpoint, checkpoint_every, eval_fn, eval_every, log_every,
+                           desc, extent, adam, profile)
+
+    ph = _Phases(profile)
     bar = None
     if progress:
         from tqdm import tqdm
 
         bar = tqdm(total=cfg.iterations, initial=state.iteration, desc=desc, leave=False, dynamic_ncols=True)
-
-    def visibility(g):
-        return np.stack([backend.project_fwd(g, cam, near).radii > 0 for cam in cameras])
 
     hard_ema = None
     zeros_rgb = {}
@@ -208,42 +275,57 @@ def fit(views, config: TrainConfig, device: str = "pocl", init: Gaussians | None
             if L.hard_depth and target is not None and it >= L.hard_depth_from:
                 g = state.gaussians(deg)
                 o = L.hard_depth_opacity
-                out = render(g, cam, device, bg, near, opacity_override=o)
-                lh, vd = depth_loss(out.depth, target, rng, L.depth_patch_range, L.depth_margin,
-                                    L.depth_w_local, L.depth_w_global)
+                with ph("hard_render"):
+                    out = render(g, cam, device, bg, near, opacity_override=o)
+                with ph("depth_loss"):
+                    lh, vd = depth_loss(out.depth, target, rng, L.depth_patch_range, L.depth_margin,
+                                        L.depth_w_local, L.depth_w_global)
                 hard_ema = lh if hard_ema is None else 0.9 * hard_ema + 0.1 * lh
-                vg = render_vjp(g, cam, zeros_rgb[key], vd, None, device, bg, near, opacity_override=o,
-                                grad_fields=("means",))
-                opt.step(state.grads(vg, ("means",)))
+                with ph("hard_backward"):
+                    vg = render_vjp(g, cam, zeros_rgb[key], vd, None, device, bg, near, opacity_override=o,
+                                    grad_fields=("means",))
+                with ph("adam"):
+                    opt.step(state.grads(vg, ("means",)))
             # soft depth: real opacities, gradient to the opacities only (render_for_opa)
             gate = L.soft_depth_ema_gate is None or (hard_ema is not None and hard_ema < L.soft_depth_ema_gate)
             if L.soft_depth and target is not None and it >= L.soft_depth_from and gate:
                 g = state.gaussians(deg)
-                out = render(g, cam, device, bg, near)
-                ls, vd = depth_loss(out.depth, target, rng, L.depth_patch_range, L.depth_margin,
-                                    L.depth_w_local, L.depth_w_global)
-                vg = render_vjp(g, cam, zeros_rgb[key], vd, None, device, bg, near,
-                                grad_fields=("opacity_logits",))
-                opt.step(state.grads(vg, ("opacity_logits",)))
+                with ph("soft_render"):
+                    out = render(g, cam, device, bg, near)
+                with ph("depth_loss"):
+                    ls, vd = depth_loss(out.depth, target, rng, L.depth_patch_range, L.depth_margin,
+                                        L.depth_w_local, L.depth_w_global)
+                with ph("soft_backward"):
+                    vg = render_vjp(g, cam, zeros_rgb[key], vd, None, device, bg, near,
+                                    grad_fields=("opacity_logits",))
+                with ph("adam"):
+                    opt.step(state.grads(vg, ("opacity_logits",)))
 
             # photometric pass (+ regularisers): every group
             g = state.gaussians(deg)
-            out = render(g, cam, device, bg, near)
-            loss, v_rgb = photometric_loss(out.rgb, gt, L.lambda_dssim, L.photometric_form, device)
-            vg = render_vjp(g, cam, v_rgb, None, None, device, bg, near)
+            with ph("photo_render"):
+                out = render(g, cam, device, bg, near)
+            with ph("photo_loss"):
+                loss, v_rgb = photometric_loss(out.rgb, gt, L.lambda_dssim, L.photometric_form, device)
+            with ph("photo_backward"):
+                vg = render_vjp(g, cam, v_rgb, None, None, device, bg, near)
             grads = state.grads(vg)
-            if L.shape_pena or L.scale_pena or L.opa_pena:
-                lr_, rg = regularizers(state.params, L.shape_pena, L.scale_pena, L.opa_pena)
-                loss += lr_
-                for k, v in rg.items():
-                    grads[k] = grads[k] + v
-            screen = getattr(backend, "last_screen", None)
-            if screen is not None and len(screen[0]) == len(state):
-                v2d, radii = screen
-                D.accumulate(state, D.ndc_grad_norm(v2d, cam.width, cam.height), radii > 0, radii)
-            opt.step(grads)
+            with ph("regularizers"):
+                if L.shape_pena or L.scale_pena or L.opa_pena:
+                    lr_, rg = regularizers(state.params, L.shape_pena, L.scale_pena, L.opa_pena)
+                    loss += lr_
+                    for k, v in rg.items():
+                        grads[k] = grads[k] + v
+            with ph("stats"):
+                screen = getattr(backend, "last_screen", None)
+                if screen is not None and len(screen[0]) == len(state):
+                    v2d, radii = screen
+                    D.accumulate(state, D.ndc_grad_norm(v2d, cam.width, cam.height), radii > 0, radii)
+            with ph("adam"):
+                opt.step(grads)
             state.iteration = it
-            dens = D.maybe_densify(state, cfg.densify, it, extent, rng)
+            with ph("densify"):
+                dens = D.maybe_densify(state, cfg.densify, it, extent, rng)
             if dens:
                 history.densify.append((it, dens))
 
@@ -266,6 +348,136 @@ def fit(views, config: TrainConfig, device: str = "pocl", init: Gaussians | None
     finally:
         if bar is not None:
             bar.close()
+    deg = sh_degree_at(cfg.iterations, cfg.sh_degree, cfg.sh_degree_interval)
+    return FitResult(state.gaussians(deg), history, time.perf_counter() - t0, state)
+
+
+def _fit_device(backend, images, cameras, depth_targets, cfg, state, opt, rng, history, t0, visibility,
+                progress, checkpoint, checkpoint_every, eval_fn, eval_every, log_every, desc, extent, adam,
+                profile) -> FitResult:
+    """`fit`'s loop with the training state on the OpenCL device (reings.backends.opencl.trainer):
+    the same iteration as the host loop above, pass for pass and in the same order of random
+    draws; only scalars (the loss and train PSNR on logging iterations) and, in the depth passes,
+    the depth image and its cotangent cross the bus. The state comes back to the host for
+    densification, eval, checkpoints and the result."""
+    from . import densify as D
+    from .backends.opencl.trainer import DeviceTrainer
+    from .backends.reference_loss import photometric_weights
+    from .losses import depth_loss, regularizers
+    from .optim import sh_degree_at
+    from .state import PARAM_NAMES
+    from .types import SH_COUNTS
+
+    L = cfg.loss
+    bg, near = tuple(cfg.background), cfg.near
+    V = len(images)
+    w_l1, w_ssim = photometric_weights(L.lambda_dssim, L.photometric_form)
+    reg_on = bool(L.shape_pena or L.scale_pena or L.opa_pena)
+    if state.iteration == 0 and cfg.iterations >= 1 and cfg.densify.clean_views:
+        # the host loop does this at iteration 1 before anything else; nothing differs before it
+        D.clean_views(state, visibility(state.gaussians(sh_degree_at(1, cfg.sh_degree, cfg.sh_degree_interval))))
+    dev = DeviceTrainer(backend, images, adam=adam, profile=profile)
+    dev.upload(state)
+    ph = dev.phase
+    groups = [k for k in PARAM_NAMES if k in opt.lr]
+
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=cfg.iterations, initial=state.iteration, desc=desc, leave=False, dynamic_ncols=True)
+    hard_ema = None
+    try:
+        for it in range(state.iteration + 1, cfg.iterations + 1):
+            opt.update_learning_rate(it)
+            deg = sh_degree_at(it, cfg.sh_degree, cfg.sh_degree_interval)
+            k = SH_COUNTS[min(deg, state.max_sh_degree)]
+            epoch, pos = divmod(it - 1, V)
+            vi = int(np.random.default_rng([cfg.seed, epoch]).permutation(V)[pos])
+            cam, gt = cameras[vi], images[vi]
+            target = None if depth_targets is None else depth_targets[vi]
+
+            # hard depth: opacity fixed, gradient to the means only
+            if L.hard_depth and target is not None and it >= L.hard_depth_from:
+                o = L.hard_depth_opacity
+                with ph("hard_render"):
+                    fr = dev.forward(cam, k, bg, near, o)
+                    depth = dev.read_depth(fr)
+                with ph("depth_loss"):
+                    lh, vd = depth_loss(depth, target, rng, L.depth_patch_range, L.depth_margin,
+                                        L.depth_w_local, L.depth_w_global)
+                hard_ema = lh if hard_ema is None else 0.9 * hard_ema + 0.1 * lh
+                with ph("hard_backward"):
+                    gr = dev.backward(fr, None, vd, o, ("means",))
+                with ph("adam"):
+                    dev.adam_step(opt, gr, ("means",))
+            # soft depth: real opacities, gradient to the opacities only
+            gate = L.soft_depth_ema_gate is None or (hard_ema is not None and hard_ema < L.soft_depth_ema_gate)
+            if L.soft_depth and target is not None and it >= L.soft_depth_from and gate:
+                with ph("soft_render"):
+                    fr = dev.forward(cam, k, bg, near)
+                    depth = dev.read_depth(fr)
+                with ph("depth_loss"):
+                    ls, vd = depth_loss(depth, target, rng, L.depth_patch_range, L.depth_margin,
+                                        L.depth_w_local, L.depth_w_global)
+                with ph("soft_backward"):
+                    gr = dev.backward(fr, None, vd, None, ("opacity_logits",))
+                with ph("adam"):
+                    dev.adam_step(opt, gr, ("opacity_logits",))
+
+            # photometric pass (+ regularisers): every group
+            log_it = it % log_every == 0 or it == cfg.iterations
+            with ph("photo_render"):
+                fr = dev.forward(cam, k, bg, near)
+            with ph("photo_loss"):
+                v_rgb = dev.photometric(fr, vi, w_l1, w_ssim)
+                if log_it:
+                    loss, rgb = dev.read_loss(), dev.read_rgb(fr)
+            with ph("photo_backward"):
+                gr = dev.backward(fr, v_rgb)
+            with ph("regularizers"):
+                if reg_on:
+                    if log_it:  # the penalties' value (host, float64) at the parameters before the step
+                        loss += regularizers(dev.read_params(("log_scales", "opacity_logits")),
+                                             L.shape_pena, L.scale_pena, L.opa_pena)[0]
+                    dev.regularize(gr, L.shape_pena, L.scale_pena, L.opa_pena)
+            with ph("stats"):
+                dev.accumulate(fr)
+            with ph("adam"):
+                dev.adam_step(opt, gr, groups)
+            state.iteration = it
+            dens = None
+            if _densify_due(cfg.densify, it):
+                with ph("densify"):
+                    dev.download(state)
+                    dens = D.maybe_densify(state, cfg.densify, it, extent, rng)
+                    dev.upload(state)
+            if dens:
+                history.densify.append((it, dens))
+
+            if log_it:
+                history.iteration.append(it)
+                history.loss.append(float(loss))
+                history.train_psnr.append(_psnr(rgb, gt))
+                history.n_gaussians.append(len(state))
+                history.seconds.append(time.perf_counter() - t0)
+            if eval_fn is not None and eval_every and (it % eval_every == 0 or it == cfg.iterations):
+                dev.download(state, params_only=True)
+                history.eval.append((it, time.perf_counter() - t0, eval_fn(state.gaussians(deg))))
+            if checkpoint and (it % checkpoint_every == 0 or it == cfg.iterations):
+                dev.download(state)
+                _save_checkpoint(checkpoint, state, rng, history, {"desc": desc})
+            if bar is not None:
+                bar.update(1)
+                if it % log_every == 0:
+                    el = time.perf_counter() - t0
+                    bar.set_postfix(loss=f"{loss:.4f}", psnr=f"{_psnr(rgb, gt):.2f}", N=len(state),
+                                    its=f"{it / max(el, 1e-9):.1f}")
+    finally:
+        if bar is not None:
+            bar.close()
+    dev.download(state)
+    dev.finish()
     deg = sh_degree_at(cfg.iterations, cfg.sh_degree, cfg.sh_degree_interval)
     return FitResult(state.gaussians(deg), history, time.perf_counter() - t0, state)
 

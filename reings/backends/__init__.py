@@ -1,7 +1,7 @@
 """Backend registry: the one place that maps device strings to backend classes (imports lazily).
 
     "reference"                          float64 numpy (reings.backends.reference)
-    "pocl" | "cuda" | "oclgrind" | "opencl:P:D"   OpenCL (reings.backends.opencl.backend)
+    "pocl" | "cuda" | "cuda:N" | "oclgrind" | "opencl:P:D"   OpenCL (reings.backends.opencl.backend)
 """
 from __future__ import annotations
 

@@ -16,13 +16,26 @@
 
 Nothing here reads a file of the dataset: it only sees the `Scene` it is given, which should be
 `scene.subset(train)`.
+
+Cache: the result is stored as one .npz under `$REINGS_CACHE_DIR/sfm` (else
+`$XDG_CACHE_HOME/reings/sfm`, else `~/.cache/reings/sfm`), named by a sha256 of the training
+images' pixels (float32 as loaded), their cameras (K, viewmat, size), the near/far bounds, the
+scene kind and every setting that changes the result (`sfm_cache_key`). Files are written
+atomically (temp file + rename); an unreadable or mismatching file is recomputed. The cache lets a
+machine without pycolmap reuse boxes computed elsewhere: copy the cache folder over (`reings eval
+--prepare-only` fills it for a whole dataset). Without pycolmap and without a cached result the
+frusta fallback is used, with a warning (`SfmExtent.note` says so).
 """
 from __future__ import annotations
 
+import hashlib
+import json
 import os
 import shutil
 import tempfile
+import warnings
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
@@ -31,6 +44,7 @@ from .scene import Scene, SceneError
 TRIM_OF_KIND = {"dtu": 100}  # order statistic per kind; default 20 (LLFF)
 DEFAULT_TRIM = 20
 DEFAULT_MIN_POINTS = 50  # below this the box of a handful of points is noise: use the frusta
+SFM_CACHE_VERSION = 1
 
 
 @dataclass
@@ -47,6 +61,8 @@ class SfmExtent:
     trim: int = 0
     num_matched_pairs: int = 0
     num_sfm_points: int = 0  # points triangulated, even when the fallback was used
+    note: str = ""  # why a fallback was used when it was not for lack of points (e.g. no pycolmap)
+    cached: bool = False  # True when this result was read from the on-disk cache
 
     @property
     def n_points(self) -> int:
@@ -123,10 +139,109 @@ def frusta_extent(cameras, bounds, n_uv: int = 24, n_z: int = 48) -> tuple[np.nd
     return A.min(0), A.max(0), "union"
 
 
+# {{{ on-disk cache
+
+def sfm_cache_dir() -> Path:
+    """$REINGS_CACHE_DIR/sfm, else $XDG_CACHE_HOME/reings/sfm, else ~/.cache/reings/sfm."""
+    env = os.environ.get("REINGS_CACHE_DIR")
+    if env:
+        return Path(env).expanduser() / "sfm"
+    base = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache"))
+    return base / "reings" / "sfm"
+
+
+def _hash_array(h, a) -> None:
+    a = np.ascontiguousarray(a)
+    h.update(str((a.dtype.str, a.shape)).encode())
+    h.update(a.tobytes())
+
+
+def sfm_cache_key(train_scene: Scene, settings: dict) -> str:
+    """sha256 of what determines `sfm_extent`'s result: pixels, cameras, bounds, kind, settings."""
+    h = hashlib.sha256()
+    h.update(f"reings-sfm-v{SFM_CACHE_VERSION}".encode())
+    h.update(json.dumps({"kind": train_scene.kind, **settings}, sort_keys=True).encode())
+    for im, cam in zip(train_scene.images, train_scene.cameras):
+        _hash_array(h, np.asarray(im, np.float32))
+        _hash_array(h, np.asarray(cam.K, np.float64))
+        _hash_array(h, np.asarray(cam.viewmat, np.float64))
+        h.update(f"{int(cam.width)}x{int(cam.height)}".encode())
+    if train_scene.bounds is not None:
+        _hash_array(h, np.asarray(train_scene.bounds, np.float64))
+    return h.hexdigest()
+
+
+_ARRAYS = ("lo", "hi", "points", "colors", "lo_all", "hi_all")
+_SCALARS = ("method", "trim", "num_matched_pairs", "num_sfm_points", "note")
+
+
+def _cache_path(cache_dir: Path, key: str) -> Path:
+    return Path(cache_dir) / f"sfm-{key[:40]}.npz"
+
+
+def load_cached_extent(key: str, cache_dir=None) -> SfmExtent | None:
+    """The cached SfmExtent of `key`, or None (missing, unreadable or another key)."""
+    p = _cache_path(Path(cache_dir) if cache_dir is not None else sfm_cache_dir(), key)
+    if not p.is_file():
+        return None
+    try:
+        with np.load(p, allow_pickle=False) as z:
+            meta = json.loads(str(z["meta"]))
+            if meta.get("key") != key or meta.get("version") != SFM_CACHE_VERSION:
+                return None
+            arrs = {k: (z[k].copy() if k in z.files else None) for k in _ARRAYS}
+        ext = SfmExtent(arrs["lo"].astype(np.float64), arrs["hi"].astype(np.float64), str(meta["method"]),
+                        arrs["points"].astype(np.float64).reshape(-1, 3), arrs["colors"].astype(np.float32).reshape(-1, 3),
+                        None if arrs["lo_all"] is None else arrs["lo_all"].astype(np.float64),
+                        None if arrs["hi_all"] is None else arrs["hi_all"].astype(np.float64),
+                        int(meta["trim"]), int(meta["num_matched_pairs"]), int(meta["num_sfm_points"]),
+                        str(meta.get("note", "")), cached=True)
+        if ext.lo.shape != (3,) or ext.hi.shape != (3,) or not (np.all(np.isfinite(ext.lo)) and np.all(np.isfinite(ext.hi))):
+            return None
+        return ext
+    except Exception:  # corrupt, truncated or foreign file: recompute
+        return None
+
+
+def store_cached_extent(key: str, ext: SfmExtent, cache_dir=None) -> Path:
+    """Write `ext` under `key` atomically (temp file in the same folder + rename)."""
+    d = Path(cache_dir) if cache_dir is not None else sfm_cache_dir()
+    d.mkdir(parents=True, exist_ok=True)
+    meta = {"key": key, "version": SFM_CACHE_VERSION, **{k: getattr(ext, k) for k in _SCALARS}}
+    meta = {k: (v.item() if hasattr(v, "item") else v) for k, v in meta.items()}
+    arrs = {k: np.asarray(getattr(ext, k)) for k in _ARRAYS if getattr(ext, k) is not None}
+    fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix=".npz", dir=d)
+    try:
+        with os.fdopen(fd, "wb") as f:
+            np.savez(f, meta=np.array(json.dumps(meta)), **arrs)
+        os.replace(tmp, _cache_path(d, key))
+    except BaseException:
+        try:
+            os.unlink(tmp)
+        except OSError:
+            pass
+        raise
+    return _cache_path(d, key)
+
+
+class _Skip(Exception):
+    pass
+
+
+def _have_pycolmap() -> bool:
+    try:
+        import pycolmap  # noqa: F401
+    except ImportError:
+        return False
+    return True
+# }}}
+
+
 def sfm_extent(train_scene: Scene, min_points: int = DEFAULT_MIN_POINTS, trim: int | None = None,
                fallback: bool = True, max_features: int = 8192, max_reproj_error: float = 4.0,
                min_tri_angle: float = 1.5, num_threads: int = 2, work_dir: str | None = None,
-               peak_threshold: float | None = None, guided_matching: bool = True) -> SfmExtent:
+               peak_threshold: float | None = None, guided_matching: bool = True, cache: bool = True,
+               cache_dir=None) -> SfmExtent:
     """Triangulate the training views with their known poses and return a robust box (see module doc).
 
     Args:
@@ -137,15 +252,54 @@ def sfm_extent(train_scene: Scene, min_points: int = DEFAULT_MIN_POINTS, trim: i
         work_dir: keep COLMAP's database and model there (default: a temporary folder, removed).
         peak_threshold: SIFT peak threshold (COLMAP default 0.0067; lower gives more features).
         guided_matching: re-match guided by the verified two-view geometry (more inliers).
+        cache: read/write the on-disk cache (module doc); a given `work_dir` always recomputes
+            (the caller wants COLMAP's files) and then stores the result.
+        cache_dir: cache folder (default `sfm_cache_dir()`).
     """
-    from . import images as imgs
-    from .colmap import triangulate_known_poses
-
     if len(train_scene) < 2:
         raise SceneError("sfm_extent: needs at least 2 training views")
     trim = TRIM_OF_KIND.get(train_scene.kind, DEFAULT_TRIM) if trim is None else int(trim)
-    tmp = work_dir or tempfile.mkdtemp(prefix="reings_sfm_")
+    settings = {"min_points": int(min_points), "trim": trim, "fallback": bool(fallback),
+                "max_features": int(max_features), "max_reproj_error": float(max_reproj_error),
+                "min_tri_angle": float(min_tri_angle), "peak_threshold": peak_threshold,
+                "guided_matching": bool(guided_matching)}
+    key = sfm_cache_key(train_scene, settings) if cache else None
+    if cache and work_dir is None:
+        got = load_cached_extent(key, cache_dir)
+        if got is not None:
+            return got
+    have = _have_pycolmap()
+    if not have:
+        if not fallback:
+            raise SceneError("sfm_extent: pycolmap is not installed and no cached SfM result matches these "
+                             f"training views (key {key and key[:16]}, cache {cache_dir or sfm_cache_dir()})")
+        warnings.warn("sfm_extent: pycolmap is not installed and no cached result matches these training views "
+                      f"(cache {cache_dir or sfm_cache_dir()}): using the frusta fallback. Install pycolmap, or "
+                      "copy the sfm cache from a machine that computed it.", RuntimeWarning, stacklevel=2)
+    ext = _sfm_extent_uncached(train_scene, min_points, trim, fallback, max_features, max_reproj_error,
+                               min_tri_angle, num_threads, work_dir, peak_threshold, guided_matching,
+                               run_sfm=have)
+    if not have:
+        ext.note = "no pycolmap"
+    elif cache:  # a machine without pycolmap must not poison the cache with its fallback
+        try:
+            store_cached_extent(key, ext, cache_dir)
+        except OSError as e:  # read-only cache: the result is still good
+            warnings.warn(f"sfm_extent: could not write the cache ({e})", RuntimeWarning, stacklevel=2)
+    return ext
+
+
+def _sfm_extent_uncached(train_scene, min_points, trim, fallback, max_features, max_reproj_error,
+                         min_tri_angle, num_threads, work_dir, peak_threshold, guided_matching,
+                         run_sfm: bool = True) -> SfmExtent:
+    from . import images as imgs
+    from .colmap import triangulate_known_poses
+
+    res = {"xyz": np.zeros((0, 3)), "rgb": np.zeros((0, 3), np.float32), "num_matched_pairs": 0}
+    tmp = (work_dir or tempfile.mkdtemp(prefix="reings_sfm_")) if run_sfm else None
     try:
+        if not run_sfm:
+            raise _Skip
         img_dir = os.path.join(tmp, "images")
         os.makedirs(img_dir, exist_ok=True)
         names = []
@@ -162,9 +316,10 @@ def sfm_extent(train_scene: Scene, min_points: int = DEFAULT_MIN_POINTS, trim: i
         except SceneError:
             if not fallback:
                 raise
-            res = {"xyz": np.zeros((0, 3)), "rgb": np.zeros((0, 3), np.float32), "num_matched_pairs": 0}
+    except _Skip:
+        pass
     finally:
-        if work_dir is None:
+        if work_dir is None and tmp is not None:
             shutil.rmtree(tmp, ignore_errors=True)
     xyz = res["xyz"]
     ok = np.all(np.isfinite(xyz), axis=1)

@@ -1,7 +1,7 @@
 """Device selection: turns a device string into a pyopencl context and one in-order queue.
 
     "pocl"        PoCL on the CPU (the pip `pocl-binary-distribution`, or a system PoCL)
-    "cuda"        NVIDIA's OpenCL platform ("NVIDIA CUDA")
+    "cuda"        NVIDIA's OpenCL platform ("NVIDIA CUDA"), its first GPU; "cuda:N" its N-th GPU
     "oclgrind"    the Oclgrind simulator (tests only)
     "opencl:P:D"  platform P, device D of `pyopencl.get_platforms()` (any vendor)
 """
@@ -59,11 +59,18 @@ def find_device(spec: str):
         if not 0 <= d < len(devs):
             raise DeviceNotFound(f"{spec!r}: platform {p} has {len(devs)} devices")
         return plats[p], devs[d]
+    index = 0
+    m = re.fullmatch(r"cuda:(\d+)", spec)
+    if m:  # the N-th GPU of NVIDIA's platform (several GPUs in one host)
+        spec, index = "cuda", int(m.group(1))
     if spec not in _PLATFORM_MATCH:
-        raise DeviceNotFound(f"unknown device {spec!r}: use pocl, cuda, oclgrind, opencl:P:D or reference")
+        raise DeviceNotFound(f"unknown device {spec!r}: use pocl, cuda, cuda:N, oclgrind, opencl:P:D or reference")
     needle, hint = _PLATFORM_MATCH[spec]
     candidates = [(p, p.get_devices()) for p in plats if needle in p.name]
-    candidates = [(p, devs[0]) for p, devs in candidates if devs]
+    if index and candidates and all(len(devs) <= index for _, devs in candidates):
+        n = max(len(devs) for _, devs in candidates)
+        raise DeviceNotFound(f"device 'cuda:{index}': NVIDIA's platform has {n} GPU(s) (cuda:0..cuda:{n - 1})")
+    candidates = [(p, devs[index]) for p, devs in candidates if len(devs) > index]
     if spec == "pocl" and len(candidates) > 1:
         # Several PoCLs (the pip wheel's and a system one): newest first.
         candidates.sort(key=lambda pd: _pocl_version(pd[0]), reverse=True)

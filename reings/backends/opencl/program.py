@@ -3,7 +3,10 @@
 The kernel directory is the installed `reings/_kernels` (wheel layout) or, in a source checkout,
 the repository's `kernels/`. Every build gets `-I <kernels>` (pyopencl's cache hashes included
 headers) and the device's capability defines from `quirks.build_defines`. Fast-math options are
-never used: the NaN/Inf guards in the kernels rely on IEEE comparisons.
+never used: the NaN/Inf guards in the kernels rely on IEEE comparisons. The files that must match
+numpy's float32 arithmetic bit for bit (`CORRECTLY_ROUNDED`: the optimizer and the penalty
+gradients) are built with `-cl-fp32-correctly-rounded-divide-sqrt` where the device offers it
+(OpenCL otherwise allows 2.5-3 ulp division and sqrt, and NVIDIA's OpenCL uses that latitude).
 """
 from __future__ import annotations
 
@@ -11,6 +14,18 @@ import os
 from pathlib import Path
 
 from . import quirks
+
+
+CORRECTLY_ROUNDED = frozenset({"adam.cl", "train.cl"})
+
+
+def has_correctly_rounded_divide_sqrt(device) -> bool:
+    import pyopencl as cl
+
+    try:
+        return bool(device.single_fp_config & cl.device_fp_config.CORRECTLY_ROUNDED_DIVIDE_SQRT)
+    except Exception:  # an ICD without the query
+        return False
 
 
 class KernelBuildError(RuntimeError):
@@ -37,13 +52,16 @@ class KernelLibrary:
         self.device = device
         self.dir = kernel_dir()
         self.base_defines = quirks.build_defines(device)
+        self.correct_div_sqrt = has_correctly_rounded_divide_sqrt(device)
         self._programs: dict[tuple, object] = {}
 
-    def options(self, defines: dict) -> list[str]:
+    def options(self, defines: dict, filename: str | None = None) -> list[str]:
         d = dict(self.base_defines)
         d.update(defines)
         opts = [f"-I{self.dir}"]  # a list element, so a path with spaces needs no quoting
         opts += [f"-D{k}={int(v) if isinstance(v, bool) else v}" for k, v in sorted(d.items())]
+        if filename in CORRECTLY_ROUNDED and self.correct_div_sqrt:
+            opts.append("-cl-fp32-correctly-rounded-divide-sqrt")
         extra = os.environ.get("REINGS_CL_BUILD_OPTIONS")
         if extra:
             opts += extra.split()
@@ -60,9 +78,9 @@ class KernelLibrary:
                 raise FileNotFoundError(f"kernel source {path} does not exist")
             src = path.read_text()
             try:
-                prg = cl.Program(self.context, src).build(options=self.options(defines), devices=[self.device])
+                prg = cl.Program(self.context, src).build(options=self.options(defines, filename), devices=[self.device])
             except cl.RuntimeError as e:  # build failure: show the log with the file name
-                raise KernelBuildError(f"building {path} with {self.options(defines)} failed:\n{e}") from e
+                raise KernelBuildError(f"building {path} with {self.options(defines, filename)} failed:\n{e}") from e
             self._programs[key] = prg
         return prg
 

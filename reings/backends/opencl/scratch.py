@@ -39,9 +39,16 @@ class Scratch:
             self.flags |= cl.mem_flags.ALLOC_HOST_PTR
         self._bufs: dict[tuple[str, str], tuple[object, int]] = {}  # -> (buffer, capacity in bytes)
         self.allocations = 0  # how many buffers were created (tests check that steady state is 0)
+        self.peak_bytes = 0  # high-water mark of nbytes() (replaced buffers are released on growth)
 
     def get(self, space: str, name: str, rows: int, row_bytes: int):
         """A buffer of at least `rows` rows of `row_bytes` bytes (contents undefined)."""
+        hit = self._bufs.get((space, name))
+        if hit is not None and hit[1] >= rows * row_bytes:  # the steady state: no checks, no allocation
+            return hit[0]
+        return self._get(space, name, rows, row_bytes)
+
+    def _get(self, space: str, name: str, rows: int, row_bytes: int):
         import pyopencl as cl
 
         if space not in SPACES:
@@ -49,11 +56,16 @@ class Scratch:
         key = (space, name)
         need = max(int(rows) * int(row_bytes), MIN_BYTES)
         buf, cap = self._bufs.get(key, (None, 0))
+        key_old_cap = cap if buf is not None else None
         if buf is None or cap < need:
             cap = max(need, int(cap * GROWTH))
             buf = cl.Buffer(self.context, self.flags, cap)
             self._bufs[key] = (buf, cap)
             self.allocations += 1
+            # the old buffer (if any) is dropped here, so the live total is the sum of capacities;
+            # count the moment both exist too (old + new), as the device saw it
+            live = self.nbytes()
+            self.peak_bytes = max(self.peak_bytes, live + (0 if key_old_cap is None else key_old_cap))
         return buf
 
     def nbytes(self) -> int:

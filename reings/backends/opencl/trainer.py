@@ -1,0 +1,437 @@
+"""`DeviceTrainer`: the training state of one `reings.fit` resident on one OpenCL device.
+
+Kept on the device for the whole fit (buffers of a private `Scratch`, grown geometrically):
+
+    p_<name>, m_<name>, v_<name>   parameters and Adam moments, name in reings.state.PARAM_NAMES,
+                                   same layouts as TrainState (sh_rest holds all kmax-1 rows)
+    grad2d_accum, grad2d_count, max_radii2d   the densification statistics (reings.densify)
+    gt<i>                          the training images [H,W,3]
+    v_rgb, v_depth                 the cotangent images of the current pass
+    sh_packed                      [N,k,3] SH at the active degree (sh_pack, redone only after the
+                                   SH groups were stepped or the degree changed)
+
+One pass is `forward` (project / bin / sort / rasterize on the parameter buffers, nothing
+uploaded: backend.forward_device) -> a loss (`photometric` on the device writing v_rgb; or the host
+depth loss on `read_depth` with v_depth uploaded) -> `backward` (backend.backward_device into the
+backend's gradient buffers) -> `regularize` (kernels/train.cl, added into those buffers) ->
+`accumulate` (densification statistics, kernels/train.cl) -> `adam_step` (kernels/adam.cl, or numpy
+on the mapped buffers: the `adam` location). The host keeps what is scalar: learning rates and
+schedules, the per-group step counts (TrainState.adam.step, so checkpoints carry them), N.
+
+`step_l1` is the plain step of gsplat's benchmark (bench/peer_gsplat.py, bench/peer_step.py): forward,
+w_l1 * mean|rgb - gt| by kernels/l1.cl (the `photometric` pass with w_ssim == 0: no SSIM kernel runs),
+backward, Adam over all groups; the binning's (V, K) is its only host read.
+
+Host overhead per step (bench/peer_step.py --overhead): every launch goes through pyopencl's typed
+invoker (backend.typed_invoker: the generic one costs ~6.5 us per numpy scalar argument), buffers
+are looked up once per upload (`buf`), the camera record buffer is cached per camera (backend), and
+nothing is allocated or uploaded per step.
+
+The state goes back to the host (`download`) for densification, checkpoints, eval and the result,
+and comes back (`upload`) after host-side surgery (reings.state.apply_index_op).
+
+Adam location (`adam=`): "kernel" (adam.cl, all state on the device), "numpy" (reings.optim.adam's
+update on buffers mapped into host memory: zero-copy on CPU devices, where buffers are
+ALLOC_HOST_PTR), or "auto": the kernel on GPUs, `CPU_DEFAULT_ADAM` on CPU devices (measured on PoCL,
+see the constant).
+
+Not here: the loop, schedules and losses' host parts (reings/train.py), kernel math (kernels/).
+"""
+from __future__ import annotations
+
+import time
+from contextlib import ExitStack, contextmanager
+
+import numpy as np
+
+from ...densify import ACCUM, COUNT, RADII, init_stats
+from ...optim.adam import adam_update
+from ...state import PARAM_NAMES, TrainState
+from .backend import typed_invoker
+from .scratch import Scratch
+
+# Adam location on CPU devices, measured (`python bench/bench_fit.py --device pocl --adam-only`, PoCL
+# 3.1 on 2 Zen 5 cores shared with other jobs, so +-30%), ms per step of all six groups:
+#     N=20k SH0: kernel 0.60, numpy on mapped buffers 1.88;  N=20k SH3: kernel 4.3, numpy 4.9;
+#     N=100k SH3: kernel 21.4, numpy 24.5.
+# (Before the padded 2-D range of the strided adam_step the kernel lost at SH3: 6.2 vs 4.6 ms.)
+CPU_DEFAULT_ADAM = "kernel"
+ADAM_LOCATIONS = ("auto", "kernel", "numpy")
+_F32, _F64, _I32, _U32 = np.float32, np.float64, np.int32, np.uint32
+
+
+def _shape(name: str, n: int, kmax: int) -> tuple:
+    return {"means": (n, 3), "quats": (n, 4), "log_scales": (n, 3), "opacity_logits": (n,),
+            "sh_dc": (n, 1, 3), "sh_rest": (n, kmax - 1, 3)}[name]
+
+
+def _columns(kmax: int) -> dict:
+    """Floats per row of each parameter group (prod of _shape(name, 1, kmax)[1:])."""
+    return {"means": 3, "quats": 4, "log_scales": 3, "opacity_logits": 1, "sh_dc": 3, "sh_rest": 3 * (kmax - 1)}
+
+
+def adam_scalars(lr: float, t: int, b1: float, b2: float, eps: float, fp64: bool) -> tuple:
+    """The adam_step scalar arguments for step count t, rounded as numpy rounds them in
+    `adam_update` (Python floats become float32 operands; 1/sqrt(bc2) is a float64 scalar)."""
+    bc1 = 1.0 - b1 ** t
+    bc2 = 1.0 - b2 ** t
+    inv = 1.0 / np.sqrt(bc2)
+    return (_F32(b1), _F32(1.0 - b1), _F32(b2), _F32(1.0 - b2), (_F64 if fp64 else _F32)(inv), _F32(eps),
+            _F32(-lr / bc1))
+
+
+class DeviceTrainer:
+    """Device-resident parameters, moments, statistics and images of one fit (module docstring).
+
+    backend: an OpenCLBackend; images: the training images [H,W,3]; adam: "auto" | "kernel" |
+    "numpy"; profile: None or a dict that collects wall seconds per phase (with a queue finish
+    around each, which costs a little) and device milliseconds per kernel stage ("device_ms")."""
+
+    # clFlush after each forward's enqueues: drivers that batch commands until a flush or a blocking
+    # call (NVIDIA's OpenCL is said to) then start the rasterizer while the host enqueues the rest of
+    # the step, instead of at the step's final wait. Costs one cheap call; bench/peer_step.py
+    # --no-flush measures it off.
+    flush_after_forward = True
+
+    def __init__(self, backend, images, adam: str = "auto", profile: dict | None = None):
+        import pyopencl as cl
+
+        if adam not in ADAM_LOCATIONS:
+            raise ValueError(f"adam must be one of {ADAM_LOCATIONS}, got {adam!r}")
+        from ...losses import photometric_cl
+
+        self.cl = cl
+        self.b = backend
+        self.handle = backend.handle
+        self.queue = backend.queue
+        self.mem = Scratch(self.handle)
+        self.fp64 = "cl_khr_fp64" in self.handle.device.extensions
+        self.adam = adam if adam != "auto" else (CPU_DEFAULT_ADAM if backend.cpu else "kernel")
+        self.profile = profile
+        self.photo = photometric_cl(backend.spec)
+        self.k_adam = backend.kernel("adam.cl", "adam_step", ADAM_FP64=int(self.fp64))
+        self.k_adam_flat = backend.kernel("adam.cl", "adam_step_flat", ADAM_FP64=int(self.fp64))
+        tf = dict(TRAIN_FP64=int(self.fp64))
+        self.k_pack = backend.kernel("train.cl", "sh_pack", **tf)
+        self.k_count = backend.kernel("train.cl", "reg_opacity_count", **tf)
+        self.k_reg = backend.kernel("train.cl", "reg_grads", **tf)
+        self.k_acc = backend.kernel("train.cl", "densify_accumulate", **tf)
+        self.real = _F64 if self.fp64 else _F32
+        self.l1_wg = 1 if backend.cpu else 64  # L1-only loss work-group (kernels/l1.cl)
+        self.k_l1_rows = backend.kernel("l1.cl", "l1_rows", L1_WG=self.l1_wg)
+        self.k_l1_total = backend.kernel("l1.cl", "l1_total", L1_WG=self.l1_wg)
+        self._loss = None  # ("l1", n, w_l1) after an L1-only photometric pass, ("ssim",) after the full one
+        self.gt = []
+        for i, im in enumerate(images):
+            a = np.ascontiguousarray(im, _F32)
+            buf = self.mem.get("pixel", f"gt{i}", a.shape[0] * a.shape[1], 12)
+            cl.enqueue_copy(self.queue, buf, a)
+            self.gt.append(buf)
+        self.n, self.kmax = 0, 1
+        self._cols = _columns(1)
+        self._bufs: dict = {}  # (kind, name) -> buffer of the current n / kmax (cleared by upload)
+        self._sh_k = None  # k of the valid sh_packed, None: stale
+        self._tmp = np.empty(0, _F32)  # numpy Adam scratch
+        self._scalar = np.empty(1, _F32)  # read_loss's host word (no allocation per step)
+        self._events: list = []  # (stage, event) of this trainer's own kernels (profile only)
+
+    # {{{ plumbing
+    def buf(self, kind: str, name: str):
+        """The device buffer of parameter / moment `name` (kind "p", "m" or "v") or statistic."""
+        b = self._bufs.get((kind, name))
+        if b is None:
+            row = 4 if kind == "stat" else 4 * self._cols[name]
+            b = self._bufs[(kind, name)] = self.mem.get("gauss", f"{kind}_{name}", self.n, max(row, 1))
+        return b
+
+    def _call(self, k, gsize, lsize, *args):
+        """k(queue, gsize, lsize, *args) through pyopencl's typed invoker (backend.typed_invoker)."""
+        if not getattr(k, "_reings_typed", False):
+            typed_invoker(k, args)
+        return k(self.queue, gsize, lsize, *args)
+
+    def _write(self, buf, a: np.ndarray) -> None:
+        a = np.ascontiguousarray(a)
+        if a.nbytes:
+            self.cl.enqueue_copy(self.queue, buf, a)  # blocking
+
+    def _read(self, buf, shape, dtype) -> np.ndarray:
+        out = np.empty(shape, dtype)
+        if out.size:
+            self.cl.enqueue_copy(self.queue, out, buf)  # blocking
+        return out
+
+    def _launch(self, stage: str, k, n: int, *args):
+        ev = self.b._launch(k, n, *args)
+        if ev is not None and self.profile is not None:
+            self._events.append((stage, ev))
+        return ev
+
+    @contextmanager
+    def _map(self, buf, shape, dtype=_F32, write: bool = True):
+        cl = self.cl
+        count = int(np.prod(shape, dtype=np.int64))
+        if count == 0:
+            yield np.empty(shape, dtype)
+            return
+        flags = cl.map_flags.READ | (cl.map_flags.WRITE if write else 0)
+        arr, _ = cl.enqueue_map_buffer(self.queue, buf, flags, 0, shape, dtype, is_blocking=True)
+        try:
+            yield arr
+        finally:
+            arr.base.release(self.queue)
+
+    def finish(self) -> None:
+        """Wait for the queue; with profiling on, fold the stage times of the backend's and this
+        trainer's events into profile["device_ms"]."""
+        self.queue.finish()
+        if self.profile is None:
+            return
+        dm = self.profile.setdefault("device_ms", {})
+        self.b._profile()
+        for st, ms in self.b.last_profile.items():
+            dm[st] = dm.get(st, 0.0) + ms
+        for st, ev in self._events:
+            try:
+                dm[st] = dm.get(st, 0.0) + (ev.profile.end - ev.profile.start) * 1e-6
+            except Exception:  # profiling unavailable
+                pass
+        self._events = []
+
+    @contextmanager
+    def phase(self, name: str):
+        """Wall time of a block into profile[name] (queue finished before and after); a no-op
+        without profiling."""
+        if self.profile is None:
+            yield
+            return
+        self.finish()
+        t = time.perf_counter()
+        try:
+            yield
+        finally:
+            self.finish()
+            self.profile[name] = self.profile.get(name, 0.0) + time.perf_counter() - t
+    # }}}
+
+    # {{{ state transfer
+    def upload(self, state: TrainState) -> None:
+        """Parameters, moments and statistics of `state` -> the device (after init or host surgery)."""
+        if ACCUM not in state.stats:
+            init_stats(state)
+        self.n = len(state)
+        self.kmax = 1 + state.params["sh_rest"].shape[1]
+        self._cols = _columns(self.kmax)
+        self._bufs = {}
+        for name in PARAM_NAMES:
+            self._write(self.buf("p", name), np.asarray(state.params[name], _F32))
+            self._write(self.buf("m", name), np.asarray(state.adam.exp_avg[name], _F32))
+            self._write(self.buf("v", name), np.asarray(state.adam.exp_avg_sq[name], _F32))
+        self._write(self.buf("stat", ACCUM), np.asarray(state.stats[ACCUM], _F32))
+        self._write(self.buf("stat", COUNT), np.asarray(state.stats[COUNT], _I32))
+        self._write(self.buf("stat", RADII), np.asarray(state.stats[RADII], _F32))
+        self._sh_k = None
+
+    def download(self, state: TrainState, params_only: bool = False) -> None:
+        """The device state -> `state` (fresh arrays; step counts and iteration are the host's)."""
+        n, km = self.n, self.kmax
+        for name in PARAM_NAMES:
+            shp = _shape(name, n, km)
+            state.params[name] = self._read(self.buf("p", name), shp, _F32)
+            if not params_only:
+                state.adam.exp_avg[name] = self._read(self.buf("m", name), shp, _F32)
+                state.adam.exp_avg_sq[name] = self._read(self.buf("v", name), shp, _F32)
+        if not params_only:
+            state.stats[ACCUM] = self._read(self.buf("stat", ACCUM), (n,), _F32)
+            state.stats[COUNT] = self._read(self.buf("stat", COUNT), (n,), _I32)
+            state.stats[RADII] = self._read(self.buf("stat", RADII), (n,), _F32)
+
+    def read_params(self, names) -> dict:
+        return {k: self._read(self.buf("p", k), _shape(k, self.n, self.kmax), _F32) for k in names}
+    # }}}
+
+    # {{{ one pass
+    def sh_input(self, k: int):
+        """The [N,k,3] SH buffer for the projection at k active coefficients."""
+        if k == 1:
+            return self.buf("p", "sh_dc")
+        out = self.mem.get("gauss", "sh_packed", self.n, 12 * k)
+        if self._sh_k != k:
+            self._launch("sh_pack", self.k_pack, self.n * 3 * k, _I32(self.n), _I32(k), _I32(self.kmax),
+                         self.buf("p", "sh_dc"), self.buf("p", "sh_rest"), out)
+            self._sh_k = k
+        return out
+
+    def forward(self, cam, k: int, background, near: float, opacity_override: float | None = None):
+        """Project / bin / sort / rasterize the device parameters (k active SH coefficients)."""
+        if not 1 <= k <= self.kmax:
+            raise ValueError(f"active SH coefficients {k} outside [1, {self.kmax}]")
+        inp = {"means": self.buf("p", "means"), "quats": self.buf("p", "quats"),
+               "log_scales": self.buf("p", "log_scales"), "opacity_logits": self.buf("p", "opacity_logits"),
+               "sh": self.sh_input(k)}
+        fr = self.b.forward_device(inp, self.n, k, cam, background, near, opacity_override)
+        if self.flush_after_forward:
+            self.queue.flush()  # submit the rasterizer now; the host goes on enqueuing loss / backward / Adam
+        return fr
+
+    def read_depth(self, fr) -> np.ndarray:
+        return self._read(fr.bufs["out_depth"], (fr.height, fr.width), _F32)
+
+    def read_rgb(self, fr) -> np.ndarray:
+        return self._read(fr.bufs["out_rgb"], (fr.height, fr.width, 3), _F32)
+
+    def photometric(self, fr, view: int, w_l1: float, w_ssim: float):
+        """L1 + SSIM of the frame's image against training image `view`; dL/d rgb goes into the
+        v_rgb buffer (returned); the loss stays on the device (`read_loss`). w_ssim == 0: the
+        L1-only kernels (kernels/l1.cl, two launches, no SSIM pass at all)."""
+        v = self.mem.get("pixel", "v_rgb", fr.width * fr.height, 12)
+        if w_ssim == 0:
+            return self.photometric_l1(fr.bufs["out_rgb"], self.gt[view], v, fr.height, fr.width, w_l1)
+        ev = self.photo.enqueue(fr.bufs["out_rgb"], self.gt[view], v, fr.height, fr.width, w_l1, w_ssim)
+        self._loss = ("ssim",)
+        if self.profile is not None:
+            self._events.append(("photometric_loss", ev))  # last kernel only: a lower bound
+        return v
+
+    def photometric_l1(self, x, y, v, h: int, w: int, w_l1: float = 1.0):
+        """w_l1 * mean|x - y| of [h,w,3] image buffers: dL/dx into `v` (returned) and the per-row
+        sums of |x - y| on the device, one launch (kernels/l1.cl l1_rows); `read_loss` reduces
+        them (l1_total) and reads one scalar."""
+        n = h * w * 3
+        rows = self.mem.get("small", "l1_rows", max(h, 1), 4)
+        wg = self.l1_wg
+        if n == 0:
+            self.cl.enqueue_fill_buffer(self.queue, self.mem.get("small", "l1_total", 1, 4), _F32(0), 0, 4)
+            self._loss = ("l1", n, float(w_l1), 0)
+            return v
+        ev = self._call(self.k_l1_rows, (wg, h), (wg, 1), x, y, v, rows, _F32(w_l1 / n), _I32(3 * w), _I32(h))
+        if self.profile is not None:
+            self._events.append(("l1_rows", ev))
+        self._loss = ("l1", n, float(w_l1), h)  # the total is reduced only when read (read_loss)
+        return v
+
+    def read_loss(self) -> float:
+        """The loss of the last photometric pass (one blocking read: a scalar for L1-only, H x 2
+        partial sums for L1 + SSIM)."""
+        if self._loss is not None and self._loss[0] == "l1":
+            _, n, w_l1, h = self._loss
+            total = self.mem.get("small", "l1_total", 1, 4)
+            if h:  # reduce the row sums of the last pass into the scalar (not launched by passes nobody reads)
+                wg = self.l1_wg
+                ev = self._call(self.k_l1_total, (wg,), (wg,), self.mem.get("small", "l1_rows", h, 4), total, _I32(h))
+                if self.profile is not None:
+                    self._events.append(("l1_total", ev))
+            t = self._scalar
+            self.cl.enqueue_copy(self.queue, t, total)  # blocking
+            return float(w_l1 * float(t[0]) / max(n, 1))
+        return self.photo.read_loss()
+
+    def backward(self, fr, v_rgb=None, v_depth: np.ndarray | None = None, opacity_override: float | None = None,
+                 grad_fields=None) -> dict:
+        """Backward of `fr` with v_rgb (a device buffer) and/or v_depth (host [H,W], uploaded).
+        Returns the gradient buffers {field: buffer} of backend.backward_device plus "sh_k"."""
+        vd = None
+        if v_depth is not None:
+            vd = self.mem.get("pixel", "v_depth", fr.width * fr.height, 4)
+            self._write(vd, np.asarray(v_depth, _F32))
+        g = dict(self.b.backward_device(fr, v_rgb, vd, None, opacity_override, grad_fields))
+        g["sh_k"] = fr.sh_k
+        return g
+
+    def regularize(self, grads: dict, shape_pena: float, scale_pena: float, opa_pena: float) -> None:
+        """Add DNGaussian's penalties' gradients (reings.losses.regularizers) into `grads`."""
+        if not (shape_pena or scale_pena or opa_pena) or self.n == 0:
+            return
+        counts = self.mem.get("small", "reg_counts", 2, 4)
+        if opa_pena:
+            self.cl.enqueue_fill_buffer(self.queue, counts, _I32(0), 0, 8)
+            chunk = 256
+            self._launch("reg_count", self.k_count, -(-self.n // chunk), _I32(self.n), _I32(chunk),
+                         self.buf("p", "opacity_logits"), counts)
+        r = self.real
+        self._launch("reg_grads", self.k_reg, self.n, _I32(self.n), self.buf("p", "log_scales"),
+                     self.buf("p", "opacity_logits"), counts, r(shape_pena), r(scale_pena), r(opa_pena),
+                     grads["log_scales"], grads["opacity_logits"])
+
+    def accumulate(self, fr) -> None:
+        """Densification statistics of the photometric pass of `fr` (after `backward`)."""
+        r = self.real
+        self._launch("densify_accumulate", self.k_acc, self.n, _I32(self.n), fr.bufs["radii"], fr.bufs["v_proj"],
+                     r(0.5 * fr.width), r(0.5 * fr.height), self.buf("stat", ACCUM), self.buf("stat", COUNT),
+                     self.buf("stat", RADII))
+
+    def _grad_view(self, grads: dict, name: str):
+        """(buffer, stride, offset, columns) of group `name`'s gradient in the backward's buffers."""
+        k = grads["sh_k"]
+        if name == "sh_dc":
+            return grads["sh"], 3 * k, 0, 3
+        if name == "sh_rest":
+            return grads["sh"], 3 * k, 3, 3 * (k - 1)
+        c = self._cols[name]
+        return grads[name], c, 0, c
+
+    def adam_step(self, opt, grads: dict, groups) -> None:
+        """One Adam step of each group in `groups` with `opt`'s lrs, betas, eps and step counts (the
+        counts are advanced here, as reings.optim.Adam does, including for empty groups)."""
+        n = self.n
+        for name in groups:
+            if name not in opt.lr:
+                raise KeyError(f"adam_step: {name!r} is not a parameter group ({opt.groups})")
+            t = opt.state.step[name] + 1
+            opt.state.step[name] = t
+            cols = self._cols[name]
+            if n * cols == 0:
+                continue
+            g, gs, go, gc = self._grad_view(grads, name)
+            if self.adam == "kernel":
+                sc = adam_scalars(opt.lr[name], t, opt.beta1, opt.beta2, opt.eps, self.fp64)
+                pmv = (self.buf("p", name), self.buf("m", name), self.buf("v", name))
+                if gs == cols and go == 0 and gc == cols:
+                    self._launch("adam", self.k_adam_flat, n * cols, _U32(n * cols), *pmv, g, *sc)
+                else:
+                    # columns padded to 16 in a work-group row: PoCL vectorizes along it (4x faster
+                    # than the runtime's choice for 45 columns)
+                    cpad = -(-cols // 16) * 16
+                    ly = max(1, 64 // cpad)
+                    ev = self._call(self.k_adam, (cpad, -(-n // ly) * ly), (cpad, ly), _U32(n), _U32(cols), *pmv, g,
+                                    _U32(gs), _U32(go), _U32(gc), *sc)
+                    if self.profile is not None:
+                        self._events.append(("adam", ev))
+            else:
+                self._adam_numpy(name, _shape(name, n, self.kmax), g, gs, go, gc, opt.lr[name], t, opt)
+            if name in ("sh_dc", "sh_rest"):
+                self._sh_k = None
+
+    def step_l1(self, cam, view: int, opt, groups=None, k: int | None = None, background=(0.0, 0.0, 0.0),
+                near: float = 0.01, w_l1: float = 1.0, read_loss: bool = False):
+        """One plain training step, the workload of gsplat's step in bench/peer_gsplat.py: forward
+        of the device parameters (k active SH coefficients, default all), w_l1 * mean|rgb - gt|
+        against training image `view` on the device (L1 only: no SSIM pass), backward, one Adam
+        step of every group in `groups` (default: all of opt's). No densification statistics, no
+        penalties. Host syncs: the binning's (V, K) read, plus one scalar read if read_loss.
+        Returns (frame, loss or None); the queue is not finished."""
+        k = self.kmax if k is None else int(k)
+        fr = self.forward(cam, k, background, near)
+        v = self.photometric(fr, view, w_l1, 0.0)
+        grads = self.backward(fr, v)
+        self.adam_step(opt, grads, opt.groups if groups is None else groups)
+        return fr, (self.read_loss() if read_loss else None)
+
+    def _adam_numpy(self, name, shp, g, gs, go, gc, lr, t, opt) -> None:
+        n, cols = shp[0], int(np.prod(shp[1:], dtype=np.int64))
+        if self._tmp.size < n * cols:
+            self._tmp = np.empty(max(n * cols, int(self._tmp.size * 1.5)), _F32)
+        tmp = self._tmp[: n * cols].reshape(shp)
+        with ExitStack() as st:
+            p = st.enter_context(self._map(self.buf("p", name), shp))
+            m = st.enter_context(self._map(self.buf("m", name), shp))
+            v = st.enter_context(self._map(self.buf("v", name), shp))
+            ga = st.enter_context(self._map(g, (n, gs), write=False))[:, go:go + gc]
+            if gc == cols:
+                gg = ga.reshape(shp)
+            else:  # inactive SH coefficients: zero gradient
+                gg = np.zeros((n, cols), _F32)
+                gg[:, :gc] = ga
+                gg = gg.reshape(shp)
+            adam_update(p, m, v, gg, lr, t, opt.beta1, opt.beta2, opt.eps, tmp)
+    # }}}

@@ -1,0 +1,530 @@
+"""`reings eval`: every scene x view count x method of a dataset, then a results table.
+
+    reings eval --dataset llff --root data/llff --views 2,3,4 --methods reings,dngaussian \
+        --device cuda:0 --preset paper --out runs/llff_paper
+
+Each run is `reings.pipeline.run` into its own folder `OUT/<dataset>/<method>/<k>views/<scene>/`.
+A run whose folder holds `metrics.json` is finished and skipped; one holding checkpoints is
+resumed. A run being worked on holds an exclusive lock (`fcntl.flock` on `<run>/.lock`, freed
+when its process ends however it ends), so several `reings eval` processes with the same
+arguments and different `--device` values share the work: each skips the runs another holds.
+
+After the runs (or alone, with `--table-only`) the table is rebuilt from every `metrics.json`
+under OUT: `OUT/results.json` and `OUT/results.md` in the paper's layout (rows = methods,
+columns = PSNR/SSIM/LPIPS/AVGE x view count; mean over scenes, then per scene), with the
+paper's printed numbers beside ours (`PAPER`, each row citing its table).
+
+`--prepare-only` fills the depth-prior and SfM caches for every scene x view count without
+training (copy $REINGS_CACHE_DIR to a machine without pycolmap).
+"""
+from __future__ import annotations
+
+import datetime
+import json
+import os
+import sys
+import time
+
+import numpy as np
+
+METRICS = ("psnr", "ssim", "lpips", "avge")
+ARROW = {"psnr": "↑", "ssim": "↑", "lpips": "↓", "avge": "↓"}
+
+# {{{ the paper's numbers (../shared/docs/paper.txt), only as printed there
+# Table 2: LLFF, 2/3/4 views, rows "without sparsity discrepancy" (random init, as our runs).
+# Table 3: DTU, 3 views, rows without sparsity discrepancy.
+# Table 4: LLFF, 3 views ablations (PSNR, LPIPS, SSIM only; no AVGE). The check marks of Table 4
+# are garbled in the text extraction; the row -> switches mapping below follows §4.2 ("EHPS, then
+# IVPS, then CVPS: +0.49, +0.41, +1.09 dB"; "Rows 5 and 6: VDPS (IVPS+CVPS) alone ... adding
+# EHPS"), and row 1 (18.87) is the reproduced DNGaussian baseline, equal to Table 2's.
+
+
+def _row(psnr, ssim, lpips, avge=None):
+    return {"psnr": psnr, "ssim": ssim, "lpips": lpips, **({"avge": avge} if avge is not None else {})}
+
+
+PAPER = {
+    "llff": [
+        {"method": "reings", "name": "ReInGS (paper)", "source": "paper Table 2", "views": {
+            2: _row(19.39, 0.599, 0.296, 0.132), 3: _row(20.88, 0.687, 0.256, 0.108), 4: _row(22.24, 0.748, 0.239, 0.092)}},
+        {"method": "dngaussian", "name": "DNGaussian ✗SD (paper)", "source": "paper Table 2", "views": {
+            2: _row(16.47, 0.450, 0.408, 0.192), 3: _row(18.87, 0.583, 0.313, 0.141), 4: _row(20.86, 0.690, 0.266, 0.107)}},
+        {"method": "3dgs", "name": "3DGS ✗SD (paper)", "source": "paper Table 2", "views": {
+            2: _row(12.83, 0.311, 0.470, 0.273), 3: _row(14.99, 0.483, 0.362, 0.202), 4: _row(17.31, 0.584, 0.297, 0.153)}},
+        {"method": "reings-no-ivps-no-cvps", "name": "EHPS only (paper)", "source": "paper Table 4 row 2",
+         "views": {3: _row(19.38, 0.589, 0.348)}},
+        {"method": "reings-no-cvps", "name": "EHPS+IVPS (paper)", "source": "paper Table 4 row 3",
+         "views": {3: _row(19.79, 0.645, 0.260)}},
+        {"method": "reings-no-ivps", "name": "EHPS+CVPS (paper)", "source": "paper Table 4 row 4",
+         "views": {3: _row(20.05, 0.611, 0.314)}},
+        {"method": "reings-no-ehps", "name": "IVPS+CVPS (paper)", "source": "paper Table 4 row 5",
+         "views": {3: _row(19.66, 0.638, 0.285)}},
+    ],
+    "dtu": [
+        {"method": "reings", "name": "ReInGS (paper)", "source": "paper Table 3", "views": {3: _row(21.30, 0.832, 0.170, 0.081)}},
+        {"method": "dngaussian", "name": "DNGaussian ✗SD (paper)", "source": "paper Table 3",
+         "views": {3: _row(18.85, 0.763, 0.227, 0.116)}},
+        {"method": "3dgs", "name": "3DGS ✗SD (paper)", "source": "paper Table 3", "views": {3: _row(12.77, 0.681, 0.278, 0.167)}},
+    ],
+}
+PAPER_NOTE = ("Paper numbers: the ReInGS paper (../shared/docs/paper.txt), as printed; ✗SD = the paper's rows without "
+              "sparsity discrepancy (random initial points, as these runs). Table 4 (ablations, LLFF 3 views) "
+              "prints no AVGE, and its row-to-switch mapping is read from §4.2 (the extracted check marks are "
+              "ambiguous). DTU numbers for 2 and 4 views are in the paper's appendix Table 5, not available here.")
+_FAMILY = {"llff_nex": "llff", "colmap": "llff"}  # protocol family for the paper columns
+PAPER_SCENES = {"llff": 8, "dtu": 15}  # the paper's means are over the whole benchmark
+# }}}
+
+
+class EvalError(ValueError):
+    """A user-facing `reings eval` error."""
+
+
+def parse_list(text, what: str, cast=str) -> list:
+    if text is None:
+        return []
+    items = [t.strip() for t in str(text).split(",") if t.strip()]
+    if not items:
+        raise EvalError(f"--{what}: empty list")
+    out = []
+    for t in items:
+        try:
+            v = cast(t)
+        except ValueError:
+            raise EvalError(f"--{what}: bad entry {t!r}") from None
+        if v not in out:
+            out.append(v)
+    return out
+
+
+def discover_scenes(root: str, dataset: str | None) -> list[tuple[str, str]]:
+    """(name, kind) of every scene folder directly under `root` whose format is detected (and, with
+    `dataset`, belongs to it); folders that are not scenes (DTU's masks/, ...) are skipped."""
+    from .data.scene import SceneError, detect_format
+
+    found = []
+    for name in sorted(os.listdir(root)):
+        p = os.path.join(root, name)
+        if name.startswith(".") or not os.path.isdir(p):
+            continue
+        try:
+            kind = detect_format(p)
+        except SceneError:
+            continue
+        if dataset is None or kind == dataset or _FAMILY.get(kind) == dataset:
+            found.append((name, kind))
+    return found
+
+
+def run_dir(out: str, dataset: str, method: str, views: int, scene: str) -> str:
+    return os.path.join(out, dataset, method, f"{views}views", scene)
+
+
+class RunLock:
+    """An exclusive, non-blocking flock on `<folder>/.lock`; freed when the process ends."""
+
+    def __init__(self, folder: str):
+        self.path = os.path.join(folder, ".lock")
+        self.fd = None
+
+    def acquire(self) -> bool:
+        import fcntl
+
+        os.makedirs(os.path.dirname(self.path), exist_ok=True)
+        fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            os.close(fd)
+            return False
+        os.ftruncate(fd, 0)
+        os.write(fd, f"{os.getpid()} {os.uname().nodename}\n".encode())
+        self.fd = fd
+        return True
+
+    def release(self) -> None:
+        if self.fd is not None:
+            import fcntl
+
+            fcntl.flock(self.fd, fcntl.LOCK_UN)
+            os.close(self.fd)
+            self.fd = None
+
+
+# {{{ table
+
+def _setting_tag(m: dict) -> str:
+    """What distinguishes two runs of the same method beyond scene/views: preset, iteration
+    override, seed, depth prior."""
+    from .pipeline import _iters_of
+
+    cfg = m.get("config") or {}
+    preset = m.get("preset", cfg.get("preset", "?"))
+    tag = [str(preset)]
+    base = m.get("base_method") or str(m.get("method", "")).split("-")[0]
+    its = cfg.get("iterations")
+    try:
+        default = list(_iters_of(base, preset, None))
+    except (KeyError, ValueError):
+        default = None
+    if its is not None and default is not None and list(its) != default:
+        tag.append("its " + ("/".join(map(str, its)) if len(set(its)) > 1 else str(its[0])))
+    if m.get("seed", 0) not in (0, None):
+        tag.append(f"seed {m['seed']}")
+    if m.get("depth_prior", "stereo") != "stereo":
+        tag.append(f"prior {m['depth_prior']}")
+    return ", ".join(tag)
+
+
+def collect_runs(out: str) -> list[dict]:
+    """Every finished run (metrics.json) and unfinished run folder (checkpoints/) under `out`."""
+    runs = []
+    for dirpath, dirnames, filenames in os.walk(out):
+        dirnames[:] = sorted(d for d in dirnames if d not in ("checkpoints", "renders", "depths") and not d.startswith("."))
+        rel = os.path.relpath(dirpath, out)
+        if "metrics.json" in filenames:
+            try:
+                with open(os.path.join(dirpath, "metrics.json")) as f:
+                    m = json.load(f)
+                if not isinstance(m, dict) or "mean" not in m:
+                    raise ValueError("no 'mean'")
+            except (OSError, ValueError) as e:
+                runs.append({"path": rel, "status": "unreadable", "error": str(e)})
+                continue
+            runs.append({"path": rel, "status": "done", "metrics": m})
+            dirnames[:] = []
+        elif os.path.isdir(os.path.join(dirpath, "checkpoints")):
+            runs.append({"path": rel, "status": "unfinished"})
+            dirnames[:] = []
+    return runs
+
+
+def _scene_of(m: dict, path: str) -> str:
+    if m.get("scene"):
+        return str(m["scene"])
+    d = m.get("data") or "procedural"
+    return os.path.basename(os.path.normpath(str(d))) or os.path.basename(path)
+
+
+def _dataset_of(m: dict, path: str) -> str:
+    parts = path.split(os.sep)
+    if len(parts) >= 4:  # OUT/<dataset>/<method>/<k>views/<scene>
+        return parts[-4]
+    return str(m.get("dataset") or "unknown")
+
+
+def build_table(out: str, expected_scenes: dict | None = None) -> dict:
+    """results.json content from the runs under `out`. expected_scenes: {dataset: [scene, ...]}
+    (the denominator of "complete"; default: every scene seen in that dataset)."""
+    runs = collect_runs(out)
+    datasets: dict = {}
+    for r in runs:
+        if r["status"] != "done":
+            continue
+        m = r["metrics"]
+        ds = _dataset_of(m, r["path"])
+        scene = _scene_of(m, r["path"])
+        views = int(m.get("views", 0))
+        tag = _setting_tag(m)
+        method = str(m.get("method", "?"))
+        d = datasets.setdefault(ds, {"views": set(), "scenes": set(), "groups": {}})
+        d["views"].add(views)
+        d["scenes"].add(scene)
+        g = d["groups"].setdefault((method, tag), {})
+        entry = {k: m["mean"].get(k) for k in METRICS}
+        sec = m.get("seconds") or {}
+        entry.update({"seconds": sec.get("method", sec.get("total")), "seconds_total": sec.get("total"),
+                      "gaussians": (m.get("stages") or [{}])[-1].get("gaussians") if m.get("stages") else None,
+                      "device": m.get("device"), "device_name": m.get("device_name"), "run": r["path"]})
+        g.setdefault(views, {})[scene] = entry
+    result = {"generated": datetime.datetime.now().isoformat(timespec="seconds"), "out": os.path.abspath(out),
+              "paper_note": PAPER_NOTE, "datasets": {},
+              "runs": [{k: v for k, v in r.items() if k != "metrics"} for r in runs]}
+    for ds, d in sorted(datasets.items()):
+        scenes_all = sorted(set(d["scenes"]) | set((expected_scenes or {}).get(ds, [])))
+        views_all = sorted(d["views"])
+        tags = {t for (_, t) in d["groups"]}
+        n_tags = {}
+        for (method, _) in d["groups"]:
+            n_tags[method] = n_tags.get(method, 0) + 1
+        methods = {}
+        for (method, tag), by_views in sorted(d["groups"].items(), key=lambda kv: (_method_order(kv[0][0]), kv[0][1])):
+            name = method if n_tags[method] == 1 else f"{method} [{tag}]"
+            mean = {}
+            for v, per_scene in sorted(by_views.items()):
+                vals = {k: [e[k] for e in per_scene.values() if e.get(k) is not None] for k in METRICS + ("seconds", "gaussians")}
+                mean[v] = {k: (float(np.mean(x)) if x else None) for k, x in vals.items()}
+                mean[v]["n_scenes"] = len(per_scene)
+                mean[v]["complete"] = len(per_scene) >= len(scenes_all)
+            methods[name] = {"method": method, "setting": tag, "mean": mean,
+                             "scenes": {s: {v: by_views[v][s] for v in sorted(by_views) if s in by_views[v]}
+                                        for s in sorted({s for pv in by_views.values() for s in pv})}}
+        family = _FAMILY.get(ds, ds)
+        paper = [p for p in PAPER.get(family, [])]
+        result["datasets"][ds] = {"views": views_all, "scenes": scenes_all, "settings": sorted(tags),
+                                  "methods": methods, "paper": paper}
+    return result
+
+
+def _method_order(method: str):
+    from .pipeline import METHODS
+
+    base = method.split("-")[0]
+    return (METHODS.index(base) if base in METHODS else 99, method)
+
+
+def _fmt(v, k) -> str:
+    if v is None:
+        return "–"
+    return f"{v:.2f}" if k == "psnr" else f"{v:.3f}"
+
+
+def _header(views: list, first: str = "Method") -> list[str]:
+    cols = [first] + [f"{k.upper()}{ARROW[k]} {v}v" for k in METRICS for v in views]
+    return ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
+
+
+def render_markdown(res: dict) -> str:
+    lines = ["# Results", "",
+             f"Generated {res['generated']} from the runs under `{res['out']}` by `reings eval --table-only`.",
+             "Means are over scenes of each scene's mean over its test views. A mean marked `(k/n)` covers k of "
+             "the n scenes only. Seconds = training + re-initialisation wall clock (probes excluded).", ""]
+    for ds, d in res["datasets"].items():
+        views = d["views"]
+        paper_views = sorted({v for p in d["paper"] for v in p["views"]})
+        cols = sorted(set(views) | ({v for v in paper_views if v in views} if views else set()))
+        lines += [f"## {ds.upper()}: mean over {len(d['scenes'])} scene(s) ({', '.join(d['scenes'])})", ""]
+        if len(d["settings"]) > 1:
+            per = "; ".join(f"{name}: {m['setting']}" for name, m in d["methods"].items())
+            lines += [f"Settings differ between rows ({per}).", ""]
+        elif d["settings"]:
+            lines += [f"Setting: {d['settings'][0]}.", ""]
+        n_paper = PAPER_SCENES.get(_FAMILY.get(ds, ds))
+        if n_paper and d["paper"] and len(d["scenes"]) != n_paper:
+            lines += [f"The paper's means are over all {n_paper} {ds.upper()} scenes, ours over "
+                      f"{len(d['scenes'])}: compare per scene with care.", ""]
+        lines += _header(cols)
+        shown_paper = set()
+        for name, mth in d["methods"].items():
+            cells = [name + " (ours)"]
+            for k in METRICS:
+                for v in cols:
+                    e = mth["mean"].get(v)
+                    if e is None:
+                        cells.append("")
+                        continue
+                    s = _fmt(e.get(k), k)
+                    if not e["complete"]:
+                        s += f" ({e['n_scenes']}/{len(d['scenes'])})"
+                    cells.append(s)
+            lines.append("| " + " | ".join(cells) + " |")
+            for i, p in enumerate(d["paper"]):
+                if p["method"] == mth["method"] and i not in shown_paper:
+                    shown_paper.add(i)
+                    lines.append(_paper_line(p, cols))
+        for i, p in enumerate(d["paper"]):  # paper rows of methods not run: listed at the end
+            if i not in shown_paper and any(v in cols for v in p["views"]):
+                lines.append(_paper_line(p, cols))
+        lines += ["", "Seconds and final Gaussian counts (mean over scenes):", "",
+                  "| Method | " + " | ".join(f"{v}v seconds | {v}v Gaussians" for v in cols) + " | devices |",
+                  "|" + "---|" * (2 + 2 * len(cols))]
+        for name, mth in d["methods"].items():
+            cells = [name]
+            for v in cols:
+                e = mth["mean"].get(v) or {}
+                cells += [("–" if e.get("seconds") is None else f"{e['seconds']:.1f}"),
+                          ("–" if e.get("gaussians") is None else f"{e['gaussians']:.0f}")]
+            devs = sorted({str(x.get("device_name") or x.get("device")) for pv in mth["scenes"].values() for x in pv.values()})
+            cells.append(", ".join(devs))
+            lines.append("| " + " | ".join(cells) + " |")
+        lines += ["", f"### {ds.upper()}: per scene", ""] + _header(cols, "Scene / method")
+        for s in d["scenes"]:
+            for name, mth in d["methods"].items():
+                per = mth["scenes"].get(s)
+                if not per:
+                    continue
+                cells = [f"{s} / {name}"] + [_fmt((per.get(v) or {}).get(k), k) if v in per else "" for k in METRICS for v in cols]
+                lines.append("| " + " | ".join(cells) + " |")
+        lines.append("")
+    unfinished = [r["path"] for r in res["runs"] if r["status"] != "done"]
+    if unfinished:
+        lines += ["Unfinished or unreadable run folders: " + ", ".join(f"`{p}`" for p in unfinished), ""]
+    lines += [PAPER_NOTE, ""]
+    return "\n".join(lines)
+
+
+def _paper_line(p: dict, cols: list) -> str:
+    cells = [f"{p['name']}, {p['source']}"]
+    for k in METRICS:
+        for v in cols:
+            e = p["views"].get(v)
+            cells.append("" if e is None or k not in e else _fmt(e[k], k))
+    return "| " + " | ".join(cells) + " |"
+
+
+def write_tables(out: str, expected_scenes: dict | None = None) -> dict:
+    from .pipeline import write_json_atomic, write_text_atomic
+
+    res = build_table(out, expected_scenes)
+    write_json_atomic(os.path.join(out, "results.json"), res)
+    write_text_atomic(os.path.join(out, "results.md"), render_markdown(res))
+    return res
+# }}}
+
+
+def _plan(args):
+    """Validate the arguments; return (jobs, expected scenes per dataset) with jobs =
+    [(dataset, scene, data_path, views, method_label, base, ReInGSConfig)]."""
+    from dataclasses import replace
+
+    from .pipeline import method_label, parse_method
+
+    views = parse_list(args.views, "views", int)
+    bad = [v for v in views if v < 2]
+    if bad:
+        raise EvalError(f"--views: every count must be >= 2, got {bad}")
+    methods = []
+    for name in parse_list(args.methods, "methods"):
+        base, rc = parse_method(name)
+        if base == "reings":
+            rc = replace(rc, ehps=rc.ehps and not args.no_ehps, ivps=rc.ivps and not args.no_ivps,
+                         cvps=rc.cvps and not args.no_cvps)
+        lab = method_label(base, rc)
+        if lab not in [m[0] for m in methods]:
+            methods.append((lab, base, rc))
+    if args.dataset == "procedural" and args.root is None:
+        scenes = [("procedural", "procedural", None)]
+    else:
+        if args.root is None:
+            raise EvalError("--root is required (the folder of scene folders), except with --dataset procedural")
+        if not os.path.isdir(args.root):
+            raise EvalError(f"--root {args.root}: folder not found")
+        found = discover_scenes(args.root, args.dataset)
+        if args.scenes:
+            want = parse_list(args.scenes, "scenes")
+            kinds = dict(found)
+            missing = [s for s in want if s not in kinds]
+            if missing:
+                raise EvalError(f"--scenes: no {args.dataset or ''} scene folder {', '.join(missing)} under {args.root} "
+                                f"(found: {', '.join(kinds) or 'none'})")
+            found = [(s, kinds[s]) for s in want]
+        if not found:
+            raise EvalError(f"--root {args.root}: no {args.dataset or ''} scene folders found")
+        scenes = [(s, k, os.path.join(args.root, s)) for s, k in found]
+    jobs, expected = [], {}
+    for s, kind, path in scenes:
+        ds = args.dataset or kind
+        expected.setdefault(ds, []).append(s)
+        for v in views:
+            for lab, base, rc in methods:
+                jobs.append((ds, s, path, v, lab, base, rc))
+    return jobs, expected
+
+
+def _prepare(jobs, args) -> None:
+    """Fill the depth-prior and SfM caches (no training)."""
+    from .data.depth_prior import get_depth_prior
+    from .data.sfm import sfm_extent
+    from .data.splits import few_shot_split
+    from .pipeline import load_run_scene
+
+    seen = set()
+    prior = None if args.depth_prior == "exact" else get_depth_prior(args.depth_prior)
+    for ds, s, path, v, *_ in jobs:
+        if (s, path, v) in seen:
+            continue
+        seen.add((s, path, v))
+        t = time.perf_counter()
+        scene = load_run_scene(path, None if path is None else args.dataset, factor=args.factor)
+        tr, _ = few_shot_split(scene, v)
+        train = scene.subset(tr)
+        if prior is not None and getattr(prior, "enabled", True):
+            prior.compute(train)
+        ext = sfm_extent(train)
+        print(f"prepared {ds}/{s} {v} views: sfm {ext.method} ({ext.num_sfm_points} points"
+              f"{', cached' if ext.cached else ''}), {time.perf_counter() - t:.1f} s", flush=True)
+
+
+def _settings_differ(metrics_path: str, args, base: str) -> str:
+    """'' if the finished run at `metrics_path` used the requested preset/iterations/seed/prior."""
+    from .pipeline import _iters_of
+
+    try:
+        with open(metrics_path) as f:
+            m = json.load(f)
+        cfg = m.get("config") or {}
+        want = {"preset": args.preset, "iterations": list(_iters_of(base, args.preset, args.iterations)),
+                "seed": args.seed, "depth_prior": args.depth_prior, "init_points": args.init_points}
+        return ", ".join(f"{k} {cfg.get(k)!r} != {v!r}" for k, v in want.items() if k in cfg and cfg.get(k) != v)
+    except (OSError, ValueError, KeyError):
+        return ""
+
+
+def main_eval(args) -> int:
+    from .backends import get_backend
+    from .pipeline import run
+
+    out = args.out
+    if os.path.exists(out) and not os.path.isdir(out):
+        raise EvalError(f"--out {out} exists and is not a folder")
+    if args.table_only:
+        if not os.path.isdir(out):
+            raise EvalError(f"--out {out}: folder not found (nothing to tabulate)")
+        res = write_tables(out)
+        n = sum(r["status"] == "done" for r in res["runs"])
+        print(f"{n} finished run(s) -> {os.path.join(out, 'results.md')}, results.json")
+        return 0
+    jobs, expected = _plan(args)
+    if args.prepare_only:
+        _prepare(jobs, args)
+        return 0
+    get_backend(args.device)  # unknown device: error before any folder is made
+    os.makedirs(out, exist_ok=True)
+    failed, skipped_busy = [], []
+    say = lambda msg: print(msg, flush=True)  # noqa: E731 - one line per run even with --quiet (bars off)
+    for i, (ds, s, path, v, lab, base, rc) in enumerate(jobs, 1):
+        rd = run_dir(out, ds, lab, v, s)
+        head = f"[{i}/{len(jobs)}] {ds} {s} {v} views {lab}"
+        if os.path.exists(os.path.join(rd, "metrics.json")):
+            diff = _settings_differ(os.path.join(rd, "metrics.json"), args, base)
+            if diff:
+                print(f"{head}: WARNING: finished earlier with other settings ({diff}); kept, not redone "
+                      "(remove the folder or use another --out)", file=sys.stderr, flush=True)
+            say(f"{head}: done already ({rd})")
+            continue
+        lock = RunLock(rd)
+        if not lock.acquire():
+            say(f"{head}: held by another process, skipped")
+            skipped_busy.append(rd)
+            continue
+        try:
+            if os.path.exists(os.path.join(rd, "metrics.json")):  # finished while we waited for the lock
+                continue
+            resumed = os.path.isdir(os.path.join(rd, "checkpoints"))
+            say(f"{head}: {'resuming' if resumed else 'running'} on {args.device} -> {rd}")
+            t = time.perf_counter()
+            r = run(data=path, dataset=None if path is None else args.dataset, method=lab, views=v, device=args.device,
+                    depth_prior=args.depth_prior, preset=args.preset, iterations=args.iterations, seed=args.seed,
+                    out=rd, factor=args.factor, quiet=args.quiet, reings_config=rc, eval_every=args.eval_every,
+                    with_lpips=not args.no_lpips, init_points=args.init_points, sh_degree=args.sh_degree)
+            mm = r.metrics["mean"]
+            say(f"{head}: " + " ".join(f"{k.upper()} {mm[k]:.3f}" for k in METRICS if k in mm)
+                + f" ({time.perf_counter() - t:.0f} s)")
+        except (KeyboardInterrupt, SystemExit):
+            raise
+        except Exception as e:
+            failed.append((rd, f"{type(e).__name__}: {e}"))
+            print(f"{head}: FAILED: {type(e).__name__}: {e}", file=sys.stderr, flush=True)
+            if not args.keep_going:
+                write_tables(out, expected)
+                raise
+        finally:
+            lock.release()
+    res = write_tables(out, expected)
+    n = sum(r["status"] == "done" for r in res["runs"])
+    print(f"{n} finished run(s) in {out}; table: {os.path.join(out, 'results.md')}"
+          + (f"; {len(skipped_busy)} held by other processes" if skipped_busy else ""))
+    if failed:
+        print(f"reings: error: {len(failed)} run(s) failed: " + "; ".join(f"{p}: {e}" for p, e in failed), file=sys.stderr)
+        return 1
+    return 0

@@ -1,0 +1,163 @@
+"""The device engine's small kernels against their numpy references:
+
+    kernels/adam.cl adam_step      vs reings.optim.Adam (numpy) and the float64 torch.optim.Adam
+                                   step of tests/test_adam.py, per-group lrs and step counts,
+                                   strided SH gradients with inactive coefficients
+    kernels/train.cl reg_grads     vs reings.losses.regularizers
+    kernels/train.cl densify_accumulate vs reings.densify.accumulate(ndc_grad_norm(...))
+
+Tolerance "float32 rounding": a few ulps of the values compared (the kernels mirror numpy's float32
+operation sequence; where sqrt / division are not correctly rounded on a device the results
+differ by ulps, never by a step)."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from reings import densify as D
+from reings.backends import get_backend
+from reings.losses import regularizers
+from reings.optim import Adam
+from reings.state import PARAM_NAMES, TrainState
+from reings.types import Gaussians
+
+from test_adam import _ref_adam
+
+pytest.importorskip("pyopencl")
+
+
+def _state(rng, n=257, k=16):
+    g = Gaussians(rng.normal(size=(n, 3)).astype(np.float32), rng.normal(size=(n, 4)).astype(np.float32),
+                  rng.normal(-2, 0.7, size=(n, 3)).astype(np.float32), rng.normal(-1, 2, size=n).astype(np.float32),
+                  rng.normal(size=(n, k, 3)).astype(np.float32))
+    st = TrainState.from_gaussians(g)
+    D.init_stats(st)
+    return st
+
+
+def _trainer(device, st, adam):
+    from reings.backends.opencl.trainer import DeviceTrainer
+
+    t = DeviceTrainer(get_backend(device), [], adam=adam)
+    t.upload(st)
+    return t
+
+
+def _grad_buffers(t, host: dict, sh_k: int) -> dict:
+    """Device gradient buffers like backend.backward_device's, from host arrays."""
+    out = {}
+    for f, a in host.items():
+        buf = t.mem.get("gauss", "test_g_" + f, a.shape[0], max(a[0].nbytes, 1))
+        t._write(buf, a)
+        out[f] = buf
+    out["sh_k"] = sh_k
+    return out
+
+
+def _ulps(a, b):
+    """Distance in float32 ulps (of the larger magnitude), elementwise."""
+    a, b = np.asarray(a, np.float32), np.asarray(b, np.float32)
+    sp = np.spacing(np.maximum(np.abs(a), np.abs(b)).astype(np.float32))
+    return np.abs(a.astype(np.float64) - b.astype(np.float64)) / sp
+
+
+@pytest.mark.parametrize("location", ["kernel", "numpy"])
+def test_adam_kernel_matches_numpy_adam(device, rng, location):
+    """Several steps with per-group lrs and separate step counts (means stepped three times per
+    iteration, opacities and SH DC twice, the others once), SH at an active degree below the maximum (sh_rest's
+    inactive coefficients get zero gradient: values and moments must stay put)."""
+    n, kmax, sh_k = 257, 16, 4
+    st = _state(rng, n, kmax)
+    host = TrainState.from_arrays(st.to_arrays())  # an independent copy for the numpy Adam
+    lrs = {"means": 0.016, "quats": 0.001, "log_scales": 0.005, "opacity_logits": 0.05, "sh_dc": 0.0025,
+           "sh_rest": 0.000125}
+    t = _trainer(device, st, location)
+    opt_dev = Adam(st.params, lrs, state=st.adam)  # lrs / betas / eps / step counts for the device
+    opt_host = Adam(host.params, lrs, state=host.adam)
+    p0 = {k: v.copy() for k, v in host.params.items()}
+    seq = {k: [] for k in PARAM_NAMES}
+    for it in range(6):
+        passes = [("means",), ("means", "sh_dc"), ("opacity_logits",), tuple(PARAM_NAMES)]
+        for groups in passes:
+            scale = 10.0 ** rng.uniform(-6, 1)  # gradients over many magnitudes
+            g = {"means": rng.normal(size=(n, 3)), "quats": rng.normal(size=(n, 4)),
+                 "log_scales": rng.normal(size=(n, 3)), "opacity_logits": rng.normal(size=n),
+                 "sh": rng.normal(size=(n, sh_k, 3))}
+            g = {k: (v * scale).astype(np.float32) for k, v in g.items()}
+            g["means"][::7] = 0.0  # invisible rows: exactly zero gradient
+            full_sh = np.zeros((n, kmax, 3), np.float32)
+            full_sh[:, :sh_k] = g["sh"]
+            hg = {"means": g["means"], "quats": g["quats"], "log_scales": g["log_scales"],
+                  "opacity_logits": g["opacity_logits"], "sh_dc": full_sh[:, :1], "sh_rest": full_sh[:, 1:]}
+            opt_host.step({k: hg[k] for k in groups})
+            t.adam_step(opt_dev, _grad_buffers(t, g, sh_k), groups)
+            for k in groups:
+                seq[k].append(hg[k])
+    assert opt_dev.state.step == opt_host.state.step == {
+        "means": 18, "quats": 6, "log_scales": 6, "opacity_logits": 12, "sh_dc": 12, "sh_rest": 6}
+    t.download(st)
+    for k in PARAM_NAMES:
+        for a, b, what in ((st.params[k], host.params[k], "param"), (st.adam.exp_avg[k], host.adam.exp_avg[k], "m"),
+                           (st.adam.exp_avg_sq[k], host.adam.exp_avg_sq[k], "v")):
+            assert a.shape == b.shape
+            u = _ulps(a, b)
+            assert u.max() <= 8, f"{location} {k} {what}: {u.max()} ulps from numpy Adam"
+        if location == "numpy":  # the same numpy code on mapped buffers: bit-identical
+            np.testing.assert_array_equal(st.params[k], host.params[k])
+    # inactive SH coefficients (rows sh_k-1.. of sh_rest) are untouched, their moments zero
+    np.testing.assert_array_equal(st.params["sh_rest"][:, sh_k - 1:], p0["sh_rest"][:, sh_k - 1:])
+    assert not np.any(st.adam.exp_avg["sh_rest"][:, sh_k - 1:])
+    # and both agree with the float64 torch.optim.Adam step
+    for k in ("means", "opacity_logits", "sh_dc"):
+        ref, _, _ = _ref_adam(p0[k], seq[k], lrs[k])
+        np.testing.assert_allclose(st.params[k], ref, rtol=0, atol=2e-6 + 1e-6 * np.abs(ref).max())
+
+
+def test_regularizer_kernel_matches_numpy(device, rng):
+    n = 1000
+    st = _state(rng, n, 1)
+    ls = st.params["log_scales"]
+    ls[:10] = ls[:10, :1]  # isotropic rows (ties: zero shape gradient)
+    ls[10:20, 1] = ls[10:20, 0]  # a tie between two axes
+    st.params["opacity_logits"][:5] = np.float32(np.log(0.2 / 0.8)) + np.float32(0.3)
+    t = _trainer(device, st, "kernel")
+    g0 = {"log_scales": rng.normal(size=(n, 3)).astype(np.float32) * 1e-3,
+          "opacity_logits": rng.normal(size=n).astype(np.float32) * 1e-3}
+    for weights in ((0.002, 0.001, 0.001), (0.0, 0.0, 0.5), (0.3, 0.0, 0.0)):
+        bufs = _grad_buffers(t, g0, 1)
+        t.regularize(bufs, *weights)
+        _, rg = regularizers(st.params, *weights)
+        for k in g0:
+            got = t._read(bufs[k], g0[k].shape, np.float32)
+            want = g0[k] + rg[k] if k in rg else g0[k]
+            u = _ulps(got, want)
+            assert u.max() <= 4, f"{weights} {k}: {u.max()} ulps"
+            assert np.any(got != g0[k]) == (k in rg)
+
+
+def test_densify_accumulate_kernel_matches_numpy(device, rng):
+    n = 777
+    st = _state(rng, n, 1)
+    host = TrainState.from_arrays(st.to_arrays())
+    t = _trainer(device, st, "kernel")
+    W, H = 70, 45
+    from reings.backends.base import V_RECORD
+
+    class _Fr:  # the two frame buffers densify_accumulate reads
+        width, height = W, H
+        bufs = {}
+
+    for _ in range(3):
+        radii = np.where(rng.random(n) < 0.6, rng.integers(1, 40, n), 0).astype(np.int32)
+        vp = rng.normal(size=(n, V_RECORD)).astype(np.float32) * 1e-4
+        _Fr.bufs = {"radii": t.mem.get("gauss", "test_radii", n, 4), "v_proj": t.mem.get("gauss", "test_vp", n, 40)}
+        t._write(_Fr.bufs["radii"], radii)
+        t._write(_Fr.bufs["v_proj"], vp)
+        t.accumulate(_Fr)
+        v2d = np.where(radii[:, None] > 0, vp[:, :2], 0).astype(np.float32)
+        D.accumulate(host, D.ndc_grad_norm(v2d, W, H), radii > 0, radii)
+    t.download(st)
+    np.testing.assert_array_equal(st.stats[D.COUNT], host.stats[D.COUNT])
+    np.testing.assert_array_equal(st.stats[D.RADII], host.stats[D.RADII])
+    assert _ulps(st.stats[D.ACCUM], host.stats[D.ACCUM]).max() <= 4
+    assert host.stats[D.ACCUM].max() > 0

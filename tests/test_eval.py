@@ -1,0 +1,117 @@
+"""`reings eval`: the results table from run folders (--table-only), locks, and a tiny real eval."""
+from __future__ import annotations
+
+import json
+import os
+
+import pytest
+
+from reings import evaluate
+from reings.cli import main
+
+
+def _fake_run(out, dataset, method, views, scene, psnr, ssim, lpips, avge, seconds=10.0, preset="quick",
+              iterations=None, gaussians=1000):
+    d = out / dataset / method / f"{views}views" / scene
+    d.mkdir(parents=True)
+    base = method.split("-")[0]
+    its = iterations or {"reings": [200, 200, 600]}.get(base, [600])
+    m = {"method": method, "base_method": base, "scene": scene, "dataset": dataset, "views": views,
+         "preset": preset, "device": "cuda:0", "device_name": "FakeGPU", "seed": 0, "depth_prior": "stereo",
+         "mean": {"psnr": psnr, "ssim": ssim, "lpips": lpips, "avge": avge},
+         "seconds": {"method": seconds, "total": seconds + 5},
+         "stages": [{"stage": "final", "gaussians": gaussians}],
+         "config": {"preset": preset, "iterations": its}}
+    (d / "metrics.json").write_text(json.dumps(m))
+    return d
+
+
+def test_table_only_builds_the_paper_layout(tmp_path, capsys):
+    out = tmp_path / "res"
+    _fake_run(out, "llff", "reings", 3, "fern", 20.0, 0.70, 0.20, 0.10, seconds=100, gaussians=1000)
+    _fake_run(out, "llff", "reings", 3, "flower", 22.0, 0.80, 0.10, 0.08, seconds=300, gaussians=3000)
+    _fake_run(out, "llff", "reings", 2, "fern", 18.0, 0.60, 0.30, 0.15)
+    _fake_run(out, "llff", "dngaussian", 3, "fern", 17.0, 0.50, 0.40, 0.20)
+    _fake_run(out, "llff", "reings-no-ehps", 3, "fern", 19.0, 0.65, 0.25, 0.12)
+    _fake_run(out, "dtu", "reings", 3, "scan24", 21.0, 0.83, 0.17, 0.08)
+    unfinished = out / "llff" / "dngaussian" / "3views" / "flower"
+    (unfinished / "checkpoints").mkdir(parents=True)
+    (out / "llff" / "3dgs" / "3views" / "fern").mkdir(parents=True)  # empty folder: ignored
+
+    assert main(["eval", "--table-only", "--out", str(out)]) == 0
+    assert "6 finished run(s)" in capsys.readouterr().out
+    res = json.loads((out / "results.json").read_text())
+    llff = res["datasets"]["llff"]
+    assert llff["views"] == [2, 3] and llff["scenes"] == ["fern", "flower"]
+    assert list(llff["methods"]) == ["reings", "reings-no-ehps", "dngaussian"]  # reings family first
+    r3 = llff["methods"]["reings"]["mean"]["3"]
+    assert r3["psnr"] == pytest.approx(21.0) and r3["ssim"] == pytest.approx(0.75)
+    assert r3["lpips"] == pytest.approx(0.15) and r3["avge"] == pytest.approx(0.09)
+    assert r3["seconds"] == pytest.approx(200) and r3["gaussians"] == pytest.approx(2000)
+    assert r3["n_scenes"] == 2 and r3["complete"]
+    r2 = llff["methods"]["reings"]["mean"]["2"]
+    assert r2["n_scenes"] == 1 and not r2["complete"]
+    assert llff["methods"]["reings"]["scenes"]["flower"]["3"]["psnr"] == 22.0
+    assert llff["methods"]["reings"]["scenes"]["flower"]["3"]["run"] == os.path.join("llff", "reings", "3views", "flower")
+    assert res["datasets"]["dtu"]["methods"]["reings"]["mean"]["3"]["psnr"] == 21.0
+    status = {r["path"]: r["status"] for r in res["runs"]}
+    assert status[os.path.join("llff", "dngaussian", "3views", "flower")] == "unfinished"
+    assert sum(s == "done" for s in status.values()) == 6
+
+    md = (out / "results.md").read_text()
+    assert md.index("## DTU") < md.index("## LLFF")  # datasets in name order
+    lines = md[md.index("## LLFF"):].splitlines()
+    header = next(ln for ln in lines if ln.startswith("| Method | PSNR"))
+    assert header.count("PSNR") == 2 and "AVGE↓ 3v" in header  # metric x views columns, 2 and 3 views
+    row = next(ln for ln in lines if ln.startswith("| reings (ours)"))
+    cells = [c.strip() for c in row.strip("|").split("|")]
+    assert cells[1:3] == ["18.00 (1/2)", "21.00"] and cells[3:5] == ["0.600 (1/2)", "0.750"]
+    # the paper's numbers right under ours, cited
+    i = lines.index(row)
+    assert lines[i + 1].startswith("| ReInGS (paper), paper Table 2 | 19.39 | 20.88 | 0.599 | 0.687")
+    dng = next(ln for ln in lines if ln.startswith("| DNGaussian ✗SD (paper), paper Table 2"))
+    assert "18.87" in dng and "16.47" in dng
+    abl = next(ln for ln in lines if ln.startswith("| IVPS+CVPS (paper), paper Table 4 row 5"))
+    assert "19.66" in abl
+    assert any(ln.startswith("| 3DGS ✗SD (paper)") for ln in lines)  # paper rows of methods not run, too
+    dtu_part = md[md.index("## DTU"):md.index("## LLFF")]
+    assert "| ReInGS (paper), paper Table 3 | 21.30 |" in dtu_part
+    assert "| fern / reings | 18.00 | 20.00 |" in md  # per-scene table
+    assert "`" + os.path.join("llff", "dngaussian", "3views", "flower") + "`" in md
+
+
+def test_table_separates_settings(tmp_path):
+    out = tmp_path / "res"
+    _fake_run(out, "llff", "reings", 3, "fern", 20.0, 0.7, 0.2, 0.1)
+    d = _fake_run(out / "paper_runs", "llff", "reings", 3, "fern", 21.0, 0.7, 0.2, 0.1, preset="paper",
+                  iterations=[6000, 6000, 6000])
+    assert d.is_dir()
+    res = evaluate.build_table(str(out))
+    names = list(res["datasets"]["llff"]["methods"])
+    assert names == ["reings [paper]", "reings [quick]"]
+
+
+def test_run_lock_is_exclusive(tmp_path):
+    a, b = evaluate.RunLock(str(tmp_path / "r")), evaluate.RunLock(str(tmp_path / "r"))
+    assert a.acquire()
+    assert not b.acquire()  # flock locks are per open file description: a second one fails
+    a.release()
+    assert b.acquire()
+    b.release()
+
+
+def test_eval_procedural_end_to_end_and_skip(tmp_path, capsys):
+    out = tmp_path / "ev"
+    argv = ["eval", "--dataset", "procedural", "--views", "2", "--methods", "dngaussian,reings",
+            "--no-ivps", "--no-cvps", "--iterations", "5", "--depth-prior", "exact", "--no-lpips", "--quiet",
+            "--eval-every", "0", "--out", str(out)]
+    assert main(argv) == 0
+    res = json.loads((out / "results.json").read_text())
+    methods = res["datasets"]["procedural"]["methods"]
+    assert set(methods) == {"dngaussian", "reings-no-ivps-no-cvps"}
+    assert (out / "procedural" / "reings-no-ivps-no-cvps" / "2views" / "procedural" / "metrics.json").is_file()
+    first = (out / "procedural" / "dngaussian" / "2views" / "procedural" / "metrics.json").stat().st_mtime_ns
+    capsys.readouterr()
+    assert main(argv[:-1] + [str(out)]) == 0  # rerun: both runs are skipped
+    assert (out / "procedural" / "dngaussian" / "2views" / "procedural" / "metrics.json").stat().st_mtime_ns == first
+    assert "results.md" in capsys.readouterr().out

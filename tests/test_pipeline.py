@@ -1,0 +1,127 @@
+"""`reings.run`: training helps, PSNR-vs-seconds series and SVG, outputs, resume, refusals."""
+from __future__ import annotations
+
+import json
+import os
+import xml.etree.ElementTree as ET
+
+import numpy as np
+import pytest
+
+import reings
+from reings import pipeline
+from reings.pipeline import ReInGSConfig, method_label, parse_method, psnr_time_svg
+
+
+def test_parse_method_and_label():
+    assert parse_method("dngaussian")[0] == "dngaussian"
+    base, rc = parse_method("reings")
+    assert base == "reings" and rc.ehps and rc.ivps and rc.cvps
+    base, rc = parse_method("reings-no-ivps-no-cvps")
+    assert (rc.ehps, rc.ivps, rc.cvps) == (True, False, False)
+    assert method_label(*parse_method("reings-no-cvps-no-ehps")) == "reings-no-ehps-no-cvps"
+    assert method_label("reings", ReInGSConfig(ivps=False)) == "reings-no-ivps"
+    assert method_label("dngaussian", ReInGSConfig(ivps=False)) == "dngaussian"
+    for bad in ("foo", "reings-no-foo", "reings-no-ehps-no-ehps", "reings-ehps", ""):
+        with pytest.raises(ValueError, match="unknown method"):
+            parse_method(bad)
+
+
+def test_svg_is_well_formed_with_stage_marks():
+    pts = [{"seconds": 0.0, "psnr": 12.0}, {"seconds": 1.5, "psnr": 14.0}, {"seconds": 3.0, "psnr": 13.5},
+           {"seconds": 4.0, "psnr": 16.25}]
+    bounds = [{"stage": "coarse", "start": 0.0, "end": 1.6}, {"stage": "fine", "start": 1.7, "end": 3.1},
+              {"stage": "final", "start": 3.2, "end": 4.0}]
+    root = ET.fromstring(psnr_time_svg(pts, bounds, "a <title> & more"))
+    ns = "{http://www.w3.org/2000/svg}"
+    (poly,) = root.iter(ns + "polyline")
+    assert len(poly.get("points").split()) == 4
+    texts = [t.text for t in root.iter(ns + "text")]
+    assert {"coarse", "fine", "final"} <= set(texts)
+    assert "test PSNR (dB)" in texts and "a <title> & more" in texts
+    dashed = [e for e in root.iter(ns + "line") if e.get("stroke-dasharray")]
+    assert len(dashed) == 2  # the boundaries between the three stages
+    xs = [float(v.split(",")[0]) for v in poly.get("points").split()]
+    assert xs == sorted(xs) and 0 <= min(xs) and max(xs) <= float(root.get("width"))
+
+
+def test_short_fit_raises_test_psnr(tmp_path):
+    """dngaussian for 100 iterations on the procedural scene beats its initial Gaussians on the
+    held-out views by a clear margin; metrics.json and the SVG carry the series."""
+    out = tmp_path / "run"
+    r = reings.run(method="dngaussian", iterations=100, depth_prior="exact", out=str(out), quiet=True,
+                   with_lpips=False, eval_every=50, device="pocl")
+    pts = r.metrics["psnr_vs_time"]["points"]
+    assert [p["stage"] for p in pts] == ["init", "dngaussian", "dngaussian"]
+    assert [p["iteration"] for p in pts] == [0, 50, 100]
+    init_psnr, final_psnr = pts[0]["psnr"], r.metrics["mean"]["psnr"]
+    assert final_psnr > init_psnr + 2.0, (init_psnr, final_psnr)
+    assert pts[-1]["psnr"] == pytest.approx(final_psnr, abs=1e-6)  # the probe = the final evaluation's PSNR
+    secs = [p["seconds"] for p in pts]
+    assert secs == sorted(secs) and secs[-1] > 0
+    assert all(p["wall_seconds"] >= p["seconds"] - 1e-9 for p in pts)
+    st = r.metrics["stages"][0]
+    assert st["eval_seconds"] > 0 and st["wall_seconds"] >= st["seconds"]
+    assert r.metrics["seconds"]["method"] == pytest.approx(st["seconds"])
+    # outputs
+    m = json.loads((out / "metrics.json").read_text())
+    assert m["mean"]["psnr"] == pytest.approx(final_psnr)
+    assert m["gaussians"]["dngaussian"] == len(r.gaussians) == st["gaussians"]
+    assert m["model_bytes"]["dngaussian"] == pipeline.gaussians_nbytes(r.gaussians) > 0
+    assert m["memory"]["peak_rss_mb"] > 0 and m["memory"]["device_peak_bytes"] > 0
+    assert m["config"]["iterations"] == [100] and m["config"]["method"] == "dngaussian"
+    assert m["stages"][0]["config"]["iterations"] == 100
+    ET.parse(out / "psnr_vs_time.svg")
+    assert (out / "gaussians.ply").is_file() and len(os.listdir(out / "renders")) == len(m["test_names"])
+    # a second run into the same folder is refused, before any work
+    with pytest.raises(FileExistsError, match="already holds a finished run"):
+        reings.run(method="dngaussian", iterations=100, depth_prior="exact", out=str(out), quiet=True)
+    # eval_every=0: no probes, no SVG
+    r0 = reings.run(method="dngaussian", iterations=10, depth_prior="exact", out=str(tmp_path / "r0"), quiet=True,
+                    with_lpips=False, eval_every=0)
+    assert r0.metrics["psnr_vs_time"]["points"] == [] and not (tmp_path / "r0" / "psnr_vs_time.svg").exists()
+
+
+class _Interrupt:
+    """test_psnr that raises KeyboardInterrupt at its n-th call (as Ctrl-C would mid-fit)."""
+
+    def __init__(self, n):
+        self.n, self.calls, self.real = n, 0, pipeline.test_psnr
+
+    def __call__(self, *a, **k):
+        self.calls += 1
+        if self.calls == self.n:
+            raise KeyboardInterrupt
+        return self.real(*a, **k)
+
+
+def test_interrupted_run_resumes_to_the_same_result(tmp_path, monkeypatch):
+    kw = dict(method="reings", iterations=10, depth_prior="exact", quiet=True, with_lpips=False, eval_every=3,
+              checkpoint_every=4, device="pocl", seed=3)
+    ref = reings.run(out=str(tmp_path / "ref"), **kw)
+
+    out = tmp_path / "cut"
+    # probes: init, coarse 3/6/9/10, fine 3/6/9 <- interrupted there; fine's last checkpoint is at 8
+    monkeypatch.setattr(pipeline, "test_psnr", _Interrupt(8))
+    with pytest.raises(KeyboardInterrupt):
+        reings.run(out=str(out), **kw)
+    assert not (out / "metrics.json").exists()
+    assert (out / "checkpoints" / "coarse.npz").exists() and (out / "checkpoints" / "fine.npz").exists()
+    assert not (out / "checkpoints" / "final.npz").exists()
+    monkeypatch.undo()
+
+    # other settings into the interrupted folder are refused
+    with pytest.raises(ValueError, match="interrupted run with other settings"):
+        reings.run(out=str(out), **{**kw, "iterations": 12})
+    res = reings.run(out=str(out), **kw)
+    for k in ("psnr", "ssim"):
+        assert res.metrics["mean"][k] == ref.metrics["mean"][k], k
+    assert res.metrics["gaussians"] == ref.metrics["gaussians"]
+    np.testing.assert_array_equal(res.gaussians.means, ref.gaussians.means)
+    a = [(p["stage"], p["iteration"], p["psnr"]) for p in res.metrics["psnr_vs_time"]["points"]]
+    b = [(p["stage"], p["iteration"], p["psnr"]) for p in ref.metrics["psnr_vs_time"]["points"]]
+    assert a == b
+    assert json.loads((out / "metrics.json").read_text())["mean"] == res.metrics["mean"]
+    # --overwrite starts over (checkpoints removed) and gives the same result again
+    again = reings.run(out=str(out), overwrite=True, **kw)
+    assert again.metrics["mean"] == res.metrics["mean"]
