@@ -65,6 +65,16 @@ def _positive_int(text: str) -> int:
     return v
 
 
+def _fraction(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not 0.0 < v <= 1.0:
+        raise argparse.ArgumentTypeError(f"must be in (0, 1], got {v}")
+    return v
+
+
 def _nonneg_int(text: str) -> int:
     try:
         v = int(text)
@@ -89,6 +99,12 @@ def _add_common_fit_args(r, methods_flag: str) -> None:
                    help="random initial points of dngaussian/3dgs and of reings without EHPS (DNGaussian LLFF: ~5000)")
     r.add_argument("--sh-degree", type=int, choices=[0, 1, 2, 3], default=None,
                    help="maximum SH degree (default: 0 with --preset quick, 3 with paper)")
+    r.add_argument("--ivps-depth", choices=["expected", "hard"], default="expected",
+                   help="IVPS depth: 'expected' (normal render depth/alpha, default) or 'hard' (paper Eq. 5 literally)")
+    r.add_argument("--cvps-fraction", type=_fraction, default=0.4,
+                   help="CVPS: fraction of the fine-stage Gaussians kept (paper: 0.4)")
+    r.add_argument("--max-gaussians", type=_positive_int, default=None,
+                   help="cap on the Gaussian count that densification respects in every stage (default: none)")
     r.add_argument("--factor", type=_positive_int, default=8, help="LLFF image downsampling factor")
     r.add_argument("--no-lpips", action="store_true", help="skip LPIPS (and AVGE)")
     r.add_argument("--quiet", action="store_true", help="no progress bars or stage lines")

@@ -377,7 +377,7 @@ def _plan(args):
     [(dataset, scene, data_path, views, method_label, base, ReInGSConfig)]."""
     from dataclasses import replace
 
-    from .pipeline import method_label, parse_method
+    from .pipeline import ReInGSConfig, method_label, parse_method
 
     views = parse_list(args.views, "views", int)
     bad = [v for v in views if v < 2]
@@ -385,7 +385,8 @@ def _plan(args):
         raise EvalError(f"--views: every count must be >= 2, got {bad}")
     methods = []
     for name in parse_list(args.methods, "methods"):
-        base, rc = parse_method(name)
+        base, rc = parse_method(name, ReInGSConfig(ivps_depth=getattr(args, "ivps_depth", "expected"),
+                                                   cvps_fraction=getattr(args, "cvps_fraction", 0.4)))
         if base == "reings":
             rc = replace(rc, ehps=rc.ehps and not args.no_ehps, ivps=rc.ivps and not args.no_ivps,
                          cvps=rc.cvps and not args.no_cvps)
@@ -506,7 +507,8 @@ def main_eval(args) -> int:
             r = run(data=path, dataset=None if path is None else args.dataset, method=lab, views=v, device=args.device,
                     depth_prior=args.depth_prior, preset=args.preset, iterations=args.iterations, seed=args.seed,
                     out=rd, factor=args.factor, quiet=args.quiet, reings_config=rc, eval_every=args.eval_every,
-                    with_lpips=not args.no_lpips, init_points=args.init_points, sh_degree=args.sh_degree)
+                    with_lpips=not args.no_lpips, init_points=args.init_points, sh_degree=args.sh_degree,
+                    max_gaussians=args.max_gaussians)
             mm = r.metrics["mean"]
             say(f"{head}: " + " ".join(f"{k.upper()} {mm[k]:.3f}" for k in METRICS if k in mm)
                 + f" ({time.perf_counter() - t:.0f} s)")
