@@ -108,11 +108,12 @@ def gsplat_step(g, cam, sh, target, warmup=8, repeats=40) -> dict:
         opt.step()
 
     ev, wall = _time_cuda(torch, step, warmup=warmup, repeats=repeats)
+    peak = torch.cuda.max_memory_allocated() / 2**20  # since the reset in run_config
     return dict(gsplat_step_ms=ev, gsplat_step_wall_ms=wall, gsplat_visible=visible, gsplat_intersections=isects,
-                gsplat_device=torch.cuda.get_device_name(), image=img0)
+                gsplat_device=torch.cuda.get_device_name(), gsplat_peak_mb=peak, image=img0)
 
 
-def run_config(be, scene, sh, args, gs_reason) -> dict:
+def run_config(be, scene, sh, args, gs_reason, mem=None) -> dict:
     from reings.bench import device_info, step_reference_error, step_target
     from reings.bench_scenes import perf_scene
 
@@ -123,13 +124,24 @@ def run_config(be, scene, sh, args, gs_reason) -> dict:
     from reings.backends.opencl.trainer import DeviceTrainer
 
     row["flush_after_forward"] = DeviceTrainer.flush_after_forward
+    if mem is not None:
+        import gc
+
+        gc.collect()  # the previous configuration's trainer is gone: start the peak from what lives
+        mem.reset_peak()
     r = ours_step(be, g, cam, target, args.warmup, args.repeats, breakdown=not args.no_breakdown)
+    if mem is not None:
+        row["ours_peak_mb"] = mem.peak_bytes / 2**20  # buffers alive during this step (scratch kept from earlier scenes included)
     row.update({f"ours_{k}": v for k, v in r.items() if k not in ("n", "sh_k", "width", "height")})
     row["visible"], row["intersections"] = r["visible"], r["intersections"]
     img = ours_image(be, g, cam)
     if args.ref_crop >= 0:
         row.update(step_reference_error(be, g, cam, args.ref_crop))
     if gs_reason is None:
+        import torch
+
+        torch.cuda.empty_cache()
+        torch.cuda.reset_peak_memory_stats()
         gr = gsplat_step(g, cam, sh, target, args.gs_warmup, args.gs_repeats)
         gimg = gr.pop("image")
         row.update(gr)
@@ -177,6 +189,11 @@ def print_table(rows, file=sys.stdout):
         elif "max_err_rgb_vs_f64" in r:
             print(f"accuracy {r['scene']}-sh{r['sh']}: max|ours - f64| {r['max_err_rgb_vs_f64']:.2e} "
                   f"(crop {r.get('ref_crop')}); gsplat not run", file=file)
+    for r in rows:
+        if "ours_peak_mb" in r or "gsplat_peak_mb" in r:
+            print(f"memory {r['scene']}-sh{r['sh']}: ours peak {_f(r.get('ours_peak_mb'), 1)} MB (OpenCL buffers "
+                  f"alive during the step), gsplat peak {_f(r.get('gsplat_peak_mb'), 1)} MB "
+                  f"(torch.cuda.max_memory_allocated)", file=file)
     for r in rows:
         st = sorted(((k[len("ours_dev_"):-3], v) for k, v in r.items() if k.startswith("ours_dev_")
                      and k.endswith("_ms") and k not in ("ours_dev_sum_ms", "ours_dev_span_ms")), key=lambda kv: -kv[1])
@@ -255,7 +272,9 @@ def main(argv=None) -> int:
     a = ap.parse_args(argv)
 
     from reings.backends import get_backend
+    from reings.bench import DeviceBytes
 
+    mem = DeviceBytes().__enter__()  # tracks every OpenCL buffer from here on (peak per configuration)
     be = get_backend(a.device)
     if a.no_flush:
         from reings.backends.opencl.trainer import DeviceTrainer
@@ -288,7 +307,7 @@ def main(argv=None) -> int:
         print(f"peer_step: gsplat side skipped ({gs_reason})", flush=True)
     for scene in [s.strip() for s in a.scenes.split(",") if s.strip()]:
         for sh in [int(s) for s in a.sh.split(",") if s.strip()]:
-            emit(run_config(be, scene, sh, a, gs_reason))
+            emit(run_config(be, scene, sh, a, gs_reason, mem))
     print_table(rows)
     return 0
 

@@ -253,6 +253,55 @@ def bench_config(be, scene: str, sh: int, args) -> dict:
 # ------------------------------------------------------------------------------------------------
 # the training step (device-resident engine), gsplat's step workload
 # ------------------------------------------------------------------------------------------------
+class DeviceBytes:
+    """Bytes of OpenCL buffers alive (and their high-water mark) while the `with` block is open,
+    by making `pyopencl.Buffer` a tracking subclass (isinstance checks still hold). Counts every
+    buffer created through `pyopencl.Buffer` in that time: the backend's scratch, the trainer's
+    state, the sorter's and the loss kernels' buffers. Not counted: the driver's own memory
+    (context, kernels), which torch's `max_memory_allocated` (gsplat's figure) leaves out too.
+
+        with DeviceBytes() as mem: ...
+        mem.peak_bytes, mem.live_bytes; mem.reset_peak()
+    """
+
+    def __init__(self):
+        self.live_bytes = 0
+        self.peak_bytes = 0
+        self._orig = None
+
+    def reset_peak(self) -> None:
+        self.peak_bytes = self.live_bytes
+
+    def __enter__(self):
+        import weakref
+
+        import pyopencl as cl
+
+        self._orig = orig = cl.Buffer
+        mem = self
+
+        class TrackedBuffer(orig):
+            def __init__(self, *a, **k):
+                super().__init__(*a, **k)
+                n = int(self.size)
+                mem.live_bytes += n
+                mem.peak_bytes = max(mem.peak_bytes, mem.live_bytes)
+                weakref.finalize(self, DeviceBytes._freed, mem, n)
+
+        cl.Buffer = TrackedBuffer
+        return self
+
+    @staticmethod
+    def _freed(mem, n: int) -> None:
+        mem.live_bytes -= n
+
+    def __exit__(self, *exc):
+        import pyopencl as cl
+
+        cl.Buffer = self._orig
+        return False
+
+
 class ClCalls:
     """Counts the OpenCL commands and host syncs issued inside a `with` block, by wrapping pyopencl's
     entry points (every kernel launch goes through pyopencl._cl.enqueue_nd_range_kernel, whether

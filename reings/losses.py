@@ -6,9 +6,12 @@
         reference (`reings.backends.reference_loss`) on device "reference". The device-resident
         form (`photometric_cl(device).enqueue(x_buf, y_buf, v_buf, ...)`, then `read_loss()`)
         takes and writes device buffers; the training engine uses it.
-    depth_loss(depth, target, rng, patch_range, margin, w_local, w_global) -> (loss, v_depth [H,W])
-        DNGaussian's global-local depth normalisation (METHOD.md §2.4), a random patch size per term;
-        vectorised numpy (one small image per call), in float64.
+    depth_loss(depth, target, rng, patch_range, margin, w_local, w_global, device) -> (loss, v_depth [H,W])
+        DNGaussian's global-local depth normalisation (METHOD.md §2.4), a random patch size per term
+        (drawn on the host: `draw_depth_patches`); OpenCL kernels (`kernels/depth_loss.cl`) on
+        OpenCL devices, the float64 reference on device "reference" / None. The device-resident form
+        (`depth_loss_cl(device).enqueue(depth_buf, target_buf, v_buf, ...)`, then `read_loss()`)
+        takes and writes device buffers; the training engine uses it.
     regularizers(params, shape_pena, scale_pena, opa_pena) -> (loss, {"log_scales": .., "opacity_logits": ..})
         DNGaussian's shape / scale / opacity penalties (METHOD.md §2.2) on the raw parameters.
 
@@ -145,20 +148,169 @@ def photometric_loss(rgb: np.ndarray, gt: np.ndarray, lambda_dssim: float = 0.2,
 # {{{ depth
 
 
+class DepthLossCL:
+    """DNGaussian's global-local depth loss on an OpenCL device (kernels/depth_loss.cl, 5 launches);
+    the device-resident form is `enqueue` (device buffers in and out) then `read_loss`.
+
+    Statistics and per-pixel math are double where the device has cl_khr_fp64 (`fp64=None`: auto),
+    so on PoCL and NVIDIA the result is the float64 reference's up to float32 rounding of v_depth;
+    without fp64 they are float with each input shifted by its first pixel (kernel header). All
+    reductions are fixed-order (deterministic). `wg`: the reduce kernels' work-group size (default
+    1 on CPU devices, 256 on GPUs); `lwg`: the other kernels' (default 64); `cpu_schedule`: dl_grad's
+    row-per-work-item form (default: the device's REINGS_CPU_SCHEDULE). The overrides are for tests
+    (every schedule on PoCL and Oclgrind)."""
+
+    def __init__(self, device: str, wg: int | None = None, fp64: bool | None = None, lwg: int | None = None,
+                 cpu_schedule: bool | None = None):
+        import pyopencl as cl
+
+        from .backends.opencl import quirks
+        from .backends.opencl.device import open_device
+        from .backends.opencl.program import library_for
+        from .backends.opencl.scratch import Scratch
+
+        self.cl = cl
+        self.handle = open_device(device)
+        dev = self.handle.device
+        if fp64 is None:
+            fp64 = "cl_khr_fp64" in dev.extensions
+        self.fp64 = bool(fp64)
+        self.real = np.float64 if self.fp64 else np.float32
+        self.wg = int(wg) if wg else (1 if quirks.is_cpu(dev) else 256)
+        if self.wg & (self.wg - 1):
+            raise ValueError(f"DepthLossCL: wg must be a power of two, got {self.wg}")
+        # work-group (along dim 0) of the per-block / per-pixel kernels (no local memory; padding
+        # items return at once)
+        self.lwg = int(lwg) if lwg else 64
+        if cpu_schedule is None:
+            cpu_schedule = bool(quirks.build_defines(dev)["REINGS_CPU_SCHEDULE"])
+        self.cpu_schedule = bool(cpu_schedule)  # dl_grad: a row per work-item (else a pixel per work-item)
+        prg = library_for(self.handle).program("depth_loss.cl", DL_FP64=int(self.fp64), DL_WG=self.wg,
+                                               REINGS_CPU_SCHEDULE=int(self.cpu_schedule))
+        self.k = {n: cl.Kernel(prg, n) for n in  # own kernel objects: several instances may share prg
+                  ("dl_block_stats", "dl_reduce_stats", "dl_patch_terms", "dl_reduce_terms", "dl_grad")}
+        self.mem = Scratch(self.handle)
+        self._weights = None
+        self._t = np.empty(8, self.real)  # read_loss's host words
+
+    def enqueue(self, depth_buf, target_buf, v_buf, h: int, w: int, p_local: int, p_global: int,
+                margin: float, w_local: float = 0.1, w_global: float = 1.0):
+        """Device-resident form: depth (rendered) and target are [H,W] float32 buffers of this
+        device's context; dL/d depth is WRITTEN (overwritten, not added) into the [H,W] float32
+        buffer v_buf; nothing is read back. The two term losses stay on the device for `read_loss`
+        (valid until the next call). Patch sizes must lie in [1, min(h, w)] (`depth_loss` draws and
+        clamps them). Returns the last kernel's event."""
+        h, w, pl, pg = int(h), int(w), int(p_local), int(p_global)
+        for p in (pl, pg):
+            if not 1 <= p <= min(h, w):
+                raise ValueError(f"depth loss: patch size {p} outside [1, min({h}, {w})]")
+        rs = np.dtype(self.real).itemsize
+        ml, mg = (h // pl) * (w // pl), (h // pg) * (w // pg)
+        bcap = max(ml, mg, h)
+        bstats = self.mem.get("pixel", "dl_bstats", 12 * bcap, rs)
+        sstats = self.mem.get("small", "dl_sstats", 12, rs)
+        pcnt = self.mem.get("pixel", "dl_pcnt", 2 * bcap, 4)
+        prec = self.mem.get("pixel", "dl_prec", 16 * bcap, rs)
+        pcoef = self.mem.get("pixel", "dl_pcoef", 6 * bcap, rs)
+        tstats = self.mem.get("small", "dl_tstats", 8, rs)
+        q, r, i32 = self.handle.queue, self.real, np.int32
+        geo = (i32(w), i32(h), i32(pl), i32(pg), i32(bcap))
+        lw, wg = self.lwg, self.wg
+        self._call("dl_block_stats", q, (-(-bcap // lw) * lw, 6), (lw, 1), depth_buf, target_buf, bstats, *geo)
+        self._call("dl_reduce_stats", q, (wg, 6), (wg, 1), bstats, sstats, *geo)
+        mt = max(ml, mg)
+        self._call("dl_patch_terms", q, (-(-mt // lw) * lw, 2), (lw, 1), depth_buf, target_buf, bstats, sstats,
+                   pcnt, prec, r(margin), *geo)
+        self._call("dl_reduce_terms", q, (wg, 2), (wg, 1), sstats, pcnt, prec, pcoef, tstats, *geo)
+        gg, gl = ((-(-h // lw) * lw,), (lw,)) if self.cpu_schedule else ((-(-w // lw) * lw, h), (lw, 1))
+        ev = self._call("dl_grad", q, gg, gl, depth_buf, target_buf, prec, pcoef, tstats, v_buf, r(margin),
+                        r(w_local), r(w_global), *geo)
+        self._weights = (float(w_local), float(w_global))
+        return ev
+
+    def _call(self, name: str, q, gsize, lsize, *args):
+        """Launch through pyopencl's typed invoker (see PhotometricCL._typed)."""
+        kern = self.k[name]
+        if not getattr(kern, "_reings_typed", False):
+            from .backends.opencl.backend import typed_invoker
+
+            typed_invoker(kern, args)
+        return kern(q, gsize, lsize, *args)
+
+    def read_loss(self) -> float:
+        """w_local * local + w_global * global of the last `enqueue` (one blocking read of the two
+        term losses, combined in float64 on the host)."""
+        if self._weights is None:
+            raise RuntimeError("DepthLossCL.read_loss before any enqueue")
+        t = self._t
+        self.cl.enqueue_copy(self.handle.queue, t, self.mem.get("small", "dl_tstats", 8, t.itemsize))  # blocking
+        w_local, w_global = self._weights
+        return float(w_local * float(t[1]) + w_global * float(t[5]))
+
+    def term_stats(self) -> np.ndarray:
+        """[2, 4] (count of selected elements, term loss, E, mean_all: kernels/depth_loss.cl) of the last call
+        (local, global); for tests and diagnostics."""
+        self.read_loss()
+        return self._t.reshape(2, 4).astype(np.float64)
+
+    def __call__(self, depth: np.ndarray, target: np.ndarray, p_local: int, p_global: int, margin: float,
+                 w_local: float = 0.1, w_global: float = 1.0) -> tuple[float, np.ndarray]:
+        """Host form: (loss, v_depth float32 [H, W]) of numpy [H, W] inputs (uploaded as float32)."""
+        cl, q = self.cl, self.handle.queue
+        d = np.ascontiguousarray(depth, np.float32)
+        t = np.ascontiguousarray(target, np.float32)
+        if d.ndim != 2 or d.shape != t.shape:
+            raise ValueError(f"depth and target must be [H, W] of one shape, got {d.shape} and {t.shape}")
+        h, w = d.shape
+        db = self.mem.get("pixel", "dl_depth", h * w, 4)
+        tb = self.mem.get("pixel", "dl_target", h * w, 4)
+        vb = self.mem.get("pixel", "dl_v", h * w, 4)
+        cl.enqueue_copy(q, db, d)
+        cl.enqueue_copy(q, tb, t)
+        self.enqueue(db, tb, vb, h, w, p_local, p_global, margin, w_local, w_global)
+        v = np.empty((h, w), np.float32)
+        cl.enqueue_copy(q, v, vb)  # blocking
+        return self.read_loss(), v
+
+
+_DL: dict[str, DepthLossCL] = {}
+
+
+def depth_loss_cl(device: str) -> DepthLossCL:
+    """The (cached) DepthLossCL of an OpenCL device string (shares the backend's context)."""
+    dl = _DL.get(device)
+    if dl is None:
+        dl = _DL[device] = DepthLossCL(device)
+    return dl
+
+
+def draw_depth_patches(rng: np.random.Generator, patch_range: tuple[int, int], h: int, w: int) -> tuple[int, int]:
+    """The two patch sizes of one depth-loss call: uniform in [lo, hi] inclusive, local first (as
+    DNGaussian draws them), each clamped to min(h, w). Both training engines draw through this."""
+    lo, hi = int(patch_range[0]), int(patch_range[1])
+    cap = min(int(h), int(w))
+    p_local = min(int(rng.integers(lo, hi + 1)), cap)
+    p_global = min(int(rng.integers(lo, hi + 1)), cap)
+    return p_local, p_global
+
+
 def depth_loss(depth: np.ndarray, target: np.ndarray, rng: np.random.Generator,
                patch_range: tuple[int, int] = (5, 17), margin: float = 0.00025,
-               w_local: float = 0.1, w_global: float = 1.0) -> tuple[float, np.ndarray]:
+               w_local: float = 0.1, w_global: float = 1.0, device: str | None = None) -> tuple[float, np.ndarray]:
     """DNGaussian's depth loss on a rendered depth [H, W] against the (constant) mono target:
     w_local * local + w_global * global, each term with its own patch size drawn uniformly from
     [lo, hi] inclusive (local first, as DNGaussian draws them; clamped to the image size).
     Returns (loss, v_depth float32 [H, W]).  What is detached: see
-    `reference_loss.depth_norm_loss_fwd_bwd`."""
-    lo, hi = int(patch_range[0]), int(patch_range[1])
-    cap = min(np.shape(depth)[:2])
-    p_local = min(int(rng.integers(lo, hi + 1)), cap)
-    p_global = min(int(rng.integers(lo, hi + 1)), cap)
-    loss, v = ref.global_local_depth_loss(depth, target, p_local, p_global, margin, w_local, w_global)
-    return loss, v.astype(np.float32)
+    `reference_loss.depth_norm_loss_fwd_bwd`.
+
+    device None or "reference": the float64 numpy reference; an OpenCL device string: the kernels
+    of kernels/depth_loss.cl (`depth_loss_cl(device)`; host arrays uploaded, v_depth read back)."""
+    h, w = np.shape(depth)[:2]
+    p_local, p_global = draw_depth_patches(rng, patch_range, h, w)
+    if device is None or device == "reference":
+        loss, v = ref.global_local_depth_loss(depth, target, p_local, p_global, margin, w_local, w_global)
+        return loss, v.astype(np.float32)
+    return depth_loss_cl(device)(depth, target, p_local, p_global, margin, w_local, w_global)
 # }}}
 
 # {{{ regularizers

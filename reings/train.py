@@ -279,7 +279,7 @@ def fit(views, config: TrainConfig, device: str = "pocl", init: Gaussians | None
                     out = render(g, cam, device, bg, near, opacity_override=o)
                 with ph("depth_loss"):
                     lh, vd = depth_loss(out.depth, target, rng, L.depth_patch_range, L.depth_margin,
-                                        L.depth_w_local, L.depth_w_global)
+                                        L.depth_w_local, L.depth_w_global, device)
                 hard_ema = lh if hard_ema is None else 0.9 * hard_ema + 0.1 * lh
                 with ph("hard_backward"):
                     vg = render_vjp(g, cam, zeros_rgb[key], vd, None, device, bg, near, opacity_override=o,
@@ -294,7 +294,7 @@ def fit(views, config: TrainConfig, device: str = "pocl", init: Gaussians | None
                     out = render(g, cam, device, bg, near)
                 with ph("depth_loss"):
                     ls, vd = depth_loss(out.depth, target, rng, L.depth_patch_range, L.depth_margin,
-                                        L.depth_w_local, L.depth_w_global)
+                                        L.depth_w_local, L.depth_w_global, device)
                 with ph("soft_backward"):
                     vg = render_vjp(g, cam, zeros_rgb[key], vd, None, device, bg, near,
                                     grad_fields=("opacity_logits",))
@@ -357,13 +357,14 @@ def _fit_device(backend, images, cameras, depth_targets, cfg, state, opt, rng, h
                 profile) -> FitResult:
     """`fit`'s loop with the training state on the OpenCL device (reings.backends.opencl.trainer):
     the same iteration as the host loop above, pass for pass and in the same order of random
-    draws; only scalars (the loss and train PSNR on logging iterations) and, in the depth passes,
-    the depth image and its cotangent cross the bus. The state comes back to the host for
-    densification, eval, checkpoints and the result."""
+    draws; only scalars cross the bus (the loss and train PSNR on logging iterations; the hard
+    depth loss every iteration only when `soft_depth_ema_gate` needs it): the depth passes run
+    kernels/depth_loss.cl on the rendered depth buffer against the depth targets uploaded once per
+    fit. The state comes back to the host for densification, eval, checkpoints and the result."""
     from . import densify as D
     from .backends.opencl.trainer import DeviceTrainer
     from .backends.reference_loss import photometric_weights
-    from .losses import depth_loss, regularizers
+    from .losses import draw_depth_patches, regularizers
     from .optim import sh_degree_at
     from .state import PARAM_NAMES
     from .types import SH_COUNTS
@@ -378,6 +379,9 @@ def _fit_device(backend, images, cameras, depth_targets, cfg, state, opt, rng, h
         D.clean_views(state, visibility(state.gaussians(sh_degree_at(1, cfg.sh_degree, cfg.sh_degree_interval))))
     dev = DeviceTrainer(backend, images, adam=adam, profile=profile)
     dev.upload(state)
+    if depth_targets is not None and (L.hard_depth or L.soft_depth):
+        dev.upload_depth_targets(depth_targets, [(c.height, c.width) for c in cameras])
+    need_hard_loss = L.soft_depth_ema_gate is not None  # the only reader of the hard depth loss
     ph = dev.phase
     groups = [k for k in PARAM_NAMES if k in opt.lr]
 
@@ -402,11 +406,12 @@ def _fit_device(backend, images, cameras, depth_targets, cfg, state, opt, rng, h
                 o = L.hard_depth_opacity
                 with ph("hard_render"):
                     fr = dev.forward(cam, k, bg, near, o)
-                    depth = dev.read_depth(fr)
                 with ph("depth_loss"):
-                    lh, vd = depth_loss(depth, target, rng, L.depth_patch_range, L.depth_margin,
-                                        L.depth_w_local, L.depth_w_global)
-                hard_ema = lh if hard_ema is None else 0.9 * hard_ema + 0.1 * lh
+                    pl, pg = draw_depth_patches(rng, L.depth_patch_range, fr.height, fr.width)
+                    vd = dev.depth_loss(fr, vi, pl, pg, L.depth_margin, L.depth_w_local, L.depth_w_global)
+                    if need_hard_loss:
+                        lh = dev.read_depth_loss()
+                        hard_ema = lh if hard_ema is None else 0.9 * hard_ema + 0.1 * lh
                 with ph("hard_backward"):
                     gr = dev.backward(fr, None, vd, o, ("means",))
                 with ph("adam"):
@@ -416,10 +421,9 @@ def _fit_device(backend, images, cameras, depth_targets, cfg, state, opt, rng, h
             if L.soft_depth and target is not None and it >= L.soft_depth_from and gate:
                 with ph("soft_render"):
                     fr = dev.forward(cam, k, bg, near)
-                    depth = dev.read_depth(fr)
                 with ph("depth_loss"):
-                    ls, vd = depth_loss(depth, target, rng, L.depth_patch_range, L.depth_margin,
-                                        L.depth_w_local, L.depth_w_global)
+                    pl, pg = draw_depth_patches(rng, L.depth_patch_range, fr.height, fr.width)
+                    vd = dev.depth_loss(fr, vi, pl, pg, L.depth_margin, L.depth_w_local, L.depth_w_global)
                 with ph("soft_backward"):
                     gr = dev.backward(fr, None, vd, None, ("opacity_logits",))
                 with ph("adam"):

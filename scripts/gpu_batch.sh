@@ -24,7 +24,7 @@ for s in $STEPS; do
     tests)
       REINGS_TEST_DEVICES=cuda timeout ${TEST_TIMEOUT:-420} python3 -m pytest -q -ra -p no:cacheprovider \
         tests/test_project.py tests/test_bin.py tests/test_sort.py tests/test_rasterize.py tests/test_render.py \
-        tests/test_hard_cases.py tests/test_losses.py tests/test_adam_kernel.py tests/test_device_fit.py tests/test_peer_step.py \
+        tests/test_hard_cases.py tests/test_losses.py tests/test_adam_kernel.py tests/test_device_fit.py tests/test_peer_step.py tests/test_depth_loss_kernel.py \
         ${EXTRA_TESTS:-} > "$OUT/pytest_cuda.txt" 2>&1; tail -5 "$OUT/pytest_cuda.txt" ;;
     fit)
       { timeout 200 python3 bench/bench_fit.py --device cuda --json "$OUT/fit_cuda.jsonl";
@@ -43,7 +43,7 @@ for s in $STEPS; do
     fern)
       mkdir -p /tmp/runs
       timeout ${FERN_TIMEOUT:-400} $R run --data .gpudata/llff/fern --views 3 --device cuda --preset paper \
-        --out /tmp/runs/fern3_cuda --overwrite --quiet > "$OUT/fern.txt" 2>&1; tail -5 "$OUT/fern.txt"
+        --out /tmp/runs/fern3_cuda --overwrite --no-lpips > "$OUT/fern.txt" 2>&1; grep -a "^\[\|PSNR" "$OUT/fern.txt" | tail -12
       tar czf "$OUT/runs.tgz" -C /tmp runs ;;
   esac
 done

@@ -77,18 +77,18 @@ def main(argv=None) -> int:
     ap.add_argument("--model", default=None)
     ap.add_argument("--force", action="store_true", help="rescore runs that already have LPIPS")
     a = ap.parse_args(argv)
-    n = 0
+    n, failed = 0, []
     for dirpath, _, files in sorted(os.walk(a.runs)):
         if "metrics.json" in files:
             try:
                 if rescore(dirpath, a.data_root, a.model, a.force):
                     n += 1
                     print(f"rescored {dirpath}")
-            except Exception as e:
-                print(f"{dirpath}: {type(e).__name__}: {e}", file=sys.stderr)
-                return 1
-    print(f"{n} run(s) rescored")
-    return 0
+            except Exception as e:  # e.g. a run whose renders did not come back: report, go on
+                failed.append(dirpath)
+                print(f"{dirpath}: not rescored: {type(e).__name__}: {e}", file=sys.stderr)
+    print(f"{n} run(s) rescored, {len(failed)} not")
+    return 1 if failed else 0
 
 
 if __name__ == "__main__":

@@ -45,6 +45,8 @@ from pathlib import Path
 
 import numpy as np
 
+from .cachekey import hash_image, hash_rounded
+
 __all__ = [
     "DepthPrior",
     "DepthPriorError",
@@ -57,7 +59,7 @@ __all__ = [
     "midas_input_size",
 ]
 
-CACHE_VERSION = 1
+CACHE_VERSION = 2  # 2: machine-independent keys (reings/data/cachekey.py)
 IMAGENET_MEAN = (0.485, 0.456, 0.406)
 IMAGENET_STD = (0.229, 0.224, 0.225)
 
@@ -104,12 +106,6 @@ def _views(scene, need_cameras: bool):
     if need_cameras and len(cameras) != len(out):
         raise DepthPriorError(f"depth prior: {len(out)} images but {len(cameras)} cameras (a posed Scene is required)")
     return out, cameras, names, points
-
-
-def _hash_array(h, a) -> None:
-    a = np.ascontiguousarray(a)
-    h.update(str((a.dtype.str, a.shape)).encode())
-    h.update(a.tobytes())
 
 
 def _file_sha256(path: Path, _memo: dict = {}) -> str:  # noqa: B006 - deliberate memo
@@ -372,7 +368,7 @@ class OnnxDepthPrior(DepthPrior):
         keys = []
         for im in images:
             h = hashlib.sha256(base)
-            _hash_array(h, im)
+            hash_image(h, im)
             keys.append(h.hexdigest())
         return keys
 
@@ -463,12 +459,12 @@ class StereoDepthPrior(DepthPrior):
 
     def _keys(self, images, cameras, points) -> list[str]:
         h = hashlib.sha256(json.dumps(self._settings(), sort_keys=True, default=str).encode())
-        for im, cam in zip(images, cameras):
-            _hash_array(h, im)
-            _hash_array(h, np.asarray(cam.K, np.float64))
-            _hash_array(h, np.asarray(cam.viewmat, np.float64))
+        for im, cam in zip(images, cameras):  # machine-independent forms (reings/data/cachekey.py)
+            hash_image(h, im)
+            hash_rounded(h, cam.K, 4)
+            hash_rounded(h, cam.viewmat, 6)
         if points is not None:
-            _hash_array(h, np.asarray(points, np.float64))
+            hash_rounded(h, points, 6)
         group = h.hexdigest()
         return [hashlib.sha256(f"{group}:{i}".encode()).hexdigest() for i in range(len(images))]
 

@@ -39,12 +39,13 @@ from pathlib import Path
 
 import numpy as np
 
+from .cachekey import hash_image, hash_rounded
 from .scene import Scene, SceneError
 
 TRIM_OF_KIND = {"dtu": 100}  # order statistic per kind; default 20 (LLFF)
 DEFAULT_TRIM = 20
 DEFAULT_MIN_POINTS = 50  # below this the box of a handful of points is noise: use the frusta
-SFM_CACHE_VERSION = 1
+SFM_CACHE_VERSION = 2  # 2: machine-independent key (cachekey.py)
 
 
 @dataclass
@@ -150,24 +151,18 @@ def sfm_cache_dir() -> Path:
     return base / "reings" / "sfm"
 
 
-def _hash_array(h, a) -> None:
-    a = np.ascontiguousarray(a)
-    h.update(str((a.dtype.str, a.shape)).encode())
-    h.update(a.tobytes())
-
-
 def sfm_cache_key(train_scene: Scene, settings: dict) -> str:
     """sha256 of what determines `sfm_extent`'s result: pixels, cameras, bounds, kind, settings."""
     h = hashlib.sha256()
     h.update(f"reings-sfm-v{SFM_CACHE_VERSION}".encode())
     h.update(json.dumps({"kind": train_scene.kind, **settings}, sort_keys=True).encode())
     for im, cam in zip(train_scene.images, train_scene.cameras):
-        _hash_array(h, np.asarray(im, np.float32))
-        _hash_array(h, np.asarray(cam.K, np.float64))
-        _hash_array(h, np.asarray(cam.viewmat, np.float64))
+        hash_image(h, im)  # machine-independent forms (reings/data/cachekey.py)
+        hash_rounded(h, cam.K, 4)
+        hash_rounded(h, cam.viewmat, 6)
         h.update(f"{int(cam.width)}x{int(cam.height)}".encode())
     if train_scene.bounds is not None:
-        _hash_array(h, np.asarray(train_scene.bounds, np.float64))
+        hash_rounded(h, train_scene.bounds, 6)
     return h.hexdigest()
 
 

@@ -6,13 +6,15 @@ Kept on the device for the whole fit (buffers of a private `Scratch`, grown geom
                                    same layouts as TrainState (sh_rest holds all kmax-1 rows)
     grad2d_accum, grad2d_count, max_radii2d   the densification statistics (reings.densify)
     gt<i>                          the training images [H,W,3]
+    dt<i>                          the training views' depth targets [H,W] (upload_depth_targets, once per fit)
     v_rgb, v_depth                 the cotangent images of the current pass
     sh_packed                      [N,k,3] SH at the active degree (sh_pack, redone only after the
                                    SH groups were stepped or the degree changed)
 
 One pass is `forward` (project / bin / sort / rasterize on the parameter buffers, nothing
-uploaded: backend.forward_device) -> a loss (`photometric` on the device writing v_rgb; or the host
-depth loss on `read_depth` with v_depth uploaded) -> `backward` (backend.backward_device into the
+uploaded: backend.forward_device) -> a loss (`photometric` on the device writing v_rgb; or
+`depth_loss`, kernels/depth_loss.cl on the rendered depth buffer and the resident target, writing
+v_depth) -> `backward` (backend.backward_device into the
 backend's gradient buffers) -> `regularize` (kernels/train.cl, added into those buffers) ->
 `accumulate` (densification statistics, kernels/train.cl) -> `adam_step` (kernels/adam.cl, or numpy
 on the mapped buffers: the `adam` location). The host keeps what is scalar: learning rates and
@@ -133,6 +135,8 @@ class DeviceTrainer:
         self._sh_k = None  # k of the valid sh_packed, None: stale
         self._tmp = np.empty(0, _F32)  # numpy Adam scratch
         self._scalar = np.empty(1, _F32)  # read_loss's host word (no allocation per step)
+        self.dloss = None  # reings.losses.DepthLossCL, created by upload_depth_targets
+        self.dt: list = []  # depth target buffers per view (None: no target)
         self._events: list = []  # (stage, event) of this trainer's own kernels (profile only)
 
     # {{{ plumbing
@@ -277,6 +281,40 @@ class DeviceTrainer:
     def read_depth(self, fr) -> np.ndarray:
         return self._read(fr.bufs["out_depth"], (fr.height, fr.width), _F32)
 
+    def upload_depth_targets(self, targets, shapes) -> None:
+        """The depth targets of the training views ([H,W] each, or None) -> float32 device buffers,
+        once per fit; `shapes` the views' (H, W), checked."""
+        from ...losses import depth_loss_cl
+
+        self.dloss = depth_loss_cl(self.b.spec)
+        self.dt = []
+        for i, (t, hw) in enumerate(zip(targets, shapes)):
+            if t is None:
+                self.dt.append(None)
+                continue
+            a = np.ascontiguousarray(t, _F32)
+            if a.shape != tuple(hw):
+                raise ValueError(f"depth target {i} has shape {a.shape}, its view is {tuple(hw)}")
+            buf = self.mem.get("pixel", f"dt{i}", a.shape[0] * a.shape[1], 4)
+            self._write(buf, a)
+            self.dt.append(buf)
+
+    def depth_loss(self, fr, view: int, p_local: int, p_global: int, margin: float, w_local: float,
+                   w_global: float):
+        """DNGaussian's depth loss (reings.losses.DepthLossCL) of the frame's depth buffer against
+        the resident depth target of `view`: dL/d depth goes into the v_depth buffer (returned,
+        overwritten); the loss stays on the device (`read_depth_loss`). Nothing crosses the bus."""
+        v = self.mem.get("pixel", "v_depth", fr.width * fr.height, 4)
+        ev = self.dloss.enqueue(fr.bufs["out_depth"], self.dt[view], v, fr.height, fr.width, p_local, p_global,
+                                margin, w_local, w_global)
+        if self.profile is not None:
+            self._events.append(("depth_loss", ev))  # last kernel only: a lower bound
+        return v
+
+    def read_depth_loss(self) -> float:
+        """The loss of the last `depth_loss` (one blocking read of two scalars)."""
+        return self.dloss.read_loss()
+
     def read_rgb(self, fr) -> np.ndarray:
         return self._read(fr.bufs["out_rgb"], (fr.height, fr.width, 3), _F32)
 
@@ -326,12 +364,13 @@ class DeviceTrainer:
             return float(w_l1 * float(t[0]) / max(n, 1))
         return self.photo.read_loss()
 
-    def backward(self, fr, v_rgb=None, v_depth: np.ndarray | None = None, opacity_override: float | None = None,
+    def backward(self, fr, v_rgb=None, v_depth=None, opacity_override: float | None = None,
                  grad_fields=None) -> dict:
-        """Backward of `fr` with v_rgb (a device buffer) and/or v_depth (host [H,W], uploaded).
-        Returns the gradient buffers {field: buffer} of backend.backward_device plus "sh_k"."""
-        vd = None
-        if v_depth is not None:
+        """Backward of `fr` with v_rgb (a device buffer) and/or v_depth (a device buffer, e.g. from
+        `depth_loss`, or a host [H,W] array, uploaded). Returns the gradient buffers {field: buffer}
+        of backend.backward_device plus "sh_k"."""
+        vd = v_depth
+        if isinstance(v_depth, np.ndarray):
             vd = self.mem.get("pixel", "v_depth", fr.width * fr.height, 4)
             self._write(vd, np.asarray(v_depth, _F32))
         g = dict(self.b.backward_device(fr, v_rgb, vd, None, opacity_override, grad_fields))

