@@ -25,7 +25,6 @@ import json
 import os
 import resource
 import sys
-import tempfile
 import time
 from dataclasses import dataclass, field, replace
 
@@ -314,18 +313,10 @@ def _jsonable(x):
 
 def write_json_atomic(path: str, obj) -> None:
     """json.dump to `path` through a temp file in the same folder + rename (never half-written)."""
-    d = os.path.dirname(os.path.abspath(path))
-    fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix=".json", dir=d)
-    try:
-        with os.fdopen(fd, "w") as f:
-            json.dump(_jsonable(obj), f, indent=1)
-        os.replace(tmp, path)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except OSError:
-            pass
-        raise
+    from .io.files import atomic_write
+
+    with atomic_write(path) as f:
+        json.dump(_jsonable(obj), f, indent=1)
 
 
 RUN_OUTPUTS = ("metrics.json", "psnr_vs_time.svg", "gaussians.ply")
@@ -440,18 +431,10 @@ def psnr_time_svg(points: list, bounds: list, title: str = "", width: int = 640,
 
 
 def write_text_atomic(path: str, text: str) -> None:
-    d = os.path.dirname(os.path.abspath(path))
-    fd, tmp = tempfile.mkstemp(prefix=".tmp-", dir=d)
-    try:
-        with os.fdopen(fd, "w") as f:
-            f.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except OSError:
-            pass
-        raise
+    from .io.files import atomic_write
+
+    with atomic_write(path) as f:
+        f.write(text)
 # }}}
 
 

@@ -9,8 +9,9 @@
                             (`utils/loss_utils.py` patch_norm_mse_loss[_global], METHOD.md §2.4)
     global_local_depth_loss w_local * local(p1) + w_global * global(p2)
 
-`kernels/loss.cl` must match the first three (tests/test_losses.py); the depth loss is small
-(one H x W image per call) and runs here, vectorised, in production too (`reings.losses`).
+`kernels/loss.cl` and `kernels/l1.cl` must match the first three (tests/test_losses.py,
+tests/test_peer_step.py), `kernels/depth_loss.cl` the last two (tests/test_depth_loss_kernel.py).
+On device "reference" these functions are the losses themselves (`reings.losses`).
 """
 from __future__ import annotations
 

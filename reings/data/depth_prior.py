@@ -40,7 +40,6 @@ from __future__ import annotations
 import hashlib
 import json
 import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -69,11 +68,9 @@ class DepthPriorError(ValueError):
 
 
 def default_cache_dir() -> Path:
-    env = os.environ.get("REINGS_CACHE_DIR")
-    if env:
-        return Path(env).expanduser() / "depth"
-    base = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache"))
-    return base / "reings" / "depth"
+    from ..io.files import cache_dir
+
+    return cache_dir("depth")
 
 
 # --------------------------------------------------------------------------------------------
@@ -168,20 +165,13 @@ class DepthPrior:
 
     def _store(self, key: str, depth, conf) -> None:
         self.cache_dir.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix=".npz", dir=self.cache_dir)
-        try:
-            with os.fdopen(fd, "wb") as f:
-                arrs = {"key": np.array(key), "depth": np.asarray(depth, np.float32)}
-                if conf is not None:
-                    arrs["confidence"] = np.asarray(conf, np.float32)
-                np.savez(f, **arrs)
-            os.replace(tmp, self._path(key))
-        except BaseException:
-            try:
-                os.unlink(tmp)
-            except OSError:
-                pass
-            raise
+        from ..io.files import atomic_write
+
+        arrs = {"key": np.array(key), "depth": np.asarray(depth, np.float32)}
+        if conf is not None:
+            arrs["confidence"] = np.asarray(conf, np.float32)
+        with atomic_write(self._path(key), binary=True) as f:
+            np.savez(f, **arrs)
 
     # -- public
     def compute(self, scene_train, return_confidence: bool = False):

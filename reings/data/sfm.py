@@ -144,11 +144,9 @@ def frusta_extent(cameras, bounds, n_uv: int = 24, n_z: int = 48) -> tuple[np.nd
 
 def sfm_cache_dir() -> Path:
     """$REINGS_CACHE_DIR/sfm, else $XDG_CACHE_HOME/reings/sfm, else ~/.cache/reings/sfm."""
-    env = os.environ.get("REINGS_CACHE_DIR")
-    if env:
-        return Path(env).expanduser() / "sfm"
-    base = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache"))
-    return base / "reings" / "sfm"
+    from ..io.files import cache_dir
+
+    return cache_dir("sfm")
 
 
 def sfm_cache_key(train_scene: Scene, settings: dict) -> str:
@@ -205,17 +203,10 @@ def store_cached_extent(key: str, ext: SfmExtent, cache_dir=None) -> Path:
     meta = {"key": key, "version": SFM_CACHE_VERSION, **{k: getattr(ext, k) for k in _SCALARS}}
     meta = {k: (v.item() if hasattr(v, "item") else v) for k, v in meta.items()}
     arrs = {k: np.asarray(getattr(ext, k)) for k in _ARRAYS if getattr(ext, k) is not None}
-    fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix=".npz", dir=d)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            np.savez(f, meta=np.array(json.dumps(meta)), **arrs)
-        os.replace(tmp, _cache_path(d, key))
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except OSError:
-            pass
-        raise
+    from ..io.files import atomic_write
+
+    with atomic_write(_cache_path(d, key), binary=True) as f:
+        np.savez(f, meta=np.array(json.dumps(meta)), **arrs)
     return _cache_path(d, key)
 
 

@@ -1,0 +1,44 @@
+"""Files written whole or not at all, and the cache folder.
+
+    with atomic_write("out/metrics.json") as f: json.dump(m, f)      # text
+    with atomic_write(path, binary=True) as f: np.savez(f, ...)     # bytes
+    cache_dir("depth")  ->  $REINGS_CACHE_DIR/depth, else $XDG_CACHE_HOME/reings/depth,
+                            else ~/.cache/reings/depth
+
+atomic_write writes to a temporary file in the target's folder and renames it over the target on
+success (os.replace is atomic on one filesystem), so an interrupted run never leaves a
+half-written metrics.json, cache entry or table; on an exception the temporary file is removed.
+"""
+from __future__ import annotations
+
+import os
+import tempfile
+from contextlib import contextmanager
+from pathlib import Path
+
+
+@contextmanager
+def atomic_write(path, binary: bool = False):
+    path = os.fspath(path)
+    d = os.path.dirname(os.path.abspath(path))
+    suffix = os.path.splitext(path)[1]
+    fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix=suffix, dir=d)
+    try:
+        with os.fdopen(fd, "wb" if binary else "w") as f:
+            yield f
+        os.replace(tmp, path)
+    except BaseException:
+        try:
+            os.unlink(tmp)
+        except OSError:
+            pass
+        raise
+
+
+def cache_dir(sub: str) -> Path:
+    """$REINGS_CACHE_DIR/<sub>, else $XDG_CACHE_HOME/reings/<sub>, else ~/.cache/reings/<sub>."""
+    env = os.environ.get("REINGS_CACHE_DIR")
+    if env:
+        return Path(env).expanduser() / sub
+    base = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache"))
+    return base / "reings" / sub
