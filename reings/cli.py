@@ -101,6 +101,9 @@ def _add_common_fit_args(r, methods_flag: str) -> None:
                    help="maximum SH degree (default: 0 with --preset quick, 3 with paper)")
     r.add_argument("--ivps-depth", choices=["expected", "hard"], default="expected",
                    help="IVPS depth: 'expected' (normal render depth/alpha, default) or 'hard' (paper Eq. 5 literally)")
+    r.add_argument("--extent", choices=["sfm", "frusta"], default="sfm",
+                   help="scene box for EHPS and random inits: SfM of the training views (falls back to their "
+                        "frusta) or the training frusta directly")
     r.add_argument("--cvps-fraction", type=_fraction, default=0.4,
                    help="CVPS: fraction of the fine-stage Gaussians kept (paper: 0.4)")
     r.add_argument("--max-gaussians", type=_positive_int, default=None,

@@ -508,7 +508,7 @@ def main_eval(args) -> int:
                     depth_prior=args.depth_prior, preset=args.preset, iterations=args.iterations, seed=args.seed,
                     out=rd, factor=args.factor, quiet=args.quiet, reings_config=rc, eval_every=args.eval_every,
                     with_lpips=not args.no_lpips, init_points=args.init_points, sh_degree=args.sh_degree,
-                    max_gaussians=args.max_gaussians)
+                    max_gaussians=args.max_gaussians, extent=args.extent)
             mm = r.metrics["mean"]
             say(f"{head}: " + " ".join(f"{k.upper()} {mm[k]:.3f}" for k in METRICS if k in mm)
                 + f" ({time.perf_counter() - t:.0f} s)")

@@ -453,13 +453,16 @@ def load_run_scene(data, dataset=None, factor=8):
 def run(data=None, dataset=None, method="reings", views=3, device="pocl", depth_prior="stereo",
         preset="quick", iterations=None, seed=0, out=None, overwrite=False, factor=8, quiet=False,
         reings_config: ReInGSConfig | None = None, init_points=5000, sh_degree=None,
-        with_lpips=True, eval_every=None, checkpoint_every=250, max_gaussians=None) -> RunResult:
+        with_lpips=True, eval_every=None, checkpoint_every=250, max_gaussians=None,
+        extent="sfm") -> RunResult:
     """Fit one scene with `method` and evaluate its test views; see the module docstring.
 
     method: "reings", "dngaussian", "3dgs", or an ablation "reings-no-ehps" (also -no-ivps,
         -no-cvps, combinable), applied on top of `reings_config`.
     iterations: per stage (reings: one count for all three stages, or a 3-tuple); None = preset.
     eval_every: test-PSNR probe every this many iterations (None: about 15 per stage; 0: off).
+    extent: "sfm" (the SfM box of the training views, falling back to their frusta) or "frusta"
+        (the training-frusta box directly, no SfM) for EHPS and the random inits.
     max_gaussians: optional cap on the Gaussian count that densification respects in every stage
         (DensifyConfig.max_gaussians); None = no cap.
     out: output folder (None: nothing written, no resume). A folder holding metrics.json is refused
@@ -477,6 +480,8 @@ def run(data=None, dataset=None, method="reings", views=3, device="pocl", depth_
     label = method_label(base, rc)
     if preset not in ("quick", "paper"):
         raise ValueError(f"unknown preset {preset!r}: use quick or paper")
+    if extent not in ("sfm", "frusta"):
+        raise ValueError(f"unknown extent {extent!r}: use sfm or frusta")
     if isinstance(views, bool) or not isinstance(views, (int, np.integer)) or views < 2:
         raise ValueError(f"views must be an integer >= 2 (the SfM box needs two training views), got {views!r}")
     its = _iters_of(base, preset, iterations)
@@ -513,7 +518,7 @@ def run(data=None, dataset=None, method="reings", views=3, device="pocl", depth_
         "dataset": scene.kind, "views": int(views), "preset": preset, "iterations": list(its),
         "seed": int(seed), "depth_prior": depth_prior, "factor": factor, "init_points": int(init_points),
         "sh_degree": int(sh_degree), "reings_config": dataclasses.asdict(rc),
-        "max_gaussians": None if not max_gaussians else int(max_gaussians),
+        "max_gaussians": None if not max_gaussians else int(max_gaussians), "extent": extent,
     }
     if out:
         _prepare_out(out, settings, overwrite)
@@ -530,7 +535,12 @@ def run(data=None, dataset=None, method="reings", views=3, device="pocl", depth_
     timings["depth_prior"] = time.perf_counter() - t
 
     t = time.perf_counter()
-    ext = sfm_extent(train)
+    if extent == "frusta":
+        from .data.sfm import frusta_only_extent
+
+        ext = frusta_only_extent(train)
+    else:
+        ext = sfm_extent(train)
     timings["sfm"] = time.perf_counter() - t
     bg, near = (0.0, 0.0, 0.0), 0.01
     progress = not quiet
@@ -673,7 +683,7 @@ def main_run(args) -> int:
             depth_prior=args.depth_prior, preset=args.preset, iterations=args.iterations, seed=args.seed,
             out=args.out, overwrite=args.overwrite, factor=args.factor, quiet=args.quiet, reings_config=rc,
             eval_every=args.eval_every, with_lpips=not args.no_lpips, init_points=args.init_points,
-            sh_degree=args.sh_degree, max_gaussians=args.max_gaussians)
+            sh_degree=args.sh_degree, max_gaussians=args.max_gaussians, extent=args.extent)
     m = r.metrics
     mean = m["mean"]
     print(f"{m['method']} on {m['data']} ({m['views']} views, {m['device']}): "

@@ -223,6 +223,16 @@ def _have_pycolmap() -> bool:
 # }}}
 
 
+def frusta_only_extent(train_scene: Scene) -> SfmExtent:
+    """The training-frusta box without running SfM (`reings run --extent frusta`): what
+    `sfm_extent` falls back to, asked for directly (e.g. to match a run made on a machine without
+    pycolmap). Needs the views' near/far bounds."""
+    if train_scene.bounds is None:
+        raise SceneError("frusta extent: the training views have no near/far bounds")
+    lo, hi, _ = frusta_extent(train_scene.cameras, train_scene.bounds)
+    return SfmExtent(lo, hi, "frusta", np.zeros((0, 3)), np.zeros((0, 3), np.float32), note="requested")
+
+
 def sfm_extent(train_scene: Scene, min_points: int = DEFAULT_MIN_POINTS, trim: int | None = None,
                fallback: bool = True, max_features: int = 8192, max_reproj_error: float = 4.0,
                min_tri_angle: float = 1.5, num_threads: int = 2, work_dir: str | None = None,
