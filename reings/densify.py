@@ -174,18 +174,29 @@ def clean_views(state: TrainState, visible: np.ndarray) -> int:
     return removed
 
 
+def schedule(cfg, iteration: int) -> tuple[bool, bool]:
+    """(densify_and_prune due, opacity reset due) after the optimizer step of `iteration`
+    (1-based), the 3DGS/DNGaussian schedule: densify when densify_from < iteration < densify_until
+    and iteration % densify_interval == 0; reset opacities every opacity_reset_interval iterations
+    while < densify_until. The one definition `maybe_densify` and the device engine (which reads
+    its state back only when something is due) both use."""
+    if iteration >= cfg.densify_until:
+        return False, False
+    dens = iteration > cfg.densify_from and iteration % cfg.densify_interval == 0
+    reset = bool(cfg.opacity_reset_interval) and iteration % cfg.opacity_reset_interval == 0
+    return dens, reset
+
+
 def maybe_densify(state: TrainState, cfg, iteration: int, extent: float, rng: np.random.Generator) -> dict | None:
-    """The 3DGS/DNGaussian schedule after the optimizer step of `iteration` (1-based):
-    densify_and_prune when densify_from < iteration < densify_until and iteration %
-    densify_interval == 0 (size pruning after size_prune_from); opacity reset every
-    opacity_reset_interval iterations (while < densify_until).  Returns the counts or None."""
+    """Run what `schedule` says is due (size pruning after size_prune_from). Returns the counts
+    or None."""
+    dens, reset = schedule(cfg, iteration)
     out = None
-    if iteration < cfg.densify_until:
-        if iteration > cfg.densify_from and iteration % cfg.densify_interval == 0:
-            size_prune = cfg.size_prune_from is not None and iteration > cfg.size_prune_from
-            out = densify_and_prune(state, cfg, extent, rng, size_prune=size_prune)
-        if cfg.opacity_reset_interval and iteration % cfg.opacity_reset_interval == 0:
-            reset_opacity(state)
-            out = dict(out or {}, opacity_reset=True)
+    if dens:
+        size_prune = cfg.size_prune_from is not None and iteration > cfg.size_prune_from
+        out = densify_and_prune(state, cfg, extent, rng, size_prune=size_prune)
+    if reset:
+        reset_opacity(state)
+        out = dict(out or {}, opacity_reset=True)
     return out
 # }}}

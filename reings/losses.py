@@ -116,15 +116,21 @@ class PhotometricCL:
         return float(w_l1 * l1 + w_ssim * (1.0 - ssim))
 
 
-_CL: dict[str, PhotometricCL] = {}
+_PER_DEVICE: dict[tuple, object] = {}
+
+
+def _per_device(cls, device: str):
+    """One instance of a loss class per OpenCL device string (its kernels built once; it shares
+    the backend's context)."""
+    obj = _PER_DEVICE.get((cls, device))
+    if obj is None:
+        obj = _PER_DEVICE[(cls, device)] = cls(device)
+    return obj
 
 
 def photometric_cl(device: str) -> PhotometricCL:
-    """The (cached) PhotometricCL of an OpenCL device string (shares the backend's context)."""
-    cl = _CL.get(device)
-    if cl is None:
-        cl = _CL[device] = PhotometricCL(device)
-    return cl
+    """The (cached) PhotometricCL of an OpenCL device string."""
+    return _per_device(PhotometricCL, device)
 
 
 def photometric_loss(rgb: np.ndarray, gt: np.ndarray, lambda_dssim: float = 0.2, form: str = "dngaussian",
@@ -273,15 +279,9 @@ class DepthLossCL:
         return self.read_loss(), v
 
 
-_DL: dict[str, DepthLossCL] = {}
-
-
 def depth_loss_cl(device: str) -> DepthLossCL:
-    """The (cached) DepthLossCL of an OpenCL device string (shares the backend's context)."""
-    dl = _DL.get(device)
-    if dl is None:
-        dl = _DL[device] = DepthLossCL(device)
-    return dl
+    """The (cached) DepthLossCL of an OpenCL device string."""
+    return _per_device(DepthLossCL, device)
 
 
 def draw_depth_patches(rng: np.random.Generator, patch_range: tuple[int, int], h: int, w: int) -> tuple[int, int]:

@@ -133,14 +133,58 @@ def _load_checkpoint(path: str):
 ENGINES = ("auto", "host", "device")
 
 
-def _densify_due(d, it: int) -> bool:
-    """Whether `reings.densify.maybe_densify` would touch the state after iteration `it` (the same
-    conditions), so the device engine reads the state back only then."""
-    if it >= d.densify_until:
-        return False
-    if it > d.densify_from and it % d.densify_interval == 0:
-        return True
-    return bool(d.opacity_reset_interval and it % d.opacity_reset_interval == 0)
+def _view_of(it: int, seed: int, n_views: int) -> int:
+    """The training view of iteration `it` (1-based): a fresh permutation of the views per epoch."""
+    epoch, pos = divmod(it - 1, n_views)
+    return int(np.random.default_rng([seed, epoch]).permutation(n_views)[pos])
+
+
+class _Bookkeeping:
+    """What both loops do around an iteration: the progress bar, history logging, eval probes and
+    checkpoints. `sync(params_only)` brings the state to the host first (the device engine's
+    download; nothing for the host engine)."""
+
+    def __init__(self, cfg, state, history, rng, t0, progress, desc, checkpoint, checkpoint_every,
+                 eval_fn, eval_every, log_every, sync=None):
+        self.cfg, self.state, self.history, self.rng, self.t0 = cfg, state, history, rng, t0
+        self.desc, self.checkpoint, self.checkpoint_every = desc, checkpoint, checkpoint_every
+        self.eval_fn, self.eval_every, self.log_every = eval_fn, eval_every, log_every
+        self.sync = sync or (lambda params_only: None)
+        self.bar = None
+        if progress:
+            from tqdm import tqdm
+
+            self.bar = tqdm(total=cfg.iterations, initial=state.iteration, desc=desc, leave=False,
+                            dynamic_ncols=True)
+
+    def logs(self, it: int) -> bool:
+        return it % self.log_every == 0 or it == self.cfg.iterations
+
+    def end(self, it: int, deg: int, loss, rgb, gt) -> None:
+        """After iteration `it` (loss and rgb are only read on logging iterations)."""
+        h, st, last = self.history, self.state, it == self.cfg.iterations
+        if self.logs(it):
+            h.iteration.append(it)
+            h.loss.append(float(loss))
+            h.train_psnr.append(_psnr(rgb, gt))
+            h.n_gaussians.append(len(st))
+            h.seconds.append(time.perf_counter() - self.t0)
+        if self.eval_fn is not None and self.eval_every and (it % self.eval_every == 0 or last):
+            self.sync(True)
+            h.eval.append((it, time.perf_counter() - self.t0, self.eval_fn(st.gaussians(deg))))
+        if self.checkpoint and (it % self.checkpoint_every == 0 or last):
+            self.sync(False)
+            _save_checkpoint(self.checkpoint, st, self.rng, h, {"desc": self.desc})
+        if self.bar is not None:
+            self.bar.update(1)
+            if it % self.log_every == 0:
+                el = time.perf_counter() - self.t0
+                self.bar.set_postfix(loss=f"{loss:.4f}", psnr=f"{_psnr(rgb, gt):.2f}", N=len(st),
+                                     its=f"{it / max(el, 1e-9):.1f}")
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.close()
 
 
 class _Phases:
@@ -249,20 +293,15 @@ def fit(views, config: TrainConfig, device: str = "pocl", init: Gaussians | None
                            desc, extent, adam, profile)
 
     ph = _Phases(profile)
-    bar = None
-    if progress:
-        from tqdm import tqdm
-
-        bar = tqdm(total=cfg.iterations, initial=state.iteration, desc=desc, leave=False, dynamic_ncols=True)
-
+    book = _Bookkeeping(cfg, state, history, rng, t0, progress, desc, checkpoint, checkpoint_every,
+                        eval_fn, eval_every, log_every)
     hard_ema = None
     zeros_rgb = {}
     try:
         for it in range(state.iteration + 1, cfg.iterations + 1):
             opt.update_learning_rate(it)
             deg = sh_degree_at(it, cfg.sh_degree, cfg.sh_degree_interval)
-            epoch, pos = divmod(it - 1, V)
-            vi = int(np.random.default_rng([cfg.seed, epoch]).permutation(V)[pos])
+            vi = _view_of(it, cfg.seed, V)
             cam, gt = cameras[vi], images[vi]
             target = None if depth_targets is None else depth_targets[vi]
             if it == 1 and cfg.densify.clean_views:
@@ -328,26 +367,9 @@ def fit(views, config: TrainConfig, device: str = "pocl", init: Gaussians | None
                 dens = D.maybe_densify(state, cfg.densify, it, extent, rng)
             if dens:
                 history.densify.append((it, dens))
-
-            if it % log_every == 0 or it == cfg.iterations:
-                history.iteration.append(it)
-                history.loss.append(float(loss))
-                history.train_psnr.append(_psnr(out.rgb, gt))
-                history.n_gaussians.append(len(state))
-                history.seconds.append(time.perf_counter() - t0)
-            if eval_fn is not None and eval_every and (it % eval_every == 0 or it == cfg.iterations):
-                history.eval.append((it, time.perf_counter() - t0, eval_fn(state.gaussians(deg))))
-            if checkpoint and (it % checkpoint_every == 0 or it == cfg.iterations):
-                _save_checkpoint(checkpoint, state, rng, history, {"desc": desc})
-            if bar is not None:
-                bar.update(1)
-                if it % log_every == 0:
-                    el = time.perf_counter() - t0
-                    bar.set_postfix(loss=f"{loss:.4f}", psnr=f"{_psnr(out.rgb, gt):.2f}", N=len(state),
-                                    its=f"{it / max(el, 1e-9):.1f}")
+            book.end(it, deg, loss, out.rgb, gt)
     finally:
-        if bar is not None:
-            bar.close()
+        book.close()
     deg = sh_degree_at(cfg.iterations, cfg.sh_degree, cfg.sh_degree_interval)
     return FitResult(state.gaussians(deg), history, time.perf_counter() - t0, state)
 
@@ -385,19 +407,17 @@ def _fit_device(backend, images, cameras, depth_targets, cfg, state, opt, rng, h
     ph = dev.phase
     groups = [k for k in PARAM_NAMES if k in opt.lr]
 
-    bar = None
-    if progress:
-        from tqdm import tqdm
-
-        bar = tqdm(total=cfg.iterations, initial=state.iteration, desc=desc, leave=False, dynamic_ncols=True)
+    book = _Bookkeeping(cfg, state, history, rng, t0, progress, desc, checkpoint, checkpoint_every,
+                        eval_fn, eval_every, log_every,
+                        sync=lambda params_only: dev.download(state, params_only=params_only))
     hard_ema = None
+    loss = rgb = None
     try:
         for it in range(state.iteration + 1, cfg.iterations + 1):
             opt.update_learning_rate(it)
             deg = sh_degree_at(it, cfg.sh_degree, cfg.sh_degree_interval)
             k = SH_COUNTS[min(deg, state.max_sh_degree)]
-            epoch, pos = divmod(it - 1, V)
-            vi = int(np.random.default_rng([cfg.seed, epoch]).permutation(V)[pos])
+            vi = _view_of(it, cfg.seed, V)
             cam, gt = cameras[vi], images[vi]
             target = None if depth_targets is None else depth_targets[vi]
 
@@ -430,7 +450,7 @@ def _fit_device(backend, images, cameras, depth_targets, cfg, state, opt, rng, h
                     dev.adam_step(opt, gr, ("opacity_logits",))
 
             # photometric pass (+ regularisers): every group
-            log_it = it % log_every == 0 or it == cfg.iterations
+            log_it = book.logs(it)
             with ph("photo_render"):
                 fr = dev.forward(cam, k, bg, near)
             with ph("photo_loss"):
@@ -451,35 +471,16 @@ def _fit_device(backend, images, cameras, depth_targets, cfg, state, opt, rng, h
                 dev.adam_step(opt, gr, groups)
             state.iteration = it
             dens = None
-            if _densify_due(cfg.densify, it):
+            if any(D.schedule(cfg.densify, it)):
                 with ph("densify"):
                     dev.download(state)
                     dens = D.maybe_densify(state, cfg.densify, it, extent, rng)
                     dev.upload(state)
             if dens:
                 history.densify.append((it, dens))
-
-            if log_it:
-                history.iteration.append(it)
-                history.loss.append(float(loss))
-                history.train_psnr.append(_psnr(rgb, gt))
-                history.n_gaussians.append(len(state))
-                history.seconds.append(time.perf_counter() - t0)
-            if eval_fn is not None and eval_every and (it % eval_every == 0 or it == cfg.iterations):
-                dev.download(state, params_only=True)
-                history.eval.append((it, time.perf_counter() - t0, eval_fn(state.gaussians(deg))))
-            if checkpoint and (it % checkpoint_every == 0 or it == cfg.iterations):
-                dev.download(state)
-                _save_checkpoint(checkpoint, state, rng, history, {"desc": desc})
-            if bar is not None:
-                bar.update(1)
-                if it % log_every == 0:
-                    el = time.perf_counter() - t0
-                    bar.set_postfix(loss=f"{loss:.4f}", psnr=f"{_psnr(rgb, gt):.2f}", N=len(state),
-                                    its=f"{it / max(el, 1e-9):.1f}")
+            book.end(it, deg, loss, rgb, gt)
     finally:
-        if bar is not None:
-            bar.close()
+        book.close()
     dev.download(state)
     dev.finish()
     deg = sh_degree_at(cfg.iterations, cfg.sh_degree, cfg.sh_degree_interval)

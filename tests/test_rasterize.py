@@ -254,17 +254,25 @@ def test_isect_reduce(device):
 # Oclgrind: every kernel, both schedules, with the simulator's checks on (subprocess)
 # ------------------------------------------------------------------------------------------------
 def test_retaining_scratch(device):
-    """RetainingScratch (the Rasterizer's scratch on Oclgrind) keeps every replaced buffer alive, so
+    """A Scratch with `retain` (every Scratch on Oclgrind) keeps every replaced buffer alive, so
     the simulator never recycles a buffer id (and its stale shadow memory) for a grown buffer."""
     from reings.backends.opencl.device import open_device
-    from reings.backends.opencl.rasterize import RetainingScratch
+    from reings.backends.opencl.scratch import Scratch
 
-    s = RetainingScratch(open_device(device))
+    s = Scratch(open_device(device))
+    s.retain = True
     a = s.get("pixel", "x", 100, 4)
     assert s.get("pixel", "x", 50, 4) is a
     b = s.get("pixel", "x", 1000, 4)
     c = s.get("pixel", "x", 10000, 4)
-    assert b is not a and c is not b and s._retired == [a, b]
+    assert b is not a and c is not b and s.retired == [a, b]
+
+
+def test_scratch_retains_only_on_oclgrind():
+    from reings.backends.opencl.device import open_device
+    from reings.backends.opencl.scratch import Scratch
+
+    assert not Scratch(open_device("pocl")).retain
 
 
 _OCLGRIND_SCRIPT = """
@@ -298,7 +306,7 @@ def test_oclgrind_checks(cpu):
 
     The three cases run in a row on one Rasterizer, so its scratch buffers are reused and grown
     (17x15 -> 32x32 pixels, K 29 -> 48). On Oclgrind the Rasterizer's scratch keeps replaced
-    buffers alive (`RetainingScratch`): the simulator recycles a released buffer's id together with
+    buffers alive (`Scratch.retain`, on Oclgrind): the simulator recycles a released buffer's id together with
     its stale shadow memory, which made fully written grown buffers read as uninitialised."""
     extra = {"OCLGRIND_UNINITIALIZED": "0"} if cpu else None
     run_oclgrind(_OCLGRIND_SCRIPT.format(cpu=bool(cpu)), extra_env=extra)

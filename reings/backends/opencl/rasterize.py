@@ -17,9 +17,8 @@ Device-level API (buffers in, events out; every call enqueues on `handle.queue`,
         rows of `out` for gids with no rank are not touched (zero them first, or accumulate).
 
 Buffers are the persistent `Scratch` ones (grown geometrically, never shrunk); a call's outputs stay
-valid until the next call of the same kind. On Oclgrind a Rasterizer's own scratch is a
-`RetainingScratch` (replaced buffers stay alive: the simulator's uninitialised-value check would
-otherwise give a grown buffer the stale shadow of a released one; see the class).
+valid until the next call of the same kind. (On Oclgrind every `Scratch` keeps the buffers it
+replaces alive: see reings/backends/opencl/scratch.py.)
 Host-level helpers for tests and debugging:
 `rasterize_fwd_host(proj, bins, W, H, background, want_importance) -> RasterOut` and
 `rasterize_bwd_host(proj, bins, W, H, v_rgb, v_depth, v_alpha, background) -> RasterGrads`.
@@ -33,7 +32,6 @@ import numpy as np
 from ..base import TILE_SIZE, V_RECORD, Bins, Projected, RasterGrads, RasterOut, tile_grid
 from .device import open_device
 from .program import library_for
-from .quirks import is_oclgrind
 from .scratch import Scratch
 
 FILE = "rasterize.cl"
@@ -43,35 +41,6 @@ PACKED_BYTES = 64  # one float16 record per Gaussian (rasterize_prep)
 
 def _nd(n: int, local: int) -> int:
     return max(local, (n + local - 1) // local * local)
-
-
-class RetainingScratch(Scratch):
-    """A Scratch that keeps every buffer it replaces alive: the Rasterizer's own scratch on Oclgrind.
-
-    Why: Oclgrind (19.10, the wheel's, to 26.03) recycles the id of a released buffer for the next allocation,
-    and its uninitialised-value plugin has no `memoryDeallocated` hook, so the shadow memory of the
-    released buffer stays behind under that id. A grown scratch buffer that gets the recycled id
-    inherits the old, smaller shadow: `kernelBegin` sees a shadow there and does not poison a fresh
-    one, kernel stores past the old size are dropped from the shadow, and every later read past the
-    old size is reported as uninitialised although the kernel wrote it (tests/test_rasterize.py
-    test_oclgrind_checks: `rasterize_bwd` reading `out_last` at pixels >= 17*15 of the 32x32 case,
-    `isect_reduce` reading `imp_emit` slots past the first case's K). Keeping the replaced buffers
-    means no id is ever recycled, so every new buffer gets a fresh, fully poisoned shadow of its real
-    size and a genuine read-before-write is still reported. Simulator only: the memory is bounded by
-    the geometric growth (at most 3x the final size per buffer)."""
-
-    def __init__(self, handle):
-        super().__init__(handle)
-        self._current: dict[tuple[str, str], object] = {}
-        self._retired: list = []
-
-    def get(self, space: str, name: str, rows: int, row_bytes: int):
-        buf = super().get(space, name, rows, row_bytes)
-        old = self._current.get((space, name))
-        if old is not None and old is not buf:
-            self._retired.append(old)
-        self._current[(space, name)] = buf
-        return buf
 
 
 class Rasterizer:
@@ -90,7 +59,7 @@ class Rasterizer:
             d["REINGS_CPU_SCHEDULE"] = int(bool(cpu_schedule))
         self.cpu_schedule = bool(d.get("REINGS_CPU_SCHEDULE", lib.base_defines["REINGS_CPU_SCHEDULE"]))
         if scratch is None:
-            scratch = RetainingScratch(handle) if is_oclgrind(handle.device) else Scratch(handle)
+            scratch = Scratch(handle)
         self.scratch = scratch
         self._lib, self._defines = lib, d
         self.k_prep = lib.get(FILE, "rasterize_prep", RASTER_IMPORTANCE=0, **d)

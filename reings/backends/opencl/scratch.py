@@ -12,6 +12,15 @@ allocation churn: PERF.md §7 lesson 3). Nothing here is ever freed before the b
 
 On CPU devices (PoCL) buffers are created with ALLOC_HOST_PTR: the runtime's own host memory, so
 `mapped` and host copies are plain memcpys (or none at all) rather than transfers.
+
+On Oclgrind a replaced buffer is kept alive (`retired`) instead of released. Oclgrind (19.10 to
+26.03) recycles a released buffer's id for the next allocation, and its uninitialised-value plugin
+has no deallocation hook, so a grown buffer that got the recycled id would inherit the old,
+smaller shadow memory: kernel stores past the old size are dropped from the shadow and every later
+read there is reported as uninitialised although it was written (seen in tests/test_rasterize.py
+test_oclgrind_checks). With no id recycled, each new buffer gets a fresh, fully poisoned shadow of
+its real size and a genuine read-before-write is still reported. Simulator only; the kept memory
+is bounded by the geometric growth (at most 3x the final size per buffer).
 """
 from __future__ import annotations
 
@@ -40,6 +49,8 @@ class Scratch:
         self._bufs: dict[tuple[str, str], tuple[object, int]] = {}  # -> (buffer, capacity in bytes)
         self.allocations = 0  # how many buffers were created (tests check that steady state is 0)
         self.peak_bytes = 0  # high-water mark of nbytes() (replaced buffers are released on growth)
+        self.retain = quirks.is_oclgrind(handle.device)  # keep replaced buffers alive (module doc)
+        self.retired: list = []
 
     def get(self, space: str, name: str, rows: int, row_bytes: int):
         """A buffer of at least `rows` rows of `row_bytes` bytes (contents undefined)."""
@@ -58,6 +69,8 @@ class Scratch:
         buf, cap = self._bufs.get(key, (None, 0))
         key_old_cap = cap if buf is not None else None
         if buf is None or cap < need:
+            if buf is not None and self.retain:
+                self.retired.append(buf)
             cap = max(need, int(cap * GROWTH))
             buf = cl.Buffer(self.context, self.flags, cap)
             self._bufs[key] = (buf, cap)
