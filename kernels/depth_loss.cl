@@ -37,7 +37,11 @@
  *                    map per patch (A_m, B_m, C_m; E and mean_all per term: see the kernel)
  *   dl_grad          global (>= W, H) per pixel, or (H) per row with REINGS_CPU_SCHEDULE:
  *                    v_depth = w_local g_local + w_global g_global, OVERWRITTEN (0 outside both
- *                    patchified regions)
+ *                    patchified regions), plus s_scale times the smoothness gradient (below)
+ *   dl_smooth_rows   (only when the loss is read) the smoothness numerator per row
+ * Optional edge-aware smoothness (DNGaussian LLFF, reference_loss.depth_smooth_fwd_bwd): weights
+ * swx / swy from the target (reference_loss.smooth_weights, computed once per view on the host),
+ * folded into dl_grad's single write of v_depth (no extra launch on the training path).
  * Every reduction is per-block sums in a fixed order, then one work-group's lane-strided partials
  * and a fixed tree: deterministic, no atomics.
  *
@@ -305,6 +309,21 @@ static real term_grad(const real xd, const real xt, __global const real *prec, _
     return co[0] * md + co[1] * u + co[2] + tstats[4 * t + 2] * (xd - tstats[4 * t + 3]);
 }
 
+/* d/dD(i, j) of sum |D[x] - D[x+1]| wx + sum |D[y] - D[y+1]| wy (unnormalised). The sign of a
+ * float difference is exact, so this matches the float64 reference up to the weights' rounding. */
+static real smooth_grad(__global const float *depth, __global const float *wx, __global const float *wy,
+                        const int i, const int j, const int W, const int H)
+{
+    const int p = j * W + i;
+    const float d = depth[p];
+    real g = (real)0;
+    if (i + 1 < W) g += (real)sign(d - depth[p + 1]) * (real)wx[p];
+    if (i > 0) g -= (real)sign(depth[p - 1] - d) * (real)wx[p - 1];
+    if (j + 1 < H) g += (real)sign(d - depth[p + W]) * (real)wy[p];
+    if (j > 0) g -= (real)sign(depth[p - W] - d) * (real)wy[p - W];
+    return g;
+}
+
 /* REINGS_CPU_SCHEDULE=1 (PoCL): global (H), one work-item per row, patch indices stepped along the
  * row (no integer division per pixel). Otherwise global (>= W, H), one work-item per pixel. */
 __kernel void dl_grad(__global const float *depth,   // [H, W]
@@ -314,7 +333,10 @@ __kernel void dl_grad(__global const float *depth,   // [H, W]
                       __global const real *tstats,   // [2, 4]
                       __global float *v_depth,       // [H, W] dL/d depth (overwritten)
                       const real margin, const real w_local, const real w_global,
-                      const int W, const int H, const int pl, const int pg, const int Bcap)
+                      const int W, const int H, const int pl, const int pg, const int Bcap,
+                      __global const float *swx,     // [H, W] smoothness x weights (read if s_scale != 0)
+                      __global const float *swy,     // [H, W] smoothness y weights
+                      const real s_scale)            // w_smooth / (sum swx + sum swy); 0 = no smoothness
 {
 #if REINGS_CPU_SCHEDULE
     const int j = get_global_id(0);
@@ -337,8 +359,27 @@ __kernel void dl_grad(__global const float *depth,   // [H, W]
         const real xd = (real)depth[j * W + i] - kd, xt = (real)target[j * W + i] - kt;
         const real g0 = (in0 && c0 < pw0) ? term_grad(xd, xt, prec, pcoef, tstats, margin, 0, row0 + c0, Bcap) : (real)0;
         const real g1 = (in1 && c1 < pw1) ? term_grad(xd, xt, prec, pcoef, tstats, margin, 1, row1 + c1, Bcap) : (real)0;
-        v_depth[j * W + i] = (float)(w_local * g0 + w_global * g1);
+        const real gs = s_scale != (real)0 ? smooth_grad(depth, swx, swy, i, j, W, H) : (real)0;
+        v_depth[j * W + i] = (float)(w_local * g0 + w_global * g1 + s_scale * gs);
         if (++r0 == pl) { r0 = 0; ++c0; }
         if (++r1 == pg) { r1 = 0; ++c1; }
     }
+}
+
+/* The smoothness loss's numerator per row (launched only when the host reads the loss):
+ * rows[j] = sum_i |D[j, i] - D[j, i+1]| wx[j, i] + |D[j, i] - D[j+1, i]| wy[j, i], in real; the
+ * host sums the rows in order and divides by sum wx + sum wy. Global (>= H). */
+__kernel void dl_smooth_rows(__global const float *depth, __global const float *swx,
+                             __global const float *swy, __global real *rows, const int W, const int H)
+{
+    const int j = get_global_id(0);
+    if (!(j < H)) return;
+    real acc = (real)0;
+    for (int i = 0; i < W; ++i) {
+        const int p = j * W + i;
+        const real d = (real)depth[p];
+        if (i + 1 < W) acc += fabs(d - (real)depth[p + 1]) * (real)swx[p];
+        if (j + 1 < H) acc += fabs(d - (real)depth[p + W]) * (real)swy[p];
+    }
+    rows[j] = acc;
 }

@@ -65,14 +65,41 @@ def _positive_int(text: str) -> int:
     return v
 
 
-def _fraction(text: str) -> float:
+def _number(text: str) -> float:
     try:
-        v = float(text)
+        return float(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+
+
+def _fraction(text: str) -> float:
+    v = _number(text)
     if not 0.0 < v <= 1.0:
         raise argparse.ArgumentTypeError(f"must be in (0, 1], got {v}")
     return v
+
+
+def _prune_fraction(text: str) -> float:
+    v = _number(text)
+    if not 0.0 <= v < 1.0:  # also refuses nan
+        raise argparse.ArgumentTypeError(f"must be a fraction in [0, 1) (0 = off), got {text}")
+    return v
+
+
+def _nonneg_float(text: str) -> float:
+    v = _number(text)
+    if not (v >= 0.0 and v != float("inf")):  # also refuses nan
+        raise argparse.ArgumentTypeError(f"must be a finite number >= 0, got {text}")
+    return v
+
+
+def _iterations(text: str):
+    """N, or A,B,C (reings: coarse, fine, final): positive integers."""
+    parts = [p.strip() for p in str(text).split(",")]
+    if len(parts) not in (1, 3):
+        raise argparse.ArgumentTypeError(f"expected N or A,B,C (three stages), got {text!r}")
+    vals = tuple(_positive_int(p) for p in parts)
+    return vals[0] if len(vals) == 1 else vals
 
 
 def _nonneg_int(text: str) -> int:
@@ -91,23 +118,39 @@ def _add_common_fit_args(r, methods_flag: str) -> None:
     r.add_argument("--depth-prior", default="stereo", help="stereo | onnx:PATH | none | exact (procedural only)")
     r.add_argument("--preset", default="quick", choices=["quick", "paper"],
                    help="iteration counts: quick (3dgs/dngaussian 600, reings 200/200/600) or paper (6000 per stage)")
-    r.add_argument("--iterations", type=_positive_int, default=None, help="override the preset's iteration count per stage")
+    r.add_argument("--iterations", type=_iterations, default=None,
+                   help="override the preset's iteration count: N (every stage) or, for reings, A,B,C per stage")
     r.add_argument("--eval-every", type=_nonneg_int, default=None,
                    help="test-PSNR probe every N iterations for the PSNR-vs-seconds plot (default: ~15 per stage; 0: off)")
     r.add_argument("--seed", type=int, default=0)
     r.add_argument("--init-points", type=_positive_int, default=5000,
                    help="random initial points of dngaussian/3dgs and of reings without EHPS (DNGaussian LLFF: ~5000)")
     r.add_argument("--sh-degree", type=int, choices=[0, 1, 2, 3], default=None,
-                   help="maximum SH degree (default: 0 with --preset quick, 3 with paper)")
+                   help="maximum SH degree (default: 0 with --preset quick; with paper 1 for reings "
+                        "(model-size study, docs/results.md) and 3 for the baselines)")
     r.add_argument("--ivps-depth", choices=["expected", "hard"], default="expected",
                    help="IVPS depth: 'expected' (normal render depth/alpha, default) or 'hard' (paper Eq. 5 literally)")
     r.add_argument("--extent", choices=["sfm", "frusta"], default="sfm",
                    help="scene box for EHPS and random inits: SfM of the training views (falls back to their "
                         "frusta) or the training frusta directly")
-    r.add_argument("--cvps-fraction", type=_fraction, default=0.4,
-                   help="CVPS: fraction of the fine-stage Gaussians kept (paper: 0.4)")
+    r.add_argument("--cvps-fraction", type=_fraction, default=0.2,
+                   help="CVPS: fraction of the fine-stage Gaussians kept (default 0.2 from the model-size "
+                        "study, docs/results.md; the paper's value is 0.4)")
     r.add_argument("--max-gaussians", type=_positive_int, default=None,
                    help="cap on the Gaussian count that densification respects in every stage (default: none)")
+    r.add_argument("--final-prune", type=_prune_fraction, default=0.1, metavar="FRACTION",
+                   help="reings (not in the paper): after the final stage remove this fraction of the Gaussians "
+                        "with the lowest importance Omega_G (Eq. 7, training views only) before evaluation; "
+                        "in [0, 1), 0 = off; default 0.1 (the model-size study: no PSNR loss, docs/results.md)")
+    r.add_argument("--prune-curve", action="store_true",
+                   help="study/reporting: also evaluate test PSNR/SSIM of the final model cut to its top "
+                        "100%%, 90%%, ..., 40%% by training-view Omega_G (metrics.json prune_curve); the test "
+                        "views are used only for this report, never to rank or select, and the reported "
+                        "model is unchanged")
+    r.add_argument("--depth-smooth", type=_nonneg_float, default=None, metavar="WEIGHT",
+                   help="weight of DNGaussian's edge-aware depth smoothness in the depth passes "
+                        "(default: the recipe's 0.1 from the middle of each stage, but 0 with the stereo prior, "
+                        "where it showed no benefit, docs/results.md; 0 = off)")
     r.add_argument("--factor", type=_positive_int, default=8, help="LLFF image downsampling factor")
     r.add_argument("--no-lpips", action="store_true", help="skip LPIPS (and AVGE)")
     r.add_argument("--quiet", action="store_true", help="no progress bars or stage lines")

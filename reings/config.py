@@ -46,8 +46,8 @@ class LossConfig:
     depth_margin: float = 0.00025  # margin L2: errors with |diff| <= margin are ignored ("error_tolerance")
     depth_w_local: float = 0.1  # weight of the local (per-patch std) normalised depth term
     depth_w_global: float = 1.0  # weight of the global (whole-image std) normalised depth term
-    depth_smooth_weight: float = 0.0  # edge-aware depth smoothness weight (DNGaussian LLFF: 0.1, not implemented yet)
-    depth_smooth_from: int = 3000  # first iteration of the smoothness term
+    depth_smooth_weight: float = 0.0  # edge-aware depth smoothness weight, in both depth passes (DNGaussian LLFF: 0.1)
+    depth_smooth_from: int = 3001  # first iteration of the smoothness term (DNGaussian: iteration > 3000)
     shape_pena: float = 0.0  # weight of mean(max scale / min scale)
     scale_pena: float = 0.0  # weight of mean(max scale^2)
     opa_pena: float = 0.0  # weight of 1 - mean(o^2 | o>0.2) + mean((1-o)^2 | o<0.2)
@@ -95,7 +95,8 @@ def _dngaussian_llff() -> TrainConfig:
                           opacity_lr=0.05, scaling_lr=0.003, rotation_lr=0.001),
         loss=LossConfig(photometric_form="dngaussian", lambda_dssim=0.2, hard_depth=True, hard_depth_from=1,
                         hard_depth_opacity=0.95, soft_depth=True, soft_depth_from=1001, depth_patch_range=(5, 17),
-                        depth_margin=0.00025, shape_pena=0.002, scale_pena=0.001, opa_pena=0.001),
+                        depth_margin=0.00025, depth_smooth_weight=0.1, depth_smooth_from=3001,
+                        shape_pena=0.002, scale_pena=0.001, opa_pena=0.001),
         densify=DensifyConfig(densify_from=500, densify_until=6000, densify_interval=100, grad_threshold=0.0013,
                               percent_dense=0.01, split_opacity_thresh=0.1, prune_opacity=0.01,
                               opacity_reset_interval=None, size_prune_from=None, max_screen_size=None,
@@ -109,7 +110,8 @@ def _dngaussian_dtu() -> TrainConfig:
         c,
         optim=replace(c.optim, position_lr_init=0.0016, position_lr_final=0.000016),
         loss=replace(c.loss, lambda_dssim=0.6, depth_patch_range=(17, 53), depth_margin=0.01, shape_pena=0.005,
-                     scale_pena=0.005, opa_pena=0.001, soft_depth_ema_gate=0.1),
+                     scale_pena=0.005, opa_pena=0.001, soft_depth_ema_gate=0.1,
+                     depth_smooth_weight=0.0),
         densify=replace(c.densify, grad_threshold=0.001, percent_dense=0.1),
     )
 

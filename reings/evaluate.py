@@ -173,6 +173,14 @@ def _setting_tag(m: dict) -> str:
         tag.append(f"seed {m['seed']}")
     if m.get("depth_prior", "stereo") != "stereo":
         tag.append(f"prior {m['depth_prior']}")
+    if cfg.get("depth_smooth") is not None:
+        tag.append(f"smooth {cfg['depth_smooth']:g}")
+    fp = (cfg.get("reings_config") or {}).get("final_prune")  # absent: a run from before the option
+    if base == "reings" and fp is not None:
+        from .pipeline import ReInGSConfig
+
+        if fp != ReInGSConfig.final_prune:
+            tag.append(f"prune {fp:g}")
     return ", ".join(tag)
 
 
@@ -386,7 +394,9 @@ def _plan(args):
     methods = []
     for name in parse_list(args.methods, "methods"):
         base, rc = parse_method(name, ReInGSConfig(ivps_depth=getattr(args, "ivps_depth", "expected"),
-                                                   cvps_fraction=getattr(args, "cvps_fraction", 0.4)))
+                                                   cvps_fraction=getattr(args, "cvps_fraction", ReInGSConfig.cvps_fraction),
+                                                   final_prune=getattr(args, "final_prune",
+                                                                       ReInGSConfig.final_prune)))
         if base == "reings":
             rc = replace(rc, ehps=rc.ehps and not args.no_ehps, ivps=rc.ivps and not args.no_ivps,
                          cvps=rc.cvps and not args.no_cvps)
@@ -508,7 +518,8 @@ def main_eval(args) -> int:
                     depth_prior=args.depth_prior, preset=args.preset, iterations=args.iterations, seed=args.seed,
                     out=rd, factor=args.factor, quiet=args.quiet, reings_config=rc, eval_every=args.eval_every,
                     with_lpips=not args.no_lpips, init_points=args.init_points, sh_degree=args.sh_degree,
-                    max_gaussians=args.max_gaussians, extent=args.extent)
+                    max_gaussians=args.max_gaussians, extent=args.extent,
+                    prune_curve=getattr(args, "prune_curve", False), depth_smooth=getattr(args, "depth_smooth", None))
             mm = r.metrics["mean"]
             say(f"{head}: " + " ".join(f"{k.upper()} {mm[k]:.3f}" for k in METRICS if k in mm)
                 + f" ({time.perf_counter() - t:.0f} s)")

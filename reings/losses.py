@@ -194,18 +194,23 @@ class DepthLossCL:
         prg = library_for(self.handle).program("depth_loss.cl", DL_FP64=int(self.fp64), DL_WG=self.wg,
                                                REINGS_CPU_SCHEDULE=int(self.cpu_schedule))
         self.k = {n: cl.Kernel(prg, n) for n in  # own kernel objects: several instances may share prg
-                  ("dl_block_stats", "dl_reduce_stats", "dl_patch_terms", "dl_reduce_terms", "dl_grad")}
+                  ("dl_block_stats", "dl_reduce_stats", "dl_patch_terms", "dl_reduce_terms", "dl_grad",
+                  "dl_smooth_rows")}
         self.mem = Scratch(self.handle)
         self._weights = None
+        self._smooth = None  # (depth_buf, wx_buf, wy_buf, h, w, w_smooth / sum of weights) of the last call
         self._t = np.empty(8, self.real)  # read_loss's host words
 
     def enqueue(self, depth_buf, target_buf, v_buf, h: int, w: int, p_local: int, p_global: int,
-                margin: float, w_local: float = 0.1, w_global: float = 1.0):
+                margin: float, w_local: float = 0.1, w_global: float = 1.0, smooth=None):
         """Device-resident form: depth (rendered) and target are [H,W] float32 buffers of this
         device's context; dL/d depth is WRITTEN (overwritten, not added) into the [H,W] float32
         buffer v_buf; nothing is read back. The two term losses stay on the device for `read_loss`
         (valid until the next call). Patch sizes must lie in [1, min(h, w)] (`depth_loss` draws and
-        clamps them). Returns the last kernel's event."""
+        clamps them). `smooth`: None, or (wx_buf, wy_buf, scale) to add scale * the edge-aware
+        smoothness numerator's gradient (scale = w_smooth / sum of the weights; weights [H,W]
+        float32 from `reference_loss.smooth_weights`), fused into the gradient kernel; its loss is
+        computed only if `read_loss` is called. Returns the last kernel's event."""
         h, w, pl, pg = int(h), int(w), int(p_local), int(p_global)
         for p in (pl, pg):
             if not 1 <= p <= min(h, w):
@@ -229,9 +234,11 @@ class DepthLossCL:
                    pcnt, prec, r(margin), *geo)
         self._call("dl_reduce_terms", q, (wg, 2), (wg, 1), sstats, pcnt, prec, pcoef, tstats, *geo)
         gg, gl = ((-(-h // lw) * lw,), (lw,)) if self.cpu_schedule else ((-(-w // lw) * lw, h), (lw, 1))
+        swx, swy, ss = (target_buf, target_buf, 0.0) if smooth is None else smooth  # dummies are never read
         ev = self._call("dl_grad", q, gg, gl, depth_buf, target_buf, prec, pcoef, tstats, v_buf, r(margin),
-                        r(w_local), r(w_global), *geo)
+                        r(w_local), r(w_global), *geo, swx, swy, r(ss))
         self._weights = (float(w_local), float(w_global))
+        self._smooth = None if smooth is None or ss == 0 else (depth_buf, swx, swy, h, w, float(ss))
         return ev
 
     def _call(self, name: str, q, gsize, lsize, *args):
@@ -248,10 +255,19 @@ class DepthLossCL:
         term losses, combined in float64 on the host)."""
         if self._weights is None:
             raise RuntimeError("DepthLossCL.read_loss before any enqueue")
-        t = self._t
-        self.cl.enqueue_copy(self.handle.queue, t, self.mem.get("small", "dl_tstats", 8, t.itemsize))  # blocking
+        t, q = self._t, self.handle.queue
+        smooth = 0.0
+        if self._smooth is not None:  # the smoothness numerator, on demand (training never reads it)
+            depth_buf, swx, swy, h, w, ss = self._smooth
+            rows = self.mem.get("pixel", "dl_srows", h, t.itemsize)
+            self._call("dl_smooth_rows", q, (-(-h // self.lwg) * self.lwg,), (self.lwg,), depth_buf, swx, swy,
+                       rows, np.int32(w), np.int32(h))
+            hr = np.empty(h, self.real)
+            self.cl.enqueue_copy(q, hr, rows)  # blocking
+            smooth = ss * float(np.sum(hr, dtype=np.float64))
+        self.cl.enqueue_copy(q, t, self.mem.get("small", "dl_tstats", 8, t.itemsize))  # blocking
         w_local, w_global = self._weights
-        return float(w_local * float(t[1]) + w_global * float(t[5]))
+        return float(w_local * float(t[1]) + w_global * float(t[5])) + smooth
 
     def term_stats(self) -> np.ndarray:
         """[2, 4] (count of selected elements, term loss, E, mean_all: kernels/depth_loss.cl) of the last call
@@ -260,8 +276,9 @@ class DepthLossCL:
         return self._t.reshape(2, 4).astype(np.float64)
 
     def __call__(self, depth: np.ndarray, target: np.ndarray, p_local: int, p_global: int, margin: float,
-                 w_local: float = 0.1, w_global: float = 1.0) -> tuple[float, np.ndarray]:
-        """Host form: (loss, v_depth float32 [H, W]) of numpy [H, W] inputs (uploaded as float32)."""
+                 w_local: float = 0.1, w_global: float = 1.0, smooth=None) -> tuple[float, np.ndarray]:
+        """Host form: (loss, v_depth float32 [H, W]) of numpy [H, W] inputs (uploaded as float32);
+        `smooth`: None or a `SmoothWeights` and its weight, (SmoothWeights, w_smooth)."""
         cl, q = self.cl, self.handle.queue
         d = np.ascontiguousarray(depth, np.float32)
         t = np.ascontiguousarray(target, np.float32)
@@ -273,7 +290,15 @@ class DepthLossCL:
         vb = self.mem.get("pixel", "dl_v", h * w, 4)
         cl.enqueue_copy(q, db, d)
         cl.enqueue_copy(q, tb, t)
-        self.enqueue(db, tb, vb, h, w, p_local, p_global, margin, w_local, w_global)
+        sm = None
+        if smooth is not None and smooth[1] != 0:
+            sw, ws = smooth
+            bx = self.mem.get("pixel", "dl_swx", h * w, 4)
+            by = self.mem.get("pixel", "dl_swy", h * w, 4)
+            cl.enqueue_copy(q, bx, sw.wx)
+            cl.enqueue_copy(q, by, sw.wy)
+            sm = (bx, by, ws * sw.inv_sum)
+        self.enqueue(db, tb, vb, h, w, p_local, p_global, margin, w_local, w_global, sm)
         v = np.empty((h, w), np.float32)
         cl.enqueue_copy(q, v, vb)  # blocking
         return self.read_loss(), v
@@ -294,14 +319,32 @@ def draw_depth_patches(rng: np.random.Generator, patch_range: tuple[int, int], h
     return p_local, p_global
 
 
+class SmoothWeights:
+    """The edge weights of one view's depth smoothness term (`reference_loss.smooth_weights`):
+    wx, wy [H, W] float32 (what the kernels read) and inv_sum = 1 / (sum wx + sum wy) of those.
+    Built once per training view."""
+
+    def __init__(self, target: np.ndarray):
+        wx, wy = ref.smooth_weights(target)
+        self.wx = np.ascontiguousarray(wx, np.float32)
+        self.wy = np.ascontiguousarray(wy, np.float32)
+        # the sum of the float32 weights (in float64), as the reference sums what the kernels read
+        tot = float(self.wx.sum(dtype=np.float64) + self.wy.sum(dtype=np.float64))
+        self.inv_sum = 1.0 / tot if tot > 0 else 0.0
+
+
 def depth_loss(depth: np.ndarray, target: np.ndarray, rng: np.random.Generator,
                patch_range: tuple[int, int] = (5, 17), margin: float = 0.00025,
-               w_local: float = 0.1, w_global: float = 1.0, device: str | None = None) -> tuple[float, np.ndarray]:
+               w_local: float = 0.1, w_global: float = 1.0, device: str | None = None,
+               smooth: tuple | None = None) -> tuple[float, np.ndarray]:
     """DNGaussian's depth loss on a rendered depth [H, W] against the (constant) mono target:
     w_local * local + w_global * global, each term with its own patch size drawn uniformly from
     [lo, hi] inclusive (local first, as DNGaussian draws them; clamped to the image size).
     Returns (loss, v_depth float32 [H, W]).  What is detached: see
     `reference_loss.depth_norm_loss_fwd_bwd`.
+
+    `smooth`: None, or (SmoothWeights of this target, w_smooth) to add w_smooth times DNGaussian's
+    edge-aware smoothness (`reference_loss.depth_smooth_fwd_bwd`; LLFF after iteration 3000).
 
     device None or "reference": the float64 numpy reference; an OpenCL device string: the kernels
     of kernels/depth_loss.cl (`depth_loss_cl(device)`; host arrays uploaded, v_depth read back)."""
@@ -309,8 +352,12 @@ def depth_loss(depth: np.ndarray, target: np.ndarray, rng: np.random.Generator,
     p_local, p_global = draw_depth_patches(rng, patch_range, h, w)
     if device is None or device == "reference":
         loss, v = ref.global_local_depth_loss(depth, target, p_local, p_global, margin, w_local, w_global)
+        if smooth is not None and smooth[1] != 0:
+            sw, ws = smooth
+            ls, vs = ref.depth_smooth_fwd_bwd(depth, sw.wx, sw.wy)
+            loss, v = loss + ws * ls, v + ws * vs
         return loss, v.astype(np.float32)
-    return depth_loss_cl(device)(depth, target, p_local, p_global, margin, w_local, w_global)
+    return depth_loss_cl(device)(depth, target, p_local, p_global, margin, w_local, w_global, smooth)
 # }}}
 
 # {{{ regularizers

@@ -8,6 +8,7 @@ Methods:
     dngaussian  random init, DNGaussian recipe (hard + soft depth)
     reings      EHPS -> coarse (photometric + hard depth) -> IVPS -> fine (+ soft depth)
                 -> CVPS -> final (+ soft depth)   (paper Eq. 4-9; METHOD.md §1)
+                -> final prune (ReInGSConfig.final_prune: the lowest 10% by Omega_G; not in the paper)
     reings-no-ehps, reings-no-ivps, reings-no-cvps (combinable: reings-no-ivps-no-cvps)
                 the paper's Table 4 ablations (ReInGSConfig.ehps/ivps/cvps = False)
 
@@ -64,7 +65,17 @@ class ReInGSConfig:
     # Quick preset, procedural scene, test PSNR seeds 0/1: "hard" 14.90/14.87, "expected" 21.54/20.69
     # (dngaussian 18.04/18.38, reings-no-ivps 20.24/-). Default "expected"; "hard" = Eq. 5 literally.
     ivps_depth: str = "expected"
-    cvps_fraction: float = 0.40  # CVPS: fraction of Gaussians kept
+    # CVPS: fraction of the fine-stage Gaussians kept. The paper's 0.4 is the switch --cvps-fraction 0.4;
+    # default 0.2 from the model-size study (docs/results.md; H200, full schedule, fern and flower at
+    # 2/3/4 views): final Gaussians -12..-28%, test PSNR -0.08..+0.55 dB (mean +0.14) against 0.4
+    cvps_fraction: float = 0.20
+    # fraction of Gaussians with the lowest importance Omega_G (Eq. 7, summed over the TRAINING views
+    # only) removed after the final optimization, before evaluation; 0 = off. Not in the paper
+    # (deterministic: `prune_keep_indices`). Default 0.1 from the model-size study (docs/results.md,
+    # the prune curves of 30 full-schedule runs on fern and flower at 2/3/4 views): keeping the top
+    # 90% changed test PSNR by -0.02 dB on average (worst -0.22, within the run-to-run spread);
+    # 80% cost 0.05 dB, 70% 0.17-0.23 dB, 50% about 1 dB.
+    final_prune: float = 0.1
     ehps: bool = True  # ablation switch: False = DNGaussian-style random init
     ivps: bool = True  # ablation switch
     cvps: bool = True  # ablation switch
@@ -163,17 +174,49 @@ def ivps_points(g, train, priors, rc: ReInGSConfig, device, bg, near, rng):
     return np.concatenate(pts).astype(np.float32), np.concatenate(cols).astype(np.float32)
 
 
-def cvps_select(g, train, rc: ReInGSConfig, device, bg, near, rng):
-    """CVPS (Eq. 7-8): Omega_G = sum over views and pixels of alpha*T per Gaussian; draw 40%
-    without replacement with p ~ Omega_G (+ a tiny epsilon so zero-score Gaussians are possible)."""
+def gaussian_importance(g, cameras, device, bg, near) -> np.ndarray:
+    """Omega_G (Eq. 7): per Gaussian, the sum over `cameras` and their pixels of alpha*T where it
+    blends; float64 [N]. The basis of CVPS and of the final prune (pass training cameras only)."""
     from .rendering import render
 
     omega = np.zeros(len(g), np.float64)
-    for cam in train.cameras:
+    for cam in cameras:
         omega += render(g, cam, device, bg, near, want_importance=True).importance
+    return omega
+
+
+def prune_keep_indices(omega, keep: float) -> np.ndarray:
+    """Sorted indices of the round(keep * N) Gaussians (at least 1 when N > 0) of highest `omega`;
+    deterministic: a stable sort of -omega, so ties keep the lower index."""
+    omega = np.asarray(omega, np.float64)
+    if not 0.0 < float(keep) <= 1.0:
+        raise ValueError(f"keep must be in (0, 1], got {keep!r}")
+    n = len(omega)
+    k = min(n, max(1, int(round(float(keep) * n)))) if n else 0
+    return np.sort(np.argsort(-omega, kind="stable")[:k])
+
+
+def cvps_select(g, train, rc: ReInGSConfig, device, bg, near, rng):
+    """CVPS (Eq. 7-8): Omega_G = sum over views and pixels of alpha*T per Gaussian; draw 40%
+    without replacement with p ~ Omega_G (+ a tiny epsilon so zero-score Gaussians are possible)."""
+    omega = gaussian_importance(g, train.cameras, device, bg, near)
     p = omega + 1e-12 * max(omega.max(), 1.0)
     n = max(1, int(round(rc.cvps_fraction * len(g))))
     return np.sort(rng.choice(len(g), size=n, replace=False, p=p / p.sum()))
+
+
+PRUNE_CURVE_KEEP = (1.0, 0.9, 0.8, 0.7, 0.6, 0.5, 0.4)
+
+
+def prune_curve_points(g, omega, test, device, bg, near, keeps=PRUNE_CURVE_KEEP) -> list:
+    """Test PSNR/SSIM (no LPIPS) of `g` restricted to its top `keep` fraction by `omega`, per keep:
+    [{"keep", "gaussians", "psnr", "ssim"}]. Reporting only: the test views rank nothing."""
+    pts = []
+    for keep in keeps:
+        gk = g.subset(prune_keep_indices(omega, keep))
+        m = _evaluate(gk, test, device, bg, near, None, with_lpips=False)
+        pts.append({"keep": float(keep), "gaussians": len(gk), "psnr": m.get("psnr"), "ssim": m.get("ssim")})
+    return pts
 # }}}
 
 
@@ -438,6 +481,15 @@ def write_text_atomic(path: str, text: str) -> None:
 # }}}
 
 
+def _rc_settings(rc: ReInGSConfig) -> dict:
+    """ReInGSConfig as recorded in checkpoints/run.json. final_prune is left out at its default (0)
+    so that runs interrupted before the option existed still resume."""
+    d = dataclasses.asdict(rc)
+    if not d.get("final_prune"):
+        d.pop("final_prune", None)
+    return d
+
+
 def load_run_scene(data, dataset=None, factor=8):
     """`load_scene` for a run: LLFF's full-view COLMAP points are not read (the few-shot side
     never uses them, and reading them needs pycolmap, which a GPU machine may lack)."""
@@ -454,7 +506,7 @@ def run(data=None, dataset=None, method="reings", views=3, device="pocl", depth_
         preset="quick", iterations=None, seed=0, out=None, overwrite=False, factor=8, quiet=False,
         reings_config: ReInGSConfig | None = None, init_points=5000, sh_degree=None,
         with_lpips=True, eval_every=None, checkpoint_every=250, max_gaussians=None,
-        extent="sfm") -> RunResult:
+        extent="sfm", prune_curve=False, depth_smooth=None) -> RunResult:
     """Fit one scene with `method` and evaluate its test views; see the module docstring.
 
     method: "reings", "dngaussian", "3dgs", or an ablation "reings-no-ehps" (also -no-ivps,
@@ -465,6 +517,14 @@ def run(data=None, dataset=None, method="reings", views=3, device="pocl", depth_
         (the training-frusta box directly, no SfM) for EHPS and the random inits.
     max_gaussians: optional cap on the Gaussian count that densification respects in every stage
         (DensifyConfig.max_gaussians); None = no cap.
+    depth_smooth: weight of DNGaussian's edge-aware depth smoothness in every stage's depth passes
+        (LossConfig.depth_smooth_weight); None = the recipe's 0.1 (from the middle of each stage),
+        except 0 with the stereo prior (no measured benefit there; see run's body).
+    reings_config.final_prune: reings only; after the final stage, remove that fraction of the
+        Gaussians with the lowest Omega_G over the training views (the reported model).
+    prune_curve: also report test PSNR/SSIM of the final model cut to its top 100%, 90%, ..., 40%
+        by the same Omega_G (metrics["prune_curve"]); a study tool, the test views rank nothing and
+        the reported model is unchanged.
     out: output folder (None: nothing written, no resume). A folder holding metrics.json is refused
         unless overwrite=True (which starts over); one holding checkpoints of the same settings
         is resumed.
@@ -489,6 +549,12 @@ def run(data=None, dataset=None, method="reings", views=3, device="pocl", depth_
         raise ValueError(f"eval_every must be >= 0 (0 = off), got {eval_every!r}")
     if int(checkpoint_every) < 1:
         raise ValueError(f"checkpoint_every must be >= 1, got {checkpoint_every!r}")
+    if depth_smooth is not None and (isinstance(depth_smooth, bool) or not np.isfinite(float(depth_smooth))
+                                     or float(depth_smooth) < 0):
+        raise ValueError(f"depth_smooth must be a finite weight >= 0, got {depth_smooth!r}")
+    fp = rc.final_prune
+    if isinstance(fp, bool) or not isinstance(fp, (int, float, np.integer, np.floating)) or not 0.0 <= float(fp) < 1.0:
+        raise ValueError(f"final_prune must be a fraction in [0, 1) (0 = off), got {fp!r}")
     if data is not None and str(data) != "procedural":
         if not os.path.exists(os.fspath(data)):
             raise FileNotFoundError(f"--data {data}: scene folder not found")
@@ -511,19 +577,32 @@ def run(data=None, dataset=None, method="reings", views=3, device="pocl", depth_
     if depth_prior == "exact" and train.depths is None:
         raise ValueError("--depth-prior exact needs a scene with exact depths (the procedural scene)")
     if sh_degree is None:
-        sh_degree = 0 if preset == "quick" else 3
+        # paper preset: SH 3 for the baselines (their recipes); SH 1 for reings, from the model-size
+        # study (docs/results.md): -61% parameters per Gaussian, test PSNR -0.14..+0.37 dB (mean +0.07)
+        sh_degree = 0 if preset == "quick" else (1 if base == "reings" else 3)
     scene_name = "procedural" if data is None or str(data) == "procedural" else os.path.basename(os.path.normpath(os.fspath(data)))
     settings = {
         "method": label, "data": None if data is None else os.path.abspath(os.fspath(data)),
         "dataset": scene.kind, "views": int(views), "preset": preset, "iterations": list(its),
         "seed": int(seed), "depth_prior": depth_prior, "factor": factor, "init_points": int(init_points),
-        "sh_degree": int(sh_degree), "reings_config": dataclasses.asdict(rc),
+        "sh_degree": int(sh_degree), "reings_config": _rc_settings(rc),
         "max_gaussians": None if not max_gaussians else int(max_gaussians), "extent": extent,
     }
+    if depth_smooth is not None:  # absent = the preset's (older run folders resume unchanged)
+        settings["depth_smooth"] = float(depth_smooth)
     if out:
         _prepare_out(out, settings, overwrite)
+    # the depth smoothness weight of every stage: as given, else the recipe's (0.1) except with the
+    # stereo prior, whose edges (holes filled by a guided filter) are not the mono network's edges
+    # the term was designed for. With the stereo prior it had no measurable effect: 30 paired
+    # full-schedule runs (fern and flower, 2/3/4 views, 5 methods; docs/results.md) moved test PSNR
+    # by +0.01 dB on average when it was off (reings +0.11, dngaussian +0.14, per-run spread +-0.5)
+    smooth_w = (float(depth_smooth) if depth_smooth is not None
+                else 0.0 if depth_prior == "stereo" else None)  # None: the preset's
     rng = np.random.default_rng(seed)
     log = (lambda msg: None) if quiet else (lambda msg: print(msg, file=sys.stderr, flush=True))
+    if rc.final_prune > 0 and base != "reings":
+        log(f"[{label}] note: final_prune applies to reings only; ignored")
 
     t = time.perf_counter()
     if depth_prior == "exact":
@@ -564,6 +643,8 @@ def run(data=None, dataset=None, method="reings", views=3, device="pocl", depth_
     def stage_fit(name, cfg, init, use_priors):
         if max_gaussians:
             cfg = replace(cfg, densify=replace(cfg.densify, max_gaussians=int(max_gaussians)))
+        if smooth_w is not None:
+            cfg = replace(cfg, loss=replace(cfg.loss, depth_smooth_weight=smooth_w))
         ee = auto_eval_every(cfg.iterations) if eval_every is None else int(eval_every)
         if not series and ee:  # the starting point of the curve: the initial Gaussians
             series.append({"stage": "init", "iteration": 0, "seconds": 0.0, "wall_seconds": 0.0,
@@ -633,8 +714,39 @@ def run(data=None, dataset=None, method="reings", views=3, device="pocl", depth_
         between("cvps", time.perf_counter() - t)
         counts["cvps"] = len(init3)
         g = stage_fit("final", _soft_stage_config(i3, sh_degree), init3, True)
+    # final prune / prune curve: Omega_G of the final model over the TRAINING views. Computed here on
+    # every (re)run from the final Gaussians (from final.npz on resume), never checkpointed: applied
+    # exactly once, and deterministically (stable ranking, deterministic renders).
+    g_final, omega, omega_s = g, None, 0.0
+    do_prune = base == "reings" and rc.final_prune > 0
+    if do_prune or prune_curve:
+        t = time.perf_counter()
+        omega = gaussian_importance(g_final, train.cameras, device, bg, near)
+        omega_s = time.perf_counter() - t
+    if do_prune:
+        t = time.perf_counter()
+        g = g_final.subset(prune_keep_indices(omega, 1.0 - float(rc.final_prune)))
+        dt = omega_s + time.perf_counter() - t
+        between("final_prune", dt)
+        counts["final_prune"] = len(g)
+        model_bytes["final_prune"] = gaussians_nbytes(g)
+        stages.append({"stage": "final_prune", "iterations": 0, "seconds": dt, "wall_seconds": dt,
+                       "eval_seconds": 0.0, "fraction": float(rc.final_prune), "gaussians_before": len(g_final),
+                       "gaussians": len(g), "model_bytes": model_bytes["final_prune"],
+                       "peak_rss_mb": _peak_rss_mb(), "device_peak_bytes": device_peak_bytes(backend),
+                       "importance": "Omega_G (Eq. 7), alpha*T summed over the training views"})
+        if series:  # the curve ends on the reported (pruned) model
+            series.append({"stage": "final_prune", "iteration": 0, "seconds": clock["train"],
+                           "wall_seconds": clock["wall"], **probe(g)})
+        log(f"[{label}] final_prune: {len(g_final)} -> {len(g)} Gaussians "
+            f"(lowest {rc.final_prune:.0%} by training-view Omega_G removed)")
     timings["method"] = clock["train"]  # training + re-initialisation, probes excluded
     timings["probes"] = clock["probe"]
+    curve = None
+    if prune_curve:  # reporting only: the final model (before final_prune) cut by the same ranking
+        t = time.perf_counter()
+        curve = prune_curve_points(g_final, omega, test, device, bg, near)
+        timings["prune_curve"] = time.perf_counter() - t + (0.0 if do_prune else omega_s)
 
     t = time.perf_counter()
     m = _evaluate(g, test, device, bg, near, out, with_lpips=with_lpips)
@@ -661,9 +773,12 @@ def run(data=None, dataset=None, method="reings", views=3, device="pocl", depth_
                          "clock": "seconds = training + re-initialisation wall clock, test-PSNR probes excluded; "
                                   "wall_seconds = the same with the probes"},
         "reings_config": dataclasses.asdict(rc), "config": {**settings, "device": device, "with_lpips": with_lpips,
-                                                            "eval_every": eval_every, "checkpoint_every": checkpoint_every},
+                                                            "eval_every": eval_every, "checkpoint_every": checkpoint_every,
+                                                            "prune_curve": bool(prune_curve)},
         "stages": stages,
     }
+    if curve is not None:
+        metrics["prune_curve"] = curve
     if "lpips_error" in m:
         metrics["lpips_error"] = m["lpips_error"]
     metrics = _jsonable(metrics)
@@ -678,12 +793,14 @@ def run(data=None, dataset=None, method="reings", views=3, device="pocl", depth_
 
 def main_run(args) -> int:
     rc = ReInGSConfig(ehps=not args.no_ehps, ivps=not args.no_ivps, cvps=not args.no_cvps,
-                      ivps_depth=args.ivps_depth, cvps_fraction=args.cvps_fraction)
+                      ivps_depth=args.ivps_depth, cvps_fraction=args.cvps_fraction,
+                      final_prune=getattr(args, "final_prune", ReInGSConfig.final_prune))
     r = run(data=args.data, dataset=args.dataset, method=args.method, views=args.views, device=args.device,
             depth_prior=args.depth_prior, preset=args.preset, iterations=args.iterations, seed=args.seed,
             out=args.out, overwrite=args.overwrite, factor=args.factor, quiet=args.quiet, reings_config=rc,
             eval_every=args.eval_every, with_lpips=not args.no_lpips, init_points=args.init_points,
-            sh_degree=args.sh_degree, max_gaussians=args.max_gaussians, extent=args.extent)
+            sh_degree=args.sh_degree, max_gaussians=args.max_gaussians, extent=args.extent,
+            prune_curve=getattr(args, "prune_curve", False), depth_smooth=getattr(args, "depth_smooth", None))
     m = r.metrics
     mean = m["mean"]
     print(f"{m['method']} on {m['data']} ({m['views']} views, {m['device']}): "

@@ -297,6 +297,18 @@ def fit(views, config: TrainConfig, device: str = "pocl", init: Gaussians | None
                         eval_fn, eval_every, log_every)
     hard_ema = None
     zeros_rgb = {}
+    from .losses import SmoothWeights
+
+    smooth_views = {}  # view -> SmoothWeights, built on first use
+
+    def smooth_of(vi, it):
+        """(SmoothWeights, weight) of the depth smoothness at iteration `it`, or None."""
+        w = smooth_weight_at(L, it)
+        if not w:
+            return None
+        if vi not in smooth_views:
+            smooth_views[vi] = SmoothWeights(depth_targets[vi])
+        return smooth_views[vi], w
     try:
         for it in range(state.iteration + 1, cfg.iterations + 1):
             opt.update_learning_rate(it)
@@ -318,7 +330,7 @@ def fit(views, config: TrainConfig, device: str = "pocl", init: Gaussians | None
                     out = render(g, cam, device, bg, near, opacity_override=o)
                 with ph("depth_loss"):
                     lh, vd = depth_loss(out.depth, target, rng, L.depth_patch_range, L.depth_margin,
-                                        L.depth_w_local, L.depth_w_global, device)
+                                        L.depth_w_local, L.depth_w_global, device, smooth_of(vi, it))
                 hard_ema = lh if hard_ema is None else 0.9 * hard_ema + 0.1 * lh
                 with ph("hard_backward"):
                     vg = render_vjp(g, cam, zeros_rgb[key], vd, None, device, bg, near, opacity_override=o,
@@ -333,7 +345,7 @@ def fit(views, config: TrainConfig, device: str = "pocl", init: Gaussians | None
                     out = render(g, cam, device, bg, near)
                 with ph("depth_loss"):
                     ls, vd = depth_loss(out.depth, target, rng, L.depth_patch_range, L.depth_margin,
-                                        L.depth_w_local, L.depth_w_global, device)
+                                        L.depth_w_local, L.depth_w_global, device, smooth_of(vi, it))
                 with ph("soft_backward"):
                     vg = render_vjp(g, cam, zeros_rgb[key], vd, None, device, bg, near,
                                     grad_fields=("opacity_logits",))
@@ -395,6 +407,7 @@ def _fit_device(backend, images, cameras, depth_targets, cfg, state, opt, rng, h
     bg, near = tuple(cfg.background), cfg.near
     V = len(images)
     w_l1, w_ssim = photometric_weights(L.lambda_dssim, L.photometric_form)
+    smooth_w = lambda it: smooth_weight_at(L, it)  # noqa: E731
     reg_on = bool(L.shape_pena or L.scale_pena or L.opa_pena)
     if state.iteration == 0 and cfg.iterations >= 1 and cfg.densify.clean_views:
         # the host loop does this at iteration 1 before anything else; nothing differs before it
@@ -402,7 +415,8 @@ def _fit_device(backend, images, cameras, depth_targets, cfg, state, opt, rng, h
     dev = DeviceTrainer(backend, images, adam=adam, profile=profile)
     dev.upload(state)
     if depth_targets is not None and (L.hard_depth or L.soft_depth):
-        dev.upload_depth_targets(depth_targets, [(c.height, c.width) for c in cameras])
+        dev.upload_depth_targets(depth_targets, [(c.height, c.width) for c in cameras],
+                                 smooth=L.depth_smooth_weight != 0)
     need_hard_loss = L.soft_depth_ema_gate is not None  # the only reader of the hard depth loss
     ph = dev.phase
     groups = [k for k in PARAM_NAMES if k in opt.lr]
@@ -428,7 +442,8 @@ def _fit_device(backend, images, cameras, depth_targets, cfg, state, opt, rng, h
                     fr = dev.forward(cam, k, bg, near, o)
                 with ph("depth_loss"):
                     pl, pg = draw_depth_patches(rng, L.depth_patch_range, fr.height, fr.width)
-                    vd = dev.depth_loss(fr, vi, pl, pg, L.depth_margin, L.depth_w_local, L.depth_w_global)
+                    vd = dev.depth_loss(fr, vi, pl, pg, L.depth_margin, L.depth_w_local, L.depth_w_global,
+                                        smooth_w(it))
                     if need_hard_loss:
                         lh = dev.read_depth_loss()
                         hard_ema = lh if hard_ema is None else 0.9 * hard_ema + 0.1 * lh
@@ -443,7 +458,8 @@ def _fit_device(backend, images, cameras, depth_targets, cfg, state, opt, rng, h
                     fr = dev.forward(cam, k, bg, near)
                 with ph("depth_loss"):
                     pl, pg = draw_depth_patches(rng, L.depth_patch_range, fr.height, fr.width)
-                    vd = dev.depth_loss(fr, vi, pl, pg, L.depth_margin, L.depth_w_local, L.depth_w_global)
+                    vd = dev.depth_loss(fr, vi, pl, pg, L.depth_margin, L.depth_w_local, L.depth_w_global,
+                                        smooth_w(it))
                 with ph("soft_backward"):
                     gr = dev.backward(fr, None, vd, None, ("opacity_logits",))
                 with ph("adam"):
@@ -487,6 +503,13 @@ def _fit_device(backend, images, cameras, depth_targets, cfg, state, opt, rng, h
     return FitResult(state.gaussians(deg), history, time.perf_counter() - t0, state)
 
 
+def smooth_weight_at(loss_config, it: int) -> float:
+    """The depth smoothness weight at iteration `it` (0 before depth_smooth_from), one rule for
+    both engines."""
+    L = loss_config
+    return float(L.depth_smooth_weight) if L.depth_smooth_weight and it >= L.depth_smooth_from else 0.0
+
+
 def with_iterations(config: TrainConfig, iterations: int) -> TrainConfig:
     """A copy of `config` with its schedule squeezed into `iterations` (densification window,
     position-lr decay, depth-term starts and SH steps scaled proportionally)."""
@@ -498,7 +521,8 @@ def with_iterations(config: TrainConfig, iterations: int) -> TrainConfig:
         sh_degree_interval=sc(config.sh_degree_interval),
         optim=replace(o, position_lr_start=int(round(o.position_lr_start * f)),
                       position_lr_max_steps=sc(o.position_lr_max_steps)),
-        loss=replace(L, soft_depth_from=sc(L.soft_depth_from), hard_depth_from=max(1, sc(L.hard_depth_from))),
+        loss=replace(L, soft_depth_from=sc(L.soft_depth_from), hard_depth_from=max(1, sc(L.hard_depth_from)),
+                     depth_smooth_from=sc(L.depth_smooth_from)),
         densify=replace(d, densify_from=sc(d.densify_from), densify_until=sc(d.densify_until),
                         densify_interval=max(10, sc(d.densify_interval)),
                         opacity_reset_interval=sc(d.opacity_reset_interval),

@@ -1,70 +1,73 @@
 #!/usr/bin/env bash
-# The LLFF result grid on a lent multi-GPU NVIDIA machine (nvidia-h200-x4), in one call:
-#   GPU workers (WORKERS_PER_GPU per GPU, pinned to the first half of the cores) share the job list of
-#   `reings eval` through its per-run locks: fern, flower x 2/3/4 views x {reings, its three
-#   ablations, dngaussian}, full (paper) schedule; then issue 4's baselines at 3 views (dngaussian
-#   with 2000 and 8000 random points, 3dgs), the paper-literal IVPS depth, and the model-size study
-#   (CVPS keeping 20% instead of 40%; SH degree 1 instead of 3).
-#   PoCL (second half of the cores): the full-schedule fern 3-view ReInGS run (3/4 of that half) and the
-#   quick preset at 3 views (the rest).
-# LPIPS is off here (its 59 MB model does not fit the carry budget beside the data): the test
-# renders come back in $OUT and scripts/rescore_lpips.py adds LPIPS on the home machine.
-# Runs stop at GRID_SECONDS; rerunning the script on the same warm machine resumes them.
-# Carry: .whl and .gpudata (data under .gpudata/llff, depth-prior and SfM caches under .gpudata/cache).
+# Result grids on a lent NVIDIA machine (one or more GPUs), in one call, from job files:
+#
+#   scripts/gpu_grid.sh GPU_JOBS [POCL_JOBS]
+#
+# Each non-comment line of a job file holds the arguments of one `reings eval` over the LLFF
+# scenes under .gpudata/llff, after the common ones (--dataset llff --root .gpudata/llff --no-lpips
+# --quiet --keep-going); a relative --out is taken under $GRID. Every GPU worker (WORKERS_PER_GPU
+# per GPU, PER = GPU_CORES / workers cores each, within
+# cores 0..GPU_CORES-1, default 2 per worker) walks the whole GPU file in order with --device cuda:g;
+# every PoCL worker (POCL_SLICES slices of POCL_CORES cores after those) walks the PoCL file with
+# --device pocl. Workers share the runs through `reings eval`'s per-run locks, so list long runs
+# first. LPIPS is off (the 59 MB VGG model does not fit the carry budget beside the data): the
+# test renders come back in $OUT (scripts/pack_out.py) and scripts/rescore_lpips.py adds LPIPS
+# on the home machine. Workers stop at GRID_SECONDS.
+# Carry: .whl and .gpudata (LLFF scenes under .gpudata/llff; depth-prior and SfM caches under
+# .gpudata/cache: fill them first with `reings eval ... --prepare-only`).
 set -u
+GJOBS=${1:?usage: scripts/gpu_grid.sh GPU_JOBS [POCL_JOBS]}; PJOBS=${2:-}
 OUT=${OUT:-/tmp/out}; mkdir -p "$OUT"
 GRID=${GRID:-/tmp/grid}; mkdir -p "$GRID"
 GRID_SECONDS=${GRID_SECONDS:-540}
-WORKERS_PER_GPU=${WORKERS_PER_GPU:-2}
+WORKERS_PER_GPU=${WORKERS_PER_GPU:-4}
 python3 -m pip install -q --no-index --no-deps --no-compile --target /tmp/site .whl/*.whl || exit 1
 export PYTHONPATH=/tmp/site:$PWD PYTHONUNBUFFERED=1 REINGS_CACHE_DIR=$PWD/.gpudata/cache
 mkdir -p /tmp/icd && cp /etc/OpenCL/vendors/*.icd /tmp/icd/ 2>/dev/null
 echo /usr/local/nvidia/lib64/libnvidia-opencl.so.1 > /tmp/icd/nvidia.icd
 export OCL_ICD_VENDORS=/tmp/icd
 NGPU=$(nvidia-smi -L | wc -l); NCPU=$(nproc)
-{ nvidia-smi --query-gpu=name,driver_version --format=csv,noheader; lscpu | grep -E "Model name|^CPU\(s\)"; python3 -m reings.cli devices; } > "$GRID/machine.txt" 2>&1
-E="python3 -m reings.cli eval --dataset llff --root .gpudata/llff --scenes fern,flower --no-lpips --quiet --keep-going"
-MAIN="--views 2,3,4 --methods reings,reings-no-ehps,reings-no-ivps,reings-no-cvps,dngaussian --preset paper --out $GRID/paper"
-half=${GPU_CORES:-$((NCPU / 2))}  # cores 0..half-1 drive the GPUs, the rest run PoCL
-POCL_FULL=${POCL_FULL:-1}
+NW=$((NGPU * WORKERS_PER_GPU))
+GPU_CORES=${GPU_CORES:-$((2 * NW))}
+PER=$(( GPU_CORES / NW )); [ "$PER" -lt 1 ] && PER=1
+POCL_CORES=${POCL_CORES:-4}
+POCL_SLICES=${POCL_SLICES:-$(( (NCPU - GPU_CORES) / POCL_CORES ))}
+{ nvidia-smi --query-gpu=name,driver_version --format=csv,noheader; lscpu | grep -E "Model name|^CPU\(s\)"
+  python3 -m reings.cli devices; echo "GPU workers $NW on cores 0-$((GPU_CORES - 1));" \
+  "PoCL workers $POCL_SLICES x $POCL_CORES cores"; } > "$GRID/machine.txt" 2>&1
+cp "$GJOBS" "$GRID/gpu_jobs.txt"; [ -n "$PJOBS" ] && cp "$PJOBS" "$GRID/pocl_jobs.txt"
+cp "${PACK_ORDER:-scripts/grids/pack_order.txt}" "$GRID/pack_order.txt" 2>/dev/null  # which renders come back first
+
+# worker JOBFILE DEVICE: every line of JOBFILE as one `reings eval`, in order
+worker() {
+  grep -v '^\s*#' "$1" | grep -v '^\s*$' | while read -r line; do
+    out=$(sed -E 's/.*--out +([^ ]+).*/\1/' <<< "$line")
+    line=${line/--out $out/--out $GRID/$out}
+    python3 -m reings.cli eval --dataset llff --root .gpudata/llff --no-lpips --quiet --keep-going \
+      $line --device "$2" < /dev/null
+  done
+}
+export -f worker; export GRID
 w=0
 for g in $(seq 0 $((NGPU - 1))); do
-  for k in $(seq 1 $WORKERS_PER_GPU); do
-    lo=$(( (w * half) / (NGPU * WORKERS_PER_GPU) )); hi=$(( ((w + 1) * half) / (NGPU * WORKERS_PER_GPU) - 1 ))
-    EXTRAS="$E --views 3 --methods 3dgs --preset paper --out $GRID/paper --device cuda:$g
-        $E --views 3 --methods dngaussian --init-points 2000 --preset paper --out $GRID/pts2000 --device cuda:$g
-        $E --views 3 --methods dngaussian --init-points 8000 --preset paper --out $GRID/pts8000 --device cuda:$g
-        $E --views 3 --methods reings --ivps-depth hard --preset paper --out $GRID/ivps_hard --device cuda:$g
-        $E --views 3 --methods reings --cvps-fraction 0.2 --preset paper --out $GRID/cvps02 --device cuda:$g
-        $E --views 3 --methods reings --sh-degree 1 --preset paper --out $GRID/sh1 --device cuda:$g"
-    if [ $k = 1 ]; then JOBS="$EXTRAS
-        $E $MAIN --device cuda:$g"; else JOBS="$E $MAIN --device cuda:$g
-        $EXTRAS"; fi  # one worker takes the short extra runs first
-    ( timeout $GRID_SECONDS taskset -c $lo-$hi bash -c "$JOBS" ) >> "$GRID/worker_gpu${g}_$k.log" 2>&1 &
+  for k in $(seq 1 "$WORKERS_PER_GPU"); do
+    lo=$(( (w * PER) % GPU_CORES )); hi=$(( lo + PER - 1 ))
+    ( timeout "$GRID_SECONDS" taskset -c "$lo-$hi" bash -c "worker $GRID/gpu_jobs.txt cuda:$g" ) \
+      >> "$GRID/worker_gpu${g}_$k.log" 2>&1 &
     w=$((w + 1))
   done
 done
-# PoCL: the full-schedule ReInGS run of fern at 3 views (issue 6: same settings and seed as the GPU
-# run in $GRID/paper; resumes from its checkpoints on a second call), and the quick preset at 3 views.
-PF=$((half + (NCPU - half) * 3 / 4 - 1))
-[ "$POCL_FULL" = 1 ] || PF=$((half - 1))
-[ "$POCL_FULL" = 1 ] && ( POCL_CPU_MAX_CU_COUNT=$((PF - half + 1)) timeout $GRID_SECONDS taskset -c $half-$PF \
-    python3 -m reings.cli run --data .gpudata/llff/fern --views 3 --device pocl --preset paper --no-lpips --quiet \
-    --out $GRID/pocl_full/fern3 ) > "$GRID/worker_pocl_full.log" 2>&1 &
-[ $((PF + 1)) -lt $NCPU ] && ( POCL_CPU_MAX_CU_COUNT=$((NCPU - PF - 1)) timeout $GRID_SECONDS taskset -c $((PF + 1))-$((NCPU - 1)) \
-    $E --views 3 --methods reings,dngaussian --preset quick --out $GRID/quick_pocl --device pocl ) \
-    > "$GRID/worker_pocl_quick.log" 2>&1 &
+if [ -n "$PJOBS" ]; then
+  for s in $(seq 0 $((POCL_SLICES - 1))); do
+    lo=$(( GPU_CORES + s * POCL_CORES )); hi=$(( lo + POCL_CORES - 1 ))
+    ( POCL_CPU_MAX_CU_COUNT=$POCL_CORES timeout "$GRID_SECONDS" taskset -c "$lo-$hi" \
+      bash -c "worker $GRID/pocl_jobs.txt pocl" ) >> "$GRID/worker_pocl_$s.log" 2>&1 &
+  done
+fi
 wait
-for d in paper pts2000 pts8000 ivps_hard cvps02 sh1 quick_pocl; do
+for d in $(cat "$GRID/gpu_jobs.txt" "$GRID/pocl_jobs.txt" 2>/dev/null | grep -v '^\s*#' \
+           | sed -nE 's/.*--out +([^ ]+).*/\1/p' | sort -u); do
   [ -d "$GRID/$d" ] && python3 -m reings.cli eval --table-only --out "$GRID/$d" > /dev/null 2>&1
 done
-cd "$GRID"
-tar czf "$OUT/tables_logs.tgz" machine.txt *.log $(find . -name "results.*" -o -name "metrics.json" -o -name "psnr_vs_time.svg" | sort)
-[ -d pocl_full/fern3/renders ] && tar czf "$OUT/pocl_full.tgz" pocl_full/fern3/renders pocl_full/fern3/metrics.json 2>/dev/null
-for s in fern flower; do  # one archive per scene x views: each stays under the 16 MB per-file limit
-  for v in 2 3 4; do
-    f=$(find . -path "*/${v}views/$s/renders/*.png" | sort)
-    [ -n "$f" ] && tar czf "$OUT/renders_${s}_${v}.tgz" $f
-  done
-done
-ls -la "$OUT"; tail -n 2 worker_*.log
+python3 scripts/pack_out.py "$GRID" "$OUT"
+ls -la "$OUT"; tail -qn 1 "$GRID"/worker_*.log

@@ -115,3 +115,73 @@ def test_eval_unknown_scene(tmp_path, capsys):
     _fails(["eval", "--dataset", "llff", "--root", str(root), "--scenes", "fern,trex", "--out", str(out)], capsys,
            "trex", "found: fern")
     assert not out.exists()
+
+
+# -- --iterations N | A,B,C and --depth-smooth WEIGHT, shared by `run` and `eval`
+
+def _record_run(monkeypatch):
+    """Replace reings.pipeline.run (what `reings run` and `reings eval` call) by a stub that records
+    its keyword arguments; returns the list of recorded calls."""
+    from reings import pipeline
+
+    calls = []
+
+    def fake_run(**kw):
+        calls.append(kw)
+        return pipeline.RunResult(None, {"mean": {"psnr": 1.0}, "method": kw.get("method"), "data": "procedural",
+                                         "views": kw.get("views"), "device": "pocl",
+                                         "seconds": {"method": 0.0, "total": 0.0}, "gaussians": {}})
+
+    monkeypatch.setattr(pipeline, "run", fake_run)
+    return calls
+
+
+def _cli(kind, out, *extra):
+    if kind == "run":
+        return ["run", "--out", str(out), "--quiet", *extra]
+    return ["eval", "--dataset", "procedural", "--views", "2", "--methods", "reings", "--out", str(out),
+            "--quiet", *extra]
+
+
+@pytest.mark.parametrize("kind", ["run", "eval"])
+def test_iterations_and_depth_smooth_reach_run(kind, tmp_path, monkeypatch):
+    calls = _record_run(monkeypatch)
+    assert main(_cli(kind, tmp_path / "a", "--iterations", "100,300,600", "--depth-smooth", "0.05")) == 0
+    assert len(calls) == 1
+    assert calls[-1]["iterations"] == (100, 300, 600) and isinstance(calls[-1]["iterations"], tuple)
+    assert calls[-1]["depth_smooth"] == 0.05
+    assert main(_cli(kind, tmp_path / "b", "--iterations", "7")) == 0
+    assert calls[-1]["iterations"] == 7 and type(calls[-1]["iterations"]) is int
+    assert calls[-1]["depth_smooth"] is None  # absent: the preset's weight
+    assert main(_cli(kind, tmp_path / "c", "--depth-smooth", "0")) == 0
+    assert calls[-1]["depth_smooth"] == 0.0 and calls[-1]["iterations"] is None  # 0 = off, not "absent"
+    assert len(calls) == 3
+
+
+@pytest.mark.parametrize("kind", ["run", "eval"])
+@pytest.mark.parametrize("bad,why", [("1,2", "A,B,C"), ("0", ">= 1"), ("a,b,c", "expected an integer"),
+                                     ("5,-1,3", ">= 1")])
+def test_bad_iterations_are_argparse_errors(kind, bad, why, tmp_path, monkeypatch, capsys):
+    calls = _record_run(monkeypatch)
+    out = tmp_path / "o"
+    _argparse_fails(_cli(kind, out, "--iterations", bad), capsys, "argument --iterations", why)
+    assert not out.exists() and calls == []
+
+
+@pytest.mark.parametrize("kind", ["run", "eval"])
+@pytest.mark.parametrize("bad,why", [("-1", ">= 0"), ("nan", ">= 0"), ("inf", ">= 0"), ("x", "expected a number")])
+def test_bad_depth_smooth_are_argparse_errors(kind, bad, why, tmp_path, monkeypatch, capsys):
+    calls = _record_run(monkeypatch)
+    out = tmp_path / "o"
+    _argparse_fails(_cli(kind, out, "--depth-smooth", bad), capsys, "argument --depth-smooth", why)
+    assert not out.exists() and calls == []
+
+
+@pytest.mark.parametrize("bad", [-1, float("nan"), float("inf"), True])
+def test_run_refuses_bad_depth_smooth_before_writing(bad, tmp_path):
+    import reings
+
+    out = tmp_path / "out"
+    with pytest.raises(ValueError, match="depth_smooth"):
+        reings.pipeline.run(out=str(out), depth_smooth=bad, quiet=True)
+    assert not out.exists()

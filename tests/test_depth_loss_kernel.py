@@ -263,6 +263,87 @@ def test_kernel_gradient_fd(device, mode):
 # }}}
 
 
+# {{{ edge-aware depth smoothness (DNGaussian LLFF)
+
+
+def test_smooth_weights_analytic():
+    """A step target: weight exp(-257) (0 in float64 terms: < 1e-100) across the step, 1 along it;
+    the last column of wx and the last row of wy are 0; a constant target gives all-1 weights;
+    a non-finite target is an error."""
+    t = np.zeros((4, 6))
+    t[:, 3:] = 5.0  # a vertical edge between columns 2 and 3
+    wx, wy = R.smooth_weights(t)
+    assert wx[:, 2].max() < 1e-100 and np.all(wx[:, [0, 1, 3, 4]] == 1.0) and not wx[:, 5].any()
+    assert np.all(wy[:3] == 1.0) and not wy[3].any()
+    # affine in the target: the same weights for any scale and offset of the target
+    wx2, wy2 = R.smooth_weights(7.0 - 0.01 * t)
+    np.testing.assert_array_equal(wx, wx2)
+    np.testing.assert_array_equal(wy, wy2)
+    # a ramp of total rise 257 over 5 steps: exp(-257 / 5) per x step
+    r = np.tile(np.arange(6.0), (2, 1))
+    wx, wy = R.smooth_weights(r)
+    np.testing.assert_allclose(wx[:, :5], np.exp(-R.DNG_MONO_SPAN / 5), rtol=1e-12)
+    wx, wy = R.smooth_weights(np.full((3, 3), 2.5))
+    assert wx[:, :2].min() == 1.0 and wy[:2].min() == 1.0
+    with pytest.raises(ValueError, match="non-finite"):
+        R.smooth_weights(np.array([[0.0, np.nan], [1.0, 2.0]]))
+
+
+def test_smooth_reference_fd():
+    """The float64 reference's gradient against central differences (no ties: |D| is smooth there)."""
+    rng = np.random.default_rng(11)
+    d = rng.uniform(1, 3, (7, 9))
+    wx, wy = rng.uniform(0.1, 1.0, (2, 7, 9))  # any positive weights (zero-padded as smooth_weights)
+    wx[:, -1] = 0
+    wy[-1] = 0
+    loss, g = R.depth_smooth_fwd_bwd(d, wx, wy)
+    want = (np.abs(np.diff(d, axis=1)) * wx[:, :-1]).sum() + (np.abs(np.diff(d, axis=0)) * wy[:-1]).sum()
+    assert loss == pytest.approx(want / (wx.sum() + wy.sum()), rel=1e-14)
+    for i in np.ndindex(d.shape):
+        fd = _fd(lambda z: R.depth_smooth_fwd_bwd(z, wx, wy)[0], d, i)
+        assert abs(fd - g[i]) <= 1e-7 * abs(g).max(), (i, fd, g[i])
+
+
+@pytest.mark.parametrize("h,w,pl,pg,kind", [CASES[0], CASES[2], CASES[4], (378, 504, 5, 17, "structured")])
+def test_smooth_matches_reference(device, h, w, pl, pg, kind):
+    """The kernels with the smoothness term (fused into dl_grad; its loss by dl_smooth_rows) against
+    the float64 reference sum, both dl_grad schedules, and the float path; ties in the depth
+    (sign 0) included: a copied column."""
+    rng = np.random.default_rng([h, w, 5])
+    d, t = _inputs(kind, h, w, rng)
+    d[:, 3] = d[:, 2]  # exact ties: the gradient of |0| is 0 on both sides
+    sw = losses.SmoothWeights(t)
+    ws = 0.1
+    l0, g0 = _ref(d, t, pl, pg)
+    ls, gs = R.depth_smooth_fwd_bwd(d, sw.wx, sw.wy)
+    want = (l0 + ws * ls, g0 + ws * gs)
+    assert ls > 0 and np.abs(gs).max() > 0
+    _check(_dl(device)(d, t, pl, pg, MARGIN, smooth=(sw, ws)), want, LOSS_RTOL64, GRAD_RTOL64)
+    other = _dl(device, cpu_schedule=not _dl(device).cpu_schedule)(d, t, pl, pg, MARGIN, smooth=(sw, ws))
+    np.testing.assert_array_equal(other[1], _dl(device)(d, t, pl, pg, MARGIN, smooth=(sw, ws))[1])
+    _check(_dl(device, fp64=False)(d, t, pl, pg, MARGIN, smooth=(sw, ws)), want, LOSS_RTOL32, GRAD_RTOL32,
+           elementwise=False)
+    # weight 0 is exactly the term-free loss; the public form agrees with the reference device
+    np.testing.assert_array_equal(_dl(device)(d, t, pl, pg, MARGIN, smooth=(sw, 0.0))[1],
+                                  _dl(device)(d, t, pl, pg, MARGIN)[1])
+    a = losses.depth_loss(d, t, np.random.default_rng(1), (pl, pl), MARGIN, device=device, smooth=(sw, ws))
+    b = losses.depth_loss(d, t, np.random.default_rng(1), (pl, pl), MARGIN, device="reference", smooth=(sw, ws))
+    _check(a, (b[0], b[1].astype(np.float64)), LOSS_RTOL64, GRAD_RTOL64)
+
+
+def test_smooth_schedule():
+    """DNGaussian: smoothness at iterations > 3000 of 6000 (LLFF preset), none on DTU; the start
+    scales with the schedule."""
+    from reings.config import preset
+    from reings.train import smooth_weight_at, with_iterations
+
+    L = preset("dngaussian").loss
+    assert smooth_weight_at(L, 3000) == 0.0 and smooth_weight_at(L, 3001) == 0.1
+    assert smooth_weight_at(preset("dngaussian_dtu").loss, 5000) == 0.0
+    assert with_iterations(preset("dngaussian"), 600).loss.depth_smooth_from == 300
+# }}}
+
+
 # {{{ Oclgrind
 # One instance per case, every instance kept alive (so no buffer is ever released or regrown): with
 # the checks on, Oclgrind 19.10 reports values read from buffers allocated after another buffer was
@@ -271,7 +352,7 @@ def test_kernel_gradient_fd(device, mode):
 # one, and with a 13x11 call of 30 patches after one of 13).
 _OCLGRIND_SCRIPT = """
 import numpy as np, warnings
-from reings.losses import DepthLossCL
+from reings.losses import DepthLossCL, SmoothWeights
 from reings.backends import reference_loss as R
 rng = np.random.default_rng(0)
 d = rng.uniform(1, 3, (13, 11)).astype(np.float32)
@@ -290,6 +371,12 @@ for fp64 in (True, False):
             tol = 1e-6 if fp64 else 1e-4
             assert abs(lk - lr) <= tol * abs(lr), (fp64, cs, pl, pg, lk, lr)
             assert np.linalg.norm(gk - gr) <= tol * max(np.linalg.norm(gr), 1e-30), (fp64, cs, pl, pg)
+        sw = SmoothWeights(t)  # the smoothness term fused into dl_grad, and its on-demand loss kernel
+        lr, gr = R.global_local_depth_loss(d, t, 3, 5, 0.00025)
+        ls, gs = R.depth_smooth_fwd_bwd(d, sw.wx, sw.wy)
+        lk, gk = dl(d, t, 3, 5, 0.00025, smooth=(sw, 0.1))
+        assert abs(lk - (lr + 0.1 * ls)) <= tol * abs(lr + 0.1 * ls), (fp64, cs, lk, lr + 0.1 * ls)
+        assert np.linalg.norm(gk - (gr + 0.1 * gs)) <= tol * np.linalg.norm(gr + 0.1 * gs), (fp64, cs)
 print("ok")
 """
 

@@ -115,3 +115,63 @@ def test_eval_procedural_end_to_end_and_skip(tmp_path, capsys):
     assert main(argv[:-1] + [str(out)]) == 0  # rerun: both runs are skipped
     assert (out / "procedural" / "dngaussian" / "2views" / "procedural" / "metrics.json").stat().st_mtime_ns == first
     assert "results.md" in capsys.readouterr().out
+
+
+# -- --final-prune / --prune-curve / --depth-smooth in `reings eval`
+
+def test_eval_passes_final_prune_and_prune_curve(tmp_path, monkeypatch):
+    from reings import pipeline
+
+    calls = []
+
+    def fake_run(**kw):
+        calls.append(kw)
+        return pipeline.RunResult(None, {"mean": {"psnr": 1.0}}, [])
+
+    monkeypatch.setattr(pipeline, "run", fake_run)
+    base = ["eval", "--dataset", "procedural", "--views", "2", "--methods", "reings", "--quiet"]
+    assert main(base + ["--final-prune", "0.3", "--prune-curve", "--out", str(tmp_path / "a")]) == 0
+    assert len(calls) == 1
+    assert calls[0]["reings_config"].final_prune == 0.3 and calls[0]["prune_curve"] is True
+    assert main(base + ["--out", str(tmp_path / "b")]) == 0
+    assert calls[1]["reings_config"].final_prune == 0.1 and calls[1]["prune_curve"] is False  # the default
+    assert calls[1]["depth_smooth"] is None
+
+
+def test_setting_tag_names_smoothness_and_prune():
+    m = {"method": "reings", "base_method": "reings", "preset": "quick", "seed": 0, "depth_prior": "stereo",
+         "config": {"preset": "quick", "iterations": [200, 200, 600], "depth_smooth": 0.0,
+                    "reings_config": {"final_prune": 0.5}}}
+    tag = evaluate._setting_tag(m)
+    assert "smooth 0" in tag and "prune 0.5" in tag, tag
+    plain = {**m, "config": {"preset": "quick", "iterations": [200, 200, 600], "reings_config": {"final_prune": 0.1}}}
+    tag = evaluate._setting_tag(plain)  # the default prune (0.1) is no distinction
+    assert "smooth" not in tag and "prune" not in tag, tag
+    assert tag == "quick"
+    off = {**m, "config": {"preset": "quick", "iterations": [200, 200, 600], "reings_config": {"final_prune": 0.0}}}
+    assert "prune 0" in evaluate._setting_tag(off)
+    dng = {**off, "method": "dngaussian", "base_method": "dngaussian"}
+    assert "prune" not in evaluate._setting_tag(dng)
+
+
+@pytest.mark.parametrize("method,stages", [("dngaussian", ["dngaussian"]), ("reings", ["coarse", "fine", "final"])])
+def test_depth_smooth_overrides_every_stage(method, stages, tmp_path, device):
+    from reings import pipeline
+
+    kw = dict(method=method, iterations=4 if method == "dngaussian" else 2, depth_prior="exact", quiet=True,
+              with_lpips=False, eval_every=0, device=device)
+    pipeline.run(out=str(tmp_path / "r"), depth_smooth=0.25, **kw)
+    m = json.loads((tmp_path / "r" / "metrics.json").read_text())
+    fits = [s for s in m["stages"] if "config" in s]  # reings also records its final_prune step
+    assert [s["stage"] for s in fits] == stages
+    assert [s["config"]["loss"]["depth_smooth_weight"] for s in fits] == [0.25] * len(stages)
+    assert m["config"]["depth_smooth"] == 0.25
+    assert "smooth 0.25" in evaluate._setting_tag(m)
+    pipeline.run(out=str(tmp_path / "p"), **kw)  # depth_smooth=None: the preset's (DNGaussian LLFF) 0.1
+    m = json.loads((tmp_path / "p" / "metrics.json").read_text())
+    assert [s["config"]["loss"]["depth_smooth_weight"] for s in m["stages"] if "config" in s] == [0.1] * len(stages)
+    assert "depth_smooth" not in m["config"]
+    if method == "dngaussian":  # the stereo prior's default is no smoothness
+        pipeline.run(out=str(tmp_path / "s"), **{**kw, "depth_prior": "stereo"})
+        m = json.loads((tmp_path / "s" / "metrics.json").read_text())
+        assert [s["config"]["loss"]["depth_smooth_weight"] for s in m["stages"]] == [0.0]

@@ -8,9 +8,11 @@
     depth_norm_loss_fwd_bwd one term of DNGaussian's global-local depth normalisation
                             (`utils/loss_utils.py` patch_norm_mse_loss[_global], METHOD.md §2.4)
     global_local_depth_loss w_local * local(p1) + w_global * global(p2)
+    depth_smooth_fwd_bwd    DNGaussian's LLFF edge-aware depth smoothness (`loss_depth_smoothness`),
+                            weights from the target (smooth_weights)
 
 `kernels/loss.cl` and `kernels/l1.cl` must match the first three (tests/test_losses.py,
-tests/test_peer_step.py), `kernels/depth_loss.cl` the last two (tests/test_depth_loss_kernel.py).
+tests/test_peer_step.py), `kernels/depth_loss.cl` the last three (tests/test_depth_loss_kernel.py).
 On device "reference" these functions are the losses themselves (`reings.losses`).
 """
 from __future__ import annotations
@@ -189,4 +191,54 @@ def global_local_depth_loss(depth, target, patch_local: int, patch_global: int, 
     l1, g1 = depth_norm_loss_fwd_bwd(depth, target, patch_local, margin, "local")
     l2, g2 = depth_norm_loss_fwd_bwd(depth, target, patch_global, margin, "global")
     return w_local * l1 + w_global * l2, w_local * g1 + w_global * g2
+# }}}
+
+# {{{ depth smoothness
+
+DNG_MONO_SPAN = 65535.0 / 255.0  # DNGaussian's D_mono = 255 - PNG16 / 255 spans [0, 257]
+
+
+def smooth_weights(target: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Edge weights of DNGaussian's depth smoothness (`utils/loss_utils.py` loss_depth_smoothness,
+    with img = the mono depth, METHOD.md §2.3): wx[y, x] = exp(-|T[y, x] - T[y, x+1]|) and
+    wy[y, x] = exp(-|T[y, x] - T[y+1, x]|), each [H, W] float64, 0 in the last column / row.
+
+    T is the target mapped affinely onto [0, DNG_MONO_SPAN] by its min and max (the span of
+    DNGaussian's 16-bit-PNG target, whose DPT maps fill the 16-bit range). Proposal: our priors
+    come in other units (stereo: metric depth), and exp(-|grad|) depends on the units; a constant
+    target gives all weights 1. Non-finite target values are an error."""
+    t = np.asarray(target, np.float64)
+    if t.ndim != 2:
+        raise ValueError(f"smooth_weights: target must be [H, W], got shape {t.shape}")
+    if not np.isfinite(t).all():
+        raise ValueError("smooth_weights: the depth target has non-finite values")
+    lo, hi = float(t.min()), float(t.max())
+    m = (t - lo) * (DNG_MONO_SPAN / (hi - lo)) if hi > lo else np.zeros_like(t)
+    wx = np.zeros_like(t)
+    wy = np.zeros_like(t)
+    wx[:, :-1] = np.exp(-np.abs(m[:, :-1] - m[:, 1:]))
+    wy[:-1, :] = np.exp(-np.abs(m[:-1, :] - m[1:, :]))
+    return wx, wy
+
+
+def depth_smooth_fwd_bwd(depth: np.ndarray, wx: np.ndarray, wy: np.ndarray) -> tuple[float, np.ndarray]:
+    """(sum |D[x] - D[x+1]| wx + sum |D[y] - D[y+1]| wy) / (sum wx + sum wy) and its gradient
+    w.r.t. the rendered depth D [H, W] (sign(0) = 0, as torch's abs). Weights from `smooth_weights`."""
+    d = np.asarray(depth, np.float64)
+    wx = np.asarray(wx, np.float64)
+    wy = np.asarray(wy, np.float64)
+    tot = float(wx.sum() + wy.sum())
+    if tot <= 0:
+        return 0.0, np.zeros_like(d)
+    dx = d[:, :-1] - d[:, 1:]
+    dy = d[:-1, :] - d[1:, :]
+    loss = float((np.abs(dx) * wx[:, :-1]).sum() + (np.abs(dy) * wy[:-1, :]).sum()) / tot
+    gx = np.sign(dx) * wx[:, :-1]
+    gy = np.sign(dy) * wy[:-1, :]
+    v = np.zeros_like(d)
+    v[:, :-1] += gx
+    v[:, 1:] -= gx
+    v[:-1, :] += gy
+    v[1:, :] -= gy
+    return loss, v / tot
 # }}}

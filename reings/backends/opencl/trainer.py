@@ -281,13 +281,15 @@ class DeviceTrainer:
     def read_depth(self, fr) -> np.ndarray:
         return self._read(fr.bufs["out_depth"], (fr.height, fr.width), _F32)
 
-    def upload_depth_targets(self, targets, shapes) -> None:
+    def upload_depth_targets(self, targets, shapes, smooth: bool = False) -> None:
         """The depth targets of the training views ([H,W] each, or None) -> float32 device buffers,
-        once per fit; `shapes` the views' (H, W), checked."""
-        from ...losses import depth_loss_cl
+        once per fit; `shapes` the views' (H, W), checked. smooth: also the edge weights of the
+        depth smoothness term (reings.losses.SmoothWeights), two more [H,W] buffers per view."""
+        from ...losses import SmoothWeights, depth_loss_cl
 
         self.dloss = depth_loss_cl(self.b.spec)
         self.dt = []
+        self.ds = []  # per view: (wx_buf, wy_buf, 1 / sum of weights) or None
         for i, (t, hw) in enumerate(zip(targets, shapes)):
             if t is None:
                 self.dt.append(None)
@@ -298,15 +300,31 @@ class DeviceTrainer:
             buf = self.mem.get("pixel", f"dt{i}", a.shape[0] * a.shape[1], 4)
             self._write(buf, a)
             self.dt.append(buf)
+            if smooth:
+                sw = SmoothWeights(a)
+                bx = self.mem.get("pixel", f"dswx{i}", a.size, 4)
+                by = self.mem.get("pixel", f"dswy{i}", a.size, 4)
+                self._write(bx, sw.wx)
+                self._write(by, sw.wy)
+                self.ds.append((bx, by, sw.inv_sum))
+            else:
+                self.ds.append(None)
 
     def depth_loss(self, fr, view: int, p_local: int, p_global: int, margin: float, w_local: float,
-                   w_global: float):
+                   w_global: float, w_smooth: float = 0.0):
         """DNGaussian's depth loss (reings.losses.DepthLossCL) of the frame's depth buffer against
-        the resident depth target of `view`: dL/d depth goes into the v_depth buffer (returned,
+        the resident depth target of `view`, plus w_smooth times the edge-aware smoothness (needs
+        upload_depth_targets(smooth=True)): dL/d depth goes into the v_depth buffer (returned,
         overwritten); the loss stays on the device (`read_depth_loss`). Nothing crosses the bus."""
         v = self.mem.get("pixel", "v_depth", fr.width * fr.height, 4)
+        sm = None
+        if w_smooth:
+            if self.ds[view] is None:
+                raise RuntimeError("depth smoothness needs upload_depth_targets(..., smooth=True)")
+            bx, by, inv = self.ds[view]
+            sm = (bx, by, w_smooth * inv)
         ev = self.dloss.enqueue(fr.bufs["out_depth"], self.dt[view], v, fr.height, fr.width, p_local, p_global,
-                                margin, w_local, w_global)
+                                margin, w_local, w_global, sm)
         if self.profile is not None:
             self._events.append(("depth_loss", ev))  # last kernel only: a lower bound
         return v
