@@ -197,8 +197,9 @@ def prune_keep_indices(omega, keep: float) -> np.ndarray:
 
 
 def cvps_select(g, train, rc: ReInGSConfig, device, bg, near, rng):
-    """CVPS (Eq. 7-8): Omega_G = sum over views and pixels of alpha*T per Gaussian; draw 40%
-    without replacement with p ~ Omega_G (+ a tiny epsilon so zero-score Gaussians are possible)."""
+    """CVPS (Eq. 7-8): Omega_G = sum over views and pixels of alpha*T per Gaussian; draw
+    rc.cvps_fraction of them (the paper: 40%) without replacement with p ~ Omega_G (+ a tiny
+    epsilon so zero-score Gaussians are possible)."""
     omega = gaussian_importance(g, train.cameras, device, bg, near)
     p = omega + 1e-12 * max(omega.max(), 1.0)
     n = max(1, int(round(rc.cvps_fraction * len(g))))
@@ -482,8 +483,8 @@ def write_text_atomic(path: str, text: str) -> None:
 
 
 def _rc_settings(rc: ReInGSConfig) -> dict:
-    """ReInGSConfig as recorded in checkpoints/run.json. final_prune is left out at its default (0)
-    so that runs interrupted before the option existed still resume."""
+    """ReInGSConfig as recorded in checkpoints/run.json. final_prune is left out when 0 (the value
+    before the option existed), so that runs interrupted before then still resume."""
     d = dataclasses.asdict(rc)
     if not d.get("final_prune"):
         d.pop("final_prune", None)

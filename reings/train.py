@@ -241,7 +241,7 @@ def fit(views, config: TrainConfig, device: str = "pocl", init: Gaussians | None
     """
     from . import densify as D
     from .backends import get_backend
-    from .losses import depth_loss, photometric_loss, regularizers
+    from .losses import SmoothWeights, depth_loss, photometric_loss, regularizers
     from .optim import make_optimizer, sh_degree_at
     from .rendering import render, render_vjp
     from .state import TrainState
@@ -297,8 +297,6 @@ def fit(views, config: TrainConfig, device: str = "pocl", init: Gaussians | None
                         eval_fn, eval_every, log_every)
     hard_ema = None
     zeros_rgb = {}
-    from .losses import SmoothWeights
-
     smooth_views = {}  # view -> SmoothWeights, built on first use
 
     def smooth_of(vi, it):
@@ -407,7 +405,6 @@ def _fit_device(backend, images, cameras, depth_targets, cfg, state, opt, rng, h
     bg, near = tuple(cfg.background), cfg.near
     V = len(images)
     w_l1, w_ssim = photometric_weights(L.lambda_dssim, L.photometric_form)
-    smooth_w = lambda it: smooth_weight_at(L, it)  # noqa: E731
     reg_on = bool(L.shape_pena or L.scale_pena or L.opa_pena)
     if state.iteration == 0 and cfg.iterations >= 1 and cfg.densify.clean_views:
         # the host loop does this at iteration 1 before anything else; nothing differs before it
@@ -443,7 +440,7 @@ def _fit_device(backend, images, cameras, depth_targets, cfg, state, opt, rng, h
                 with ph("depth_loss"):
                     pl, pg = draw_depth_patches(rng, L.depth_patch_range, fr.height, fr.width)
                     vd = dev.depth_loss(fr, vi, pl, pg, L.depth_margin, L.depth_w_local, L.depth_w_global,
-                                        smooth_w(it))
+                                        smooth_weight_at(L, it))
                     if need_hard_loss:
                         lh = dev.read_depth_loss()
                         hard_ema = lh if hard_ema is None else 0.9 * hard_ema + 0.1 * lh
@@ -459,7 +456,7 @@ def _fit_device(backend, images, cameras, depth_targets, cfg, state, opt, rng, h
                 with ph("depth_loss"):
                     pl, pg = draw_depth_patches(rng, L.depth_patch_range, fr.height, fr.width)
                     vd = dev.depth_loss(fr, vi, pl, pg, L.depth_margin, L.depth_w_local, L.depth_w_global,
-                                        smooth_w(it))
+                                        smooth_weight_at(L, it))
                 with ph("soft_backward"):
                     gr = dev.backward(fr, None, vd, None, ("opacity_logits",))
                 with ph("adam"):

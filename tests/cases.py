@@ -286,3 +286,22 @@ def case(name: str) -> Case:
 
 def all_cases() -> list[tuple[str, Case]]:
     return [(k, f()) for k, f in CASES.items()]
+
+
+def dngaussian_fit_case(n_views: int, width: int, height: int, n_points: int, sh_degree: int, iterations: int,
+                        soft_depth_from: int, densify_until: int):
+    """(procedural scene, random init, DNGaussian config squeezed to `iterations`) for the engine tests:
+    a small procedural scene with exact depths, `n_points` random Gaussians in a fixed box."""
+    from dataclasses import replace
+
+    import reings
+    from reings.config import preset
+    from reings.train import gaussians_from_points, random_points_in_box, with_iterations
+
+    scene = reings.make_procedural_scene(n_views=n_views, width=width, height=height, supersample=1)
+    rng = np.random.default_rng(0)
+    init = gaussians_from_points(random_points_in_box([-2, 0, 0], [2, 2, 5], n_points, rng), None, sh_degree, rng)
+    cfg = with_iterations(preset("dngaussian"), iterations)
+    cfg = replace(cfg, sh_degree=sh_degree, loss=replace(cfg.loss, soft_depth_from=soft_depth_from),
+                  densify=replace(cfg.densify, densify_until=densify_until))
+    return scene, init, cfg

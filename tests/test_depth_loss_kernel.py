@@ -396,19 +396,10 @@ def test_oclgrind_checks():
 # {{{ the training engines
 @pytest.fixture(scope="module")
 def small_case():
-    import reings
-    from dataclasses import replace
+    from cases import dngaussian_fit_case
 
-    from reings.config import preset
-    from reings.train import gaussians_from_points, random_points_in_box, with_iterations
-
-    scene = reings.make_procedural_scene(n_views=2, width=40, height=30, supersample=1)
-    rng = np.random.default_rng(0)
-    init = gaussians_from_points(random_points_in_box([-2, 0, 0], [2, 2, 5], 150, rng), None, 0, rng)
-    cfg = with_iterations(preset("dngaussian"), 6)
-    cfg = replace(cfg, sh_degree=0, loss=replace(cfg.loss, soft_depth_from=2),
-                  densify=replace(cfg.densify, densify_until=0))
-    return scene, init, cfg
+    return dngaussian_fit_case(n_views=2, width=40, height=30, n_points=150, sh_degree=0, iterations=6,
+                               soft_depth_from=2, densify_until=0)
 
 
 def _fit_small(case, device, cfg=None, **kw):
@@ -460,6 +451,25 @@ def test_device_engine_depth_on_device(device, small_case, monkeypatch, gate):
         else:
             np.testing.assert_allclose(dev.state.params[k], host.state.params[k], rtol=1e-5, atol=2e-5, err_msg=k)
     np.testing.assert_allclose(dev.history.loss, host.history.loss, rtol=1e-5)
+
+
+@pytest.mark.parametrize("engine", ["host", "device"])
+def test_smoothness_takes_part_in_the_fit(device, small_case, engine):
+    """The small case's schedule turns the smoothness on at iteration 3 of 6 (DNGaussian: > 3000 of
+    6000): weight 0 must give other parameters, and before iteration 3 nothing may differ."""
+    from dataclasses import replace
+
+    scene, init, cfg = small_case
+    assert cfg.loss.depth_smooth_weight == 0.1 and cfg.loss.depth_smooth_from == 3
+    off = replace(cfg, loss=replace(cfg.loss, depth_smooth_weight=0.0))
+    a = _fit_small(small_case, device, cfg, engine=engine)
+    b = _fit_small(small_case, device, off, engine=engine)
+    assert any(not np.array_equal(a.state.params[k], b.state.params[k]) for k in ("means", "opacity_logits"))
+    early = replace(cfg, iterations=2)
+    a2 = _fit_small(small_case, device, early, engine=engine)
+    b2 = _fit_small(small_case, device, replace(off, iterations=2), engine=engine)
+    for k in a2.state.params:
+        np.testing.assert_array_equal(a2.state.params[k], b2.state.params[k], err_msg=k)
 
 
 def test_device_engine_checks_target_shapes(device, small_case):

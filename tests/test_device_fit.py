@@ -4,8 +4,8 @@ Adam), and its checkpoint resume.
 
 Case: the procedural scene at 64x48, 3 views, 300 random Gaussians at SH degree 1, the dngaussian
 preset squeezed to 23 iterations: hard depth from iteration 1, soft depth from 3, the SH degree
-raised at iteration 4, shape / scale / opacity penalties, clean_views, and densification at
-iterations 10 and 20 (splits happen: the Gaussian count changes).
+raised at iteration 4, shape / scale / opacity penalties, clean_views, the depth smoothness from
+iteration 12, and densification at iterations 10 and 20 (splits happen: the Gaussian count changes).
 
 Tolerance: both engines run the same kernels for the passes; they differ only where the device
 engine does on the device what the host engine does in numpy (Adam, penalties, statistics). Those
@@ -18,29 +18,22 @@ count, or a wrong group still fails."""
 from __future__ import annotations
 
 import os
-from dataclasses import replace
 
 import numpy as np
 import pytest
 
-import reings
+from cases import dngaussian_fit_case
 from reings.backends import get_backend
 from reings.backends.opencl import quirks
-from reings.config import preset
-from reings.train import fit, gaussians_from_points, random_points_in_box, with_iterations
+from reings.train import fit
 
 ATOL, RTOL = 2e-5, 1e-5
 
 
 @pytest.fixture(scope="module")
 def case():
-    scene = reings.make_procedural_scene(n_views=3, width=64, height=48, supersample=1)
-    rng = np.random.default_rng(0)
-    init = gaussians_from_points(random_points_in_box([-2, 0, 0], [2, 2, 5], 300, rng), None, 1, rng)
-    cfg = with_iterations(preset("dngaussian"), 23)
-    cfg = replace(cfg, sh_degree=1, loss=replace(cfg.loss, soft_depth_from=3),
-                  densify=replace(cfg.densify, densify_until=25))
-    return scene, init, cfg
+    return dngaussian_fit_case(n_views=3, width=64, height=48, n_points=300, sh_degree=1, iterations=23,
+                               soft_depth_from=3, densify_until=25)
 
 
 def _fit(case, device, **kw):
