@@ -15,7 +15,7 @@ import os
 import numpy as np
 
 from . import images as imgs
-from .scene import Scene, SceneError, make_camera
+from .types import Scene, SceneError, make_camera
 
 GL_TO_CV = np.diag([1.0, -1.0, -1.0, 1.0])
 

@@ -25,8 +25,7 @@ import tempfile
 import numpy as np
 
 from ..types import Camera
-from .llff import _image_folder
-from .scene import Scene, SceneError, make_camera
+from .types import Scene, SceneError, make_camera
 
 # models whose geometry is a pinhole; the others carry distortion or non-pinhole projection
 PINHOLE_MODELS = ("SIMPLE_PINHOLE", "PINHOLE")
@@ -192,7 +191,7 @@ def load_colmap_scene(path: str, factor: int = 8, ignore_distortion: bool = Fals
     if model_dir is None:
         raise SceneError(f"{path}: no COLMAP model (sparse/0/cameras.bin or .txt)")
     rec = read_model(model_dir)
-    img_dir, extra = (images, 1.0) if images else _image_folder(path, factor)
+    img_dir, extra = (images, 1.0) if images else imgs.factor_image_folder(path, factor)
     entries = sorted(rec.images.values(), key=lambda im: im.name)
     if not entries:
         raise SceneError(f"{model_dir}: COLMAP model has no images")

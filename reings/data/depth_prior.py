@@ -6,7 +6,7 @@
     depths = prior.compute(train_scene)                       # list of (H, W) float32, or Nones
     depths, confs = prior.compute(train_scene, return_confidence=True)
 
-`compute` takes the *training* scene only (a `reings.data.scene.Scene`, or anything with
+`compute` takes the *training* scene only (a `reings.data.Scene`, or anything with
 `.images` and `.cameras`; a plain list of images works for the ONNX prior). Every returned map is
 "depth-like": larger = farther, defined up to an affine map (the depth losses are scale- and
 shift-invariant per patch). The stereo prior returns metric z-depth and a confidence in [0, 1];

@@ -28,7 +28,7 @@ import re
 import numpy as np
 
 from . import images as imgs
-from .scene import Scene, SceneError, make_camera
+from .types import Scene, SceneError, make_camera
 
 CALIB_SIZE = (1600, 1200)  # (width, height) at which DTU's projection matrices are given
 

@@ -12,7 +12,7 @@ import os
 
 import numpy as np
 
-from .scene import SceneError
+from .types import SceneError
 
 IMAGE_EXTS = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".exr")
 
@@ -33,6 +33,22 @@ def list_images(folder: str) -> list[str]:
     if not names:
         raise SceneError(f"{folder}: no image files ({', '.join(IMAGE_EXTS)})")
     return names
+
+
+def factor_image_folder(path: str, factor: int) -> tuple[str, float]:
+    """(folder, scale still to apply to its images) for downsampling factor `factor` of scene `path`.
+
+    `images_{factor}/` if it exists (scale 1: LLFF ships pre-downsampled folders), else `images/`
+    with scale 1/factor (`resize` then does it). Used by the LLFF and COLMAP loaders.
+    """
+    if factor and factor > 1:
+        d = os.path.join(path, f"images_{factor}")
+        if os.path.isdir(d):
+            return d, 1.0
+    d = os.path.join(path, "images")
+    if not os.path.isdir(d):
+        raise SceneError(f"{path}: no images_{factor}/ or images/ folder")
+    return d, 1.0 / factor if factor and factor > 1 else 1.0
 
 
 def _check_complete(path: str, data: bytes) -> None:

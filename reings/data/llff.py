@@ -22,7 +22,7 @@ import os
 import numpy as np
 
 from . import images as imgs
-from .scene import Scene, SceneError, make_camera
+from .types import Scene, SceneError, make_camera
 
 # NeX-format folders here store images at 1/4 of the original LLFF capture (about 1008 x 756),
 # so `factor` (counted from the original capture) maps to an extra downscale of 4 / factor.
@@ -56,18 +56,6 @@ def _load_npy(path: str, ncols: int) -> np.ndarray:
     return a.astype(np.float64)
 
 
-def _image_folder(path: str, factor: int) -> tuple[str, float]:
-    """(folder, scale to apply to its images)."""
-    if factor and factor > 1:
-        d = os.path.join(path, f"images_{factor}")
-        if os.path.isdir(d):
-            return d, 1.0
-    d = os.path.join(path, "images")
-    if not os.path.isdir(d):
-        raise SceneError(f"{path}: no images_{factor}/ or images/ folder")
-    return d, 1.0 / factor if factor and factor > 1 else 1.0
-
-
 def _read_views(folder: str, names: list[str], scale: float):
     out = []
     for n in names:
@@ -93,7 +81,7 @@ def load_llff(path: str, factor: int = 8, load_points: bool = True) -> Scene:
     """An official LLFF scene folder (poses_bounds.npy N x 17, images_{factor}/) as a `Scene`."""
     pb_path = os.path.join(path, "poses_bounds.npy")
     pb = _load_npy(pb_path, 17)
-    folder, scale = _image_folder(path, factor)
+    folder, scale = imgs.factor_image_folder(path, factor)
     names = imgs.list_images(folder)
     if len(names) != len(pb):
         raise SceneError(f"{pb_path}: {len(pb)} poses but {len(names)} images in {folder}")

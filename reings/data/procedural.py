@@ -15,7 +15,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..types import Camera
-from .scene import Scene
+from .types import Scene
 
 _WALL_Z = 5.0  # back wall plane z = _WALL_Z; every camera ray has d_z > 0, so each one hits it
 _LIGHT = np.array([-0.45, 0.8, -0.4]) / np.linalg.norm([-0.45, 0.8, -0.4])  # towards the light

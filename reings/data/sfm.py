@@ -40,7 +40,7 @@ from pathlib import Path
 import numpy as np
 
 from .cachekey import hash_image, hash_rounded
-from .scene import Scene, SceneError
+from .types import Scene, SceneError
 
 TRIM_OF_KIND = {"dtu": 100}  # order statistic per kind; default 20 (LLFF)
 DEFAULT_TRIM = 20
