@@ -78,7 +78,7 @@ def test_dtu_scan24():
     sc = load_scene(_path("dtu", "scan24"))
     assert sc.kind == "dtu" and len(sc) == 49 and sc.images[0].shape == (300, 400, 3)
     assert sc.masks is not None and sc.masks[0].shape == (300, 400) and 0.2 < sc.masks[0].mean() < 0.9
-    # K at 1600x1200 (MANIFEST: [[2892.33, 0, 823.21], [0, 2883.18, 619.07]]) divided by 4
+    # K at 1600x1200 (docs/data.md "Test data and models": [[2892.33, 0, 823.21], [0, 2883.18, 619.07]]) divided by 4
     np.testing.assert_allclose(sc.cameras[0].K[:2, :3] * 4, [[2892.33, 0, 823.21], [0, 2883.18, 619.07]], atol=0.02)
     # same decomposition as OpenCV's
     d = np.load(os.path.join(_path("dtu", "scan24"), "cameras_sphere.npz"))

@@ -4,7 +4,7 @@ Official LLFF row: a 3x5 matrix flattened row-major, [R | t | hwf] with the rota
 LLFF's [down, right, back] order (camera-to-world), hwf = (height, width, focal) at the full
 capture resolution, then (near, far). COLMAP's camera axes are [right, down, forward], so the
 OpenCV camera-to-world rotation is [col1, col0, -col2]; the world frame is COLMAP's, unchanged
-(3DGS-family convention, METHOD.md §4.1: no recentering, no rescale, no NDC), so the dataset's
+(3DGS-family convention, docs/method.md §4.1: no recentering, no rescale, no NDC), so the dataset's
 `sparse/0/points3D.bin` projects into the images with these cameras. The principal point is the
 image centre (W/2, H/2) in the +0.5 pixel convention: COLMAP's cameras.bin for fern/flower has
 cx = 2016 = 4032/2, and its focal length equals the hwf focal.

@@ -1,4 +1,4 @@
-"""Scene extent from the training views only (METHOD.md §1.3, EHPS's box V), without leakage.
+"""Scene extent from the training views only (docs/method.md §1.3, EHPS's box V), without leakage.
 
 `sfm_extent(train_scene)`:
 1. SfM with known poses on the k training images only (COLMAP `point_triangulator` flow as FSGS

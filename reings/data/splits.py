@@ -3,9 +3,9 @@
 * LLFF (also NeX, COLMAP and the procedural scene): images sorted by name; test = positions
   i with i % 8 == 0; train = pool[round(j)] for j in numpy.linspace(0, len(pool) - 1, k), with
   Python's round (halves to even), pool = the other positions [RegNeRF/FreeNeRF, DNGaussian,
-  FSGS: METHOD.md §4.1]. Deterministic, no seed.
+  FSGS: docs/method.md §4.1]. Deterministic, no seed.
 * DTU: train = [25, 22, 28, 40, 44, 48, 0, 8, 13][:k], the 15 `DTU_EXCLUDED` ids are neither,
-  the remaining 25 are test (the "pixelnerf" split, METHOD.md §4.2). Needs the 49 views.
+  the remaining 25 are test (the "pixelnerf" split, docs/method.md §4.2). Needs the 49 views.
 * Blender (NeRF-synthetic): train = `BLENDER_TRAIN_IDS[:k]` among the `train` split (the 8-view
   DietNeRF/FreeNeRF list, quoted from memory), test = every `test` split image.
 
