@@ -357,25 +357,45 @@ def test_no_long_functions():
 # {{{ (e) one training loop
 
 
-def _mentions_iteration(node: ast.AST) -> bool:
-    """Whether an expression names something like `iterations` / `iteration` / `n_iters`."""
+def _mentions_iteration(node: ast.AST, aliases: frozenset = frozenset()) -> bool:
+    """Whether an expression names an iteration count: an identifier containing "iter"
+    (`cfg.iterations`, `state.iteration`, `n_iters`) or a local name assigned from one."""
     for sub in ast.walk(node):
         name = sub.id if isinstance(sub, ast.Name) else sub.attr if isinstance(sub, ast.Attribute) else ""
-        if "iter" in name.lower():
+        if "iter" in name.lower() or (isinstance(sub, ast.Name) and sub.id in aliases):
             return True
     return False
 
 
-def is_iteration_loop(node: ast.AST) -> bool:
-    """A loop over the optimisation iterations: `for ... in range(...)` whose range arguments
-    name an iteration count (e.g. `range(state.iteration + 1, cfg.iterations + 1)`), or a
-    `while` loop whose condition does (`while it < cfg.iterations`)."""
+def _iteration_aliases(func: ast.AST) -> frozenset:
+    """Local names of `func` assigned (directly or through each other) from an iteration count,
+    e.g. `last = cfg.iterations + 1` or `stop = last`."""
+    assigns = [(t.id, n.value) for n in ast.walk(func) if isinstance(n, ast.Assign)
+               for t in n.targets if isinstance(t, ast.Name)]
+    assigns += [(n.target.id, n.value) for n in ast.walk(func)
+                if isinstance(n, (ast.AnnAssign, ast.AugAssign)) and isinstance(n.target, ast.Name) and n.value]
+    aliases: set = set()
+    changed = True
+    while changed:
+        changed = False
+        for name, value in assigns:
+            if name not in aliases and _mentions_iteration(value, frozenset(aliases)):
+                aliases.add(name)
+                changed = True
+    return frozenset(aliases)
+
+
+def is_iteration_loop(node: ast.AST, aliases: frozenset = frozenset()) -> bool:
+    """A loop over the optimisation iterations: `for ... in range(...)` whose loop variable or
+    range arguments name an iteration count (`for it in range(state.iteration + 1,
+    cfg.iterations + 1)`, `for iteration in range(a, b)`), or a `while` loop whose condition
+    does (`while it < cfg.iterations`)."""
     if isinstance(node, (ast.For, ast.AsyncFor)):
         it = node.iter
-        return isinstance(it, ast.Call) and isinstance(it.func, ast.Name) and it.func.id == "range" and \
-            any(_mentions_iteration(a) for a in it.args)
+        is_range = isinstance(it, ast.Call) and isinstance(it.func, ast.Name) and it.func.id == "range"
+        return is_range and (_mentions_iteration(node.target) or any(_mentions_iteration(a, aliases) for a in it.args))
     if isinstance(node, ast.While):
-        return _mentions_iteration(node.test)
+        return _mentions_iteration(node.test, aliases)
     return False
 
 
@@ -383,30 +403,41 @@ def training_loops(root: Path = ROOT, package: str = PACKAGE) -> list[tuple[str,
     """(file, innermost enclosing function, line) of every iteration loop in the package.
 
     The criterion: the training loop is the loop that counts optimisation iterations, so it is
-    a `range(...)` over an iteration count or a `while` on one (see `is_iteration_loop`; an
-    identifier containing "iter", e.g. `cfg.iterations`, `state.iteration`, `n_iters`). Any
+    a `range(...)` over an iteration count, or with an iteration loop variable, or a `while` on
+    an iteration count (see `is_iteration_loop`; an identifier containing "iter", e.g.
+    `cfg.iterations`, `state.iteration`, `n_iters`, or a local variable assigned from one). Any
     second copy of the loop, whatever it calls inside (losses, kernels, Adam), has to count the
     same iterations, so it is found without knowing the names of the step functions, which
     change. Loops over views, parameter groups or pixels do not count iterations and are not
-    matched. A loop nested in another iteration loop is reported once (the outer one).
+    matched; a non-training loop that does (say an iterative solver) must name its count
+    otherwise (`n_steps`). A loop nested in another iteration loop is reported once (the outer).
     """
     found = []
     for mod in package_modules(root, package).values():
         tree = parse(root, mod)
 
-        def visit(node, func, inside_loop):
+        def visit(node, func, aliases, inside_loop):
             for child in ast.iter_child_nodes(node):
-                f = child.name if isinstance(child, (ast.FunctionDef, ast.AsyncFunctionDef)) else func
-                hit = is_iteration_loop(child) and not inside_loop
+                f, a = func, aliases
+                if isinstance(child, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                    f, a = child.name, _iteration_aliases(child)
+                hit = is_iteration_loop(child, a) and not inside_loop
                 if hit:
                     found.append((mod.rel, func or "<module>", child.lineno))
-                visit(child, f, inside_loop or hit)
+                visit(child, f, a, inside_loop or hit)
 
-        visit(tree, None, False)
+        visit(tree, None, frozenset(), False)
     return found
 
 
 def test_one_training_loop():
+    """Exactly one loop in reings/ counts optimisation iterations, and it is in `fit` of
+    reings/train.py. A loop "counts iterations" when it is `for x in range(...)` with an
+    iteration count among the range arguments or as the loop variable, or `while <condition on an
+    iteration count>`; an iteration count is an identifier containing "iter" (`cfg.iterations`,
+    `state.iteration`, `n_iters`) or a local variable assigned from one. A second fit loop has to
+    count the same iterations whatever it calls, so this finds it without knowing the step
+    functions' names (details: `training_loops`)."""
     loops = training_loops()
     home_file, home_func = TRAINING_LOOP_HOME
     listing = "\n  ".join(f"{f}:{ln} in {fn}" for f, fn, ln in loops)
@@ -519,11 +550,15 @@ def test_loop_finder_finds_a_second_fit_loop(tmp_path):
                             "        for j in range(cfg.iterations):\n            pass\n"
                             "def _fit_device(cfg):\n    it = 0\n"
                             "    while it < cfg.iterations:\n        it += 1\n"
-                            "def helper(views):\n    for i in range(len(views)):\n        pass\n"),
+                            "def helper(views):\n    for i in range(len(views)):\n        pass\n"
+                            "def _fit_again(cfg, start):\n    last = cfg.iterations + 1\n    stop = last\n"
+                            "    for step in range(start, stop):\n        pass\n"
+                            "def _fit_named(a, b):\n    for iteration in range(a, b):\n        pass\n"),
         "reings/pipeline.py": "def stage(n_iters):\n    for i in range(n_iters):\n        pass\n",
     })
     loops = training_loops(tmp_path)
-    assert sorted(loops) == [("reings/pipeline.py", "stage", 2), ("reings/train.py", "_fit_device", 9),
+    assert sorted(loops) == [("reings/pipeline.py", "stage", 2), ("reings/train.py", "_fit_again", 17),
+                             ("reings/train.py", "_fit_device", 9), ("reings/train.py", "_fit_named", 20),
                              ("reings/train.py", "fit", 2)], loops
 
 
