@@ -4,8 +4,8 @@ The kernel directory is the installed `reings/_kernels` (wheel layout) or, in a 
 the repository's `kernels/`. Every build gets `-I <kernels>` (pyopencl's cache hashes included
 headers) and the device's capability defines from `quirks.build_defines`. Fast-math options are
 never used: the NaN/Inf guards in the kernels rely on IEEE comparisons. The files that must match
-numpy's float32 arithmetic bit for bit (`CORRECTLY_ROUNDED`: the optimizer and the penalty
-gradients) are built with `-cl-fp32-correctly-rounded-divide-sqrt` where the device offers it
+numpy's float32 arithmetic bit for bit (`CORRECTLY_ROUNDED`: the optimizer, the penalty
+gradients, the densification statistics and the SH packing of the training state) are built with `-cl-fp32-correctly-rounded-divide-sqrt` where the device offers it
 (OpenCL otherwise allows 2.5-3 ulp division and sqrt, and NVIDIA's OpenCL uses that latitude).
 """
 from __future__ import annotations
@@ -16,7 +16,7 @@ from pathlib import Path
 from . import quirks
 
 
-CORRECTLY_ROUNDED = frozenset({"adam.cl", "train.cl"})
+CORRECTLY_ROUNDED = frozenset({"adam.cl", "regularize.cl", "densify_accumulate.cl", "sh_pack.cl"})
 
 
 def has_correctly_rounded_divide_sqrt(device) -> bool:
