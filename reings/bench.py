@@ -41,7 +41,7 @@ import time
 
 import numpy as np
 
-from .backends.opencl.harness import ClCalls, DeviceBytes, device_info, sort_comparison  # noqa: F401 (re-export)
+from .backends.opencl.harness import ClCalls, device_info, sort_comparison
 
 STAGES_FWD = ("project_fwd", "sort_depth", "bin_count", "scan", "bin_emit", "sort_tile", "tile_ranges",
               "rasterize_fwd")

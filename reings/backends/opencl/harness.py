@@ -6,12 +6,14 @@ pyopencl.
     ClCalls         OpenCL commands and host syncs issued inside a `with` block
     sort_comparison numpy argsort vs our radix sort vs pyopencl.algorithm.RadixSort on uint64 keys
     device_info     the device, driver and versions of an OpenCLBackend (one dict per bench record)
+    launches_stubbed  every kernel launch a no-op inside a `with` block (host cost alone)
 """
 from __future__ import annotations
 
 import statistics
 import time
 import warnings
+from contextlib import contextmanager
 
 import numpy as np
 
@@ -228,3 +230,17 @@ class ClCalls:
             setattr(obj, name, orig)
         self._saved = []
         return False
+
+
+@contextmanager
+def launches_stubbed():
+    """Inside the block every kernel launch is a no-op (pyopencl._cl.enqueue_nd_range_kernel
+    replaced): what the host costs per step before the driver (bench/peer_step.py --overhead)."""
+    import pyopencl._cl as _cl
+
+    orig = _cl.enqueue_nd_range_kernel
+    _cl.enqueue_nd_range_kernel = lambda *a, **k: None
+    try:
+        yield
+    finally:
+        _cl.enqueue_nd_range_kernel = orig
