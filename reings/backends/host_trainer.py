@@ -114,7 +114,8 @@ class HostTrainer:
         kmax = 1 + p["sh_rest"].shape[1]
         if not 1 <= k <= kmax:
             raise ValueError(f"active SH coefficients {k} outside [1, {kmax}]")
-        g = Gaussians(p["means"], p["quats"], p["log_scales"], p["opacity_logits"], sh_pack(p["sh_dc"], p["sh_rest"], k))
+        sh = sh_pack(p["sh_dc"], p["sh_rest"], k)  # [N, k, 3]
+        g = Gaussians(p["means"], p["quats"], p["log_scales"], p["opacity_logits"], sh)
         bg = tuple(float(x) for x in np.asarray(background, _F32).reshape(3))
         out = self.b.render(g, cam, background=bg, near=float(near), opacity_override=opacity_override)
         return HostFrame(cam, g, out, bg, float(near), cam.width, cam.height)
@@ -202,7 +203,8 @@ class HostTrainer:
                 continue
             if self._tmp.size < p.size:
                 self._tmp = np.empty(max(p.size, int(self._tmp.size * 1.5)), _F32)
-            adam_update(p, m, v, g, opt.lr[name], t, opt.beta1, opt.beta2, opt.eps, self._tmp[: p.size].reshape(p.shape))
+            tmp = self._tmp[: p.size].reshape(p.shape)
+            adam_update(p, m, v, g, opt.lr[name], t, opt.beta1, opt.beta2, opt.eps, tmp)
     # }}}
 
     # {{{ profiling

@@ -46,7 +46,8 @@ from typing import Sequence
 import numpy as np
 
 from ..types import FIELDS, SH_COUNTS, Camera, Gaussians, RenderOutput
-from . import reference_loss
+from .reference_loss import depth_loss as _depth_loss
+from .reference_loss import photometric_loss as _photometric_loss
 from .base import (ALPHA_MAX, ALPHA_MIN, CLAMP_GUARD, EPS2D, T_MIN, TILE_SIZE, Bins, Projected,
                    RasterGrads, RasterOut, select_engine, tile_grid)
 
@@ -611,8 +612,8 @@ class ReferenceBackend:
     rasterize_fwd = staticmethod(rasterize_fwd)
     rasterize_bwd = staticmethod(rasterize_bwd)
     project_bwd = staticmethod(project_bwd)
-    photometric_loss = staticmethod(reference_loss.photometric_loss)
-    depth_loss = staticmethod(reference_loss.depth_loss)
+    photometric_loss = staticmethod(_photometric_loss)
+    depth_loss = staticmethod(_depth_loss)
 
     def trainer(self, images, engine: str = "auto", adam: str = "auto", profile: dict | None = None):
         """Backend.trainer: the HostTrainer (reings/backends/host_trainer.py); "device" is a

@@ -57,7 +57,7 @@ from ...types import FIELDS, Camera, Gaussians, RenderOutput
 from ..base import (CLAMP_GUARD, V_RECORD, Bins, Projected, RasterGrads, RasterOut, tile_grid)
 from . import quirks
 from .device import open_device
-from .program import library_for
+from .program import library_for, typed_invoker
 from .scratch import Scratch
 from .sort import ExclusiveScan, RadixSort
 
@@ -71,20 +71,6 @@ _F32, _I32, _U32 = np.float32, np.int32, np.uint32
 def tile_bits(n_tiles: int) -> int:
     """ceil(log2(n_tiles)): the bits of a tile id (0 for a single tile)."""
     return int(max(n_tiles - 1, 0)).bit_length()
-
-
-def typed_invoker(k, args) -> None:
-    """Give kernel `k` pyopencl's typed invoker, the scalar dtypes taken from `args` (numpy scalars
-    -> their dtype, anything else -> a memory object), once per kernel object. Why: pyopencl's
-    generic invoker sets a numpy-scalar argument through a slow path (~6.5 us each, measured with
-    pyopencl 2026.1 on Zen 5; ~50 us for a 9-scalar launch) where the typed invoker packs them all
-    in ~1 us. Callers pass numpy scalars of the kernel's exact types (as the generic path needs
-    anyway), so the inferred types are the kernel's. A call with a plain Python number leaves the
-    kernel generic (its type is not known)."""
-    if any(isinstance(a, (int, float)) and not isinstance(a, np.generic) for a in args):
-        return
-    k.set_scalar_arg_dtypes([a.dtype if isinstance(a, np.generic) else None for a in args])
-    k._reings_typed = True
 
 
 def camera_record(cam: Camera, near: float) -> np.ndarray:

@@ -15,10 +15,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from .. import reference_loss as ref
-from .backend import typed_invoker
+from ..reference_loss import gaussian_taps
 from .device import open_device
-from .program import library_for
+from .program import library_for, typed_invoker
 
 
 def _handle(device):
@@ -40,7 +39,7 @@ class PhotometricCL:
                   ("ssim_hpass_fwd", "ssim_vpass_fwd", "ssim_hpass_bwd", "ssim_vpass_bwd", "loss_row_sums")}
         ctx = self.handle.context
         self.taps = cl.Buffer(ctx, cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR,
-                              hostbuf=ref.gaussian_taps().astype(np.float32))
+                              hostbuf=gaussian_taps().astype(np.float32))
         self._shape = None
 
     def _alloc(self, h: int, w: int):
@@ -90,7 +89,7 @@ class PhotometricCL:
 
     def _typed(self, name: str, q, gsize, *args):
         """Launch kernel `name` through pyopencl's typed invoker (set once per kernel: the generic
-        one costs ~6.5 us per scalar argument, see backend.typed_invoker)."""
+        one costs ~6.5 us per scalar argument, see program.typed_invoker)."""
         kern = self.k[name]
         if not getattr(kern, "_reings_typed", False):
             typed_invoker(kern, args)

@@ -29,7 +29,7 @@ w_l1 * mean|rgb - gt| by kernels/l1.cl (the `photometric` pass with w_ssim == 0:
 backward, Adam over all groups; the binning's (V, K) is its only host read.
 
 Host overhead per step (bench/peer_step.py --overhead): every launch goes through pyopencl's typed
-invoker (backend.typed_invoker: the generic one costs ~6.5 us per numpy scalar argument), buffers
+invoker (program.typed_invoker: the generic one costs ~6.5 us per numpy scalar argument), buffers
 are looked up once per upload (`buf`), the camera record buffer is cached per camera (backend), and
 nothing is allocated or uploaded per step.
 
@@ -54,7 +54,7 @@ import numpy as np
 from ...types import ACCUM, COUNT, PARAM_NAMES, RADII
 from ..reference_loss import DepthSmoothWeights
 from ..reference_state import adam_update, zero_stats
-from .backend import typed_invoker
+from .program import typed_invoker
 from .scratch import Scratch
 
 # Adam location on CPU devices, measured (`python bench/bench_fit.py --device pocl --adam-only`, PoCL
@@ -151,7 +151,7 @@ class DeviceTrainer:
         return b
 
     def _call(self, k, gsize, lsize, *args):
-        """k(queue, gsize, lsize, *args) through pyopencl's typed invoker (backend.typed_invoker)."""
+        """k(queue, gsize, lsize, *args) through pyopencl's typed invoker (program.typed_invoker)."""
         if not getattr(k, "_reings_typed", False):
             typed_invoker(k, args)
         return k(self.queue, gsize, lsize, *args)
