@@ -53,10 +53,9 @@ def adam_only(args):
     """Adam over a full set of groups (one photometric step): kernel vs numpy on mapped buffers."""
     from reings import densify as D
     from reings.backends import get_backend
-    from reings.backends.opencl.trainer import DeviceTrainer
     from reings.optim import Adam
-    from reings.state import PARAM_NAMES, TrainState
-    from reings.types import SH_COUNTS, Gaussians
+    from reings.state import TrainState
+    from reings.types import PARAM_NAMES, SH_COUNTS, Gaussians
 
     rng = np.random.default_rng(0)
     n, k = args.gaussians, SH_COUNTS[args.sh_degree]
@@ -68,7 +67,7 @@ def adam_only(args):
     for loc in ("kernel", "numpy"):
         st = TrainState.from_gaussians(g)
         D.init_stats(st)
-        t = DeviceTrainer(get_backend(args.device), [], adam=loc)
+        t = get_backend(args.device).trainer([], engine="device", adam=loc)
         t.upload(st)
         grads = {}
         for f, shp in (("means", (n, 3)), ("quats", (n, 4)), ("log_scales", (n, 3)), ("opacity_logits", (n,)),

@@ -114,7 +114,8 @@ def gsplat_step(g, cam, sh, target, warmup=8, repeats=40) -> dict:
 
 
 def run_config(be, scene, sh, args, gs_reason, mem=None) -> dict:
-    from reings.bench import device_info, step_reference_error, step_target
+    from reings.backends.opencl.harness import device_info
+    from reings.bench import step_reference_error, step_target
     from reings.bench_scenes import perf_scene
 
     g, cam = perf_scene(scene, sh_degree=sh, n=args.n)
@@ -207,9 +208,8 @@ def print_table(rows, file=sys.stdout):
 def overhead(be, size=32, n=2000, sh=3, steps=300, rounds=7) -> dict:
     """Host cost of one step where the kernels are negligible (module docstring, --overhead); the
     us figures are the minimum over `rounds` rounds of `steps` steps (…_median: the median)."""
-    import pyopencl._cl as _cl
-
-    from reings.bench import ClCalls, crop_camera, make_step_trainer, step_target
+    from reings.backends.opencl.harness import ClCalls, launches_stubbed
+    from reings.bench import crop_camera, make_step_trainer, step_target
     from reings.bench_scenes import perf_scene
 
     g, cam = perf_scene("A", sh_degree=sh, n=n)
@@ -241,12 +241,8 @@ def overhead(be, size=32, n=2000, sh=3, steps=300, rounds=7) -> dict:
     rec["per_step"]["syncs"] -= 1
     rec["visible"], rec["intersections"] = fr.visible, fr.isects
     rec["wall_us_finish_each"], rec["wall_us_finish_each_median"] = timed(True)
-    orig = _cl.enqueue_nd_range_kernel
-    _cl.enqueue_nd_range_kernel = lambda *a, **k: None
-    try:
+    with launches_stubbed():
         rec["python_us_launches_stubbed"], rec["python_us_launches_stubbed_median"] = timed(False)
-    finally:
-        _cl.enqueue_nd_range_kernel = orig
     q.finish()
     return rec
 
@@ -272,7 +268,7 @@ def main(argv=None) -> int:
     a = ap.parse_args(argv)
 
     from reings.backends import get_backend
-    from reings.bench import DeviceBytes
+    from reings.backends.opencl.harness import DeviceBytes
 
     mem = DeviceBytes().__enter__()  # tracks every OpenCL buffer from here on (peak per configuration)
     be = get_backend(a.device)

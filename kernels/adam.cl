@@ -1,6 +1,6 @@
 /* adam.cl: one Adam step of one parameter group, in place, all state on the device.
 
-   Computes the same float32 operation sequence as `reings.optim.adam.adam_update` (numpy,
+   Computes the same float32 operation sequence as `reings.backends.reference_state.adam_update` (numpy,
    torch.optim.Adam's formula with t = the group's own step count):
 
        m = b1*m + (1-b1)*g

@@ -21,9 +21,9 @@
  * (d = 0) makes every X_hat NaN: NaN fails the mask test, so such elements are simply unselected,
  * as in the reference.
  *
- * Kernels, launched in this order by reings.losses.DepthLossCL (5 launches per call). Blocks of
- * "job" j: j = 0 the p_local patches, j = 1 the p_global patches, j = 2 the image rows (1 x W
- * blocks: the whole-image std of the global term).
+ * Kernels, launched in this order by reings.backends.opencl.losses.DepthLossCL (5 launches per
+ * call). Blocks of "job" j: j = 0 the p_local patches, j = 1 the p_global patches, j = 2 the image
+ * rows (1 x W blocks: the whole-image std of the global term).
  *   dl_block_stats   global (>= max blocks, 6): item (b, 2 j + input) -> the mean and the sum of
  *                    squared deviations of block b (two passes over the block, in `real`)
  *   dl_reduce_stats  global (DL_WG, 6), local (DL_WG, 1): per (job, input) the mean and unbiased
@@ -38,9 +38,10 @@
  *   dl_grad          global (>= W, H) per pixel, or (H) per row with REINGS_CPU_SCHEDULE:
  *                    v_depth = w_local g_local + w_global g_global, OVERWRITTEN (0 outside both
  *                    patchified regions), plus s_scale times the smoothness gradient (below)
- *   dl_smooth_rows   (only when the loss is read) the smoothness numerator per row
- * Optional edge-aware smoothness (DNGaussian LLFF, reference_loss.depth_smooth_fwd_bwd): weights
- * swx / swy from the target (reference_loss.smooth_weights, computed once per view on the host),
+ *   depth_smooth_rows  (only when the loss is read) the depth_smooth term's numerator per row
+ * Optional depth_smooth stage, DNGaussian's LLFF edge-aware smoothness
+ * (reference_loss.depth_smooth_fwd_bwd): weights swx / swy from the target
+ * (reference_loss.depth_smooth_weights / DepthSmoothWeights, computed once per view on the host),
  * folded into dl_grad's single write of v_depth (no extra launch on the training path).
  * Every reduction is per-block sums in a fixed order, then one work-group's lane-strided partials
  * and a fixed tree: deterministic, no atomics.
@@ -311,8 +312,8 @@ static real term_grad(const real xd, const real xt, __global const real *prec, _
 
 /* d/dD(i, j) of sum |D[x] - D[x+1]| wx + sum |D[y] - D[y+1]| wy (unnormalised). The sign of a
  * float difference is exact, so this matches the float64 reference up to the weights' rounding. */
-static real smooth_grad(__global const float *depth, __global const float *wx, __global const float *wy,
-                        const int i, const int j, const int W, const int H)
+static real depth_smooth_grad(__global const float *depth, __global const float *wx,
+                              __global const float *wy, const int i, const int j, const int W, const int H)
 {
     const int p = j * W + i;
     const float d = depth[p];
@@ -359,7 +360,7 @@ __kernel void dl_grad(__global const float *depth,   // [H, W]
         const real xd = (real)depth[j * W + i] - kd, xt = (real)target[j * W + i] - kt;
         const real g0 = (in0 && c0 < pw0) ? term_grad(xd, xt, prec, pcoef, tstats, margin, 0, row0 + c0, Bcap) : (real)0;
         const real g1 = (in1 && c1 < pw1) ? term_grad(xd, xt, prec, pcoef, tstats, margin, 1, row1 + c1, Bcap) : (real)0;
-        const real gs = s_scale != (real)0 ? smooth_grad(depth, swx, swy, i, j, W, H) : (real)0;
+        const real gs = s_scale != (real)0 ? depth_smooth_grad(depth, swx, swy, i, j, W, H) : (real)0;
         v_depth[j * W + i] = (float)(w_local * g0 + w_global * g1 + s_scale * gs);
         if (++r0 == pl) { r0 = 0; ++c0; }
         if (++r1 == pg) { r1 = 0; ++c1; }
@@ -369,8 +370,8 @@ __kernel void dl_grad(__global const float *depth,   // [H, W]
 /* The smoothness loss's numerator per row (launched only when the host reads the loss):
  * rows[j] = sum_i |D[j, i] - D[j, i+1]| wx[j, i] + |D[j, i] - D[j+1, i]| wy[j, i], in real; the
  * host sums the rows in order and divides by sum wx + sum wy. Global (>= H). */
-__kernel void dl_smooth_rows(__global const float *depth, __global const float *swx,
-                             __global const float *swy, __global real *rows, const int W, const int H)
+__kernel void depth_smooth_rows(__global const float *depth, __global const float *swx,
+                                __global const float *swy, __global real *rows, const int W, const int H)
 {
     const int j = get_global_id(0);
     if (!(j < H)) return;

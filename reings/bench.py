@@ -17,15 +17,19 @@ see OpenCLBackend). Reported per configuration, as the median over `repeats` aft
   * the error against the float64 reference on a centred crop (the same camera with the principal
     point shifted; the full image would take the reference minutes): max abs error of rgb / alpha /
     depth (depth relative to the largest depth) and per-field gradient cosine and relative L2.
-Per scene, the sort: numpy.argsort(kind="stable") vs our radix sort (reings.backends.opencl.sort)
-vs pyopencl.algorithm.RadixSort on the scene's own (tile << 32 | depth bits) keys in gid emit order
-(gsplat's layout, end bit 32 + ceil(log2 tiles)), plus our pipeline's two 32-bit sorts as they run
-in the render; and once, the same on 1M synthetic keys.
+Per scene, the sort (reings.backends.opencl.harness.sort_comparison): numpy.argsort(kind="stable")
+vs our radix sort (reings.backends.opencl.sort) vs pyopencl.algorithm.RadixSort on the scene's own
+(tile << 32 | depth bits) keys in gid emit order (gsplat's layout, end bit 32 + ceil(log2 tiles)),
+plus our pipeline's two 32-bit sorts as they run in the render; and once, the same on 1M synthetic
+keys.
 With --step, per configuration also the device engine's training step (bench_train_step:
 DeviceTrainer.step_l1 = forward from device-resident parameters, L1 on the device, backward, Adam
 kernel over all groups; median wall per step with a finish, device time per stage, launches and host
 syncs per step); bench/peer_step.py puts gsplat's step beside it.
 Output: one JSON object per line (device, driver, versions in each) and a table at the end.
+
+The pyopencl-level instruments (command counting, buffer bytes, the pyopencl sort) live in
+reings/backends/opencl/harness.py; this module drives them through the backend and the trainer.
 """
 from __future__ import annotations
 
@@ -34,9 +38,10 @@ import json
 import statistics
 import sys
 import time
-import warnings
 
 import numpy as np
+
+from .backends.opencl.harness import ClCalls, device_info, sort_comparison
 
 STAGES_FWD = ("project_fwd", "sort_depth", "bin_count", "scan", "bin_emit", "sort_tile", "tile_ranges",
               "rasterize_fwd")
@@ -46,12 +51,6 @@ FIELDS = ("means", "quats", "log_scales", "opacity_logits", "sh")
 
 def _median(xs):
     return float(statistics.median(xs)) if xs else float("nan")
-
-
-def device_info(be) -> dict:
-    d, p = be.handle.device, be.handle.platform
-    return dict(device=be.device_name, driver=d.driver_version.strip(), platform_version=p.version.strip(),
-                opencl_c=d.opencl_c_version.strip(), compute_units=int(d.max_compute_units), spec=be.spec)
 
 
 def crop_camera(cam, size: int):
@@ -147,72 +146,6 @@ def synthetic_keys(n: int, tbits: int = 10, seed: int = 0) -> np.ndarray:
     return (tile << np.uint64(32)) | depth
 
 
-def bench_sort(be, keys: np.ndarray, tbits: int, repeats: int, warmup: int, which: str) -> dict:
-    """numpy stable argsort vs our RadixSort vs pyopencl's RadixSort on the same uint64 keys."""
-    import pyopencl as cl
-
-    n = int(keys.size)
-    end_bit = 32 + tbits
-    res = dict(n=n, end_bit=end_bit)
-    ts = []
-    for i in range(max(1, repeats // 4) + 1):
-        t0 = time.perf_counter()
-        order = np.argsort(keys, kind="stable")
-        if i:
-            ts.append(time.perf_counter() - t0)
-    res["numpy_ms"] = 1e3 * _median(ts)
-    if which in ("all", "ours"):
-        from .backends.opencl.sort import RadixSort
-
-        q, ctx = be.queue, be.handle.context
-        mf = cl.mem_flags
-        src_k = cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=keys)
-        vals = np.arange(n, dtype=np.uint32)
-        src_v = cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=vals)
-        kb = cl.Buffer(ctx, mf.READ_WRITE, keys.nbytes)
-        vb = cl.Buffer(ctx, mf.READ_WRITE, vals.nbytes)
-        with warnings.catch_warnings():  # the backend's sorters already retrieved these kernels
-            warnings.simplefilter("ignore")
-            sorter = RadixSort(be.handle)
-            sorter.kernels(True)
-        ts, dev = [], []
-        for i in range(warmup + repeats):
-            cl.enqueue_copy(q, kb, src_k)
-            cl.enqueue_copy(q, vb, src_v)
-            q.finish()
-            t0 = time.perf_counter()
-            ko, vo, ev = sorter.sort_pairs(kb, vb, n, 0, end_bit, key64=True)
-            q.finish()
-            if i >= warmup:
-                ts.append(time.perf_counter() - t0)
-        out = np.empty(n, np.uint32)
-        cl.enqueue_copy(q, out, vo)
-        res["ours_ms"] = 1e3 * _median(ts)
-        res["ours_correct"] = bool(np.array_equal(out, order))
-        res["speedup_vs_numpy"] = res["numpy_ms"] / res["ours_ms"]
-    if which == "all":
-        try:
-            import pyopencl.array as cla
-            from pyopencl.algorithm import RadixSort as PyRadixSort
-
-            prs = PyRadixSort(be.handle.context, "unsigned long *keys, unsigned int *vals", key_expr="keys[i]",
-                              sort_arg_names=["keys", "vals"], key_dtype=np.uint64)
-            ka = cla.to_device(be.queue, keys)
-            va = cla.to_device(be.queue, np.arange(n, dtype=np.uint32))
-            ts = []
-            for i in range(1 + max(1, repeats // 8)):
-                t0 = time.perf_counter()
-                (_, vs), _ = prs(ka, va, key_bits=end_bit, queue=be.queue)
-                be.queue.finish()
-                if i:
-                    ts.append(time.perf_counter() - t0)
-            res["pyopencl_ms"] = 1e3 * _median(ts)
-            res["pyopencl_correct"] = bool(np.array_equal(vs.get(), order))
-        except Exception as e:  # pragma: no cover - depends on the device's compiler
-            res["pyopencl_error"] = f"{type(e).__name__}: {e}"[:200]
-    return res
-
-
 # ------------------------------------------------------------------------------------------------
 # one configuration
 # ------------------------------------------------------------------------------------------------
@@ -253,159 +186,21 @@ def bench_config(be, scene: str, sh: int, args) -> dict:
 # ------------------------------------------------------------------------------------------------
 # the training step (device-resident engine), gsplat's step workload
 # ------------------------------------------------------------------------------------------------
-class DeviceBytes:
-    """Bytes of OpenCL buffers alive (and their high-water mark) while the `with` block is open,
-    by making `pyopencl.Buffer` a tracking subclass (isinstance checks still hold). Counts every
-    buffer created through `pyopencl.Buffer` in that time: the backend's scratch, the trainer's
-    state, the sorter's and the loss kernels' buffers. Not counted: the driver's own memory
-    (context, kernels), which torch's `max_memory_allocated` (gsplat's figure) leaves out too.
-
-        with DeviceBytes() as mem: ...
-        mem.peak_bytes, mem.live_bytes; mem.reset_peak()
-    """
-
-    def __init__(self):
-        self.live_bytes = 0
-        self.peak_bytes = 0
-        self._orig = None
-
-    def reset_peak(self) -> None:
-        self.peak_bytes = self.live_bytes
-
-    def __enter__(self):
-        import weakref
-
-        import pyopencl as cl
-
-        self._orig = orig = cl.Buffer
-        mem = self
-
-        class TrackedBuffer(orig):
-            def __init__(self, *a, **k):
-                super().__init__(*a, **k)
-                n = int(self.size)
-                mem.live_bytes += n
-                mem.peak_bytes = max(mem.peak_bytes, mem.live_bytes)
-                weakref.finalize(self, DeviceBytes._freed, mem, n)
-
-        cl.Buffer = TrackedBuffer
-        return self
-
-    @staticmethod
-    def _freed(mem, n: int) -> None:
-        mem.live_bytes -= n
-
-    def __exit__(self, *exc):
-        import pyopencl as cl
-
-        cl.Buffer = self._orig
-        return False
-
-
-class ClCalls:
-    """Counts the OpenCL commands and host syncs issued inside a `with` block, by wrapping pyopencl's
-    entry points (every kernel launch goes through pyopencl._cl.enqueue_nd_range_kernel, whether
-    from `kernel(queue, ...)` or `enqueue_nd_range_kernel`).
-
-        launches   kernel launches            copies  enqueue_copy calls (reads_blocking: the
-        fills      enqueue_fill_buffer        blocking device -> host ones among them)
-        maps       enqueue_map_buffer         finishes  queue.finish();  waits  Event.wait / cl.wait_for_events
-        syncs      reads_blocking + blocking writes + blocking maps + finishes + waits
-    """
-
-    KEYS = ("launches", "copies", "reads_blocking", "writes_blocking", "fills", "maps", "maps_blocking",
-            "finishes", "waits")
-
-    def __init__(self):
-        self.n = dict.fromkeys(self.KEYS, 0)
-        self._saved = []
-
-    @property
-    def syncs(self) -> int:
-        n = self.n
-        return n["reads_blocking"] + n["writes_blocking"] + n["maps_blocking"] + n["finishes"] + n["waits"]
-
-    def as_dict(self, per: int = 1) -> dict:
-        d = {k: v / per for k, v in self.n.items()}
-        d["syncs"] = self.syncs / per
-        return d
-
-    def _patch(self, obj, name, wrapper_factory):
-        orig = getattr(obj, name)
-        self._saved.append((obj, name, orig))
-        setattr(obj, name, wrapper_factory(orig))
-
-    def __enter__(self):
-        import pyopencl as cl
-        import pyopencl._cl as _cl
-
-        n = self.n
-
-        def launch(orig):
-            def f(*a, **k):
-                n["launches"] += 1
-                return orig(*a, **k)
-            return f
-
-        def copy(orig):
-            def f(queue, dest, src, **k):
-                n["copies"] += 1
-                if k.get("is_blocking", True):
-                    if isinstance(dest, np.ndarray):
-                        n["reads_blocking"] += 1
-                    elif isinstance(src, np.ndarray):
-                        n["writes_blocking"] += 1
-                return orig(queue, dest, src, **k)
-            return f
-
-        def count(key):
-            def fac(orig):
-                def f(*a, **k):
-                    n[key] += 1
-                    return orig(*a, **k)
-                return f
-            return fac
-
-        def mapb(orig):
-            def f(*a, **k):
-                n["maps"] += 1
-                if k.get("is_blocking", True):
-                    n["maps_blocking"] += 1
-                return orig(*a, **k)
-            return f
-
-        self._patch(_cl, "enqueue_nd_range_kernel", launch)
-        self._patch(cl, "enqueue_copy", copy)
-        self._patch(cl, "enqueue_fill_buffer", count("fills"))
-        self._patch(cl, "enqueue_map_buffer", mapb)
-        self._patch(cl.CommandQueue, "finish", count("finishes"))
-        self._patch(cl.Event, "wait", count("waits"))
-        self._patch(cl, "wait_for_events", count("waits"))
-        return self
-
-    def __exit__(self, *exc):
-        for obj, name, orig in reversed(self._saved):
-            setattr(obj, name, orig)
-        self._saved = []
-        return False
-
-
 def step_target(cam, seed: int = 123) -> np.ndarray:
     """The fixed random [H,W,3] float32 target of the training-step benchmark (U(0, 1))."""
     return np.random.default_rng(seed).uniform(0.0, 1.0, (cam.height, cam.width, 3)).astype(np.float32)
 
 
 def make_step_trainer(be, g, target, lr: float = 1e-3, eps: float = 1e-15, adam: str = "kernel"):
-    """(DeviceTrainer, Adam) holding Gaussians `g` (all SH coefficients trained) and `target` as
+    """(device trainer, Adam) holding Gaussians `g` (all SH coefficients trained) and `target` as
     training image 0, every group at learning rate `lr` (gsplat peer: torch Adam lr 1e-3, eps 1e-15)."""
-    from .backends.opencl.trainer import DeviceTrainer
     from .densify import init_stats
     from .optim import Adam
     from .state import PARAM_NAMES, TrainState
 
     st = TrainState.from_gaussians(g)
     init_stats(st)
-    t = DeviceTrainer(be, [target], adam=adam)
+    t = be.trainer([target], engine="device", adam=adam)
     t.upload(st)
     opt = Adam(st.params, {k: lr for k in PARAM_NAMES}, state=st.adam, eps=eps)
     return t, opt
@@ -458,14 +253,9 @@ def bench_train_step(be, g, cam, target=None, warmup: int = 8, repeats: int = 40
             t.finish()
             prof.pop("device_ms", None)
             t.step_l1(cam, 0, opt)
-            evs = list(be._events) + [(st, ev, False) for st, ev in t._events]
-            t.queue.finish()
-            try:
-                starts = [e.profile.start for _, e, _ in evs]
-                ends = [e.profile.end for _, e, _ in evs]
-                spans.append((max(ends) - min(starts)) * 1e-6)
-            except Exception:  # profiling unavailable
-                pass
+            span = t.device_span_ms()
+            if span is not None:
+                spans.append(span)
             t.finish()
             for st, ms in prof.get("device_ms", {}).items():
                 rec.setdefault(f"dev_{st}_ms_all", []).append(ms)
@@ -563,7 +353,7 @@ def main(argv=None) -> int:
     from .backends import get_backend
 
     be = get_backend(args.device)  # the registry's instance: kernels and buffers shared with render()
-    if not hasattr(be, "last_profile"):
+    if "device" not in be.engines:  # the stage timings and the step need a device-resident backend
         raise SystemExit(f"reings bench: {args.device!r} is not an OpenCL device")
     info = device_info(be)
     sink = open(args.out, "a") if args.out else sys.stdout
@@ -600,13 +390,14 @@ def main(argv=None) -> int:
             g, cam = perf_scene(scene, sh_degree=0, n=args.n)
             keys, tbits = emit_keys_gid_order(be, g, cam)
             srec = dict(kind="sort", keys=f"scene {scene}", scene=scene,
-                        **bench_sort(be, keys, tbits, args.repeats, args.warmup, args.sort))
+                        **sort_comparison(be, keys, tbits, args.repeats, args.warmup, args.sort))
             srec["pipeline_two_sorts_ms"] = (records[-1]["dev_sort_depth_ms"] + records[-1]["dev_sort_tile_ms"]
                                              if records and records[-1].get("scene") == scene else None)
             emit(srec)
     if args.sort != "none" and args.sort_n > 0:
         keys = synthetic_keys(args.sort_n)
-        emit(dict(kind="sort", keys="synthetic", **bench_sort(be, keys, 10, args.repeats, args.warmup, args.sort)))
+        emit(dict(kind="sort", keys="synthetic", **sort_comparison(be, keys, 10, args.repeats, args.warmup,
+                                                                   args.sort)))
     print_table(records, file=sys.stdout if args.out else sys.stderr)
     if args.out:
         sink.close()

@@ -19,9 +19,12 @@ from __future__ import annotations
 
 import numpy as np
 
+from .backends.reference_state import densify_accumulate, ndc_grad_norm, zero_stats
 from .state import TrainState, apply_index_op, reset_moments
+from .types import ACCUM, COUNT, RADII
 
-ACCUM, COUNT, RADII = "grad2d_accum", "grad2d_count", "max_radii2d"
+__all__ = ["ACCUM", "COUNT", "RADII", "init_stats", "ndc_grad_norm", "accumulate", "mean_grads",
+           "densify_and_prune", "reset_opacity", "clean_views", "schedule", "maybe_densify"]
 
 
 def _sigmoid(x):
@@ -47,33 +50,17 @@ def quat_to_rotmat(quats: np.ndarray) -> np.ndarray:
 # {{{ statistics
 def init_stats(state: TrainState) -> None:
     """(Re)set the densification statistics of `state` to zeros."""
-    n = len(state)
-    state.stats[ACCUM] = np.zeros(n, np.float32)
-    state.stats[COUNT] = np.zeros(n, np.int32)
-    state.stats[RADII] = np.zeros(n, np.float32)
-
-
-def ndc_grad_norm(v_means2d: np.ndarray, width: int, height: int) -> np.ndarray:
-    """[N,2] pixel-space dL/d means2d -> [N] norms in 3DGS's NDC-scaled units (x W/2, y H/2)."""
-    v = np.asarray(v_means2d, np.float64)
-    return np.hypot(v[:, 0] * (0.5 * width), v[:, 1] * (0.5 * height)).astype(np.float32)
+    state.stats.update(zero_stats(len(state)))
 
 
 def accumulate(state: TrainState, grad_norms: np.ndarray, visible: np.ndarray, radii: np.ndarray | None = None) -> None:
-    """3DGS `add_densification_stats` for one view: for the visible Gaussians (radius > 0), add
-    the NDC gradient norm and count the view; track the max screen radius."""
+    """3DGS `add_densification_stats` for one view on `state.stats`: for the visible Gaussians
+    (radius > 0), add the NDC gradient norm (`ndc_grad_norm`) and count the view; track the max
+    screen radius. The arithmetic is `reings.backends.reference_state.densify_accumulate`, the
+    twin of kernels/densify_accumulate.cl."""
     if ACCUM not in state.stats:
         init_stats(state)
-    n = len(state)
-    vis = np.asarray(visible, bool)
-    g = np.asarray(grad_norms, np.float32)
-    if vis.shape != (n,) or g.shape != (n,):
-        raise ValueError(f"accumulate: grad_norms {g.shape} and visible {vis.shape} must be ({n},)")
-    state.stats[ACCUM][vis] += g[vis]
-    state.stats[COUNT][vis] += 1
-    if radii is not None:
-        r = np.asarray(radii, np.float32)
-        np.maximum(state.stats[RADII], np.where(vis, r, 0.0), out=state.stats[RADII])
+    densify_accumulate(state.stats, grad_norms, visible, radii)
 
 
 def mean_grads(state: TrainState) -> np.ndarray:

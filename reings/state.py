@@ -17,10 +17,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .backends.reference_state import sh_pack
 from .optim.adam import AdamState
-from .types import SH_COUNTS, Gaussians
+from .types import PARAM_NAMES, SH_COUNTS, Gaussians
 
-PARAM_NAMES = ("means", "quats", "log_scales", "opacity_logits", "sh_dc", "sh_rest")
+__all__ = ["PARAM_NAMES", "TrainState", "apply_index_op", "reset_moments"]
 
 
 @dataclass
@@ -56,8 +57,8 @@ class TrainState:
         """The current parameters as `Gaussians` (copies), SH truncated to the active `sh_degree`."""
         d = self.max_sh_degree if sh_degree is None else min(sh_degree, self.max_sh_degree)
         k = SH_COUNTS[d]
-        sh = np.concatenate([self.params["sh_dc"], self.params["sh_rest"][:, : k - 1]], axis=1)
         p = self.params
+        sh = sh_pack(p["sh_dc"], p["sh_rest"], k)
         return Gaussians(p["means"], p["quats"], p["log_scales"], p["opacity_logits"], sh)
 
     def grads(self, v: Gaussians, fields=None) -> dict[str, np.ndarray]:

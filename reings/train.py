@@ -1,19 +1,23 @@
 """`fit`: the training engine shared by the baselines (3dgs, dngaussian) and the three ReInGS
-optimizations (coarse, fine, final).
+optimizations (coarse, fine, final). ONE loop, whatever the device.
 
 One iteration, in DNGaussian's order (METHOD.md §2.4): an optional hard-depth pass (opacity fixed,
 gradient to the means only, its own Adam step), an optional soft-depth pass (gradient to the
 opacities only, its own step), then the photometric pass (+ regularisers) stepping every group,
-densification bookkeeping and the densify/prune schedule. Adam keeps a step count per group.
+the densification statistics and the densify/prune schedule. Adam keeps a step count per group.
 
-Two engines compute that same iteration (`fit(engine=...)`): "host" moves numpy Gaussians through
-render / render_vjp and steps a numpy Adam; "device" (the default on OpenCL devices) keeps the
-parameters, gradients, Adam moments, densification statistics and training images on the device
-(reings/backends/opencl/trainer.py: Adam in kernels/adam.cl, penalties and statistics in
-kernels/train.cl) and reads the state back only for densification, eval, checkpoints and the result.
+The loop (`_Iteration`) calls only the Trainer contract (reings/backends/base.py); the backend makes
+the trainer (`backend.trainer(images, engine=...)`):
+    "device"  the state resident on an OpenCL device (reings/backends/opencl/trainer.py): only
+              scalars cross the bus, and only on logging iterations; the state comes back for
+              densification, eval, checkpoints and the result.
+    "host"    numpy state through the backend's render / render_vjp / host losses and the numpy
+              twins (reings/backends/host_trainer.py); the only one on device "reference".
+Both compute the same iteration (bit for bit on PoCL: tests/test_device_fit.py).
 
-What is left to others: the per-pixel work (render, render_vjp, photometric loss kernels) is the
-backend's; parameter surgery is `reings.state`; schedules are `reings.optim`.
+What is left to others: kernels and their host code are the backends'; parameter surgery is
+`reings.state` / `reings.densify`; schedules are `reings.optim`; the losses' host forms and the
+depth patch draws are `reings.losses`.
 """
 from __future__ import annotations
 
@@ -130,9 +134,6 @@ def _load_checkpoint(path: str):
     return TrainState.from_arrays(d), rng_state, hist, extra
 
 
-ENGINES = ("auto", "host", "device")
-
-
 def _view_of(it: int, seed: int, n_views: int) -> int:
     """The training view of iteration `it` (1-based): a fresh permutation of the views per epoch."""
     epoch, pos = divmod(it - 1, n_views)
@@ -140,9 +141,8 @@ def _view_of(it: int, seed: int, n_views: int) -> int:
 
 
 class _Bookkeeping:
-    """What both loops do around an iteration: the progress bar, history logging, eval probes and
-    checkpoints. `sync(params_only)` brings the state to the host first (the device engine's
-    download; nothing for the host engine)."""
+    """What the loop does around an iteration: the progress bar, history logging, eval probes and
+    checkpoints. `sync(params_only)` brings the state to the host first (Trainer.download)."""
 
     def __init__(self, cfg, state, history, rng, t0, progress, desc, checkpoint, checkpoint_every,
                  eval_fn, eval_every, log_every, sync=None):
@@ -187,28 +187,36 @@ class _Bookkeeping:
             self.bar.close()
 
 
-class _Phases:
-    """profile[name] += wall seconds of a block (host engine: every call is blocking already)."""
+def _training_views(views) -> tuple[list, list]:
+    """(images, cameras) of a Scene or of (image, Camera) pairs, checked."""
+    if hasattr(views, "images"):
+        images, cameras = list(views.images), list(views.cameras)
+    else:
+        images, cameras = [v[0] for v in views], [v[1] for v in views]
+    if not images:
+        raise ValueError("fit: no training views")
+    for i, (im, cam) in enumerate(zip(images, cameras)):
+        if not isinstance(cam, Camera):
+            raise TypeError(f"fit: view {i} has no reings.Camera")
+        if np.shape(im) != (cam.height, cam.width, 3):
+            raise ValueError(f"fit: view {i} image shape {np.shape(im)} != camera {cam.height}x{cam.width}x3")
+    return images, cameras
 
-    def __init__(self, profile: dict | None):
-        self.profile = profile
 
-    def __call__(self, name: str):
-        from contextlib import contextmanager
+def _initial_state(init: Gaussians, cfg: TrainConfig, checkpoint: str | None):
+    """(TrainState, rng, History): from the checkpoint if it exists, else fresh from `init`."""
+    from . import densify as D
+    from .state import TrainState
 
-        @contextmanager
-        def block():
-            t = time.perf_counter()
-            try:
-                yield
-            finally:
-                self.profile[name] = self.profile.get(name, 0.0) + time.perf_counter() - t
-
-        if self.profile is None:
-            from contextlib import nullcontext
-
-            return nullcontext()
-        return block()
+    rng = np.random.default_rng(cfg.seed)
+    history = History()
+    if checkpoint and os.path.exists(checkpoint):
+        state, rng_state, history, _ = _load_checkpoint(checkpoint)
+        rng.bit_generator.state = rng_state
+    else:
+        state = TrainState.from_gaussians(init, cfg.sh_degree)
+        D.init_stats(state)
+    return state, rng, history
 
 
 def fit(views, config: TrainConfig, device: str = "pocl", init: Gaussians | None = None,
@@ -227,284 +235,170 @@ def fit(views, config: TrainConfig, device: str = "pocl", init: Gaussians | None
         engine give the same result as an uninterrupted run); it is rewritten every
         `checkpoint_every` its.
     eval_fn: optional f(gaussians) -> dict, called every `eval_every` iterations (speed vs error).
-    engine: "host" (every pass: numpy Gaussians -> render / render_vjp -> numpy Adam), "device"
-        (parameters, gradients, Adam moments, densification statistics and the training images
-        stay on the OpenCL device: reings.backends.opencl.trainer), or "auto": "device" on OpenCL
-        devices, "host" on device "reference". Both compute the same iteration (tests/test_device_fit.py).
-    adam: where the device engine runs Adam: "kernel" (kernels/adam.cl), "numpy" (numpy on the
+    engine: which Trainer the device's backend makes (`Backend.trainer`): "device" (parameters,
+        gradients, Adam moments, densification statistics and the training images stay on the
+        OpenCL device: reings.backends.opencl.trainer), "host" (numpy state through render /
+        render_vjp and numpy Adam: reings.backends.host_trainer), or "auto", the backend's default
+        ("device" on OpenCL devices, "host" on "reference"). Both compute the same iteration
+        (tests/test_device_fit.py).
+    adam: where the device trainer runs Adam: "kernel" (kernels/adam.cl), "numpy" (numpy on the
         mapped buffers), "auto" (the kernel on GPUs, the faster one measured on CPU devices).
-        The host engine's Adam is numpy.
-    profile: optional dict that receives wall seconds per phase (and, device engine, device
-        milliseconds per kernel stage under "device_ms"); the device engine then waits for the
+        The host trainer's Adam is numpy.
+    profile: optional dict that receives wall seconds per phase (and, device trainer, device
+        milliseconds per kernel stage under "device_ms"); the device trainer then waits for the
         queue around each phase.
     Returns FitResult(gaussians, history, seconds, state).
     """
     from . import densify as D
     from .backends import get_backend
-    from .losses import SmoothWeights, depth_loss, photometric_loss, regularizers
     from .optim import make_optimizer, sh_degree_at
-    from .rendering import render, render_vjp
-    from .state import TrainState
 
-    if hasattr(views, "images"):
-        images, cameras = list(views.images), list(views.cameras)
-    else:
-        images, cameras = [v[0] for v in views], [v[1] for v in views]
-    if not images:
-        raise ValueError("fit: no training views")
-    for i, (im, cam) in enumerate(zip(images, cameras)):
-        if not isinstance(cam, Camera):
-            raise TypeError(f"fit: view {i} has no reings.Camera")
-        if np.shape(im) != (cam.height, cam.width, 3):
-            raise ValueError(f"fit: view {i} image shape {np.shape(im)} != camera {cam.height}x{cam.width}x3")
+    images, cameras = _training_views(views)
     if init is None or len(init) == 0:
         raise ValueError("fit: `init` must hold at least one Gaussian")
     if depth_targets is not None and len(depth_targets) != len(images):
         raise ValueError(f"fit: {len(depth_targets)} depth targets for {len(images)} views")
-    if engine not in ENGINES:
-        raise ValueError(f"fit: engine must be one of {ENGINES}, got {engine!r}")
-    if engine == "auto":
-        engine = "host" if device == "reference" else "device"
-    if engine == "device" and device == "reference":
-        raise ValueError("fit: the device engine needs an OpenCL device, not 'reference'")
-
     cfg, L = config, config.loss
     extent = scene_extent(cameras) if extent is None else extent
     backend = get_backend(device)
-    bg, near = tuple(cfg.background), cfg.near
-    rng = np.random.default_rng(cfg.seed)
-    history = History()
-    if checkpoint and os.path.exists(checkpoint):
-        state, rng_state, history, _ = _load_checkpoint(checkpoint)
-        rng.bit_generator.state = rng_state
-    else:
-        state = TrainState.from_gaussians(init, cfg.sh_degree)
-        D.init_stats(state)
+    trainer = backend.trainer(images, engine=engine, adam=adam, profile=profile)
+    state, rng, history = _initial_state(init, cfg, checkpoint)
     opt = make_optimizer(state, cfg.optim, extent)
-    V = len(images)
     t0 = time.perf_counter() - (history.seconds[-1] if history.seconds else 0.0)
-
-    def visibility(g):
-        return np.stack([backend.project_fwd(g, cam, near).radii > 0 for cam in cameras])
-
-    if engine == "device":
-        return _fit_device(backend, images, cameras, depth_targets, cfg, state, opt, rng, history, t0,
-                           visibility, progress, checkpoint, checkpoint_every, eval_fn, eval_every, log_every,
-                           desc, extent, adam, profile)
-
-    ph = _Phases(profile)
-    book = _Bookkeeping(cfg, state, history, rng, t0, progress, desc, checkpoint, checkpoint_every,
-                        eval_fn, eval_every, log_every)
-    hard_ema = None
-    zeros_rgb = {}
-    smooth_views = {}  # view -> SmoothWeights, built on first use
-
-    def smooth_of(vi, it):
-        """(SmoothWeights, weight) of the depth smoothness at iteration `it`, or None."""
-        w = smooth_weight_at(L, it)
-        if not w:
-            return None
-        if vi not in smooth_views:
-            smooth_views[vi] = SmoothWeights(depth_targets[vi])
-        return smooth_views[vi], w
-    try:
-        for it in range(state.iteration + 1, cfg.iterations + 1):
-            opt.update_learning_rate(it)
-            deg = sh_degree_at(it, cfg.sh_degree, cfg.sh_degree_interval)
-            vi = _view_of(it, cfg.seed, V)
-            cam, gt = cameras[vi], images[vi]
-            target = None if depth_targets is None else depth_targets[vi]
-            if it == 1 and cfg.densify.clean_views:
-                D.clean_views(state, visibility(state.gaussians(deg)))
-            key = (cam.height, cam.width)
-            if key not in zeros_rgb:
-                zeros_rgb[key] = np.zeros((cam.height, cam.width, 3), np.float32)
-
-            # hard depth: opacity fixed, gradient to the means only (DNGaussian render_for_depth)
-            if L.hard_depth and target is not None and it >= L.hard_depth_from:
-                g = state.gaussians(deg)
-                o = L.hard_depth_opacity
-                with ph("hard_render"):
-                    out = render(g, cam, device, bg, near, opacity_override=o)
-                with ph("depth_loss"):
-                    lh, vd = depth_loss(out.depth, target, rng, L.depth_patch_range, L.depth_margin,
-                                        L.depth_w_local, L.depth_w_global, device, smooth_of(vi, it))
-                hard_ema = lh if hard_ema is None else 0.9 * hard_ema + 0.1 * lh
-                with ph("hard_backward"):
-                    vg = render_vjp(g, cam, zeros_rgb[key], vd, None, device, bg, near, opacity_override=o,
-                                    grad_fields=("means",))
-                with ph("adam"):
-                    opt.step(state.grads(vg, ("means",)))
-            # soft depth: real opacities, gradient to the opacities only (render_for_opa)
-            gate = L.soft_depth_ema_gate is None or (hard_ema is not None and hard_ema < L.soft_depth_ema_gate)
-            if L.soft_depth and target is not None and it >= L.soft_depth_from and gate:
-                g = state.gaussians(deg)
-                with ph("soft_render"):
-                    out = render(g, cam, device, bg, near)
-                with ph("depth_loss"):
-                    ls, vd = depth_loss(out.depth, target, rng, L.depth_patch_range, L.depth_margin,
-                                        L.depth_w_local, L.depth_w_global, device, smooth_of(vi, it))
-                with ph("soft_backward"):
-                    vg = render_vjp(g, cam, zeros_rgb[key], vd, None, device, bg, near,
-                                    grad_fields=("opacity_logits",))
-                with ph("adam"):
-                    opt.step(state.grads(vg, ("opacity_logits",)))
-
-            # photometric pass (+ regularisers): every group
-            g = state.gaussians(deg)
-            with ph("photo_render"):
-                out = render(g, cam, device, bg, near)
-            with ph("photo_loss"):
-                loss, v_rgb = photometric_loss(out.rgb, gt, L.lambda_dssim, L.photometric_form, device)
-            with ph("photo_backward"):
-                vg = render_vjp(g, cam, v_rgb, None, None, device, bg, near)
-            grads = state.grads(vg)
-            with ph("regularizers"):
-                if L.shape_pena or L.scale_pena or L.opa_pena:
-                    lr_, rg = regularizers(state.params, L.shape_pena, L.scale_pena, L.opa_pena)
-                    loss += lr_
-                    for k, v in rg.items():
-                        grads[k] = grads[k] + v
-            with ph("stats"):
-                screen = getattr(backend, "last_screen", None)
-                if screen is not None and len(screen[0]) == len(state):
-                    v2d, radii = screen
-                    D.accumulate(state, D.ndc_grad_norm(v2d, cam.width, cam.height), radii > 0, radii)
-            with ph("adam"):
-                opt.step(grads)
-            state.iteration = it
-            with ph("densify"):
-                dens = D.maybe_densify(state, cfg.densify, it, extent, rng)
-            if dens:
-                history.densify.append((it, dens))
-            book.end(it, deg, loss, out.rgb, gt)
-    finally:
-        book.close()
-    deg = sh_degree_at(cfg.iterations, cfg.sh_degree, cfg.sh_degree_interval)
-    return FitResult(state.gaussians(deg), history, time.perf_counter() - t0, state)
-
-
-def _fit_device(backend, images, cameras, depth_targets, cfg, state, opt, rng, history, t0, visibility,
-                progress, checkpoint, checkpoint_every, eval_fn, eval_every, log_every, desc, extent, adam,
-                profile) -> FitResult:
-    """`fit`'s loop with the training state on the OpenCL device (reings.backends.opencl.trainer):
-    the same iteration as the host loop above, pass for pass and in the same order of random
-    draws; only scalars cross the bus (the loss and train PSNR on logging iterations; the hard
-    depth loss every iteration only when `soft_depth_ema_gate` needs it): the depth passes run
-    kernels/depth_loss.cl on the rendered depth buffer against the depth targets uploaded once per
-    fit. The state comes back to the host for densification, eval, checkpoints and the result."""
-    from . import densify as D
-    from .backends.opencl.trainer import DeviceTrainer
-    from .backends.reference_loss import photometric_weights
-    from .losses import draw_depth_patches, regularizers
-    from .optim import sh_degree_at
-    from .state import PARAM_NAMES
-    from .types import SH_COUNTS
-
-    L = cfg.loss
-    bg, near = tuple(cfg.background), cfg.near
-    V = len(images)
-    w_l1, w_ssim = photometric_weights(L.lambda_dssim, L.photometric_form)
-    reg_on = bool(L.shape_pena or L.scale_pena or L.opa_pena)
     if state.iteration == 0 and cfg.iterations >= 1 and cfg.densify.clean_views:
-        # the host loop does this at iteration 1 before anything else; nothing differs before it
-        D.clean_views(state, visibility(state.gaussians(sh_degree_at(1, cfg.sh_degree, cfg.sh_degree_interval))))
-    dev = DeviceTrainer(backend, images, adam=adam, profile=profile)
-    dev.upload(state)
+        # DNGaussian clean_views: drop the Gaussians no training view sees, before iteration 1
+        g = state.gaussians(sh_degree_at(1, cfg.sh_degree, cfg.sh_degree_interval))
+        D.clean_views(state, np.stack([backend.project_fwd(g, cam, cfg.near).radii > 0 for cam in cameras]))
+    trainer.upload(state)
     if depth_targets is not None and (L.hard_depth or L.soft_depth):
-        dev.upload_depth_targets(depth_targets, [(c.height, c.width) for c in cameras],
-                                 smooth=L.depth_smooth_weight != 0)
-    need_hard_loss = L.soft_depth_ema_gate is not None  # the only reader of the hard depth loss
-    ph = dev.phase
-    groups = [k for k in PARAM_NAMES if k in opt.lr]
-
+        trainer.upload_depth_targets(depth_targets, [(c.height, c.width) for c in cameras],
+                                     smooth=L.depth_smooth_weight != 0)
     book = _Bookkeeping(cfg, state, history, rng, t0, progress, desc, checkpoint, checkpoint_every,
                         eval_fn, eval_every, log_every,
-                        sync=lambda params_only: dev.download(state, params_only=params_only))
-    hard_ema = None
-    loss = rgb = None
+                        sync=lambda params_only: trainer.download(state, params_only=params_only))
+    iteration = _Iteration(trainer, cfg, state, opt, rng, extent, images, cameras, depth_targets, book)
     try:
         for it in range(state.iteration + 1, cfg.iterations + 1):
-            opt.update_learning_rate(it)
-            deg = sh_degree_at(it, cfg.sh_degree, cfg.sh_degree_interval)
-            k = SH_COUNTS[min(deg, state.max_sh_degree)]
-            vi = _view_of(it, cfg.seed, V)
-            cam, gt = cameras[vi], images[vi]
-            target = None if depth_targets is None else depth_targets[vi]
-
-            # hard depth: opacity fixed, gradient to the means only
-            if L.hard_depth and target is not None and it >= L.hard_depth_from:
-                o = L.hard_depth_opacity
-                with ph("hard_render"):
-                    fr = dev.forward(cam, k, bg, near, o)
-                with ph("depth_loss"):
-                    pl, pg = draw_depth_patches(rng, L.depth_patch_range, fr.height, fr.width)
-                    vd = dev.depth_loss(fr, vi, pl, pg, L.depth_margin, L.depth_w_local, L.depth_w_global,
-                                        smooth_weight_at(L, it))
-                    if need_hard_loss:
-                        lh = dev.read_depth_loss()
-                        hard_ema = lh if hard_ema is None else 0.9 * hard_ema + 0.1 * lh
-                with ph("hard_backward"):
-                    gr = dev.backward(fr, None, vd, o, ("means",))
-                with ph("adam"):
-                    dev.adam_step(opt, gr, ("means",))
-            # soft depth: real opacities, gradient to the opacities only
-            gate = L.soft_depth_ema_gate is None or (hard_ema is not None and hard_ema < L.soft_depth_ema_gate)
-            if L.soft_depth and target is not None and it >= L.soft_depth_from and gate:
-                with ph("soft_render"):
-                    fr = dev.forward(cam, k, bg, near)
-                with ph("depth_loss"):
-                    pl, pg = draw_depth_patches(rng, L.depth_patch_range, fr.height, fr.width)
-                    vd = dev.depth_loss(fr, vi, pl, pg, L.depth_margin, L.depth_w_local, L.depth_w_global,
-                                        smooth_weight_at(L, it))
-                with ph("soft_backward"):
-                    gr = dev.backward(fr, None, vd, None, ("opacity_logits",))
-                with ph("adam"):
-                    dev.adam_step(opt, gr, ("opacity_logits",))
-
-            # photometric pass (+ regularisers): every group
-            log_it = book.logs(it)
-            with ph("photo_render"):
-                fr = dev.forward(cam, k, bg, near)
-            with ph("photo_loss"):
-                v_rgb = dev.photometric(fr, vi, w_l1, w_ssim)
-                if log_it:
-                    loss, rgb = dev.read_loss(), dev.read_rgb(fr)
-            with ph("photo_backward"):
-                gr = dev.backward(fr, v_rgb)
-            with ph("regularizers"):
-                if reg_on:
-                    if log_it:  # the penalties' value (host, float64) at the parameters before the step
-                        loss += regularizers(dev.read_params(("log_scales", "opacity_logits")),
-                                             L.shape_pena, L.scale_pena, L.opa_pena)[0]
-                    dev.regularize(gr, L.shape_pena, L.scale_pena, L.opa_pena)
-            with ph("stats"):
-                dev.accumulate(fr)
-            with ph("adam"):
-                dev.adam_step(opt, gr, groups)
-            state.iteration = it
-            dens = None
-            if any(D.schedule(cfg.densify, it)):
-                with ph("densify"):
-                    dev.download(state)
-                    dens = D.maybe_densify(state, cfg.densify, it, extent, rng)
-                    dev.upload(state)
-            if dens:
-                history.densify.append((it, dens))
-            book.end(it, deg, loss, rgb, gt)
+            iteration(it)
     finally:
         book.close()
-    dev.download(state)
-    dev.finish()
+    trainer.download(state)
+    trainer.finish()
     deg = sh_degree_at(cfg.iterations, cfg.sh_degree, cfg.sh_degree_interval)
     return FitResult(state.gaussians(deg), history, time.perf_counter() - t0, state)
 
 
-def smooth_weight_at(loss_config, it: int) -> float:
-    """The depth smoothness weight at iteration `it` (0 before depth_smooth_from), one rule for
-    both engines."""
-    L = loss_config
-    return float(L.depth_smooth_weight) if L.depth_smooth_weight and it >= L.depth_smooth_from else 0.0
+class _Iteration:
+    """The body of `fit`'s loop: one iteration over the Trainer contract (reings/backends/base.py).
+
+    Random draws, in order, from the fit's rng: the depth patch sizes of the hard pass, then of the
+    soft pass (`draw_depth_patches`), then densification's split samples; the view of iteration
+    `it` comes from its own generator (`_view_of`). Values cross from the trainer only when read:
+    the photometric loss and image on logging iterations, the hard depth loss when
+    `soft_depth_ema_gate` needs it, the state when densification is due."""
+
+    def __init__(self, trainer, cfg: TrainConfig, state, opt, rng, extent: float, images, cameras,
+                 depth_targets, book: _Bookkeeping):
+        from .losses import photometric_weights
+        from .types import PARAM_NAMES
+
+        self.tr, self.cfg, self.L, self.state, self.opt, self.rng = trainer, cfg, cfg.loss, state, opt, rng
+        self.extent, self.images, self.cameras, self.targets, self.book = extent, images, cameras, depth_targets, book
+        self.bg, self.near = tuple(cfg.background), cfg.near
+        self.w_l1, self.w_ssim = photometric_weights(self.L.lambda_dssim, self.L.photometric_form)
+        self.reg_on = bool(self.L.shape_pena or self.L.scale_pena or self.L.opa_pena)
+        self.read_hard_loss = self.L.soft_depth_ema_gate is not None  # the only reader of the hard depth loss
+        self.groups = [k for k in PARAM_NAMES if k in opt.lr]
+        self.hard_ema = None
+        self.k = 1  # active SH coefficients of the current iteration
+
+    def __call__(self, it: int) -> None:
+        from .optim import sh_degree_at
+        from .types import SH_COUNTS
+
+        L, st = self.L, self.state
+        self.opt.update_learning_rate(it)
+        deg = sh_degree_at(it, self.cfg.sh_degree, self.cfg.sh_degree_interval)
+        self.k = SH_COUNTS[min(deg, st.max_sh_degree)]
+        vi = _view_of(it, self.cfg.seed, len(self.images))
+        cam = self.cameras[vi]
+        has_target = self.targets is not None and self.targets[vi] is not None
+        # hard depth: opacity fixed, gradient to the means only (DNGaussian render_for_depth)
+        if L.hard_depth and has_target and it >= L.hard_depth_from:
+            lh = self.depth_pass(it, cam, vi, "hard", L.hard_depth_opacity, ("means",), self.read_hard_loss)
+            if lh is not None:
+                self.hard_ema = lh if self.hard_ema is None else 0.9 * self.hard_ema + 0.1 * lh
+        # soft depth: real opacities, gradient to the opacities only (render_for_opa)
+        gate = L.soft_depth_ema_gate is None or (self.hard_ema is not None and self.hard_ema < L.soft_depth_ema_gate)
+        if L.soft_depth and has_target and it >= L.soft_depth_from and gate:
+            self.depth_pass(it, cam, vi, "soft", None, ("opacity_logits",), False)
+        loss, rgb = self.photometric_pass(cam, vi, self.book.logs(it))
+        st.iteration = it
+        self.densify(it)
+        self.book.end(it, deg, loss, rgb, self.images[vi])
+
+    def depth_pass(self, it: int, cam, vi: int, name: str, opacity, groups: tuple, read: bool):
+        """One depth pass (forward, depth loss, backward of `groups`, Adam step of `groups`: here
+        each group is the render field of the same name). Returns the depth loss if `read`."""
+        from .losses import draw_depth_patches
+        from .optim import depth_smooth_weight_at
+
+        tr, L, ph = self.tr, self.L, self.tr.phase
+        loss = None
+        with ph(f"{name}_render"):
+            fr = tr.forward(cam, self.k, self.bg, self.near, opacity)
+        with ph("depth_loss"):
+            pl, pg = draw_depth_patches(self.rng, L.depth_patch_range, fr.height, fr.width)
+            vd = tr.depth_loss(fr, vi, pl, pg, L.depth_margin, L.depth_w_local, L.depth_w_global,
+                               depth_smooth_weight_at(L, it))
+            if read:
+                loss = tr.read_depth_loss()
+        with ph(f"{name}_backward"):
+            gr = tr.backward(fr, None, vd, opacity, groups)
+        with ph("adam"):
+            tr.adam_step(self.opt, gr, groups)
+        return loss
+
+    def photometric_pass(self, cam, vi: int, log: bool):
+        """The photometric pass (+ regularisers, densification statistics), stepping every group.
+        Returns (loss, rendered image) on logging iterations, else (None, None)."""
+        from .losses import regularizers
+
+        tr, L, ph = self.tr, self.L, self.tr.phase
+        loss = rgb = None
+        with ph("photo_render"):
+            fr = tr.forward(cam, self.k, self.bg, self.near)
+        with ph("photo_loss"):
+            v_rgb = tr.photometric(fr, vi, self.w_l1, self.w_ssim)
+            if log:
+                loss, rgb = tr.read_loss(), tr.read_rgb(fr)
+        with ph("photo_backward"):
+            gr = tr.backward(fr, v_rgb)
+        with ph("regularize"):
+            if self.reg_on:
+                if log:  # the penalties' value (host, float64) at the parameters before the step
+                    loss += regularizers(tr.read_params(("log_scales", "opacity_logits")),
+                                         L.shape_pena, L.scale_pena, L.opa_pena)[0]
+                tr.regularize(gr, L.shape_pena, L.scale_pena, L.opa_pena)
+        with ph("accumulate"):
+            tr.accumulate(fr)
+        with ph("adam"):
+            tr.adam_step(self.opt, gr, self.groups)
+        return loss, rgb
+
+    def densify(self, it: int) -> None:
+        """Densify / prune / reset opacities when the schedule says so: the state goes to the host
+        for the surgery (reings.densify) and back."""
+        from . import densify as D
+
+        if not any(D.schedule(self.cfg.densify, it)):
+            return
+        with self.tr.phase("densify"):
+            self.tr.download(self.state)
+            dens = D.maybe_densify(self.state, self.cfg.densify, it, self.extent, self.rng)
+            self.tr.upload(self.state)
+        if dens:
+            self.book.history.densify.append((it, dens))
 
 
 def with_iterations(config: TrainConfig, iterations: int) -> TrainConfig:

@@ -1,4 +1,6 @@
-"""Public value types: `Gaussians`, `Camera`, `RenderOutput`.
+"""Public value types: `Gaussians`, `Camera`, `RenderOutput`, and the names of the training state's
+arrays (`PARAM_NAMES`, the densification statistics `ACCUM` / `COUNT` / `RADII`), shared by the
+engine (`reings.state`, `reings.densify`) and the backends' trainers, which import no engine module.
 
 Conventions (fixed; every backend and kernel follows them):
 
@@ -19,6 +21,17 @@ from dataclasses import dataclass, fields
 import numpy as np
 
 SH_COUNTS = (1, 4, 9, 16)  # K for SH degree 0, 1, 2, 3
+
+# The optimised parameter groups of a training state (reings.state.TrainState), one Adam group each:
+#     means [N,3]  quats [N,4]  log_scales [N,3]  opacity_logits [N]  sh_dc [N,1,3]  sh_rest [N,K-1,3]
+PARAM_NAMES = ("means", "quats", "log_scales", "opacity_logits", "sh_dc", "sh_rest")
+
+# The densification statistics (reings.densify), per Gaussian, and their dtypes:
+#     grad2d_accum  sum of NDC-scaled screen gradient norms over the views that saw the Gaussian
+#     grad2d_count  number of those views
+#     max_radii2d   largest screen radius seen
+ACCUM, COUNT, RADII = "grad2d_accum", "grad2d_count", "max_radii2d"
+STAT_DTYPES = {ACCUM: np.float32, COUNT: np.int32, RADII: np.float32}
 
 
 def _f32(name: str, a, shape_tail: tuple, lead: int | None = None) -> np.ndarray:

@@ -3,8 +3,8 @@
     kernels/adam.cl adam_step      vs reings.optim.Adam (numpy) and the float64 torch.optim.Adam
                                    step of tests/test_adam.py, per-group lrs and step counts,
                                    strided SH gradients with inactive coefficients
-    kernels/train.cl reg_grads     vs reings.losses.regularizers
-    kernels/train.cl densify_accumulate vs reings.densify.accumulate(ndc_grad_norm(...))
+    kernels/regularize.cl          vs reings.losses.regularizers (reference_loss.regularize_fwd_bwd)
+    kernels/densify_accumulate.cl  vs reings.densify.accumulate(ndc_grad_norm(...))
 
 Tolerance "float32 rounding": a few ulps of the values compared (the kernels mirror numpy's float32
 operation sequence; where sqrt / division are not correctly rounded on a device the results
@@ -36,9 +36,7 @@ def _state(rng, n=257, k=16):
 
 
 def _trainer(device, st, adam):
-    from reings.backends.opencl.trainer import DeviceTrainer
-
-    t = DeviceTrainer(get_backend(device), [], adam=adam)
+    t = get_backend(device).trainer([], engine="device", adam=adam)
     t.upload(st)
     return t
 

@@ -1,5 +1,5 @@
 """DNGaussian's global-local depth loss as OpenCL kernels (`kernels/depth_loss.cl`,
-`reings.losses.DepthLossCL`) against the float64 reference
+`reings.backends.opencl.losses.DepthLossCL`) against the float64 reference
 (`reference_loss.global_local_depth_loss`, itself finite-difference-checked in tests/test_losses.py),
 plus a direct finite-difference check, Oclgrind, and the training engines' use of it.
 
@@ -34,6 +34,7 @@ import pytest
 from oclgrind_util import oclgrind_available, run_oclgrind
 from reings import losses
 from reings.backends import reference_loss as R
+from reings.backends.opencl.losses import DepthLossCL
 
 MARGIN = 0.00025  # DNGaussian's
 LOSS_RTOL64, GRAD_RTOL64 = 1e-10, 1e-6
@@ -42,10 +43,10 @@ LOSS_RTOL32, GRAD_RTOL32 = 1e-5, 1e-4
 _CACHE: dict = {}
 
 
-def _dl(device: str, **kw) -> losses.DepthLossCL:
+def _dl(device: str, **kw) -> DepthLossCL:
     key = (device, tuple(sorted(kw.items())))
     if key not in _CACHE:
-        _CACHE[key] = losses.DepthLossCL(device, **kw)
+        _CACHE[key] = DepthLossCL(device, **kw)
     return _CACHE[key]
 
 
@@ -263,37 +264,37 @@ def test_kernel_gradient_fd(device, mode):
 # }}}
 
 
-# {{{ edge-aware depth smoothness (DNGaussian LLFF)
+# {{{ depth_smooth: the edge-aware depth smoothness (DNGaussian LLFF)
 
 
-def test_smooth_weights_analytic():
+def test_depth_smooth_weights_analytic():
     """A step target: weight exp(-257) (0 in float64 terms: < 1e-100) across the step, 1 along it;
     the last column of wx and the last row of wy are 0; a constant target gives all-1 weights;
     a non-finite target is an error."""
     t = np.zeros((4, 6))
     t[:, 3:] = 5.0  # a vertical edge between columns 2 and 3
-    wx, wy = R.smooth_weights(t)
+    wx, wy = R.depth_smooth_weights(t)
     assert wx[:, 2].max() < 1e-100 and np.all(wx[:, [0, 1, 3, 4]] == 1.0) and not wx[:, 5].any()
     assert np.all(wy[:3] == 1.0) and not wy[3].any()
     # affine in the target: the same weights for any scale and offset of the target
-    wx2, wy2 = R.smooth_weights(7.0 - 0.01 * t)
+    wx2, wy2 = R.depth_smooth_weights(7.0 - 0.01 * t)
     np.testing.assert_array_equal(wx, wx2)
     np.testing.assert_array_equal(wy, wy2)
     # a ramp of total rise 257 over 5 steps: exp(-257 / 5) per x step
     r = np.tile(np.arange(6.0), (2, 1))
-    wx, wy = R.smooth_weights(r)
+    wx, wy = R.depth_smooth_weights(r)
     np.testing.assert_allclose(wx[:, :5], np.exp(-R.DNG_MONO_SPAN / 5), rtol=1e-12)
-    wx, wy = R.smooth_weights(np.full((3, 3), 2.5))
+    wx, wy = R.depth_smooth_weights(np.full((3, 3), 2.5))
     assert wx[:, :2].min() == 1.0 and wy[:2].min() == 1.0
     with pytest.raises(ValueError, match="non-finite"):
-        R.smooth_weights(np.array([[0.0, np.nan], [1.0, 2.0]]))
+        R.depth_smooth_weights(np.array([[0.0, np.nan], [1.0, 2.0]]))
 
 
-def test_smooth_reference_fd():
+def test_depth_smooth_reference_fd():
     """The float64 reference's gradient against central differences (no ties: |D| is smooth there)."""
     rng = np.random.default_rng(11)
     d = rng.uniform(1, 3, (7, 9))
-    wx, wy = rng.uniform(0.1, 1.0, (2, 7, 9))  # any positive weights (zero-padded as smooth_weights)
+    wx, wy = rng.uniform(0.1, 1.0, (2, 7, 9))  # any positive weights (zero-padded as depth_smooth_weights)
     wx[:, -1] = 0
     wy[-1] = 0
     loss, g = R.depth_smooth_fwd_bwd(d, wx, wy)
@@ -305,14 +306,14 @@ def test_smooth_reference_fd():
 
 
 @pytest.mark.parametrize("h,w,pl,pg,kind", [CASES[0], CASES[2], CASES[4], (378, 504, 5, 17, "structured")])
-def test_smooth_matches_reference(device, h, w, pl, pg, kind):
-    """The kernels with the smoothness term (fused into dl_grad; its loss by dl_smooth_rows) against
+def test_depth_smooth_matches_reference(device, h, w, pl, pg, kind):
+    """The kernels with the smoothness term (fused into dl_grad; its loss by depth_smooth_rows) against
     the float64 reference sum, both dl_grad schedules, and the float path; ties in the depth
     (sign 0) included: a copied column."""
     rng = np.random.default_rng([h, w, 5])
     d, t = _inputs(kind, h, w, rng)
     d[:, 3] = d[:, 2]  # exact ties: the gradient of |0| is 0 on both sides
-    sw = losses.SmoothWeights(t)
+    sw = R.DepthSmoothWeights(t)
     ws = 0.1
     l0, g0 = _ref(d, t, pl, pg)
     ls, gs = R.depth_smooth_fwd_bwd(d, sw.wx, sw.wy)
@@ -331,15 +332,16 @@ def test_smooth_matches_reference(device, h, w, pl, pg, kind):
     _check(a, (b[0], b[1].astype(np.float64)), LOSS_RTOL64, GRAD_RTOL64)
 
 
-def test_smooth_schedule():
+def test_depth_smooth_schedule():
     """DNGaussian: smoothness at iterations > 3000 of 6000 (LLFF preset), none on DTU; the start
     scales with the schedule."""
     from reings.config import preset
-    from reings.train import smooth_weight_at, with_iterations
+    from reings.optim import depth_smooth_weight_at
+    from reings.train import with_iterations
 
     L = preset("dngaussian").loss
-    assert smooth_weight_at(L, 3000) == 0.0 and smooth_weight_at(L, 3001) == 0.1
-    assert smooth_weight_at(preset("dngaussian_dtu").loss, 5000) == 0.0
+    assert depth_smooth_weight_at(L, 3000) == 0.0 and depth_smooth_weight_at(L, 3001) == 0.1
+    assert depth_smooth_weight_at(preset("dngaussian_dtu").loss, 5000) == 0.0
     assert with_iterations(preset("dngaussian"), 600).loss.depth_smooth_from == 300
 # }}}
 
@@ -352,7 +354,7 @@ def test_smooth_schedule():
 # one, and with a 13x11 call of 30 patches after one of 13).
 _OCLGRIND_SCRIPT = """
 import numpy as np, warnings
-from reings.losses import DepthLossCL, SmoothWeights
+from reings.backends.opencl.losses import DepthLossCL
 from reings.backends import reference_loss as R
 rng = np.random.default_rng(0)
 d = rng.uniform(1, 3, (13, 11)).astype(np.float32)
@@ -371,7 +373,7 @@ for fp64 in (True, False):
             tol = 1e-6 if fp64 else 1e-4
             assert abs(lk - lr) <= tol * abs(lr), (fp64, cs, pl, pg, lk, lr)
             assert np.linalg.norm(gk - gr) <= tol * max(np.linalg.norm(gr), 1e-30), (fp64, cs, pl, pg)
-        sw = SmoothWeights(t)  # the smoothness term fused into dl_grad, and its on-demand loss kernel
+        sw = R.DepthSmoothWeights(t)  # the smoothness term fused into dl_grad, and its on-demand loss kernel
         lr, gr = R.global_local_depth_loss(d, t, 3, 5, 0.00025)
         ls, gs = R.depth_smooth_fwd_bwd(d, sw.wx, sw.wy)
         lk, gk = dl(d, t, 3, 5, 0.00025, smooth=(sw, 0.1))
@@ -454,7 +456,7 @@ def test_device_engine_depth_on_device(device, small_case, monkeypatch, gate):
 
 
 @pytest.mark.parametrize("engine", ["host", "device"])
-def test_smoothness_takes_part_in_the_fit(device, small_case, engine):
+def test_depth_smooth_takes_part_in_the_fit(device, small_case, engine):
     """The small case's schedule turns the smoothness on at iteration 3 of 6 (DNGaussian: > 3000 of
     6000): weight 0 must give other parameters, and before iteration 3 nothing may differ."""
     from dataclasses import replace
@@ -505,7 +507,9 @@ if __name__ == "__main__":  # timing at the LLFF training size (see the module d
           ms(lambda: losses.depth_loss(d, t, r, (5, 17), MARGIN, device="reference")))
     print(f"kernels, host form (upload, 5 launches, read v_depth and loss) on {dev}:",
           ms(lambda: losses.depth_loss(d, t, r, (5, 17), MARGIN, device=dev)))
-    dl = losses.depth_loss_cl(dev)
+    from reings.backends import get_backend
+
+    dl = get_backend(dev).depth_loss_kernels
     import pyopencl as cl
 
     mf = cl.mem_flags

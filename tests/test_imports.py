@@ -52,3 +52,45 @@ def test_no_submodule_shadows_a_public_function():
     clash = [n for n in reings.__all__ if n not in reings._SUBMODULES
              and importlib.util.find_spec(f"reings.{n}") is not None]
     assert not clash
+
+
+ENGINE_MODULES = ("train", "densify", "state", "optim", "losses", "pipeline", "evaluate")
+
+
+def _imports(path) -> set:
+    """Absolute module names imported anywhere in a file of the reings package (lazy imports too)."""
+    import ast
+    import pathlib
+
+    rel = pathlib.Path(path).relative_to(pathlib.Path(__file__).resolve().parents[1])
+    pkg = list(rel.with_suffix("").parts[:-1])
+    if rel.name == "__init__.py":
+        pkg = list(rel.parent.parts)
+    out = set()
+    for node in ast.walk(ast.parse(pathlib.Path(path).read_text())):
+        if isinstance(node, ast.Import):
+            out.update(a.name for a in node.names)
+        elif isinstance(node, ast.ImportFrom):
+            base = pkg[: len(pkg) - node.level + 1] if node.level else []
+            mod = ".".join(base + ([node.module] if node.module else []))
+            out.add(mod)
+            out.update(f"{mod}.{a.name}" for a in node.names)  # `from . import losses`
+    return out
+
+
+def test_layering():
+    """Backends own every kernel's host code and import no engine module; nothing outside
+    reings/backends/ imports pyopencl (issue 11)."""
+    import pathlib
+
+    root = pathlib.Path(__file__).resolve().parents[1] / "reings"
+    bad = []
+    for p in sorted(root.rglob("*.py")):
+        mods = _imports(p)
+        in_backends = "backends" in p.relative_to(root).parts
+        if not in_backends and any(m == "pyopencl" or m.startswith("pyopencl.") for m in mods):
+            bad.append(f"{p.relative_to(root)} imports pyopencl")
+        if in_backends:
+            bad += [f"{p.relative_to(root)} imports {m}" for m in sorted(mods)
+                    if any(m == f"reings.{e}" or m.startswith(f"reings.{e}.") for e in ENGINE_MODULES)]
+    assert not bad, bad

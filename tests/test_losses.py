@@ -1,5 +1,5 @@
 """Losses: every reference gradient against float64 central differences; the reference SSIM
-against an independent 2-D scipy convolution; the OpenCL photometric kernels (`kernels/loss.cl`)
+against an independent 2-D scipy convolution; the OpenCL photometric kernels (`kernels/photometric.cl`)
 against the float64 reference on each device under test."""
 from __future__ import annotations
 

@@ -19,7 +19,8 @@ import pytest
 from reings.backends import get_backend
 from reings.backends import reference_loss as RL
 from reings.backends.opencl import quirks
-from reings.bench import ClCalls, make_step_trainer
+from reings.backends.opencl.harness import ClCalls
+from reings.bench import make_step_trainer
 from reings.bench_scenes import perf_scene
 from reings.optim import Adam
 from reings.state import PARAM_NAMES, TrainState

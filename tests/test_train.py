@@ -29,3 +29,29 @@ def test_last_screen_only_after_full_vjp(device):
     render_vjp(g, cam, np.zeros((32, 32, 3), np.float32), v_depth=np.ones((32, 32), np.float32),
                device=device, grad_fields=("means",))
     assert get_backend(device).last_screen is None
+
+
+def test_trainers_implement_the_contract():
+    """Every operation of the Trainer contract (reings/backends/base.py) exists in both trainers
+    with the contract's parameters, and each backend makes the trainers its `engines` name."""
+    import inspect
+
+    import pytest
+
+    from reings.backends.base import Trainer
+    from reings.backends.host_trainer import HostTrainer
+    from reings.backends.opencl.trainer import DeviceTrainer
+
+    ops = [n for n, f in vars(Trainer).items() if callable(f) and not n.startswith("_")]
+    assert {"forward", "photometric", "depth_loss", "backward", "regularize", "accumulate", "adam_step"} <= set(ops)
+
+    def params(f):
+        return [{"fr": "frame"}.get(p, p) for p in inspect.signature(f).parameters]
+
+    for cls in (HostTrainer, DeviceTrainer):
+        for n in ops:
+            assert params(getattr(cls, n)) == params(getattr(Trainer, n)), f"{cls.__name__}.{n}"
+    ref = get_backend("reference")
+    assert ref.engines == ("host",) and isinstance(ref.trainer([]), HostTrainer)
+    with pytest.raises(ValueError, match="OpenCL"):
+        ref.trainer([], engine="device")

@@ -1,7 +1,14 @@
-"""Backend registry: the one place that maps device strings to backend classes (imports lazily).
+"""Backend registry: the one place that resolves a device string (imports lazily, one backend per
+string). Everything else asks the backend it returns: what it can do is its attributes and methods
+(the `Backend` protocol of reings/backends/base.py: `engines`, `trainer`, the host losses), never a
+comparison of device strings.
 
     "reference"                          float64 numpy (reings.backends.reference)
     "pocl" | "cuda" | "cuda:N" | "oclgrind" | "opencl:P:D"   OpenCL (reings.backends.opencl.backend)
+
+Layers: nothing here imports an engine module (reings.train, densify, state, optim, losses,
+pipeline, evaluate); every kernel's host code and every float64 twin lives here
+(tests/test_imports.py::test_layering).
 """
 from __future__ import annotations
 
@@ -9,6 +16,7 @@ _CACHE: dict[str, object] = {}
 
 
 def get_backend(device: str = "pocl"):
+    """The backend of a device string (cached): ReferenceBackend or OpenCLBackend."""
     if not isinstance(device, str):
         raise TypeError(f"device must be a string, got {type(device).__name__}")
     b = _CACHE.get(device)

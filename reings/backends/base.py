@@ -1,4 +1,5 @@
-"""The stage contract shared by every backend (reference float64 numpy, OpenCL, later Warp).
+"""The contracts shared by every backend (reference float64 numpy, OpenCL, later Warp): the render
+stages (`Backend`) and one training iteration's operations (`Trainer`).
 
 A render is the stage sequence
 
@@ -20,8 +21,9 @@ Index spaces (names follow brush's `x_from_y` rule):
 """
 from __future__ import annotations
 
+from contextlib import AbstractContextManager
 from dataclasses import dataclass
-from typing import Protocol, Sequence
+from typing import Any, Iterable, Protocol, Sequence
 
 import numpy as np
 
@@ -89,18 +91,197 @@ class RasterGrads:
     v_depths: np.ndarray  # [N] dL/d(t_z) through the depth image
 
 
+
+# {{{ the training contract
+ENGINES = ("auto", "host", "device")
+
+
+class Frame(Protocol):
+    """One forward pass of a trainer (`Trainer.forward`): an opaque handle on its images and
+    intermediates, valid until the trainer's next `forward`. The loop reads only its size."""
+
+    width: int
+    height: int
+
+
+class Trainer(Protocol):
+    """The operations of one training iteration, on a training state held by a backend.
+
+    `reings.train.fit` runs ONE loop over this contract whatever the backend. Per iteration, for
+    each pass (hard depth, soft depth, photometric: DNGaussian's order, reings/train.py):
+
+        fr = forward(cam, k, background, near, opacity_override)
+        v  = photometric(fr, view, w_l1, w_ssim)          or   depth_loss(fr, view, ...)
+        g  = backward(fr, v_rgb, v_depth, opacity_override, grad_fields)
+        regularize(g, ...); accumulate(fr)                 (photometric pass only)
+        adam_step(opt, g, groups)
+
+    and, when densification is due, download -> host surgery (reings.densify) -> upload. Values are
+    read only when asked (`read_loss`, `read_rgb`, `read_depth_loss`, `read_params`), so a device
+    implementation moves nothing over the bus in an iteration the loop does not log.
+
+    Handles: `forward` returns a `Frame`; the loss methods return the cotangent image (a device
+    buffer or a host array) that only `backward` consumes; `backward` returns the gradients per
+    parameter group, which `regularize` adds into and `adam_step` consumes. A handle is valid until
+    the next call of the method that made it.
+
+    Names: `k` is the number of active SH coefficients (types.SH_COUNTS[degree]); `grad_fields` are
+    render fields (types.FIELDS; None = all); `groups` are parameter groups (types.PARAM_NAMES);
+    `view` indexes the training images the trainer was made with (`Backend.trainer`).
+
+    Implementations (made by `Backend.trainer`; both compute the same iteration, bit for bit on
+    PoCL: tests/test_device_fit.py):
+      DeviceTrainer  reings/backends/opencl/trainer.py: parameters, Adam moments, statistics,
+                     images and depth targets resident on one OpenCL device; every step a kernel.
+      HostTrainer    reings/backends/host_trainer.py: numpy state; the backend's render /
+                     render_vjp / host losses, and the numpy twins (reference_state,
+                     reference_loss) for the per-Gaussian steps. Any backend, the float64
+                     reference included.
+
+    Adding a loss term: its kernel (kernels/) and float64 twin (reference_loss.py), one method here
+    (returning a cotangent for `backward`, or adding into the gradients as `regularize` does), that
+    method in both trainers, and one call in the loop (reings/train.py, `_Iteration`).
+    """
+
+    def upload(self, state: Any) -> None:
+        """Take `state` (a reings.state.TrainState: params / adam moments / stats named in
+        reings.types) as the trainer's state: at the start and after every host-side edit of its
+        rows. Missing densification statistics start at zero. Device: copied to the device;
+        host: the state's arrays are used in place."""
+
+    def download(self, state: Any, params_only: bool = False) -> None:
+        """Write the trainer's parameters (and, unless `params_only`, the Adam moments and
+        statistics) into `state`, as fresh arrays; step counts and the iteration are the host's.
+        Before densification, eval, checkpoints and the result. Host: nothing to copy."""
+
+    def upload_depth_targets(self, targets: Sequence, shapes: Sequence[tuple[int, int]],
+                             smooth: bool = False) -> None:
+        """The training views' depth targets ([H,W] each, or None for a view without one), once
+        per fit; `shapes` the views' (H, W), checked (ValueError). smooth: also prepare each view's
+        depth_smooth weights (reference_loss.DepthSmoothWeights), which `depth_loss` needs for a
+        non-zero w_smooth."""
+
+    def forward(self, cam: Camera, k: int, background: Sequence[float], near: float,
+                opacity_override: float | None = None) -> Frame:
+        """Render the held Gaussians with `k` active SH coefficients from `cam` (project / bin /
+        rasterize). opacity_override: every Gaussian blends with this opacity (the hard-depth
+        pass). The frame stays valid until the next `forward`."""
+
+    def photometric(self, frame: Frame, view: int, w_l1: float, w_ssim: float) -> Any:
+        """w_l1 * L1 + w_ssim * (1 - SSIM) of the frame's image against training image `view`
+        (reference_loss.weighted_photometric_fwd_bwd; kernels/photometric.cl, or kernels/l1.cl
+        when w_ssim == 0). Returns dL/d rgb for `backward`; the loss waits for `read_loss`."""
+
+    def read_loss(self) -> float:
+        """The loss of the last `photometric` (a read from the device: call it when logging)."""
+
+    def read_rgb(self, frame: Frame) -> np.ndarray:
+        """The frame's rendered image, [H,W,3] float32 on the host (logging)."""
+
+    def depth_loss(self, frame: Frame, view: int, p_local: int, p_global: int, margin: float,
+                   w_local: float, w_global: float, w_smooth: float = 0.0) -> Any:
+        """DNGaussian's global-local depth loss of the frame's depth against the target of `view`
+        (reference_loss.global_local_depth_loss; patch sizes drawn by the loop with
+        reings.losses.draw_depth_patches), plus w_smooth times the depth_smooth term
+        (reference_loss.depth_smooth_fwd_bwd; needs upload_depth_targets(smooth=True)). Returns
+        dL/d depth for `backward`; the loss waits for `read_depth_loss`."""
+
+    def read_depth_loss(self) -> float:
+        """The loss of the last `depth_loss` (a read from the device)."""
+
+    def backward(self, frame: Frame, v_rgb: Any = None, v_depth: Any = None,
+                 opacity_override: float | None = None, grad_fields: Sequence[str] | None = None) -> Any:
+        """The VJP of the frame's render for the cotangents v_rgb / v_depth (from the loss methods;
+        None: zero) and the frame's `opacity_override`, restricted to `grad_fields` (None: every
+        field). Returns the gradients per parameter group (handle for `regularize`, `adam_step`);
+        only the groups of `grad_fields` are present."""
+
+    def regularize(self, grads: Any, shape_pena: float, scale_pena: float, opa_pena: float) -> None:
+        """Add DNGaussian's shape / scale / opacity penalties' gradients at the held parameters
+        into `grads` (reference_loss.regularize_fwd_bwd; kernels/regularize.cl); nothing when every
+        weight is 0. The loop computes the penalties' value from `read_params` when it logs."""
+
+    def accumulate(self, frame: Frame) -> None:
+        """Add the densification statistics of the frame's last backward (a photometric one, every
+        field) to the held statistics: reference_state.densify_accumulate of ndc_grad_norm
+        (kernels/densify_accumulate.cl)."""
+
+    def adam_step(self, opt: Any, grads: Any, groups: Iterable[str]) -> None:
+        """One Adam step of each parameter group in `groups` with `grads`, using `opt`'s learning
+        rates, betas, eps and per-group step counts (a reings.optim.Adam; the counts advance here,
+        as Adam.step does, empty groups included): reference_state.adam_update (kernels/adam.cl)."""
+
+    def read_params(self, names: Iterable[str]) -> dict[str, np.ndarray]:
+        """The held parameter groups `names` as host float32 arrays (may be the state's own
+        arrays on the host: read only)."""
+
+    def phase(self, name: str) -> AbstractContextManager:
+        """A `with` block whose wall seconds are added to profile[name] (a no-op without a
+        profile dict); the device trainer finishes its queue around it."""
+
+    def finish(self) -> None:
+        """Wait for all queued work; with a profile dict, add the device's per-stage milliseconds
+        to profile["device_ms"]."""
+
+
+def select_engine(backend: "Backend", engine: str) -> str:
+    """The trainer `backend.trainer(engine=...)` makes: "auto" -> the backend's default
+    (backend.engines[0]); "host" / "device" where the backend offers it; else ValueError."""
+    if engine not in ENGINES:
+        raise ValueError(f"engine must be one of {ENGINES}, got {engine!r}")
+    if engine == "auto":
+        return backend.engines[0]
+    if engine not in backend.engines:
+        raise ValueError(f"the {engine} engine needs an OpenCL device; backend {backend.name!r} offers "
+                         f"{backend.engines}")
+    return engine
+# }}}
+
+
 class Backend(Protocol):
-    """What `reings.render` needs from a device. Stage methods take and return host numpy arrays
-    (for tests); `render` / `render_vjp` are the fused fast path."""
+    """What the package needs from a device; `reings.backends.get_backend(device)` makes one.
+
+    Render stages (tests, debugging) take and return host numpy; `render` / `render_vjp` are the
+    fused path behind `reings.render` / `reings.render_vjp`. The host loss methods are the
+    `reings.losses` functions on this device; `trainer` makes the training engine's `Trainer`.
+    Capabilities are attributes, never compared device strings: `engines` says which trainers
+    the backend can make.
+    """
 
     name: str
+    engines: tuple[str, ...]  # trainers `trainer` can make, the default first: ("device", "host") or ("host",)
+    last_screen: tuple | None  # after a render_vjp with every field: (v_means2d [N,2] float32, radii [N] int32)
+    #                            (culled rows zero) for the densification statistics; None after a restricted one
+
+    def project_fwd(self, gaussians: Gaussians, camera: Camera, near: float = 0.01,
+                    opacity_override: float | None = None) -> Projected:
+        """The projection stage (fit's clean_views reads its radii)."""
 
     def render(self, gaussians: Gaussians, camera: Camera, background: Sequence[float] = (0, 0, 0),
                near: float = 0.01, opacity_override: float | None = None,
-               want_importance: bool = False) -> RenderOutput: ...
+               want_importance: bool = False) -> RenderOutput:
+        """project_fwd -> bin -> rasterize_fwd of host Gaussians (reings.render)."""
 
     def render_vjp(self, gaussians: Gaussians, camera: Camera, v_rgb: np.ndarray,
                    v_depth: np.ndarray | None = None, v_alpha: np.ndarray | None = None,
                    background: Sequence[float] = (0, 0, 0), near: float = 0.01,
                    opacity_override: float | None = None,
-                   grad_fields: Sequence[str] | None = None) -> Gaussians: ...
+                   grad_fields: Sequence[str] | None = None) -> Gaussians:
+        """dL/d(raw field) of the render for the cotangent images (reings.render_vjp); sets
+        `last_screen`."""
+
+    def photometric_loss(self, rgb: np.ndarray, gt: np.ndarray, w_l1: float,
+                         w_ssim: float) -> tuple[float, np.ndarray]:
+        """(w_l1 * L1 + w_ssim * (1 - SSIM), float32 dL/d rgb) of host [H,W,3] images."""
+
+    def depth_loss(self, depth: np.ndarray, target: np.ndarray, p_local: int, p_global: int, margin: float,
+                   w_local: float = 0.1, w_global: float = 1.0, smooth=None) -> tuple[float, np.ndarray]:
+        """(DNGaussian's depth loss, float32 dL/d depth) of a host [H,W] depth against its target;
+        smooth: None or (reference_loss.DepthSmoothWeights, w_smooth) for the depth_smooth term."""
+
+    def trainer(self, images: Sequence[np.ndarray], engine: str = "auto", adam: str = "auto",
+                profile: dict | None = None) -> Trainer:
+        """A `Trainer` over the training images [H,W,3] (views indexed as given). engine: "auto"
+        (engines[0]), "host" or "device" (`select_engine`); adam: the device trainer's Adam
+        location ("auto", "kernel", "numpy"); profile: None or a dict for `Trainer.phase` /
+        `finish`."""

@@ -46,8 +46,10 @@ from typing import Sequence
 import numpy as np
 
 from ..types import FIELDS, SH_COUNTS, Camera, Gaussians, RenderOutput
+from .reference_loss import depth_loss as _depth_loss
+from .reference_loss import photometric_loss as _photometric_loss
 from .base import (ALPHA_MAX, ALPHA_MIN, CLAMP_GUARD, EPS2D, T_MIN, TILE_SIZE, Bins, Projected,
-                   RasterGrads, RasterOut, tile_grid)
+                   RasterGrads, RasterOut, select_engine, tile_grid)
 
 QUAT_NORM_MIN = 1e-12  # quaternion norm below this: rotation undefined, cull
 FLT_MAX = float(np.finfo(np.float32).max)
@@ -598,15 +600,28 @@ def _vjp64(g, cam, v_rgb, v_depth, v_alpha, background, near, opacity_override, 
 
 
 class ReferenceBackend:
-    """device="reference": float64 numpy, float32 results at the API edge."""
+    """device="reference": float64 numpy, float32 results at the API edge. Trains with the host
+    trainer only (`engines`); its host losses are reference_loss's."""
 
     name = "reference"
+    engines = ("host",)
+    last_screen = None  # Backend.last_screen, set by render_vjp
 
     project_fwd = staticmethod(project_fwd)
     bin = staticmethod(bin)
     rasterize_fwd = staticmethod(rasterize_fwd)
     rasterize_bwd = staticmethod(rasterize_bwd)
     project_bwd = staticmethod(project_bwd)
+    photometric_loss = staticmethod(_photometric_loss)
+    depth_loss = staticmethod(_depth_loss)
+
+    def trainer(self, images, engine: str = "auto", adam: str = "auto", profile: dict | None = None):
+        """Backend.trainer: the HostTrainer (reings/backends/host_trainer.py); "device" is a
+        ValueError (no device here). `adam` is ignored: the host trainer's Adam is numpy."""
+        from .host_trainer import HostTrainer
+
+        select_engine(self, engine)
+        return HostTrainer(self, images, profile=profile)
 
     def render(self, gaussians: Gaussians, camera: Camera, background: Sequence[float] = (0, 0, 0),
                near: float = 0.01, opacity_override: float | None = None,
@@ -624,7 +639,7 @@ class ReferenceBackend:
                    opacity_override: float | None = None,
                    grad_fields: Sequence[str] | None = None) -> Gaussians:
         gr, proj, rg = _vjp64(gaussians, camera, v_rgb, v_depth, v_alpha, background, near, opacity_override)
-        # screen-space side channel for densification statistics (see reings.train)
+        # screen-space side channel for the densification statistics (Backend.last_screen)
         self.last_screen = (rg.v_means2d.astype(np.float32), np.asarray(proj.radii)) if grad_fields is None else None
         keep = FIELDS if grad_fields is None else tuple(grad_fields)
         with np.errstate(over="ignore"):

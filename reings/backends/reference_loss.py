@@ -8,12 +8,18 @@
     depth_norm_loss_fwd_bwd one term of DNGaussian's global-local depth normalisation
                             (`utils/loss_utils.py` patch_norm_mse_loss[_global], METHOD.md §2.4)
     global_local_depth_loss w_local * local(p1) + w_global * global(p2)
-    depth_smooth_fwd_bwd    DNGaussian's LLFF edge-aware depth smoothness (`loss_depth_smoothness`),
-                            weights from the target (smooth_weights)
+    depth_smooth_fwd_bwd    the depth_smooth stage: DNGaussian's LLFF edge-aware depth smoothness
+                            (`loss_depth_smoothness`), weights from the target
+                            (depth_smooth_weights, DepthSmoothWeights)
+    regularize_fwd_bwd      the regularize stage: DNGaussian's shape / scale / opacity penalties
+                            on the raw parameters (shape_reg, scale_reg, opacity_reg)
 
-`kernels/loss.cl` and `kernels/l1.cl` must match the first three (tests/test_losses.py,
-tests/test_peer_step.py), `kernels/depth_loss.cl` the last three (tests/test_depth_loss_kernel.py).
-On device "reference" these functions are the losses themselves (`reings.losses`).
+`kernels/photometric.cl` and `kernels/l1.cl` must match the first three (tests/test_losses.py,
+tests/test_peer_step.py), `kernels/depth_loss.cl` the depth terms (tests/test_depth_loss_kernel.py),
+`kernels/regularize.cl` the penalties (tests/test_adam_kernel.py).
+
+`photometric_loss` and `depth_loss` are the reference backend's host loss methods (the Backend
+protocol, reings/backends/base.py): on device "reference" they are the losses themselves.
 """
 from __future__ import annotations
 
@@ -91,10 +97,21 @@ def photometric_weights(lambda_dssim: float, form: str) -> tuple[float, float]:
 
 
 def photometric_fwd_bwd(x, y, lambda_dssim: float = 0.2, form: str = "dngaussian") -> tuple[float, np.ndarray]:
-    wl1, wssim = photometric_weights(lambda_dssim, form)
+    """(w_l1 * L1 + w_ssim * (1 - SSIM), its gradient w.r.t. x), weights from `photometric_weights`."""
+    return weighted_photometric_fwd_bwd(x, y, *photometric_weights(lambda_dssim, form))
+
+
+def weighted_photometric_fwd_bwd(x, y, w_l1: float, w_ssim: float) -> tuple[float, np.ndarray]:
+    """w_l1 * L1 + w_ssim * (1 - SSIM) of [H,W,C] images and its float64 gradient w.r.t. x."""
     l1, vl1 = l1_fwd_bwd(x, y)
     s, vs = ssim_fwd_bwd(x, y)
-    return wl1 * l1 + wssim * (1.0 - s), wl1 * vl1 - wssim * vs
+    return w_l1 * l1 + w_ssim * (1.0 - s), w_l1 * vl1 - w_ssim * vs
+
+
+def photometric_loss(rgb: np.ndarray, gt: np.ndarray, w_l1: float, w_ssim: float) -> tuple[float, np.ndarray]:
+    """The reference backend's photometric loss: (loss, float32 dL/d rgb) of [H,W,3] images."""
+    loss, v = weighted_photometric_fwd_bwd(rgb, gt, w_l1, w_ssim)
+    return loss, v.astype(np.float32)
 
 
 # {{{ depth: DNGaussian global-local normalisation
@@ -198,7 +215,7 @@ def global_local_depth_loss(depth, target, patch_local: int, patch_global: int, 
 DNG_MONO_SPAN = 65535.0 / 255.0  # DNGaussian's D_mono = 255 - PNG16 / 255 spans [0, 257]
 
 
-def smooth_weights(target: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def depth_smooth_weights(target: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Edge weights of DNGaussian's depth smoothness (`utils/loss_utils.py` loss_depth_smoothness,
     with img = the mono depth, METHOD.md §2.3): wx[y, x] = exp(-|T[y, x] - T[y, x+1]|) and
     wy[y, x] = exp(-|T[y, x] - T[y+1, x]|), each [H, W] float64, 0 in the last column / row.
@@ -209,9 +226,9 @@ def smooth_weights(target: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     target gives all weights 1. Non-finite target values are an error."""
     t = np.asarray(target, np.float64)
     if t.ndim != 2:
-        raise ValueError(f"smooth_weights: target must be [H, W], got shape {t.shape}")
+        raise ValueError(f"depth_smooth_weights: target must be [H, W], got shape {t.shape}")
     if not np.isfinite(t).all():
-        raise ValueError("smooth_weights: the depth target has non-finite values")
+        raise ValueError("depth_smooth_weights: the depth target has non-finite values")
     lo, hi = float(t.min()), float(t.max())
     m = (t - lo) * (DNG_MONO_SPAN / (hi - lo)) if hi > lo else np.zeros_like(t)
     wx = np.zeros_like(t)
@@ -223,7 +240,9 @@ def smooth_weights(target: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def depth_smooth_fwd_bwd(depth: np.ndarray, wx: np.ndarray, wy: np.ndarray) -> tuple[float, np.ndarray]:
     """(sum |D[x] - D[x+1]| wx + sum |D[y] - D[y+1]| wy) / (sum wx + sum wy) and its gradient
-    w.r.t. the rendered depth D [H, W] (sign(0) = 0, as torch's abs). Weights from `smooth_weights`."""
+    w.r.t. the rendered depth D [H, W] (sign(0) = 0, as torch's abs). Weights from
+    `depth_smooth_weights`; kernels/depth_loss.cl fuses its gradient into dl_grad and computes its
+    loss in depth_smooth_rows."""
     d = np.asarray(depth, np.float64)
     wx = np.asarray(wx, np.float64)
     wy = np.asarray(wy, np.float64)
@@ -241,4 +260,111 @@ def depth_smooth_fwd_bwd(depth: np.ndarray, wx: np.ndarray, wy: np.ndarray) -> t
     v[:-1, :] += gy
     v[1:, :] -= gy
     return loss, v / tot
+
+
+class DepthSmoothWeights:
+    """The edge weights of one view's depth smoothness term (`depth_smooth_weights`): wx, wy
+    [H, W] float32 (what the kernels read) and inv_sum = 1 / (sum wx + sum wy) of those. Built
+    once per training view (the trainers' upload_depth_targets)."""
+
+    def __init__(self, target: np.ndarray):
+        wx, wy = depth_smooth_weights(target)
+        self.wx = np.ascontiguousarray(wx, np.float32)
+        self.wy = np.ascontiguousarray(wy, np.float32)
+        # the sum of the float32 weights (in float64), as the reference sums what the kernels read
+        tot = float(self.wx.sum(dtype=np.float64) + self.wy.sum(dtype=np.float64))
+        self.inv_sum = 1.0 / tot if tot > 0 else 0.0
+# }}}
+
+
+def depth_loss(depth: np.ndarray, target: np.ndarray, p_local: int, p_global: int, margin: float,
+               w_local: float = 0.1, w_global: float = 1.0, smooth=None) -> tuple[float, np.ndarray]:
+    """The reference backend's depth loss: (loss, float32 dL/d depth) of `global_local_depth_loss`
+    plus, with `smooth` = (DepthSmoothWeights, w_smooth) and w_smooth != 0, w_smooth times
+    `depth_smooth_fwd_bwd`."""
+    loss, v = global_local_depth_loss(depth, target, p_local, p_global, margin, w_local, w_global)
+    if smooth is not None and smooth[1] != 0:
+        sw, ws = smooth
+        ls, vs = depth_smooth_fwd_bwd(depth, sw.wx, sw.wy)
+        loss, v = loss + ws * ls, v + ws * vs
+    return loss, v.astype(np.float32)
+
+
+# {{{ regularize: DNGaussian's penalties on the raw parameters
+def shape_reg(log_scales: np.ndarray) -> tuple[float, np.ndarray]:
+    """mean over Gaussians of max scale / min scale; gradient w.r.t. log_scales [N, 3]
+    (d/d log s of exp(a)/exp(b) is +ratio at the max axis and -ratio at the min axis; ties go to
+    the first axis, as torch.max/min; an isotropic Gaussian gets zero)."""
+    ls = np.asarray(log_scales, np.float64)
+    n = ls.shape[0]
+    g = np.zeros_like(ls)
+    if n == 0:
+        return 0.0, g
+    imax, imin = ls.argmax(axis=1), ls.argmin(axis=1)
+    r = np.arange(n)
+    ratio = np.exp(ls[r, imax] - ls[r, imin])
+    np.add.at(g, (r, imax), ratio / n)
+    np.add.at(g, (r, imin), -ratio / n)
+    return float(ratio.mean()), g
+
+
+def scale_reg(log_scales: np.ndarray) -> tuple[float, np.ndarray]:
+    """mean over Gaussians of (max scale)^2; gradient w.r.t. log_scales (2 s_max^2 / N at the max axis)."""
+    ls = np.asarray(log_scales, np.float64)
+    n = ls.shape[0]
+    g = np.zeros_like(ls)
+    if n == 0:
+        return 0.0, g
+    imax = ls.argmax(axis=1)
+    r = np.arange(n)
+    s2 = np.exp(2.0 * ls[r, imax])
+    g[r, imax] = 2.0 * s2 / n
+    return float(s2.mean()), g
+
+
+OPACITY_SPLIT = 0.2  # opacity_reg's split (OPA_SPLIT in kernels/regularize.cl)
+
+
+def opacity_reg(opacity_logits: np.ndarray, split: float = OPACITY_SPLIT) -> tuple[float, np.ndarray]:
+    """DNGaussian's opa_pena = 1 - mean(o^2 | o > 0.2) + mean((1 - o)^2 | o < 0.2), o = sigmoid(logit);
+    gradient w.r.t. the logits.  An empty subset contributes 0 to that mean (torch: NaN) and its
+    "1 -" stays (value 1 when no opacity exceeds 0.2, mirroring the formula's constant)."""
+    a = np.asarray(opacity_logits, np.float64)
+    o = 1.0 / (1.0 + np.exp(-a))
+    hi, lo = o > split, o < split
+    nh, nl = int(hi.sum()), int(lo.sum())
+    val = 1.0
+    go = np.zeros_like(o)
+    if nh:
+        val -= float((o[hi] ** 2).mean())
+        go[hi] = -2.0 * o[hi] / nh
+    if nl:
+        val += float(((1.0 - o[lo]) ** 2).mean())
+        go[lo] = -2.0 * (1.0 - o[lo]) / nl
+    return val, go * o * (1.0 - o)
+
+
+def regularize_fwd_bwd(params: dict, shape_pena: float = 0.0, scale_pena: float = 0.0,
+                       opa_pena: float = 0.0) -> tuple[float, dict[str, np.ndarray]]:
+    """shape_pena * shape + scale_pena * scale + opa_pena * opacity (DNGaussian, added to the
+    photometric loss) of the raw parameters `params` (name -> array, PARAM_NAMES); gradients
+    (float32) only for the fields with a non-zero weight: "log_scales", "opacity_logits".
+    kernels/regularize.cl computes the same gradients on the device."""
+    loss, grads = 0.0, {}
+    if shape_pena or scale_pena:
+        g = np.zeros(params["log_scales"].shape)
+        if shape_pena:
+            v, gs = shape_reg(params["log_scales"])
+            loss += shape_pena * v
+            g += shape_pena * gs
+        if scale_pena:
+            v, gs = scale_reg(params["log_scales"])
+            loss += scale_pena * v
+            g += scale_pena * gs
+        grads["log_scales"] = g.astype(np.float32)
+    if opa_pena:
+        v, go = opacity_reg(params["opacity_logits"])
+        loss += opa_pena * v
+        grads["opacity_logits"] = (opa_pena * go).astype(np.float32)
+    return loss, grads
 # }}}

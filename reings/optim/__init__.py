@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from .adam import Adam, AdamState
-from .schedules import expon_lr, held_expon_lr, position_lr, sh_degree_at
+from .schedules import depth_smooth_weight_at, expon_lr, held_expon_lr, position_lr, sh_degree_at
 
 
 def make_optimizer(state, optim_cfg, extent: float) -> Adam:
@@ -18,4 +18,5 @@ def make_optimizer(state, optim_cfg, extent: float) -> Adam:
                 schedules={"means": lambda it: position_lr(it, c, extent)})
 
 
-__all__ = ["Adam", "AdamState", "make_optimizer", "expon_lr", "held_expon_lr", "position_lr", "sh_degree_at"]
+__all__ = ["Adam", "AdamState", "make_optimizer", "expon_lr", "held_expon_lr", "position_lr", "sh_degree_at",
+           "depth_smooth_weight_at"]

@@ -13,7 +13,8 @@ The update is torch.optim.Adam's (the one 3DGS and DNGaussian use), per group wi
 
 Everything is float32 and in place: `out=` everywhere and one preallocated scratch buffer (grown
 geometrically, reused by every group), which is 1.4-2.9x faster than naive numpy expressions
-(PERF.md §6).  Parameters and moments live in dicts owned by `reings.state.TrainState`; row edits
+(PERF.md §6).  The update itself is `adam_update` (reings.backends.reference_state, the numpy
+twin of kernels/adam.cl, shared with the training engines' trainers).  Parameters and moments live in dicts owned by `reings.state.TrainState`; row edits
 (prune/clone/split) go through `reings.state.apply_index_op`, which keeps them aligned.
 """
 from __future__ import annotations
@@ -22,6 +23,10 @@ from dataclasses import dataclass, field
 from typing import Callable, Iterable, Mapping
 
 import numpy as np
+
+from ..backends.reference_state import adam_update
+
+__all__ = ["Adam", "AdamState", "adam_update"]
 
 
 @dataclass
@@ -109,29 +114,3 @@ class Adam:
         t = self.state.step[k] + 1
         self.state.step[k] = t
         adam_update(p, m, v, g, self.lr[k], t, self.beta1, self.beta2, self.eps, self._tmp(p.shape))
-
-
-def adam_update(p: np.ndarray, m: np.ndarray, v: np.ndarray, g: np.ndarray, lr: float, t: int,
-                b1: float, b2: float, eps: float, tmp: np.ndarray) -> None:
-    """One in-place float32 Adam update of (p, m, v) with gradient g at step count t (>= 1); tmp is
-    scratch of p's shape.  The exact float32 operation sequence that `kernels/adam.cl` mirrors
-    (the 1/sqrt(bc2) product is a float64 scalar, so numpy computes that one product in float64).
-    Also used by the device engine on mapped buffers (reings.backends.opencl.trainer)."""
-    # m = b1*m + (1-b1)*g
-    np.multiply(m, b1, out=m)
-    np.multiply(g, 1.0 - b1, out=tmp)
-    np.add(m, tmp, out=m)
-    # v = b2*v + (1-b2)*g^2
-    np.multiply(v, b2, out=v)
-    np.multiply(g, g, out=tmp)
-    np.multiply(tmp, 1.0 - b2, out=tmp)
-    np.add(v, tmp, out=v)
-    # p -= lr/bc1 * m / (sqrt(v)/sqrt(bc2) + eps)
-    bc1 = 1.0 - b1 ** t
-    bc2 = 1.0 - b2 ** t
-    np.sqrt(v, out=tmp)
-    np.multiply(tmp, 1.0 / np.sqrt(bc2), out=tmp)
-    np.add(tmp, eps, out=tmp)
-    np.divide(m, tmp, out=tmp)
-    np.multiply(tmp, -lr / bc1, out=tmp)
-    np.add(p, tmp, out=p)

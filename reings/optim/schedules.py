@@ -1,4 +1,5 @@
-"""Learning-rate schedules: small pure functions of the step.
+"""Schedules: small pure functions of the step (learning rates, the active SH degree, the depth
+smoothness weight).
 
 `expon_lr` is 3DGS's `get_expon_lr_func` (log-linear interpolation from lr_init to lr_final over
 max_steps, optional reverse-cosine delay).  DNGaussian calls it with `max(iteration - 500, 0)`
@@ -44,3 +45,11 @@ def position_lr(iteration: int, optim_cfg, extent: float) -> float:
 def sh_degree_at(iteration: int, max_degree: int, interval: int = 1000) -> int:
     """Active SH degree: 3DGS raises it by one every `interval` iterations (at 1000, 2000, ...)."""
     return min(max_degree, max(iteration, 0) // interval)
+
+
+def depth_smooth_weight_at(loss_config, iteration: int) -> float:
+    """The depth_smooth term's weight at `iteration` for a LossConfig: depth_smooth_weight from
+    depth_smooth_from on (DNGaussian LLFF: iterations > 3000), 0 before. The one rule of the fit
+    loop (reings/train.py)."""
+    L = loss_config
+    return float(L.depth_smooth_weight) if L.depth_smooth_weight and iteration >= L.depth_smooth_from else 0.0

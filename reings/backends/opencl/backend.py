@@ -13,11 +13,18 @@ Stage methods with the reference's names take and return host numpy (tests, debu
       -> rasterize_fwd -> one final batch of reads
     render_vjp: [forward] -> rasterize_bwd -> isect_reduce -> project_bwd -> one final batch of reads
 
-Device-resident entry points (the training engine, reings/backends/opencl/trainer.py):
+Device-resident entry points (the device trainer, reings/backends/opencl/trainer.py):
 `forward_device(inp, n, sh_k, cam, ...)` runs the forward on Gaussians already in device buffers and
 returns the frame; `backward_device(fr, v_rgb_buf, v_depth_buf, ...)` returns gradient buffers.
 Nothing goes up per call (the camera record lives in a buffer cached per camera) and nothing but
-the bin stage's (V, K) comes back.
+the bin stage's (V, K) comes back. The trainer launches its own kernels with `kernel` + `launch`
+and folds the stage times with `collect_profile` / `pending_events`.
+
+Training (the Backend protocol of reings/backends/base.py): `trainer(images, engine, adam,
+profile)` makes the device trainer (default) or the host one; `photometric_loss` / `depth_loss`
+are the host forms of the loss kernels (reings/backends/opencl/losses.py, one instance each per
+backend: `photometric_kernels`, `depth_loss_kernels`); `last_screen` is render_vjp's
+densification side channel.
 
 Forward reuse in render_vjp (documented contract): on CPU devices (PoCL) render_vjp reuses the
 device state of the last forward of this backend when the camera, background, near and opacity
@@ -50,7 +57,7 @@ from ...types import FIELDS, Camera, Gaussians, RenderOutput
 from ..base import (CLAMP_GUARD, V_RECORD, Bins, Projected, RasterGrads, RasterOut, tile_grid)
 from . import quirks
 from .device import open_device
-from .program import library_for
+from .program import library_for, typed_invoker
 from .scratch import Scratch
 from .sort import ExclusiveScan, RadixSort
 
@@ -64,20 +71,6 @@ _F32, _I32, _U32 = np.float32, np.int32, np.uint32
 def tile_bits(n_tiles: int) -> int:
     """ceil(log2(n_tiles)): the bits of a tile id (0 for a single tile)."""
     return int(max(n_tiles - 1, 0)).bit_length()
-
-
-def typed_invoker(k, args) -> None:
-    """Give kernel `k` pyopencl's typed invoker, the scalar dtypes taken from `args` (numpy scalars
-    -> their dtype, anything else -> a memory object), once per kernel object. Why: pyopencl's
-    generic invoker sets a numpy-scalar argument through a slow path (~6.5 us each, measured with
-    pyopencl 2026.1 on Zen 5; ~50 us for a 9-scalar launch) where the typed invoker packs them all
-    in ~1 us. Callers pass numpy scalars of the kernel's exact types (as the generic path needs
-    anyway), so the inferred types are the kernel's. A call with a plain Python number leaves the
-    kernel generic (its type is not known)."""
-    if any(isinstance(a, (int, float)) and not isinstance(a, np.generic) for a in args):
-        return
-    k.set_scalar_arg_dtypes([a.dtype if isinstance(a, np.generic) else None for a in args])
-    k._reings_typed = True
 
 
 def camera_record(cam: Camera, near: float) -> np.ndarray:
@@ -124,6 +117,8 @@ class _Frame:
 class OpenCLBackend:
     """One OpenCL device (see the module docstring)."""
 
+    engines = ("device", "host")  # Backend.engines: the device trainer by default
+
     def __init__(self, device_spec: str = "pocl"):
         self.spec = device_spec
         self.handle = open_device(device_spec)
@@ -152,6 +147,8 @@ class OpenCLBackend:
         self._events: list = []  # (stage, event) of the current call
         self.last_profile: dict[str, float] = {}
         self.last_stats: dict[str, int] = {}
+        self.last_screen = None  # Backend.last_screen: (v_means2d, radii) of the last full render_vjp
+        self._photometric = self._depth_loss = None  # the loss kernels, built on first use
 
     # ------------------------------------------------------------------------------------------
     # plumbing
@@ -163,8 +160,12 @@ class OpenCLBackend:
             k = self._kernels[key] = self.lib.get(filename, name, **defines)
         return k
 
-    def _launch(self, k, n: int, *args, wg: int | None = None):
-        """One work-item per index in [0, n), global size rounded up to the work-group size."""
+    def launch(self, k, n: int, *args, wg: int | None = None):
+        """Enqueue kernel `k` (from `kernel`) with one work-item per index in [0, n), the global size
+        rounded up to the work-group size `wg` (default: the backend's), through the typed
+        invoker (`typed_invoker`); the args are numpy scalars of the kernel's types and buffers.
+        Returns the event, or None for n <= 0 (nothing enqueued). The device trainer launches its
+        per-Gaussian kernels through this."""
         if n <= 0:
             return None
         wg = wg or self.wg
@@ -179,9 +180,17 @@ class OpenCLBackend:
         if ev is not None:
             self._events.append((stage, ev, span))
 
-    def _profile(self):
-        """Stage times (ms) of this call from its profiling events: end - start of a single-kernel
-        stage; end(stage) - end(previous stage) for a multi-command (span) stage."""
+    def pending_events(self) -> list:
+        """(stage, event, span) of every stage recorded since the last `collect_profile` (what the
+        next one will fold into `last_profile`)."""
+        return list(self._events)
+
+    def collect_profile(self) -> None:
+        """Set `last_profile` to the stage times (ms) of the commands recorded since the last call,
+        from their profiling events (the queue must have passed them): end - start of a
+        single-kernel stage; end(stage) - end(previous stage) for a multi-command (span) stage.
+        Called by every host-facing method after its final wait, and by the device trainer's
+        `finish`."""
         prof: dict[str, float] = {}
         prev = None
         for stage, ev, span in self._events:
@@ -220,7 +229,7 @@ class OpenCLBackend:
     def _finish(self):
         self.queue.finish()
         self._keep = []
-        self._profile()
+        self.collect_profile()
 
     # ------------------------------------------------------------------------------------------
     # forward pieces on the device
@@ -243,7 +252,7 @@ class OpenCLBackend:
         b["gid_vals"] = s.get("gauss", "gid_vals", n, 4)
         k = self.kernel("project.cl", "project_fwd", SH_K=fr.sh_k, PROJ_VW=self.proj_vw)
         ov = _F32(override if override is not None else 0.0)
-        ev = self._launch(k, -(-n // self.proj_vw), _I32(n), inp["means"], inp["quats"], inp["log_scales"],
+        ev = self.launch(k, -(-n // self.proj_vw), _I32(n), inp["means"], inp["quats"], inp["log_scales"],
                           inp["opacity_logits"], inp["sh"], b["cam"], _I32(fr.width), _I32(fr.height), ov,
                           b["means2d"], b["conics"], b["depths"], b["radii"], b["tile_rect"], b["colors"],
                           b["opacities"], b["depth_keys"], b["gid_vals"], wg=self.proj_wg)
@@ -277,7 +286,7 @@ class OpenCLBackend:
         touched = s.get("gauss", "tiles_touched", n + 1, 4)
         ctrl = s.get("small", "ctrl", 2, 4)
         offsets = b["offset_from_rank"] = s.get("gauss", "offset_from_rank", n + 1, 4)
-        ev = self._launch(self.kernel("bin.cl", "bin_count"), n + 1, _I32(n), keys, gfr, b["tile_rect"],
+        ev = self.launch(self.kernel("bin.cl", "bin_count"), n + 1, _I32(n), keys, gfr, b["tile_rect"],
                           touched, ctrl)
         self._mark("bin_count", ev)
         _, ev = self.scan(touched, offsets, n + 1, total_buf=ctrl, total_at=1, read_total=False)
@@ -292,7 +301,7 @@ class OpenCLBackend:
         tile_keys = s.get("isect", "tile_keys", k, 4)
         emit_vals = s.get("isect", "emit_vals", k, 4)
         gid_from_emit = b["gid_from_emit"] = s.get("isect", "gid_from_emit", k, 4)
-        ev = self._launch(self.kernel("bin.cl", "bin_emit"), v, _I32(v), _I32(fr.tiles_x), gfr, offsets,
+        ev = self.launch(self.kernel("bin.cl", "bin_emit"), v, _I32(v), _I32(fr.tiles_x), gfr, offsets,
                           b["tile_rect"], tile_keys, emit_vals, gid_from_emit)
         self._mark("bin_emit", ev)
         # (4) stable tile sort over ceil(log2 T) bits: keeps (depth, gid) order inside each tile
@@ -302,7 +311,7 @@ class OpenCLBackend:
         # (5) tile ranges + gid_from_isect, no atomics
         ranges = b["tile_ranges"] = s.get("tile", "tile_ranges", fr.n_tiles, 8)
         gfi = b["gid_from_isect"] = s.get("isect", "gid_from_isect", k, 4)
-        ev = self._launch(self.kernel("bin.cl", "tile_ranges"), k + 1, _I32(k), _I32(fr.n_tiles), tk, efi,
+        ev = self.launch(self.kernel("bin.cl", "tile_ranges"), k + 1, _I32(k), _I32(fr.n_tiles), tk, efi,
                           gid_from_emit, ranges, gfi)
         self._mark("tile_ranges", ev)
 
@@ -391,6 +400,51 @@ class OpenCLBackend:
         return self._project_bwd_device(fr, opacity_override, grad_fields)
 
     # ------------------------------------------------------------------------------------------
+    # training: the trainer factory and the loss kernels (reings/backends/opencl/losses.py)
+    # ------------------------------------------------------------------------------------------
+    def trainer(self, images, engine: str = "auto", adam: str = "auto", profile: dict | None = None):
+        """Backend.trainer: "device" (the default) -> DeviceTrainer (reings/backends/opencl/trainer.py,
+        the state resident on this device; `adam` its Adam location); "host" -> HostTrainer
+        (reings/backends/host_trainer.py: numpy state, this backend's render / render_vjp and host
+        losses)."""
+        from ..base import select_engine
+
+        if select_engine(self, engine) == "host":
+            from ..host_trainer import HostTrainer
+
+            return HostTrainer(self, images, profile=profile)
+        from .trainer import DeviceTrainer
+
+        return DeviceTrainer(self, images, adam=adam, profile=profile)
+
+    @property
+    def photometric_kernels(self):
+        """This device's PhotometricCL (kernels/photometric.cl), built on first use."""
+        if self._photometric is None:
+            from .losses import PhotometricCL
+
+            self._photometric = PhotometricCL(self.handle)
+        return self._photometric
+
+    @property
+    def depth_loss_kernels(self):
+        """This device's DepthLossCL (kernels/depth_loss.cl, depth_smooth fused in), built on first use."""
+        if self._depth_loss is None:
+            from .losses import DepthLossCL
+
+            self._depth_loss = DepthLossCL(self.handle)
+        return self._depth_loss
+
+    def photometric_loss(self, rgb: np.ndarray, gt: np.ndarray, w_l1: float, w_ssim: float):
+        """Backend.photometric_loss on this device (host arrays uploaded, dL/d rgb read back)."""
+        return self.photometric_kernels(rgb, gt, w_l1, w_ssim)
+
+    def depth_loss(self, depth: np.ndarray, target: np.ndarray, p_local: int, p_global: int, margin: float,
+                   w_local: float = 0.1, w_global: float = 1.0, smooth=None):
+        """Backend.depth_loss on this device (host arrays uploaded, dL/d depth read back)."""
+        return self.depth_loss_kernels(depth, target, p_local, p_global, margin, w_local, w_global, smooth)
+
+    # ------------------------------------------------------------------------------------------
     # fused paths
     # ------------------------------------------------------------------------------------------
     def render(self, gaussians: Gaussians, camera: Camera, background: Sequence[float] = (0, 0, 0),
@@ -464,7 +518,7 @@ class OpenCLBackend:
         inp = b["in"]
         k = self.kernel("project.cl", "project_bwd", SH_K=fr.sh_k, PROJ_VW=self.proj_vw)
         ov = _F32(override if override is not None else 0.0)
-        ev = self._launch(k, -(-n // self.proj_vw), _I32(n), inp["means"], inp["quats"], inp["log_scales"], inp["opacity_logits"],
+        ev = self.launch(k, -(-n // self.proj_vw), _I32(n), inp["means"], inp["quats"], inp["log_scales"], inp["opacity_logits"],
                           inp["sh"], b["cam"], _I32(fr.width), _I32(fr.height), ov, _I32(mask), b["radii"],
                           b["v_proj"], out["means"], out["quats"], out["log_scales"], out["opacity_logits"],
                           out["sh"], wg=self.proj_wg)

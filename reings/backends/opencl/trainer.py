@@ -1,43 +1,48 @@
-"""`DeviceTrainer`: the training state of one `reings.fit` resident on one OpenCL device.
+"""`DeviceTrainer`: the Trainer contract (reings/backends/base.py) with the training state of one
+`reings.fit` resident on one OpenCL device. Made by `OpenCLBackend.trainer` (engine "device").
 
 Kept on the device for the whole fit (buffers of a private `Scratch`, grown geometrically):
 
-    p_<name>, m_<name>, v_<name>   parameters and Adam moments, name in reings.state.PARAM_NAMES,
+    p_<name>, m_<name>, v_<name>   parameters and Adam moments, name in reings.types.PARAM_NAMES,
                                    same layouts as TrainState (sh_rest holds all kmax-1 rows)
-    grad2d_accum, grad2d_count, max_radii2d   the densification statistics (reings.densify)
+    grad2d_accum, grad2d_count, max_radii2d   the densification statistics (reings.types ACCUM,
+                                   COUNT, RADII)
     gt<i>                          the training images [H,W,3]
     dt<i>                          the training views' depth targets [H,W] (upload_depth_targets, once per fit)
     v_rgb, v_depth                 the cotangent images of the current pass
-    sh_packed                      [N,k,3] SH at the active degree (sh_pack, redone only after the
-                                   SH groups were stepped or the degree changed)
+    sh_packed                      [N,k,3] SH at the active degree (kernels/sh_pack.cl, redone only
+                                   after the SH groups were stepped or the degree changed)
 
 One pass is `forward` (project / bin / sort / rasterize on the parameter buffers, nothing
-uploaded: backend.forward_device) -> a loss (`photometric` on the device writing v_rgb; or
-`depth_loss`, kernels/depth_loss.cl on the rendered depth buffer and the resident target, writing
-v_depth) -> `backward` (backend.backward_device into the
-backend's gradient buffers) -> `regularize` (kernels/train.cl, added into those buffers) ->
-`accumulate` (densification statistics, kernels/train.cl) -> `adam_step` (kernels/adam.cl, or numpy
-on the mapped buffers: the `adam` location). The host keeps what is scalar: learning rates and
-schedules, the per-group step counts (TrainState.adam.step, so checkpoints carry them), N.
+uploaded: backend.forward_device) -> a loss (`photometric`: kernels/photometric.cl or l1.cl writing
+v_rgb; or `depth_loss`: kernels/depth_loss.cl on the rendered depth buffer and the resident target,
+the depth_smooth term fused in, writing v_depth) -> `backward` (backend.backward_device into the
+backend's gradient buffers) -> `regularize` (kernels/regularize.cl, added into those buffers) ->
+`accumulate` (kernels/densify_accumulate.cl) -> `adam_step` (kernels/adam.cl, or numpy on the
+mapped buffers: the `adam` location). The host keeps what is scalar: learning rates and
+schedules, the per-group step counts (TrainState.adam.step, so checkpoints carry them), N. The
+loss kernels' host code is reings/backends/opencl/losses.py (the backend's `photometric_kernels`,
+`depth_loss_kernels`); the per-Gaussian kernels go through the backend's `kernel` / `launch`.
 
 `step_l1` is the plain step of gsplat's benchmark (bench/peer_gsplat.py, bench/peer_step.py): forward,
 w_l1 * mean|rgb - gt| by kernels/l1.cl (the `photometric` pass with w_ssim == 0: no SSIM kernel runs),
 backward, Adam over all groups; the binning's (V, K) is its only host read.
 
 Host overhead per step (bench/peer_step.py --overhead): every launch goes through pyopencl's typed
-invoker (backend.typed_invoker: the generic one costs ~6.5 us per numpy scalar argument), buffers
+invoker (program.typed_invoker: the generic one costs ~6.5 us per numpy scalar argument), buffers
 are looked up once per upload (`buf`), the camera record buffer is cached per camera (backend), and
 nothing is allocated or uploaded per step.
 
 The state goes back to the host (`download`) for densification, checkpoints, eval and the result,
 and comes back (`upload`) after host-side surgery (reings.state.apply_index_op).
 
-Adam location (`adam=`): "kernel" (adam.cl, all state on the device), "numpy" (reings.optim.adam's
-update on buffers mapped into host memory: zero-copy on CPU devices, where buffers are
+Adam location (`adam=`): "kernel" (adam.cl, all state on the device), "numpy"
+(reference_state.adam_update on buffers mapped into host memory: zero-copy on CPU devices, where buffers are
 ALLOC_HOST_PTR), or "auto": the kernel on GPUs, `CPU_DEFAULT_ADAM` on CPU devices (measured on PoCL,
 see the constant).
 
-Not here: the loop, schedules and losses' host parts (reings/train.py), kernel math (kernels/).
+Not here: the loop and schedules (reings/train.py), the loss kernels' host code (losses.py), kernel
+math (kernels/).
 """
 from __future__ import annotations
 
@@ -46,10 +51,10 @@ from contextlib import ExitStack, contextmanager
 
 import numpy as np
 
-from ...densify import ACCUM, COUNT, RADII, init_stats
-from ...optim.adam import adam_update
-from ...state import PARAM_NAMES, TrainState
-from .backend import typed_invoker
+from ...types import ACCUM, COUNT, PARAM_NAMES, RADII
+from ..reference_loss import DepthSmoothWeights
+from ..reference_state import adam_update, zero_stats
+from .program import typed_invoker
 from .scratch import Scratch
 
 # Adam location on CPU devices, measured (`python bench/bench_fit.py --device pocl --adam-only`, PoCL
@@ -100,8 +105,6 @@ class DeviceTrainer:
 
         if adam not in ADAM_LOCATIONS:
             raise ValueError(f"adam must be one of {ADAM_LOCATIONS}, got {adam!r}")
-        from ...losses import photometric_cl
-
         self.cl = cl
         self.b = backend
         self.handle = backend.handle
@@ -110,14 +113,13 @@ class DeviceTrainer:
         self.fp64 = "cl_khr_fp64" in self.handle.device.extensions
         self.adam = adam if adam != "auto" else (CPU_DEFAULT_ADAM if backend.cpu else "kernel")
         self.profile = profile
-        self.photo = photometric_cl(backend.spec)
+        self.photo = backend.photometric_kernels
         self.k_adam = backend.kernel("adam.cl", "adam_step", ADAM_FP64=int(self.fp64))
         self.k_adam_flat = backend.kernel("adam.cl", "adam_step_flat", ADAM_FP64=int(self.fp64))
-        tf = dict(TRAIN_FP64=int(self.fp64))
-        self.k_pack = backend.kernel("train.cl", "sh_pack", **tf)
-        self.k_count = backend.kernel("train.cl", "reg_opacity_count", **tf)
-        self.k_reg = backend.kernel("train.cl", "reg_grads", **tf)
-        self.k_acc = backend.kernel("train.cl", "densify_accumulate", **tf)
+        self.k_sh_pack = backend.kernel("sh_pack.cl", "sh_pack")
+        self.k_reg_count = backend.kernel("regularize.cl", "regularize_opacity_count", REGULARIZE_FP64=int(self.fp64))
+        self.k_reg_grads = backend.kernel("regularize.cl", "regularize_grads", REGULARIZE_FP64=int(self.fp64))
+        self.k_accumulate = backend.kernel("densify_accumulate.cl", "densify_accumulate", DENSIFY_FP64=int(self.fp64))
         self.real = _F64 if self.fp64 else _F32
         self.l1_wg = 1 if backend.cpu else 64  # L1-only loss work-group (kernels/l1.cl)
         self.k_l1_rows = backend.kernel("l1.cl", "l1_rows", L1_WG=self.l1_wg)
@@ -135,7 +137,7 @@ class DeviceTrainer:
         self._sh_k = None  # k of the valid sh_packed, None: stale
         self._tmp = np.empty(0, _F32)  # numpy Adam scratch
         self._scalar = np.empty(1, _F32)  # read_loss's host word (no allocation per step)
-        self.dloss = None  # reings.losses.DepthLossCL, created by upload_depth_targets
+        self.dloss = None  # the backend's DepthLossCL, set by upload_depth_targets
         self.dt: list = []  # depth target buffers per view (None: no target)
         self._events: list = []  # (stage, event) of this trainer's own kernels (profile only)
 
@@ -149,7 +151,7 @@ class DeviceTrainer:
         return b
 
     def _call(self, k, gsize, lsize, *args):
-        """k(queue, gsize, lsize, *args) through pyopencl's typed invoker (backend.typed_invoker)."""
+        """k(queue, gsize, lsize, *args) through pyopencl's typed invoker (program.typed_invoker)."""
         if not getattr(k, "_reings_typed", False):
             typed_invoker(k, args)
         return k(self.queue, gsize, lsize, *args)
@@ -166,7 +168,7 @@ class DeviceTrainer:
         return out
 
     def _launch(self, stage: str, k, n: int, *args):
-        ev = self.b._launch(k, n, *args)
+        ev = self.b.launch(k, n, *args)
         if ev is not None and self.profile is not None:
             self._events.append((stage, ev))
         return ev
@@ -186,13 +188,13 @@ class DeviceTrainer:
             arr.base.release(self.queue)
 
     def finish(self) -> None:
-        """Wait for the queue; with profiling on, fold the stage times of the backend's and this
-        trainer's events into profile["device_ms"]."""
+        """Trainer.finish: wait for the queue; with profiling on, fold the stage times of the
+        backend's and this trainer's events into profile["device_ms"]."""
         self.queue.finish()
         if self.profile is None:
             return
         dm = self.profile.setdefault("device_ms", {})
-        self.b._profile()
+        self.b.collect_profile()
         for st, ms in self.b.last_profile.items():
             dm[st] = dm.get(st, 0.0) + ms
         for st, ev in self._events:
@@ -202,10 +204,23 @@ class DeviceTrainer:
                 pass
         self._events = []
 
+    def device_span_ms(self) -> float | None:
+        """Milliseconds from the first kernel start to the last kernel end over the commands
+        recorded since the last `finish` (the backend's and this trainer's; profiling on): waits
+        for the queue. None when profiling is unavailable."""
+        evs = [ev for _, ev, _ in self.b.pending_events()] + [ev for _, ev in self._events]
+        self.queue.finish()
+        try:
+            starts = [e.profile.start for e in evs]
+            ends = [e.profile.end for e in evs]
+            return (max(ends) - min(starts)) * 1e-6 if evs else None
+        except Exception:  # profiling unavailable
+            return None
+
     @contextmanager
     def phase(self, name: str):
-        """Wall time of a block into profile[name] (queue finished before and after); a no-op
-        without profiling."""
+        """Trainer.phase: wall time of a block into profile[name] (queue finished before and
+        after); a no-op without profiling."""
         if self.profile is None:
             yield
             return
@@ -219,10 +234,11 @@ class DeviceTrainer:
     # }}}
 
     # {{{ state transfer
-    def upload(self, state: TrainState) -> None:
-        """Parameters, moments and statistics of `state` -> the device (after init or host surgery)."""
+    def upload(self, state) -> None:
+        """Trainer.upload: parameters, moments and statistics of `state` (a TrainState) -> the
+        device (after init or host surgery)."""
         if ACCUM not in state.stats:
-            init_stats(state)
+            state.stats.update(zero_stats(len(state)))
         self.n = len(state)
         self.kmax = 1 + state.params["sh_rest"].shape[1]
         self._cols = _columns(self.kmax)
@@ -236,8 +252,9 @@ class DeviceTrainer:
         self._write(self.buf("stat", RADII), np.asarray(state.stats[RADII], _F32))
         self._sh_k = None
 
-    def download(self, state: TrainState, params_only: bool = False) -> None:
-        """The device state -> `state` (fresh arrays; step counts and iteration are the host's)."""
+    def download(self, state, params_only: bool = False) -> None:
+        """Trainer.download: the device state -> `state` (fresh arrays; step counts and iteration
+        are the host's)."""
         n, km = self.n, self.kmax
         for name in PARAM_NAMES:
             shp = _shape(name, n, km)
@@ -251,6 +268,7 @@ class DeviceTrainer:
             state.stats[RADII] = self._read(self.buf("stat", RADII), (n,), _F32)
 
     def read_params(self, names) -> dict:
+        """Trainer.read_params: blocking reads of the parameter buffers."""
         return {k: self._read(self.buf("p", k), _shape(k, self.n, self.kmax), _F32) for k in names}
     # }}}
 
@@ -261,13 +279,14 @@ class DeviceTrainer:
             return self.buf("p", "sh_dc")
         out = self.mem.get("gauss", "sh_packed", self.n, 12 * k)
         if self._sh_k != k:
-            self._launch("sh_pack", self.k_pack, self.n * 3 * k, _I32(self.n), _I32(k), _I32(self.kmax),
+            self._launch("sh_pack", self.k_sh_pack, self.n * 3 * k, _I32(self.n), _I32(k), _I32(self.kmax),
                          self.buf("p", "sh_dc"), self.buf("p", "sh_rest"), out)
             self._sh_k = k
         return out
 
     def forward(self, cam, k: int, background, near: float, opacity_override: float | None = None):
-        """Project / bin / sort / rasterize the device parameters (k active SH coefficients)."""
+        """Trainer.forward: project / bin / sort / rasterize the device parameters (k active SH
+        coefficients); the frame is the backend's (valid until its next forward)."""
         if not 1 <= k <= self.kmax:
             raise ValueError(f"active SH coefficients {k} outside [1, {self.kmax}]")
         inp = {"means": self.buf("p", "means"), "quats": self.buf("p", "quats"),
@@ -279,15 +298,15 @@ class DeviceTrainer:
         return fr
 
     def read_depth(self, fr) -> np.ndarray:
+        """The frame's depth image [H,W] (a blocking read; the training passes never call it)."""
         return self._read(fr.bufs["out_depth"], (fr.height, fr.width), _F32)
 
     def upload_depth_targets(self, targets, shapes, smooth: bool = False) -> None:
-        """The depth targets of the training views ([H,W] each, or None) -> float32 device buffers,
-        once per fit; `shapes` the views' (H, W), checked. smooth: also the edge weights of the
-        depth smoothness term (reings.losses.SmoothWeights), two more [H,W] buffers per view."""
-        from ...losses import SmoothWeights, depth_loss_cl
-
-        self.dloss = depth_loss_cl(self.b.spec)
+        """Trainer.upload_depth_targets: the depth targets of the training views ([H,W] each, or
+        None) -> float32 device buffers, once per fit; `shapes` the views' (H, W), checked. smooth:
+        also the edge weights of the depth_smooth term (DepthSmoothWeights), two more [H,W]
+        buffers per view."""
+        self.dloss = self.b.depth_loss_kernels
         self.dt = []
         self.ds = []  # per view: (wx_buf, wy_buf, 1 / sum of weights) or None
         for i, (t, hw) in enumerate(zip(targets, shapes)):
@@ -301,7 +320,7 @@ class DeviceTrainer:
             self._write(buf, a)
             self.dt.append(buf)
             if smooth:
-                sw = SmoothWeights(a)
+                sw = DepthSmoothWeights(a)
                 bx = self.mem.get("pixel", f"dswx{i}", a.size, 4)
                 by = self.mem.get("pixel", f"dswy{i}", a.size, 4)
                 self._write(bx, sw.wx)
@@ -312,10 +331,11 @@ class DeviceTrainer:
 
     def depth_loss(self, fr, view: int, p_local: int, p_global: int, margin: float, w_local: float,
                    w_global: float, w_smooth: float = 0.0):
-        """DNGaussian's depth loss (reings.losses.DepthLossCL) of the frame's depth buffer against
-        the resident depth target of `view`, plus w_smooth times the edge-aware smoothness (needs
-        upload_depth_targets(smooth=True)): dL/d depth goes into the v_depth buffer (returned,
-        overwritten); the loss stays on the device (`read_depth_loss`). Nothing crosses the bus."""
+        """Trainer.depth_loss: DNGaussian's depth loss (DepthLossCL) of the frame's depth buffer
+        against the resident depth target of `view`, plus w_smooth times the depth_smooth term
+        (needs upload_depth_targets(smooth=True)): dL/d depth goes into the v_depth buffer
+        (returned, overwritten); the loss stays on the device (`read_depth_loss`). Nothing crosses
+        the bus."""
         v = self.mem.get("pixel", "v_depth", fr.width * fr.height, 4)
         sm = None
         if w_smooth:
@@ -330,16 +350,18 @@ class DeviceTrainer:
         return v
 
     def read_depth_loss(self) -> float:
-        """The loss of the last `depth_loss` (one blocking read of two scalars)."""
+        """Trainer.read_depth_loss: one blocking read of two scalars."""
         return self.dloss.read_loss()
 
     def read_rgb(self, fr) -> np.ndarray:
+        """Trainer.read_rgb: a blocking read of the frame's image."""
         return self._read(fr.bufs["out_rgb"], (fr.height, fr.width, 3), _F32)
 
     def photometric(self, fr, view: int, w_l1: float, w_ssim: float):
-        """L1 + SSIM of the frame's image against training image `view`; dL/d rgb goes into the
-        v_rgb buffer (returned); the loss stays on the device (`read_loss`). w_ssim == 0: the
-        L1-only kernels (kernels/l1.cl, two launches, no SSIM pass at all)."""
+        """Trainer.photometric: L1 + SSIM of the frame's image against training image `view`
+        (PhotometricCL); dL/d rgb goes into the v_rgb buffer (returned); the loss stays on the
+        device (`read_loss`). w_ssim == 0: the L1-only kernels (kernels/l1.cl, two launches, no
+        SSIM pass at all)."""
         v = self.mem.get("pixel", "v_rgb", fr.width * fr.height, 12)
         if w_ssim == 0:
             return self.photometric_l1(fr.bufs["out_rgb"], self.gt[view], v, fr.height, fr.width, w_l1)
@@ -367,8 +389,8 @@ class DeviceTrainer:
         return v
 
     def read_loss(self) -> float:
-        """The loss of the last photometric pass (one blocking read: a scalar for L1-only, H x 2
-        partial sums for L1 + SSIM)."""
+        """Trainer.read_loss: one blocking read (a scalar for L1-only, H x 2 partial sums for
+        L1 + SSIM)."""
         if self._loss is not None and self._loss[0] == "l1":
             _, n, w_l1, h = self._loss
             total = self.mem.get("small", "l1_total", 1, 4)
@@ -384,9 +406,10 @@ class DeviceTrainer:
 
     def backward(self, fr, v_rgb=None, v_depth=None, opacity_override: float | None = None,
                  grad_fields=None) -> dict:
-        """Backward of `fr` with v_rgb (a device buffer) and/or v_depth (a device buffer, e.g. from
-        `depth_loss`, or a host [H,W] array, uploaded). Returns the gradient buffers {field: buffer}
-        of backend.backward_device plus "sh_k"."""
+        """Trainer.backward of `fr` with v_rgb (a device buffer) and/or v_depth (a device buffer,
+        e.g. from `depth_loss`, or a host [H,W] array, uploaded). Returns the gradient buffers
+        {field: buffer} of backend.backward_device plus "sh_k" (`adam_step` reads the SH groups
+        as strided views of the "sh" buffer)."""
         vd = v_depth
         if isinstance(v_depth, np.ndarray):
             vd = self.mem.get("pixel", "v_depth", fr.width * fr.height, 4)
@@ -396,24 +419,24 @@ class DeviceTrainer:
         return g
 
     def regularize(self, grads: dict, shape_pena: float, scale_pena: float, opa_pena: float) -> None:
-        """Add DNGaussian's penalties' gradients (reings.losses.regularizers) into `grads`."""
+        """Trainer.regularize: kernels/regularize.cl adds the penalties' gradients into `grads`."""
         if not (shape_pena or scale_pena or opa_pena) or self.n == 0:
             return
         counts = self.mem.get("small", "reg_counts", 2, 4)
         if opa_pena:
             self.cl.enqueue_fill_buffer(self.queue, counts, _I32(0), 0, 8)
             chunk = 256
-            self._launch("reg_count", self.k_count, -(-self.n // chunk), _I32(self.n), _I32(chunk),
-                         self.buf("p", "opacity_logits"), counts)
+            self._launch("regularize_opacity_count", self.k_reg_count, -(-self.n // chunk), _I32(self.n),
+                         _I32(chunk), self.buf("p", "opacity_logits"), counts)
         r = self.real
-        self._launch("reg_grads", self.k_reg, self.n, _I32(self.n), self.buf("p", "log_scales"),
+        self._launch("regularize_grads", self.k_reg_grads, self.n, _I32(self.n), self.buf("p", "log_scales"),
                      self.buf("p", "opacity_logits"), counts, r(shape_pena), r(scale_pena), r(opa_pena),
                      grads["log_scales"], grads["opacity_logits"])
 
     def accumulate(self, fr) -> None:
-        """Densification statistics of the photometric pass of `fr` (after `backward`)."""
+        """Trainer.accumulate: kernels/densify_accumulate.cl on the frame's radii and v_proj."""
         r = self.real
-        self._launch("densify_accumulate", self.k_acc, self.n, _I32(self.n), fr.bufs["radii"], fr.bufs["v_proj"],
+        self._launch("densify_accumulate", self.k_accumulate, self.n, _I32(self.n), fr.bufs["radii"], fr.bufs["v_proj"],
                      r(0.5 * fr.width), r(0.5 * fr.height), self.buf("stat", ACCUM), self.buf("stat", COUNT),
                      self.buf("stat", RADII))
 
@@ -428,8 +451,9 @@ class DeviceTrainer:
         return grads[name], c, 0, c
 
     def adam_step(self, opt, grads: dict, groups) -> None:
-        """One Adam step of each group in `groups` with `opt`'s lrs, betas, eps and step counts (the
-        counts are advanced here, as reings.optim.Adam does, including for empty groups)."""
+        """Trainer.adam_step: one Adam step of each group in `groups` with `opt`'s lrs, betas, eps
+        and step counts (the counts are advanced here, as reings.optim.Adam does, including for
+        empty groups): kernels/adam.cl, or adam_update on the mapped buffers."""
         n = self.n
         for name in groups:
             if name not in opt.lr:

@@ -1,4 +1,4 @@
-/* loss.cl: the photometric loss  w_l1 * mean|x - y| + w_ssim * (1 - mean SSIM(x, y))  and its
+/* photometric.cl: the photometric loss  w_l1 * mean|x - y| + w_ssim * (1 - mean SSIM(x, y))  and its
  * gradient w.r.t. the rendered image x, as separable Gaussian-convolution passes.
  *
  * Must match reings.backends.reference_loss.{ssim_fwd_bwd, l1_fwd_bwd, photometric_fwd_bwd}

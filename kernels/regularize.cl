@@ -1,0 +1,90 @@
+/* regularize.cl: DNGaussian's shape / scale / opacity penalties' gradients on the raw parameters,
+   ADDED into the photometric pass's gradient buffers (the device trainer's `regularize`,
+   reings/backends/opencl/trainer.py).
+
+   Must match reings.backends.reference_loss.regularize_fwd_bwd (tests/test_adam_kernel.py): same
+   formulas, same order of operations, in double where the device has cl_khr_fp64
+   (REGULARIZE_FP64=1) as the numpy reference is, then rounded to float32 and added in float32.
+
+   Kernels
+     regularize_opacity_count  counts[0] += #(sigmoid(logit) > 0.2), counts[1] += #(< 0.2) (counts
+                               zeroed by the host); each work-item a contiguous chunk, one atomic
+                               add per item.
+     regularize_grads          the three penalties' gradients, one work-item per Gaussian.
+
+   Defines
+     REGULARIZE_FP64   1: the per-Gaussian math in double (as numpy); 0 (default): in float.
+   Guards are written positively so that NaN fails them; built without fast-math.
+*/
+#pragma OPENCL FP_CONTRACT OFF
+
+#ifndef REGULARIZE_FP64
+#define REGULARIZE_FP64 0
+#endif
+#if REGULARIZE_FP64
+#pragma OPENCL EXTENSION cl_khr_fp64 : enable
+typedef double real;
+#else
+typedef float real;
+#endif
+
+#define OPA_SPLIT ((real)0.2) /* reference_loss.OPACITY_SPLIT */
+
+__kernel void regularize_opacity_count(const int n, const int chunk,
+                                       __global const float *logits,  /* [N] */
+                                       __global int *counts)          /* [2] (> 0.2, < 0.2), zeroed */
+{
+    const int lo = get_global_id(0) * chunk;
+    const int hi = min(n, lo + chunk);
+    int nh = 0, nl = 0;
+    for (int i = lo; i < hi; ++i) {
+        const real o = (real)1.0 / ((real)1.0 + exp(-(real)logits[i]));
+        nh += o > OPA_SPLIT;
+        nl += o < OPA_SPLIT;
+    }
+    if (nh) atomic_add(&counts[0], nh);
+    if (nl) atomic_add(&counts[1], nl);
+}
+
+__kernel void regularize_grads(const int n,
+                               __global const float *log_scales,   /* [N, 3] */
+                               __global const float *logits,       /* [N] */
+                               __global const int *counts,         /* [2] from regularize_opacity_count */
+                               const real shape_pena, const real scale_pena, const real opa_pena,
+                               __global float *v_log_scales,       /* [N, 3] += */
+                               __global float *v_logits)           /* [N] += */
+{
+    const int i = get_global_id(0);
+    if (!(i < n)) return;
+    const real nn = (real)n;
+    if (shape_pena != (real)0 || scale_pena != (real)0) {
+        real l[3] = {log_scales[3 * i], log_scales[3 * i + 1], log_scales[3 * i + 2]};
+        int imax = 0, imin = 0; /* first occurrence on ties (numpy argmax / argmin) */
+        for (int j = 1; j < 3; ++j) {
+            if (l[j] > l[imax]) imax = j;
+            if (l[j] < l[imin]) imin = j;
+        }
+        real g[3] = {0, 0, 0};
+        if (shape_pena != (real)0) {
+            const real ratio = exp(l[imax] - l[imin]);
+            real gs[3] = {0, 0, 0};
+            gs[imax] += ratio / nn;
+            gs[imin] += -ratio / nn;
+            for (int j = 0; j < 3; ++j) g[j] += shape_pena * gs[j];
+        }
+        if (scale_pena != (real)0) {
+            real gs[3] = {0, 0, 0};
+            gs[imax] = (real)2.0 * exp((real)2.0 * l[imax]) / nn;
+            for (int j = 0; j < 3; ++j) g[j] += scale_pena * gs[j];
+        }
+        for (int j = 0; j < 3; ++j) v_log_scales[3 * i + j] = v_log_scales[3 * i + j] + (float)g[j];
+    }
+    if (opa_pena != (real)0) {
+        const real o = (real)1.0 / ((real)1.0 + exp(-(real)logits[i]));
+        const int nh = counts[0], nl = counts[1];
+        real go = 0;
+        if (o > OPA_SPLIT && nh > 0) go = (real)-2.0 * o / (real)nh;
+        if (o < OPA_SPLIT && nl > 0) go = (real)-2.0 * ((real)1.0 - o) / (real)nl;
+        v_logits[i] = v_logits[i] + (float)(opa_pena * ((go * o) * ((real)1.0 - o)));
+    }
+}

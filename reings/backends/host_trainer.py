@@ -1,0 +1,225 @@
+"""`HostTrainer`: the Trainer contract (reings/backends/base.py) with the training state as numpy
+arrays on the host, through any backend's host methods:
+
+    forward      backend.render of the state's Gaussians, SH packed at k coefficients
+                 (reference_state.sh_pack)
+    photometric  backend.photometric_loss                 depth_loss  backend.depth_loss
+    backward     backend.render_vjp, split into the parameter groups
+    regularize   reference_loss.regularize_fwd_bwd        accumulate  reference_state.densify_accumulate
+    adam_step    reference_state.adam_update                          of backend.last_screen
+
+The state is not copied: `upload` takes the TrainState's arrays and every step edits them in place,
+so `download` into that same state has nothing to do. On the reference backend every pass is the
+float64 reference (`fit(device="reference")`); on an OpenCL backend the render and loss kernels run
+in their host forms (arrays up, results back, per call): the twin of the device trainer that the
+tests check it against (tests/test_device_fit.py, `fit(engine="host")`).
+
+The backend is called exactly as `reings.render` / `reings.render_vjp` would call it (background
+rounded to float32, contiguous float32 cotangents, a zero colour cotangent in the depth passes).
+"""
+from __future__ import annotations
+
+import time
+from contextlib import contextmanager
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..types import ACCUM, FIELDS, PARAM_NAMES, Camera, Gaussians, RenderOutput
+from .reference_loss import DepthSmoothWeights, regularize_fwd_bwd
+from .reference_state import adam_update, densify_accumulate, ndc_grad_norm, sh_pack, zero_stats
+
+_F32 = np.float32
+
+
+def _f32(a):
+    return None if a is None else np.ascontiguousarray(np.asarray(a, dtype=_F32))
+
+
+def groups_of(grad_fields) -> tuple[str, ...]:
+    """The parameter groups (PARAM_NAMES) of render fields (FIELDS; None: all): "sh" is sh_dc and
+    sh_rest, every other field its own group."""
+    fields = FIELDS if grad_fields is None else tuple(grad_fields)
+    return tuple(k for k in PARAM_NAMES if (k in ("sh_dc", "sh_rest") and "sh" in fields) or k in fields)
+
+
+@dataclass
+class HostFrame:
+    """One `HostTrainer.forward`: the Gaussians it rendered (sharing the state's arrays until the
+    next Adam step), the camera and settings, and the backend's RenderOutput."""
+
+    cam: Camera
+    gaussians: Gaussians
+    out: RenderOutput
+    background: tuple
+    near: float
+    width: int
+    height: int
+
+
+class HostTrainer:
+    """The training state of one fit on the host (module docstring). backend: any Backend;
+    images: the training images [H,W,3], used as given; profile: None or a dict of wall seconds
+    per `phase`."""
+
+    def __init__(self, backend, images, profile: dict | None = None):
+        self.b = backend
+        self.images = list(images)
+        self.profile = profile
+        self.state = None
+        self.targets: list = []  # per view: the depth target as given, or None
+        self.smooth: list = []  # per view: DepthSmoothWeights or None
+        self._loss = self._depth_loss = None
+        self._zeros: dict = {}  # (H, W) -> zero colour cotangent of the depth passes
+        self._tmp = np.empty(0, _F32)  # Adam scratch, grown geometrically
+
+    # {{{ state transfer
+    def upload(self, state) -> None:
+        """Trainer.upload: hold `state`'s arrays (no copy)."""
+        if ACCUM not in state.stats:
+            state.stats.update(zero_stats(len(state)))
+        self.state = state
+
+    def download(self, state, params_only: bool = False) -> None:
+        """Trainer.download: nothing to do into the held state; copies into another one."""
+        if state is self.state:
+            return
+        src = self.state
+        for k in PARAM_NAMES:
+            state.params[k] = src.params[k].copy()
+            if not params_only:
+                state.adam.exp_avg[k] = src.adam.exp_avg[k].copy()
+                state.adam.exp_avg_sq[k] = src.adam.exp_avg_sq[k].copy()
+        if not params_only:
+            state.stats.update({k: v.copy() for k, v in src.stats.items()})
+
+    def upload_depth_targets(self, targets, shapes, smooth: bool = False) -> None:
+        """Trainer.upload_depth_targets: the targets are used as given."""
+        self.targets, self.smooth = [], []
+        for i, (t, hw) in enumerate(zip(targets, shapes)):
+            if t is not None and np.shape(t) != tuple(hw):
+                raise ValueError(f"depth target {i} has shape {np.shape(t)}, its view is {tuple(hw)}")
+            self.targets.append(t)
+            self.smooth.append(DepthSmoothWeights(t) if smooth and t is not None else None)
+
+    def read_params(self, names) -> dict:
+        """Trainer.read_params: the state's own arrays (read only)."""
+        return {k: self.state.params[k] for k in names}
+    # }}}
+
+    # {{{ one pass
+    def forward(self, cam: Camera, k: int, background, near: float, opacity_override: float | None = None):
+        """Trainer.forward: backend.render of the state's Gaussians at k SH coefficients."""
+        p = self.state.params
+        kmax = 1 + p["sh_rest"].shape[1]
+        if not 1 <= k <= kmax:
+            raise ValueError(f"active SH coefficients {k} outside [1, {kmax}]")
+        sh = sh_pack(p["sh_dc"], p["sh_rest"], k)  # [N, k, 3]
+        g = Gaussians(p["means"], p["quats"], p["log_scales"], p["opacity_logits"], sh)
+        bg = tuple(float(x) for x in np.asarray(background, _F32).reshape(3))
+        out = self.b.render(g, cam, background=bg, near=float(near), opacity_override=opacity_override)
+        return HostFrame(cam, g, out, bg, float(near), cam.width, cam.height)
+
+    def read_rgb(self, fr: HostFrame) -> np.ndarray:
+        return fr.out.rgb
+
+    def photometric(self, fr: HostFrame, view: int, w_l1: float, w_ssim: float) -> np.ndarray:
+        """Trainer.photometric: backend.photometric_loss; returns dL/d rgb [H,W,3]."""
+        self._loss, v = self.b.photometric_loss(fr.out.rgb, self.images[view], w_l1, w_ssim)
+        return v
+
+    def read_loss(self) -> float:
+        return self._loss
+
+    def depth_loss(self, fr: HostFrame, view: int, p_local: int, p_global: int, margin: float, w_local: float,
+                   w_global: float, w_smooth: float = 0.0) -> np.ndarray:
+        """Trainer.depth_loss: backend.depth_loss; returns dL/d depth [H,W]."""
+        smooth = None
+        if w_smooth:
+            if self.smooth[view] is None:
+                raise RuntimeError("depth smoothness needs upload_depth_targets(..., smooth=True)")
+            smooth = (self.smooth[view], w_smooth)
+        self._depth_loss, v = self.b.depth_loss(fr.out.depth, self.targets[view], p_local, p_global, margin,
+                                                w_local, w_global, smooth)
+        return v
+
+    def read_depth_loss(self) -> float:
+        return self._depth_loss
+
+    def backward(self, fr: HostFrame, v_rgb=None, v_depth=None, opacity_override: float | None = None,
+                 grad_fields=None) -> dict:
+        """Trainer.backward: backend.render_vjp of the frame's Gaussians; returns {group: gradient}
+        for the groups of `grad_fields` (SH gradients of inactive coefficients zero)."""
+        if v_rgb is None:
+            key = (fr.height, fr.width)
+            if key not in self._zeros:
+                self._zeros[key] = np.zeros((fr.height, fr.width, 3), _F32)
+            v_rgb = self._zeros[key]
+        gf = None if grad_fields is None else tuple(grad_fields)
+        vg = self.b.render_vjp(fr.gaussians, fr.cam, _f32(v_rgb), _f32(v_depth), None, background=fr.background,
+                               near=fr.near, opacity_override=opacity_override, grad_fields=gf)
+        n, kmax = len(self.state), 1 + self.state.params["sh_rest"].shape[1]
+        if len(vg) != n:
+            raise ValueError(f"gradient has {len(vg)} rows, state has {n}")
+        out = {"means": vg.means, "quats": vg.quats, "log_scales": vg.log_scales, "opacity_logits": vg.opacity_logits}
+        groups = groups_of(gf)
+        if "sh_dc" in groups:
+            sh = np.zeros((n, kmax, 3), _F32)
+            sh[:, : vg.sh.shape[1]] = vg.sh
+            out["sh_dc"], out["sh_rest"] = sh[:, :1], sh[:, 1:]
+        return {k: out[k] for k in groups}
+
+    def regularize(self, grads: dict, shape_pena: float, scale_pena: float, opa_pena: float) -> None:
+        """Trainer.regularize: reference_loss.regularize_fwd_bwd's gradients added into `grads`."""
+        if not (shape_pena or scale_pena or opa_pena):
+            return
+        _, rg = regularize_fwd_bwd(self.state.params, shape_pena, scale_pena, opa_pena)
+        for k, v in rg.items():
+            grads[k] = grads[k] + v
+
+    def accumulate(self, fr: HostFrame) -> None:
+        """Trainer.accumulate: the backend's last_screen into the statistics."""
+        screen = self.b.last_screen
+        if screen is None or len(screen[0]) != len(self.state):
+            raise RuntimeError("accumulate needs the screen gradients of a backward with every field")
+        v2d, radii = screen
+        densify_accumulate(self.state.stats, ndc_grad_norm(v2d, fr.width, fr.height), radii > 0, radii)
+
+    def adam_step(self, opt, grads: dict, groups) -> None:
+        """Trainer.adam_step: reference_state.adam_update on the state's arrays, in place."""
+        st = self.state
+        for name in groups:
+            if name not in opt.lr:
+                raise KeyError(f"adam_step: {name!r} is not a parameter group ({opt.groups})")
+            if grads.get(name) is None:
+                raise KeyError(f"adam_step: no gradient for group {name!r}")
+            p, m, v = st.params[name], st.adam.exp_avg[name], st.adam.exp_avg_sq[name]
+            g = np.asarray(grads[name], _F32)
+            if g.shape != p.shape or m.shape != p.shape or v.shape != p.shape:
+                raise ValueError(f"adam_step: {name!r} gradient {g.shape} / moments {m.shape} vs parameter {p.shape}")
+            t = opt.state.step[name] + 1
+            opt.state.step[name] = t
+            if p.size == 0:
+                continue
+            if self._tmp.size < p.size:
+                self._tmp = np.empty(max(p.size, int(self._tmp.size * 1.5)), _F32)
+            tmp = self._tmp[: p.size].reshape(p.shape)
+            adam_update(p, m, v, g, opt.lr[name], t, opt.beta1, opt.beta2, opt.eps, tmp)
+    # }}}
+
+    # {{{ profiling
+    @contextmanager
+    def phase(self, name: str):
+        """Trainer.phase: wall seconds of the block into profile[name] (every call here blocks)."""
+        if self.profile is None:
+            yield
+            return
+        t = time.perf_counter()
+        try:
+            yield
+        finally:
+            self.profile[name] = self.profile.get(name, 0.0) + time.perf_counter() - t
+
+    def finish(self) -> None:
+        """Trainer.finish: nothing is queued on the host."""
+    # }}}

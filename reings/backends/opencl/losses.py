@@ -1,0 +1,255 @@
+"""The loss kernels' host code on one OpenCL device: `PhotometricCL` (kernels/photometric.cl, the
+photometric stage) and `DepthLossCL` (kernels/depth_loss.cl: the depth_loss stage with the
+depth_smooth term fused in). Each has two forms:
+
+    enqueue(device buffers in, gradient buffer out, ...) then read_loss()   the device trainer's
+    obj(host arrays, ...) -> (loss, gradient as a host array)                the backend's host
+                                                                             loss methods
+
+One instance of each per OpenCLBackend (`backend.photometric_kernels`, `backend.depth_loss_kernels`),
+sharing its device handle; tests may build more (DepthLossCL's schedule overrides). The float64
+references are `reings.backends.reference_loss`; the host-facing loss functions are
+`reings.losses`.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from ..reference_loss import gaussian_taps
+from .device import open_device
+from .program import library_for, typed_invoker
+
+
+def _handle(device):
+    """A DeviceHandle from a handle or a device string (opened through the shared cache)."""
+    return open_device(device) if isinstance(device, str) else device
+
+
+class PhotometricCL:
+    """The photometric loss on an OpenCL device (a DeviceHandle or a device string); buffers are
+    kept per image size and reused."""
+
+    def __init__(self, device):
+        import pyopencl as cl
+
+        self.cl = cl
+        self.handle = _handle(device)
+        lib = library_for(self.handle)
+        self.k = {n: lib.get("photometric.cl", n) for n in
+                  ("ssim_hpass_fwd", "ssim_vpass_fwd", "ssim_hpass_bwd", "ssim_vpass_bwd", "loss_row_sums")}
+        ctx = self.handle.context
+        self.taps = cl.Buffer(ctx, cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR,
+                              hostbuf=gaussian_taps().astype(np.float32))
+        self._shape = None
+
+    def _alloc(self, h: int, w: int):
+        if self._shape == (h, w):
+            return
+        cl, ctx, mf = self.cl, self.handle.context, self.cl.mem_flags
+        img = h * w * 3 * 4
+        self.x = cl.Buffer(ctx, mf.READ_ONLY, img)
+        self.y = cl.Buffer(ctx, mf.READ_ONLY, img)
+        self.h5 = cl.Buffer(ctx, mf.READ_WRITE, 5 * img)
+        self.smap = cl.Buffer(ctx, mf.READ_WRITE, img)
+        self.d3 = cl.Buffer(ctx, mf.READ_WRITE, 3 * img)
+        self.h3 = cl.Buffer(ctx, mf.READ_WRITE, 3 * img)
+        self.v = cl.Buffer(ctx, mf.WRITE_ONLY, img)
+        self.partial = cl.Buffer(ctx, mf.WRITE_ONLY, h * 2 * 4)
+        self._shape = (h, w)
+
+    def __call__(self, rgb: np.ndarray, gt: np.ndarray, w_l1: float, w_ssim: float) -> tuple[float, np.ndarray]:
+        cl, q = self.cl, self.handle.queue
+        h, w = rgb.shape[:2]
+        self._alloc(h, w)
+        cl.enqueue_copy(q, self.x, np.ascontiguousarray(rgb, np.float32))
+        cl.enqueue_copy(q, self.y, np.ascontiguousarray(gt, np.float32))
+        self.enqueue(self.x, self.y, self.v, h, w, w_l1, w_ssim)
+        v = np.empty((h, w, 3), np.float32)
+        cl.enqueue_copy(q, v, self.v)
+        return self.read_loss(), v
+
+    def enqueue(self, x, y, v, h: int, w: int, w_l1: float, w_ssim: float):
+        """Device-resident form: x (rendered) and y (ground truth) are [H,W,3] float32 buffers of
+        this device's context, dL/dx is written into the buffer v; nothing is read back. The per-row
+        partial sums stay on the device for `read_loss` (valid until the next call). Returns the
+        last kernel's event."""
+        q = self.handle.queue
+        self._alloc(h, w)
+        n = h * w * 3
+        W, H = np.int32(w), np.int32(h)
+        g2 = (w, h)
+        k = self._typed
+        k("ssim_hpass_fwd", q, g2, x, y, self.taps, self.h5, W, H)
+        k("ssim_vpass_fwd", q, g2, self.h5, self.taps, self.smap, self.d3, np.float32(-w_ssim / n), W, H)
+        k("ssim_hpass_bwd", q, g2, self.d3, self.taps, self.h3, W, H)
+        k("ssim_vpass_bwd", q, g2, self.h3, x, y, self.taps, v, np.float32(w_l1 / n), W, H)
+        ev = k("loss_row_sums", q, (h,), self.smap, x, y, self.partial, W, H)
+        self._weights = (float(w_l1), float(w_ssim))
+        return ev
+
+    def _typed(self, name: str, q, gsize, *args):
+        """Launch kernel `name` through pyopencl's typed invoker (set once per kernel: the generic
+        one costs ~6.5 us per scalar argument, see program.typed_invoker)."""
+        kern = self.k[name]
+        if not getattr(kern, "_reings_typed", False):
+            typed_invoker(kern, args)
+        return kern(q, gsize, None, *args)
+
+    def read_loss(self) -> float:
+        """The loss of the last `enqueue` / call (a blocking read of H x 2 partial sums, added in
+        float64 on the host)."""
+        h, w = self._shape
+        n = h * w * 3
+        part = np.empty((h, 2), np.float32)
+        self.cl.enqueue_copy(self.handle.queue, part, self.partial)  # blocking: waits for the queue
+        sums = part.astype(np.float64).sum(axis=0)
+        ssim, l1 = sums[0] / n, sums[1] / n
+        w_l1, w_ssim = self._weights
+        return float(w_l1 * l1 + w_ssim * (1.0 - ssim))
+
+
+class DepthLossCL:
+    """DNGaussian's global-local depth loss on an OpenCL device (kernels/depth_loss.cl, 5 launches);
+    the device-resident form is `enqueue` (device buffers in and out) then `read_loss`. `device`:
+    a DeviceHandle or a device string.
+
+    Statistics and per-pixel math are double where the device has cl_khr_fp64 (`fp64=None`: auto),
+    so on PoCL and NVIDIA the result is the float64 reference's up to float32 rounding of v_depth;
+    without fp64 they are float with each input shifted by its first pixel (kernel header). All
+    reductions are fixed-order (deterministic). `wg`: the reduce kernels' work-group size (default
+    1 on CPU devices, 256 on GPUs); `lwg`: the other kernels' (default 64); `cpu_schedule`: dl_grad's
+    row-per-work-item form (default: the device's REINGS_CPU_SCHEDULE). The overrides are for tests
+    (every schedule on PoCL and Oclgrind)."""
+
+    def __init__(self, device, wg: int | None = None, fp64: bool | None = None, lwg: int | None = None,
+                 cpu_schedule: bool | None = None):
+        import pyopencl as cl
+
+        from . import quirks
+        from .scratch import Scratch
+
+        self.cl = cl
+        self.handle = _handle(device)
+        dev = self.handle.device
+        if fp64 is None:
+            fp64 = "cl_khr_fp64" in dev.extensions
+        self.fp64 = bool(fp64)
+        self.real = np.float64 if self.fp64 else np.float32
+        self.wg = int(wg) if wg else (1 if quirks.is_cpu(dev) else 256)
+        if self.wg & (self.wg - 1):
+            raise ValueError(f"DepthLossCL: wg must be a power of two, got {self.wg}")
+        # work-group (along dim 0) of the per-block / per-pixel kernels (no local memory; padding
+        # items return at once)
+        self.lwg = int(lwg) if lwg else 64
+        if cpu_schedule is None:
+            cpu_schedule = bool(quirks.build_defines(dev)["REINGS_CPU_SCHEDULE"])
+        self.cpu_schedule = bool(cpu_schedule)  # dl_grad: a row per work-item (else a pixel per work-item)
+        prg = library_for(self.handle).program("depth_loss.cl", DL_FP64=int(self.fp64), DL_WG=self.wg,
+                                               REINGS_CPU_SCHEDULE=int(self.cpu_schedule))
+        self.k = {n: cl.Kernel(prg, n) for n in  # own kernel objects: several instances may share prg
+                  ("dl_block_stats", "dl_reduce_stats", "dl_patch_terms", "dl_reduce_terms", "dl_grad",
+                  "depth_smooth_rows")}
+        self.mem = Scratch(self.handle)
+        self._weights = None
+        self._smooth = None  # (depth_buf, wx_buf, wy_buf, h, w, w_smooth / sum of weights) of the last call
+        self._t = np.empty(8, self.real)  # read_loss's host words
+
+    def enqueue(self, depth_buf, target_buf, v_buf, h: int, w: int, p_local: int, p_global: int,
+                margin: float, w_local: float = 0.1, w_global: float = 1.0, smooth=None):
+        """Device-resident form: depth (rendered) and target are [H,W] float32 buffers of this
+        device's context; dL/d depth is WRITTEN (overwritten, not added) into the [H,W] float32
+        buffer v_buf; nothing is read back. The two term losses stay on the device for `read_loss`
+        (valid until the next call). Patch sizes must lie in [1, min(h, w)] (`depth_loss` draws and
+        clamps them). `smooth`: None, or (wx_buf, wy_buf, scale) to add scale * the edge-aware
+        smoothness numerator's gradient (scale = w_smooth / sum of the weights; weights [H,W]
+        float32 from `reference_loss.DepthSmoothWeights`), fused into the gradient kernel; its loss is
+        computed only if `read_loss` is called. Returns the last kernel's event."""
+        h, w, pl, pg = int(h), int(w), int(p_local), int(p_global)
+        for p in (pl, pg):
+            if not 1 <= p <= min(h, w):
+                raise ValueError(f"depth loss: patch size {p} outside [1, min({h}, {w})]")
+        rs = np.dtype(self.real).itemsize
+        ml, mg = (h // pl) * (w // pl), (h // pg) * (w // pg)
+        bcap = max(ml, mg, h)
+        bstats = self.mem.get("pixel", "dl_bstats", 12 * bcap, rs)
+        sstats = self.mem.get("small", "dl_sstats", 12, rs)
+        pcnt = self.mem.get("pixel", "dl_pcnt", 2 * bcap, 4)
+        prec = self.mem.get("pixel", "dl_prec", 16 * bcap, rs)
+        pcoef = self.mem.get("pixel", "dl_pcoef", 6 * bcap, rs)
+        tstats = self.mem.get("small", "dl_tstats", 8, rs)
+        q, r, i32 = self.handle.queue, self.real, np.int32
+        geo = (i32(w), i32(h), i32(pl), i32(pg), i32(bcap))
+        lw, wg = self.lwg, self.wg
+        self._call("dl_block_stats", q, (-(-bcap // lw) * lw, 6), (lw, 1), depth_buf, target_buf, bstats, *geo)
+        self._call("dl_reduce_stats", q, (wg, 6), (wg, 1), bstats, sstats, *geo)
+        mt = max(ml, mg)
+        self._call("dl_patch_terms", q, (-(-mt // lw) * lw, 2), (lw, 1), depth_buf, target_buf, bstats, sstats,
+                   pcnt, prec, r(margin), *geo)
+        self._call("dl_reduce_terms", q, (wg, 2), (wg, 1), sstats, pcnt, prec, pcoef, tstats, *geo)
+        gg, gl = ((-(-h // lw) * lw,), (lw,)) if self.cpu_schedule else ((-(-w // lw) * lw, h), (lw, 1))
+        swx, swy, ss = (target_buf, target_buf, 0.0) if smooth is None else smooth  # dummies are never read
+        ev = self._call("dl_grad", q, gg, gl, depth_buf, target_buf, prec, pcoef, tstats, v_buf, r(margin),
+                        r(w_local), r(w_global), *geo, swx, swy, r(ss))
+        self._weights = (float(w_local), float(w_global))
+        self._smooth = None if smooth is None or ss == 0 else (depth_buf, swx, swy, h, w, float(ss))
+        return ev
+
+    def _call(self, name: str, q, gsize, lsize, *args):
+        """Launch through pyopencl's typed invoker (see PhotometricCL._typed)."""
+        kern = self.k[name]
+        if not getattr(kern, "_reings_typed", False):
+            typed_invoker(kern, args)
+        return kern(q, gsize, lsize, *args)
+
+    def read_loss(self) -> float:
+        """w_local * local + w_global * global of the last `enqueue` (one blocking read of the two
+        term losses, combined in float64 on the host)."""
+        if self._weights is None:
+            raise RuntimeError("DepthLossCL.read_loss before any enqueue")
+        t, q = self._t, self.handle.queue
+        smooth = 0.0
+        if self._smooth is not None:  # the smoothness numerator, on demand (training never reads it)
+            depth_buf, swx, swy, h, w, ss = self._smooth
+            rows = self.mem.get("pixel", "dl_srows", h, t.itemsize)
+            self._call("depth_smooth_rows", q, (-(-h // self.lwg) * self.lwg,), (self.lwg,), depth_buf, swx, swy,
+                       rows, np.int32(w), np.int32(h))
+            hr = np.empty(h, self.real)
+            self.cl.enqueue_copy(q, hr, rows)  # blocking
+            smooth = ss * float(np.sum(hr, dtype=np.float64))
+        self.cl.enqueue_copy(q, t, self.mem.get("small", "dl_tstats", 8, t.itemsize))  # blocking
+        w_local, w_global = self._weights
+        return float(w_local * float(t[1]) + w_global * float(t[5])) + smooth
+
+    def term_stats(self) -> np.ndarray:
+        """[2, 4] (count of selected elements, term loss, E, mean_all: kernels/depth_loss.cl) of the last call
+        (local, global); for tests and diagnostics."""
+        self.read_loss()
+        return self._t.reshape(2, 4).astype(np.float64)
+
+    def __call__(self, depth: np.ndarray, target: np.ndarray, p_local: int, p_global: int, margin: float,
+                 w_local: float = 0.1, w_global: float = 1.0, smooth=None) -> tuple[float, np.ndarray]:
+        """Host form: (loss, v_depth float32 [H, W]) of numpy [H, W] inputs (uploaded as float32);
+        `smooth`: None or (DepthSmoothWeights, w_smooth)."""
+        cl, q = self.cl, self.handle.queue
+        d = np.ascontiguousarray(depth, np.float32)
+        t = np.ascontiguousarray(target, np.float32)
+        if d.ndim != 2 or d.shape != t.shape:
+            raise ValueError(f"depth and target must be [H, W] of one shape, got {d.shape} and {t.shape}")
+        h, w = d.shape
+        db = self.mem.get("pixel", "dl_depth", h * w, 4)
+        tb = self.mem.get("pixel", "dl_target", h * w, 4)
+        vb = self.mem.get("pixel", "dl_v", h * w, 4)
+        cl.enqueue_copy(q, db, d)
+        cl.enqueue_copy(q, tb, t)
+        sm = None
+        if smooth is not None and smooth[1] != 0:
+            sw, ws = smooth
+            bx = self.mem.get("pixel", "dl_swx", h * w, 4)
+            by = self.mem.get("pixel", "dl_swy", h * w, 4)
+            cl.enqueue_copy(q, bx, sw.wx)
+            cl.enqueue_copy(q, by, sw.wy)
+            sm = (bx, by, ws * sw.inv_sum)
+        self.enqueue(db, tb, vb, h, w, p_local, p_global, margin, w_local, w_global, sm)
+        v = np.empty((h, w), np.float32)
+        cl.enqueue_copy(q, v, vb)  # blocking
+        return self.read_loss(), v

@@ -1,0 +1,78 @@
+"""numpy references of the stages that update the training state, one function per kernel:
+
+    sh_pack             kernels/sh_pack.cl            the projection's [N,k,3] SH at k active coefficients
+    adam_update         kernels/adam.cl adam_step     one float32 Adam update, numpy's exact op sequence
+    ndc_grad_norm,      kernels/densify_accumulate.cl 3DGS `add_densification_stats` for one view
+    densify_accumulate
+
+The state's arrays are named in `reings.types` (PARAM_NAMES; ACCUM, COUNT, RADII). These are the
+arithmetic that both training engines share: the host trainer (reings/backends/host_trainer.py)
+calls them, the engine re-exports them (`reings.optim.adam.adam_update`, `reings.densify.accumulate`),
+and the kernels follow their float32 operation order (tests/test_adam_kernel.py,
+tests/test_device_fit.py: bit-identical on PoCL). Unlike the render and loss references these run
+in float32 where the engine keeps float32 state: they define what the float32 state becomes.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from ..types import ACCUM, COUNT, RADII, STAT_DTYPES
+
+
+def sh_pack(sh_dc: np.ndarray, sh_rest: np.ndarray, k: int) -> np.ndarray:
+    """[N,1,3] sh_dc and the first k-1 rows of [N,kmax-1,3] sh_rest -> [N,k,3] (a new array)."""
+    return np.concatenate([sh_dc, sh_rest[:, : k - 1]], axis=1)
+
+
+def adam_update(p: np.ndarray, m: np.ndarray, v: np.ndarray, g: np.ndarray, lr: float, t: int,
+                b1: float, b2: float, eps: float, tmp: np.ndarray) -> None:
+    """One in-place float32 Adam update of (p, m, v) with gradient g at step count t (>= 1); tmp is
+    scratch of p's shape.  The exact float32 operation sequence that `kernels/adam.cl` mirrors
+    (the 1/sqrt(bc2) product is a float64 scalar, so numpy computes that one product in float64).
+    Used by reings.optim.Adam, the host trainer and the device trainer's numpy Adam location."""
+    # m = b1*m + (1-b1)*g
+    np.multiply(m, b1, out=m)
+    np.multiply(g, 1.0 - b1, out=tmp)
+    np.add(m, tmp, out=m)
+    # v = b2*v + (1-b2)*g^2
+    np.multiply(v, b2, out=v)
+    np.multiply(g, g, out=tmp)
+    np.multiply(tmp, 1.0 - b2, out=tmp)
+    np.add(v, tmp, out=v)
+    # p -= lr/bc1 * m / (sqrt(v)/sqrt(bc2) + eps)
+    bc1 = 1.0 - b1 ** t
+    bc2 = 1.0 - b2 ** t
+    np.sqrt(v, out=tmp)
+    np.multiply(tmp, 1.0 / np.sqrt(bc2), out=tmp)
+    np.add(tmp, eps, out=tmp)
+    np.divide(m, tmp, out=tmp)
+    np.multiply(tmp, -lr / bc1, out=tmp)
+    np.add(p, tmp, out=p)
+
+
+def zero_stats(n: int) -> dict[str, np.ndarray]:
+    """Fresh densification statistics for n Gaussians (zeros of STAT_DTYPES)."""
+    return {k: np.zeros(n, dt) for k, dt in STAT_DTYPES.items()}
+
+
+def ndc_grad_norm(v_means2d: np.ndarray, width: int, height: int) -> np.ndarray:
+    """[N,2] pixel-space dL/d means2d -> [N] norms in 3DGS's NDC-scaled units (x W/2, y H/2)."""
+    v = np.asarray(v_means2d, np.float64)
+    return np.hypot(v[:, 0] * (0.5 * width), v[:, 1] * (0.5 * height)).astype(np.float32)
+
+
+def densify_accumulate(stats: dict, grad_norms: np.ndarray, visible: np.ndarray,
+                       radii: np.ndarray | None = None) -> None:
+    """3DGS `add_densification_stats` for one view, in place on `stats` (ACCUM, COUNT, RADII): for
+    the visible Gaussians (radius > 0), add the NDC gradient norm and count the view; track the
+    max screen radius."""
+    n = len(stats[ACCUM])
+    vis = np.asarray(visible, bool)
+    g = np.asarray(grad_norms, np.float32)
+    if vis.shape != (n,) or g.shape != (n,):
+        raise ValueError(f"accumulate: grad_norms {g.shape} and visible {vis.shape} must be ({n},)")
+    stats[ACCUM][vis] += g[vis]
+    stats[COUNT][vis] += 1
+    if radii is not None:
+        r = np.asarray(radii, np.float32)
+        np.maximum(stats[RADII], np.where(vis, r, 0.0), out=stats[RADII])
