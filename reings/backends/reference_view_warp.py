@@ -240,7 +240,7 @@ def opacity_decay(opacity_logits: np.ndarray, factor: float = OPACITY_DECAY) -> 
     scaled by `factor`, written back through the inverse sigmoid). Closed form
         logit(f s(x)) = log f - log((1 - f) + exp(-x)) = log f - logaddexp(log(1 - f), -x)
     finite for every finite x (the float32 round trip through the opacity underflows to -inf below
-    x ~ -88 and loses precision near s(x) = 1). factor in (0, 1]; factor 1 is the identity."""
+    x ~ -88, or ~ -103 with denormals, and loses precision near s(x) = 1). factor in (0, 1]; factor 1 is the identity."""
     f = float(factor)
     if not 0.0 < f <= 1.0:
         raise ValueError(f"opacity_decay: factor must lie in (0, 1], got {factor!r}")

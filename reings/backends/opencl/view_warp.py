@@ -7,7 +7,8 @@
 The training step's form is `enqueue`: device buffers in ([H, W, 3] virtual render, [H, W] rendered
 depth of the training view, [H, W, 3] training image), gradients out (v_virt overwritten, v_depth
 written or, with accumulate_depth=True, added to what another term left there); nothing is read
-back. Two launches (view_warp_bwd_depth, view_warp_bwd_virt); the loss stays on the device as
+back. Three launches (view_warp_smooth, skipped when smooth_weight is 0; view_warp_bwd_depth;
+view_warp_bwd_virt); the loss stays on the device as
 per-row partial sums until `read_loss` / `read_stats`. `__call__` is the host convenience form
 (numpy in and out) and `forward` the diagnostic warped image and validity mask.
 
@@ -26,7 +27,7 @@ import numpy as np
 
 from .. import reference_view_warp as ref
 
-_KERNELS = ("view_warp_fwd", "view_warp_bwd_depth", "view_warp_bwd_virt", "view_warp_total")
+_KERNELS = ("view_warp_fwd", "view_warp_smooth", "view_warp_bwd_depth", "view_warp_bwd_virt", "view_warp_total")
 _F, _I = np.float32, np.int32
 
 
@@ -61,7 +62,8 @@ class ViewWarpCL:
         self.k = {n: cl.Kernel(prg, n) for n in _KERNELS}  # own kernel objects: instances may share prg
         # scalar argument types, set once (pyopencl's typed invoker: every scalar packed in one go)
         self.k["view_warp_fwd"].set_scalar_arg_dtypes([None, None, None, None, _F, _I, _I])
-        self.k["view_warp_bwd_depth"].set_scalar_arg_dtypes([None] * 8 + [_F, _F, _F, _I, _I, _I])
+        self.k["view_warp_smooth"].set_scalar_arg_dtypes([None] * 4 + [_F, _I, _I])
+        self.k["view_warp_bwd_depth"].set_scalar_arg_dtypes([None] * 9 + [_F, _F, _F, _I, _I, _I])
         self.k["view_warp_bwd_virt"].set_scalar_arg_dtypes([None] * 4 + [_I, _I])
         self.k["view_warp_total"].set_scalar_arg_dtypes([None, None, None, _I])
         self.mem = Scratch(self.handle)
@@ -81,7 +83,13 @@ class ViewWarpCL:
         row_f = self.mem.get("pixel", "vw_row_f", h, 2 * 4)
         row_i = self.mem.get("pixel", "vw_row_i", h, 3 * 4)
         q = self.handle.queue
-        self.k["view_warp_bwd_depth"](q, (self.wg, h), (self.wg, 1), virt_buf, depth_buf, gt_buf, v_depth_buf,
+        sxy = rec_g  # a dummy (never read) when there is no smoothness term
+        if gs != 0:
+            sxy = self.mem.get("pixel", "vw_sxy", h * w, 2 * 4)
+            self.k["view_warp_smooth"](q, (self.wg, h), (self.wg, 1), depth_buf, gt_buf, sxy, row_f, nfb, _I(w), _I(h),
+                                       wait_for=wait_for)
+            wait_for = None
+        self.k["view_warp_bwd_depth"](q, (self.wg, h), (self.wg, 1), virt_buf, depth_buf, gt_buf, sxy, v_depth_buf,
                                       rec_tap, rec_g, row_f, row_i, nfb, gl, gs, _I(bool(accumulate_depth)), _I(w), _I(h),
                                       wait_for=wait_for)
         if self.cpu_schedule:
