@@ -576,35 +576,45 @@ def test_oclgrind_checks():
 # }}}
 
 
-def _time(device: str = "pocl", reps: int = 20) -> None:
-    """ms per call at 504x378: the twin, the host form, the device-resident form."""
+def _time(device: str = "pocl", reps: int = 30) -> None:
+    """ms per call at 504x378 (fern-like depths 20-60 with a near box at 8, b = 0.4): the twin, the
+    host form, the device-resident form, and each kernel's median event time (both schedules)."""
     import time
 
     import pyopencl as cl
 
     rng = np.random.default_rng(0)
     h, w, fx, b = 378, 504, 407.0, 0.4
-    virt, depth, gt = _images(h, w, rng, 1.5, 6.0)
-    vw = _vw(device)
+    y, x = np.mgrid[0:h, 0:w]
+    depth = (20.0 + 40.0 * x / w + 3.0 * np.sin(y / 17.0)).astype(np.float32)
+    depth[100:250, 150:300] = 8.0  # disparities ~3 to ~20 px
+    virt, _, gt = _images(h, w, rng)
     t = time.perf_counter()
     R.view_warp_fwd_bwd(virt, depth, gt, fx, b)
-    print(f"float64 twin     {1e3 * (time.perf_counter() - t):8.2f} ms")
-    vw(virt, depth, gt, fx, b)
-    t = time.perf_counter()
-    for _ in range(reps):
+    print(f"float64 twin      {1e3 * (time.perf_counter() - t):8.2f} ms")
+    for cs in (True, False):
+        vw = _vw(device, cpu_schedule=cs)
         vw(virt, depth, gt, fx, b)
-    print(f"host form        {1e3 * (time.perf_counter() - t) / reps:8.2f} ms")
-    ctx, q = vw.handle.context, vw.handle.queue
-    mf = cl.mem_flags
-    bufs = [cl.Buffer(ctx, mf.READ_WRITE | mf.COPY_HOST_PTR, hostbuf=a) for a in (virt, depth, gt)]
-    ov, od = cl.Buffer(ctx, mf.READ_WRITE, virt.nbytes), cl.Buffer(ctx, mf.READ_WRITE, depth.nbytes)
-    vw.enqueue(*bufs, ov, od, h, w, fx, b).wait()
-    t = time.perf_counter()
-    for _ in range(reps):
-        ev = vw.enqueue(*bufs, ov, od, h, w, fx, b)
-    ev.wait()
-    print(f"device-resident  {1e3 * (time.perf_counter() - t) / reps:8.2f} ms   (schedule: "
-          f"{'row scatter' if vw.cpu_schedule else 'window gather'}, wg {vw.wg})")
+        t = time.perf_counter()
+        for _ in range(reps):
+            vw(virt, depth, gt, fx, b)
+        host = 1e3 * (time.perf_counter() - t) / reps
+        ctx, q = vw.handle.context, vw.handle.queue
+        mf = cl.mem_flags
+        bufs = [cl.Buffer(ctx, mf.READ_WRITE | mf.COPY_HOST_PTR, hostbuf=a) for a in (virt, depth, gt)]
+        ov, od = cl.Buffer(ctx, mf.READ_WRITE, virt.nbytes), cl.Buffer(ctx, mf.READ_WRITE, depth.nbytes)
+        vw.enqueue(*bufs, ov, od, h, w, fx, b).wait()
+        per: dict = {}
+        t = time.perf_counter()
+        for _ in range(reps):
+            ev = vw.enqueue(*bufs, ov, od, h, w, fx, b)
+            ev.wait()
+            for name, e in vw.events:
+                per.setdefault(name, []).append(1e-6 * (e.profile.end - e.profile.start))
+        dev = 1e3 * (time.perf_counter() - t) / reps
+        kern = ", ".join(f"{n} {np.median(v):.3f}" for n, v in per.items())
+        print(f"{'row scatter' if cs else 'window gather'} (wg {vw.wg}): host form {host:.2f} ms, device-resident "
+              f"{dev:.2f} ms (waited per call); kernels (median ms): {kern}")
 
 
 if __name__ == "__main__":

@@ -67,7 +67,8 @@ class ViewWarpCL:
         self.k["view_warp_bwd_virt"].set_scalar_arg_dtypes([None] * 4 + [_I, _I])
         self.k["view_warp_total"].set_scalar_arg_dtypes([None, None, None, _I])
         self.mem = Scratch(self.handle)
-        self._last = None  # (h, w, gl, gs) of the last enqueue
+        self._last = None  # (h, w, weight, smooth_weight) of the last enqueue
+        self.events: list = []  # (kernel name, cl.Event) of the last enqueue
         self._total = np.empty(3, np.float32)
 
     # {{{ device-resident form
@@ -83,20 +84,25 @@ class ViewWarpCL:
         row_f = self.mem.get("pixel", "vw_row_f", h, 2 * 4)
         row_i = self.mem.get("pixel", "vw_row_i", h, 3 * 4)
         q = self.handle.queue
+        evs = []
         sxy = rec_g  # a dummy (never read) when there is no smoothness term
         if gs != 0:
             sxy = self.mem.get("pixel", "vw_sxy", h * w, 2 * 4)
-            self.k["view_warp_smooth"](q, (self.wg, h), (self.wg, 1), depth_buf, gt_buf, sxy, row_f, nfb, _I(w), _I(h),
+            ev = self.k["view_warp_smooth"](q, (self.wg, h), (self.wg, 1), depth_buf, gt_buf, sxy, row_f, nfb, _I(w), _I(h),
                                        wait_for=wait_for)
+            evs.append(("view_warp_smooth", ev))
             wait_for = None
-        self.k["view_warp_bwd_depth"](q, (self.wg, h), (self.wg, 1), virt_buf, depth_buf, gt_buf, sxy, v_depth_buf,
+        ev = self.k["view_warp_bwd_depth"](q, (self.wg, h), (self.wg, 1), virt_buf, depth_buf, gt_buf, sxy, v_depth_buf,
                                       rec_tap, rec_g, row_f, row_i, nfb, gl, gs, _I(bool(accumulate_depth)), _I(w), _I(h),
                                       wait_for=wait_for)
+        evs.append(("view_warp_bwd_depth", ev))
         if self.cpu_schedule:
             ev = self.k["view_warp_bwd_virt"](q, (h,), None, rec_tap, rec_g, row_i, v_virt_buf, _I(w), _I(h))
         else:
             ev = self.k["view_warp_bwd_virt"](q, (_pad(w, self.lwg), h), (self.lwg, 1), rec_tap, rec_g, row_i,
                                               v_virt_buf, _I(w), _I(h))
+        evs.append(("view_warp_bwd_virt", ev))
+        self.events = evs  # (kernel, event) of this call, for profiling
         self._last = (h, w, float(weight), float(smooth_weight))
         return ev
 
