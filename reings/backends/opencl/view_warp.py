@@ -88,13 +88,13 @@ class ViewWarpCL:
         sxy = rec_g  # a dummy (never read) when there is no smoothness term
         if gs != 0:
             sxy = self.mem.get("pixel", "vw_sxy", h * w, 2 * 4)
-            ev = self.k["view_warp_smooth"](q, (self.wg, h), (self.wg, 1), depth_buf, gt_buf, sxy, row_f, nfb, _I(w), _I(h),
-                                       wait_for=wait_for)
+            ev = self.k["view_warp_smooth"](q, (self.wg, h), (self.wg, 1), depth_buf, gt_buf, sxy, row_f, nfb,
+                                            _I(w), _I(h), wait_for=wait_for)
             evs.append(("view_warp_smooth", ev))
             wait_for = None
-        ev = self.k["view_warp_bwd_depth"](q, (self.wg, h), (self.wg, 1), virt_buf, depth_buf, gt_buf, sxy, v_depth_buf,
-                                      rec_tap, rec_g, row_f, row_i, nfb, gl, gs, _I(bool(accumulate_depth)), _I(w), _I(h),
-                                      wait_for=wait_for)
+        ev = self.k["view_warp_bwd_depth"](q, (self.wg, h), (self.wg, 1), virt_buf, depth_buf, gt_buf, sxy,
+                                           v_depth_buf, rec_tap, rec_g, row_f, row_i, nfb, gl, gs,
+                                           _I(bool(accumulate_depth)), _I(w), _I(h), wait_for=wait_for)
         evs.append(("view_warp_bwd_depth", ev))
         if self.cpu_schedule:
             ev = self.k["view_warp_bwd_virt"](q, (h,), None, rec_tap, rec_g, row_i, v_virt_buf, _I(w), _I(h))
