@@ -196,7 +196,7 @@ CONSTANTS = [
     ("common.h", "CLAMP_GUARD", "CLAMP_GUARD", None, "Jacobian guard band"),
     ("common.h", "V_RECORD", "V_RECORD", None, "floats per gradient record"),
     ("project.cl", "V_PROJ", "V_RECORD", None, "width of the v_proj record project_bwd reads"),
-    ("train.cl", "V_PROJ", "V_RECORD", None, "width of the v_proj record train.cl reads"),
+    ("densify_accumulate.cl", "V_PROJ", "V_RECORD", None, "width of the v_proj record densify_accumulate.cl reads"),
     ("project.cl", "PROJ_EPS2D", "EPS2D", None, "projection's dilation"),
     ("project.cl", "CAM_RECORD", "CAM_RECORD", None, "floats per camera record"),
     ("project.cl", "DEPTH_KEY_CULLED", "DEPTH_KEY_CULLED", None, "sort key of a culled Gaussian"),
@@ -207,9 +207,9 @@ CONSTANTS = [
     ("project.cl", "SH_C1", "SH_C1", None, "SH constant"),
     *[("project.cl", f"SH_C2_{i}", "SH_C2", i, "SH constant") for i in range(5)],
     *[("project.cl", f"SH_C3_{i}", "SH_C3", i, "SH constant") for i in range(7)],
-    ("loss.cl", "SSIM_C1", "SSIM_C1", None, "SSIM stabiliser"),
-    ("loss.cl", "SSIM_C2", "SSIM_C2", None, "SSIM stabiliser"),
-    ("loss.cl", "2 * SSIM_R + 1", "SSIM_WINDOW", None, "SSIM window taps"),
+    ("photometric.cl", "SSIM_C1", "SSIM_C1", None, "SSIM stabiliser"),
+    ("photometric.cl", "SSIM_C2", "SSIM_C2", None, "SSIM stabiliser"),
+    ("photometric.cl", "2 * SSIM_R + 1", "SSIM_WINDOW", None, "SSIM window taps"),
 ]
 
 
@@ -227,14 +227,14 @@ def test_constant_matches(file, c_expr, py_name, index, what):
                                   f"{'' if index is None else f'[{index}]'} = {v!r}")
 
 
-def test_opacity_split_matches_train_cl():
-    """train.cl's OPA_SPLIT is the default `split` of the opacity penalty (`opacity_reg`)."""
-    c = c_value("train.cl", "OPA_SPLIT")
+def test_opacity_split_matches_regularize_cl():
+    """regularize.cl's OPA_SPLIT is the default `split` of the opacity penalty (`opacity_reg`)."""
+    c = c_value("regularize.cl", "OPA_SPLIT")
     fn = py_function("opacity_reg")
     import inspect
 
     default = inspect.signature(fn).parameters["split"].default
-    assert same_value(c, default), f"kernels/train.cl OPA_SPLIT = {c!r}, {fn.__module__}.opacity_reg split = {default!r}"
+    assert same_value(c, default), f"kernels/regularize.cl OPA_SPLIT = {c!r}, {fn.__module__}.opacity_reg split = {default!r}"
 
 
 # }}}
@@ -384,13 +384,13 @@ def test_rasterize_bwd_writes_the_record_in_comment_order():
     assert all(order[n] == k for n, k in gpu.items()), f"rasterize.cl GPU writer: {gpu}, comment order {order}"
 
 
-def test_train_cl_reads_means2d_gradient_from_the_record():
-    """train.cl's densification statistic reads v_proj[i*V_PROJ + 0 / + 1] as the 2D mean gradient."""
-    src = _strip_comments(c_text("train.cl"))
+def test_densify_accumulate_reads_means2d_gradient_from_the_record():
+    """densify_accumulate.cl's densification statistic reads v_proj[i*V_PROJ + 0 / + 1] as the 2D mean gradient."""
+    src = _strip_comments(c_text("densify_accumulate.cl"))
     offs = [int(o or 0) for o in re.findall(r"v_proj\[\(size_t\)i \* V_PROJ(?: \+ (\d+))?\]", src)]
-    assert offs, "train.cl: no v_proj[(size_t)i * V_PROJ + k] reads"
+    assert offs, "densify_accumulate.cl: no v_proj[(size_t)i * V_PROJ + k] reads"
     a, b = _field_slices()["v_means2d"]
-    assert sorted(offs) == list(range(a, b)), f"train.cl reads offsets {offs}, v_means2d is [{a}, {b})"
+    assert sorted(offs) == list(range(a, b)), f"densify_accumulate.cl reads offsets {offs}, v_means2d is [{a}, {b})"
 
 
 def _slice_of(node) -> tuple[int, int] | None:
