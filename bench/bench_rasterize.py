@@ -1,4 +1,4 @@
-"""Rasterizer alone (kernels/rasterize.cl) on a PERF.md §1.7 scene: forward, backward, reduce.
+"""Rasterizer alone (kernels/rasterize.cl) on a docs/perf_notes.md §1.7 scene: forward, backward, reduce.
 
     python bench/bench_rasterize.py [--device pocl] [--scene A] [--runs 40] [--warmup 8]
                                     [--schedule auto|cpu|gpu] [--define RASTER_VEC=16 ...]

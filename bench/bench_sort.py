@@ -1,5 +1,5 @@
 """Sort benchmark: reings' radix sort vs numpy.argsort(kind="stable") vs pyopencl.algorithm.RadixSort,
-same keys, same run (issue 2 §6; PERF.md §4.2 / §7).
+same keys, same run (issue 2 §6; docs/perf_notes.md §4.2 / §7).
 
     python bench/bench_sort.py --device pocl [--n 1048576] [--repeats 7] [--json-only]
 

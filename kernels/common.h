@@ -32,7 +32,7 @@
 #define V_RECORD 10               /* floats per intersection gradient record (rasterize_bwd) */
 
 /* atomic_add_f32(p, v): *p += v, atomically, by the best means the device has.
- * NVIDIA: fire-and-forget PTX `red` (never a CAS loop there, PERF.md §4.4). Native
+ * NVIDIA: fire-and-forget PTX `red` (never a CAS loop there, docs/perf_notes.md §4.4). Native
  * cl_ext_float_atomics where the compiler exposes it. Otherwise a compare-and-swap loop (last
  * resort; CPU kernels avoid atomics altogether). */
 #if REINGS_NV_PTX

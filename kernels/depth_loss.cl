@@ -1,4 +1,4 @@
-/* depth_loss.cl: DNGaussian's global-local depth loss (METHOD.md §2.4)
+/* depth_loss.cl: DNGaussian's global-local depth loss (docs/method.md §2.4)
  *     L = w_local * local(p_local) + w_global * global(p_global)
  * and its gradient w.r.t. the rendered depth, for one [H, W] depth against its (constant) target.
  *

@@ -140,7 +140,7 @@ typedef uint vu;
 /* |x| <= FLT_MAX is false for NaN and +-Inf */
 #define FINITE(x) (fabs(x) <= FLT_MAX)
 
-/* SH basis values at the unit direction (x, y, z), order of 3DGS (METHOD.md §5.5) */
+/* SH basis values at the unit direction (x, y, z), order of 3DGS (docs/method.md §5.5) */
 PROJ_INLINE void sh_basis(vf x, vf y, vf z, vf *b) {
     b[0] = SH_C0;
 #if SH_K > 1

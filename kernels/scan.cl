@@ -5,7 +5,7 @@
  * Reference: numpy.cumsum (tests/test_sort.py). Host side: reings.backends.opencl.sort.ExclusiveScan.
  *
  * Reduce-then-scan, never a decoupled look-back: PoCL gives no forward-progress guarantee between
- * work-groups (PERF.md §4.1), so no work-group ever waits on another one inside a launch.
+ * work-groups (docs/perf_notes.md §4.1), so no work-group ever waits on another one inside a launch.
  *
  *   scan_reduce  block b -> block_sums[b] = sum of its elements
  *   scan_top     (GPU schedule only) one work-group scans block_sums[0..nblocks) in place, exclusive,

@@ -9,7 +9,7 @@
  * Reference: numpy.argsort(kind="stable") on (key >> begin_bit) & mask (tests/test_sort.py).
  *
  * One pass, reduce-then-scan (never a decoupled look-back: PoCL has no forward-progress guarantee
- * between work-groups, PERF.md §4.1):
+ * between work-groups, docs/perf_notes.md §4.1):
  *   radix_hist     block b counts its digits -> hist[d * nblocks + b]   (digit-major matrix)
  *   radix_scan     (GPU schedule) work-group d scans row d in place (exclusive, block order) and
  *                  writes the row total to totals[d]

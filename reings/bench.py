@@ -1,4 +1,4 @@
-"""`reings bench`: the splatting core on the PERF.md §1.7 scenes, per stage and whole fwd+bwd.
+"""`reings bench`: the splatting core on the docs/perf_notes.md §1.7 scenes, per stage and whole fwd+bwd.
 
     reings bench [--device pocl] [--scenes A,B,C] [--sh 0,3] [--warmup 8] [--repeats 40]
                  [--sort all|ours|none] [--reference crop|none] [--pairs reference|estimate|none]
@@ -333,7 +333,7 @@ def print_table(records: list[dict], file=sys.stdout):
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="reings bench", description=__doc__.split("\n\n")[0])
     ap.add_argument("--device", default="pocl", help="pocl, cuda, oclgrind or opencl:P:D")
-    ap.add_argument("--scenes", default="A,B,C", help="comma list of PERF.md §1.7 scenes")
+    ap.add_argument("--scenes", default="A,B,C", help="comma list of docs/perf_notes.md §1.7 scenes")
     ap.add_argument("--sh", default="0,3", help="comma list of SH degrees")
     ap.add_argument("--n", type=int, default=None, help="override the Gaussian count (smoke runs)")
     ap.add_argument("--warmup", type=int, default=8)

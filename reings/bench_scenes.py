@@ -1,4 +1,4 @@
-"""The PERF.md §1.7 benchmark scenes A/B/C, seeded and reproducible with numpy alone.
+"""The docs/perf_notes.md §1.7 benchmark scenes A/B/C, seeded and reproducible with numpy alone.
 
     camera: identity world->camera; fx = fy = 420, cx = 252, cy = 189; 504x378; near 0.01
     z ~ U(2, 8); x = U(-1.15, 1.15)*(W/2/fx)*z; y = U(-1.15, 1.15)*(H/2/fy)*z

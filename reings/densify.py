@@ -1,7 +1,7 @@
 """Densification: screen-space gradient statistics, clone / split / prune (3DGS with DNGaussian's
 thresholds), opacity reset, `clean_views`, an optional cap on the Gaussian count.
 
-Units (METHOD.md §5.4): the 3DGS thresholds (0.0002; DNGaussian 0.0013) assume the norm of
+Units (docs/method.md §5.4): the 3DGS thresholds (0.0002; DNGaussian 0.0013) assume the norm of
 dL/d(means2d) in NDC-scaled units, i.e. the pixel-space gradient times (W/2, H/2).  `render_vjp`
 returns raw-field gradients only, so the fit loop passes the per-view pixel-space v_means2d (from
 the backend) through `ndc_grad_norm` into `accumulate`, once per photometric backward (DNGaussian:

@@ -6,18 +6,18 @@ reings/backends/reference_loss.py).
     photometric_loss(rgb, gt, lambda_dssim, form, device)  -> (loss, v_rgb [H,W,3])
         L1 + SSIM of 3DGS (Backend.photometric_loss).
     depth_loss(depth, target, rng, patch_range, margin, w_local, w_global, device, smooth) -> (loss, v_depth [H,W])
-        DNGaussian's global-local depth normalisation (METHOD.md §2.4), a random patch size per term
+        DNGaussian's global-local depth normalisation (docs/method.md §2.4), a random patch size per term
         (drawn on the host: `draw_depth_patches`), plus the optional depth_smooth term
         (Backend.depth_loss; device None: the float64 reference).
     regularizers(params, shape_pena, scale_pena, opa_pena) -> (loss, {"log_scales": .., "opacity_logits": ..})
-        DNGaussian's shape / scale / opacity penalties (METHOD.md §2.2) on the raw parameters: the
+        DNGaussian's shape / scale / opacity penalties (docs/method.md §2.2) on the raw parameters: the
         regularize stage's float64 twin, reference_loss.regularize_fwd_bwd.
 
 The training engine (reings/train.py) runs the same losses through its Trainer
 (reings/backends/base.py): hard depth = depth loss on a render with opacity_override=0.95, its
 v_depth into the backward of the means only, Adam step of "means"; soft depth = the same on the
 normal render for the opacities; then photometric + regularizers, step of every group
-(DNGaussian, METHOD.md §2.3-2.4).
+(DNGaussian, docs/method.md §2.3-2.4).
 """
 from __future__ import annotations
 

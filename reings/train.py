@@ -1,7 +1,7 @@
 """`fit`: the training engine shared by the baselines (3dgs, dngaussian) and the three ReInGS
 optimizations (coarse, fine, final). ONE loop, whatever the device.
 
-One iteration, in DNGaussian's order (METHOD.md §2.4): an optional hard-depth pass (opacity fixed,
+One iteration, in DNGaussian's order (docs/method.md §2.4): an optional hard-depth pass (opacity fixed,
 gradient to the means only, its own Adam step), an optional soft-depth pass (gradient to the
 opacities only, its own step), then the photometric pass (+ regularisers) stepping every group,
 the densification statistics and the densify/prune schedule. Adam keeps a step count per group.

@@ -8,7 +8,7 @@ where the case does not pin it (e.g. random scenes). All cameras are pinhole wit
     case(name)       build one
     POISON_VALUES    name -> float32 value, for paired cull / stay-visible tests
     random_scene     seeded random scene of any size
-    perf_scene       PERF.md §1.7 scenes A/B/C (re-exported from reings.bench_scenes)
+    perf_scene       docs/perf_notes.md §1.7 scenes A/B/C (re-exported from reings.bench_scenes)
 """
 from __future__ import annotations
 
@@ -98,7 +98,7 @@ def make_gaussians(means, quats=None, log_scales=None, opacity_logits=None, sh=N
 
 def random_scene(n: int, w: int, h: int, seed: int = 0, sh_degree: int = 0, scale_median: float = 0.05,
                  viewmat=None) -> tuple[Gaussians, Camera]:
-    """PERF.md-style random scene at any size: f = max(w, h), z ~ U(2, 8), x/y spread ±1.15 of the
+    """docs/perf_notes.md §1.7-style random scene at any size: f = max(w, h), z ~ U(2, 8), x/y spread ±1.15 of the
     view (about 15% off-screen), log-scales N(ln scale_median, 0.5), raw (non-unit) quats N(0,1)^4,
     logits N(0.5, 1.5), DC U(-1, 1.5), higher bands N(0, 0.1). Returns (Gaussians, Camera)."""
     cam = make_camera(w, h, viewmat=viewmat)

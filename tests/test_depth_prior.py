@@ -56,7 +56,7 @@ def _image(rng, H=60, W=80):
 
 
 def test_input_sizes():
-    assert DP.da_input_size(378, 504) == (518, 686)  # METHOD.md §7: 4:3 -> 686x518
+    assert DP.da_input_size(378, 504) == (518, 686)  # docs/method.md §7: 4:3 -> 686x518
     assert DP.midas_input_size(378, 504) == (384, 512)  # 4:3 -> 512x384
     assert DP.da_input_size(300, 400) == (518, 686)
     h, w = DP.da_input_size(600, 200)

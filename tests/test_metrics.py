@@ -189,7 +189,7 @@ def test_lpips_properties(rng):
 
 @needs_lpips
 def test_lpips_manifest_value():
-    """MANIFEST.md: official-convention VGG LPIPS of fern image000/image001 is 0.314670."""
+    """docs/data.md ("Test data and models"): official-convention VGG LPIPS of fern image000/image001 is 0.314670."""
     root = Path(data_root() or "/work/shared/data")
     p0, p1 = root / "llff/fern/images_8/image000.png", root / "llff/fern/images_8/image001.png"
     if not (p0.is_file() and p1.is_file()):

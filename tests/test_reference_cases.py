@@ -305,6 +305,6 @@ def test_perf_scene_generator():
     z = g.means[:, 2]
     assert z.min() >= 2 and z.max() <= 8
     vis = ref.project_fwd(g, cam).radii > 0
-    assert 0.75 < vis.mean() < 0.95, vis.mean()  # PERF.md §1.6: 82,021 / 100k visible for scene A
+    assert 0.75 < vis.mean() < 0.95, vis.mean()  # docs/perf_notes.md §1.6: 82,021 / 100k visible for scene A
     with pytest.raises(ValueError):
         perf_scene("D")

@@ -105,7 +105,7 @@ class Params64:
 
 
 # ----------------------------------------------------------------------------------------------
-# Spherical harmonics (METHOD.md §5.5): basis, its Jacobian in the direction, colour and VJP
+# Spherical harmonics (docs/method.md §5.5): basis, its Jacobian in the direction, colour and VJP
 # ----------------------------------------------------------------------------------------------
 SH_C0 = 0.28209479177387814
 SH_C1 = 0.4886025119029199

@@ -6,7 +6,7 @@
     l1_fwd_bwd              mean |x - y| (gradient sign(x - y), 0 at ties, as torch)
     photometric_fwd_bwd     "dngaussian": L1 + l*(1 - SSIM);  "3dgs": (1 - l)*L1 + l*(1 - SSIM)
     depth_norm_loss_fwd_bwd one term of DNGaussian's global-local depth normalisation
-                            (`utils/loss_utils.py` patch_norm_mse_loss[_global], METHOD.md §2.4)
+                            (`utils/loss_utils.py` patch_norm_mse_loss[_global], docs/method.md §2.4)
     global_local_depth_loss w_local * local(p1) + w_global * global(p2)
     depth_smooth_fwd_bwd    the depth_smooth stage: DNGaussian's LLFF edge-aware depth smoothness
                             (`loss_depth_smoothness`), weights from the target
@@ -217,7 +217,7 @@ DNG_MONO_SPAN = 65535.0 / 255.0  # DNGaussian's D_mono = 255 - PNG16 / 255 spans
 
 def depth_smooth_weights(target: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Edge weights of DNGaussian's depth smoothness (`utils/loss_utils.py` loss_depth_smoothness,
-    with img = the mono depth, METHOD.md §2.3): wx[y, x] = exp(-|T[y, x] - T[y, x+1]|) and
+    with img = the mono depth, docs/method.md §2.3): wx[y, x] = exp(-|T[y, x] - T[y, x+1]|) and
     wy[y, x] = exp(-|T[y, x] - T[y+1, x]|), each [H, W] float64, 0 in the last column / row.
 
     T is the target mapped affinely onto [0, DNG_MONO_SPAN] by its min and max (the span of

@@ -1,9 +1,9 @@
-"""Adam in numpy, in place, over named parameter groups (PERF.md §6).
+"""Adam in numpy, in place, over named parameter groups (docs/perf_notes.md §6).
 
 One group per parameter array (DNGaussian: "one Adam state per parameter tensor"), each with its own
 learning rate, optional schedule and its **own step count**: DNGaussian steps the means and the
 opacities after the hard- and soft-depth backward passes as well as after the photometric one
-(METHOD.md §2.4), so their bias corrections run ahead of the other groups'.
+(docs/method.md §2.4), so their bias corrections run ahead of the other groups'.
 
 The update is torch.optim.Adam's (the one 3DGS and DNGaussian use), per group with t = its count:
 
@@ -13,7 +13,7 @@ The update is torch.optim.Adam's (the one 3DGS and DNGaussian use), per group wi
 
 Everything is float32 and in place: `out=` everywhere and one preallocated scratch buffer (grown
 geometrically, reused by every group), which is 1.4-2.9x faster than naive numpy expressions
-(PERF.md §6).  The update itself is `adam_update` (reings.backends.reference_state, the numpy
+(docs/perf_notes.md §6).  The update itself is `adam_update` (reings.backends.reference_state, the numpy
 twin of kernels/adam.cl, shared with the training engines' trainers).  Parameters and moments live in dicts owned by `reings.state.TrainState`; row edits
 (prune/clone/split) go through `reings.state.apply_index_op`, which keeps them aligned.
 """

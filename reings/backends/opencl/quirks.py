@@ -12,7 +12,7 @@ def platform_name(device) -> str:
 
 def is_pocl(device) -> bool:
     """PoCL: CPU work-groups run as loops over work-items; no forward-progress guarantee between
-    work-groups, so no look-back scans (PERF.md §4.1)."""
+    work-groups, so no look-back scans (docs/perf_notes.md §4.1)."""
     return "Portable Computing Language" in device.platform.name
 
 
@@ -22,7 +22,7 @@ def is_oclgrind(device) -> bool:
 
 
 def is_nvidia(device) -> bool:
-    """NVIDIA's OpenCL: `cl_nv_pragma_unroll` is the standard detection (PERF.md §4.4); inline PTX
+    """NVIDIA's OpenCL: `cl_nv_pragma_unroll` is the standard detection (docs/perf_notes.md §4.4); inline PTX
     (`red.global.add.f32`, `shfl.sync`) compiles there."""
     return "cl_nv_pragma_unroll" in device.extensions
 

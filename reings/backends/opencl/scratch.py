@@ -8,7 +8,7 @@ Index spaces (reings/backends/base.py): "gauss" (N Gaussians, also ranks), "isec
 intersections, also emit slots), "tile" (T tiles), "pixel" (H*W pixels), "small" (control words,
 camera record). A buffer is keyed by (space, name); its capacity (bytes) only grows, by at least
 1.5x, so a slowly growing N or K never reallocates every call (Brush's crash reports come from
-allocation churn: PERF.md §7 lesson 3). Nothing here is ever freed before the backend is.
+allocation churn: docs/perf_notes.md §7 lesson 3). Nothing here is ever freed before the backend is.
 
 On CPU devices (PoCL) buffers are created with ALLOC_HOST_PTR: the runtime's own host memory, so
 `mapped` and host copies are plain memcpys (or none at all) rather than transfers.

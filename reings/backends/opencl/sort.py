@@ -8,7 +8,7 @@
     total, ev = scan(in_buf, out_buf, n)            # out = exclusive prefix sum, total read back
     _, ev = scan(in_buf, out_buf, n, total_buf=counts, total_at=1, read_total=False)  # no readback
 
-Both are reduce-then-scan (PERF.md §4: no decoupled look-back, PoCL has no forward progress between
+Both are reduce-then-scan (docs/perf_notes.md §4: no decoupled look-back, PoCL has no forward progress between
 work-groups) and choose their schedule per device: REINGS_CPU_SCHEDULE=1 (PoCL: one work-item per
 block, few large blocks, no barriers) or 0 (GPUs: one work-group per block, local memory). See the
 header comments of the two .cl files for the kernels.
