@@ -141,6 +141,24 @@ def add_config_options(parser: argparse.ArgumentParser, exclude=()) -> None:
         group.add_argument(option_name(path, f), type=_option_type(f, tp), metavar=metavar, **kw)
 
 
+def options_markdown() -> str:
+    """The options table of docs/pipeline.md, from RunConfig (tests/test_config.py keeps the doc
+    equal to it): `python -c "from reings.cli import options_markdown as m; print(m())"`."""
+    from dataclasses import MISSING
+
+    from .config import leaf_fields
+
+    rows = ["| option | RunConfig field | default | meaning |", "|---|---|---|---|"]
+    for path, f, tp in leaf_fields():
+        name = option_name(path, f)
+        if tp is bool:
+            name += f"`, `--no-{name[2:]}"
+        default = f.default if f.default is not MISSING else f.default_factory()
+        text = " ".join(f.metadata.get("help", "").split()).replace("|", "\\|")
+        rows.append(f"| `{name}` | `{path}` | {_default_text(default)} | {text} |")
+    return "\n".join(rows) + "\n"
+
+
 def config_from_args(args):
     """The RunConfig of parsed arguments: --config FILE (else the defaults) with every generated
     option that was given laid over it."""

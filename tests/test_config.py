@@ -212,3 +212,13 @@ def test_config_file_then_command_line(tmp_path, monkeypatch, capsys):
     with pytest.raises(SystemExit):  # no --out anywhere
         main(["run"])
     assert len(seen) == n
+
+
+def test_docs_options_table_is_current():
+    from pathlib import Path
+
+    from reings.cli import options_markdown
+
+    doc = (Path(__file__).resolve().parents[1] / "docs" / "pipeline.md").read_text()
+    table = doc.split("<!-- options:begin -->\n", 1)[1].split("<!-- options:end -->", 1)[0]
+    assert table == options_markdown(), "regenerate docs/pipeline.md's options table (reings.cli.options_markdown)"
