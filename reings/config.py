@@ -465,7 +465,7 @@ class RunConfig:
     factor: int = opt(8, "image downsampling factor (LLFF: images_8, 504x378)", check=at_least(1))
     views: int = opt(3, "number of training views (>= 2)")
     seed: int = opt(0, "seed of every random draw: initial points, IVPS/CVPS draws, and each fit's view order "
-                       "and depth patches")
+                       "and depth patches", check=at_least(0))
     device: str = opt("pocl", "pocl | cuda | cuda:N | opencl:P:D | reference (`reings devices` lists them)")
     preset: str = opt("quick", "schedule: " + "; ".join(f"{k}: {p.help}" for k, p in RUN_PRESETS.items()),
                       choices=tuple(RUN_PRESETS))
@@ -588,11 +588,11 @@ def load_run_config(path) -> RunConfig:
     path = os.fspath(path)
     try:
         with open(path, "rb") as f:
-            text = f.read().decode("utf-8")
+            data = f.read()
     except OSError as e:
         raise FileNotFoundError(f"--config {path}: {e.strerror or e}") from None
     try:
-        return from_dict(RunConfig, loads(text))
+        return from_dict(RunConfig, loads(data.decode("utf-8")))
     except ValueError as e:
         raise ValueError(f"{path}: {e}") from None
 # }}}

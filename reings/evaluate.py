@@ -7,8 +7,8 @@ Each run is `reings.pipeline.run(RunConfig)` into its own folder
 `OUT/<dataset>/<method>/<k>views/<scene>/` (`<scene>_seed<s>/` for a seed s other than 0: with
 `--seeds 0,1,2` every cell of the table is the mean over seeds, with its min-max). The run options
 (`reings run`'s, generated from `reings.config.RunConfig`, or `--config run.toml`) apply to every
-run; eval sets the method, views, seed, data and folder of each. A run whose folder holds `metrics.json` is finished and skipped; one holding checkpoints is
-resumed. A run being worked on holds an exclusive lock (`fcntl.flock` on `<run>/.lock`, freed
+run; eval sets the method, views, seed, data and folder of each. A run whose folder holds
+`metrics.json` is finished and skipped; one holding checkpoints is resumed. A run being worked on holds an exclusive lock (`fcntl.flock` on `<run>/.lock`, freed
 when its process ends however it ends), so several `reings eval` processes with the same
 arguments and different `--device` values share the work: each skips the runs another holds.
 

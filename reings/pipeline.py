@@ -4,15 +4,16 @@
     ONLY the training views) -> depth prior -> scene box -> the method's stages -> test-view
     evaluation -> outputs (`reings.outputs`)
 
-The stages of each method, in order (`reings.config.STAGES` names them, `STAGES` below maps them
-to functions). A stage's name is its key in metrics.json `gaussians`, `seconds` and `stages`,
-and its log line:
+The stages of each method, in order (`reings.config.STAGES` names them, `STAGE_FUNCTIONS` below
+maps the names to functions, `stages_of(method)` pairs them). A stage's name is its key in
+metrics.json `gaussians`, `seconds`, `model_bytes` and `stages`, and its log line:
 
     reings      ehps -> coarse -> ivps -> fine -> cvps -> final -> final_prune   (paper Eq. 4-9)
     dngaussian  init -> dngaussian
     3dgs        init -> 3dgs
 
-    init         random points in the scene box (DNGaussian's initialisation)
+    init         random points in the scene box (DNGaussian's initialisation; like ehps, not on
+                 the method clock, seconds["method"])
     ehps         EHPS points (`ReInGSConfig.ehps` off: as init)
     coarse       fit: DNGaussian's recipe with the hard depth term only (opacity ivps_hard_opacity)
     ivps         IVPS points from the coarse model (off: the coarse Gaussians go on)
