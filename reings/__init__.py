@@ -27,6 +27,11 @@ _LAZY = {
     "evaluate_images": "reings.metrics",
     "fit": "reings.train",
     "run": "reings.pipeline",
+    "RunConfig": "reings.config",
+    "ReInGSConfig": "reings.config",
+    "OutputConfig": "reings.config",
+    "TrainConfig": "reings.config",
+    "load_run_config": "reings.config",
 }
 _SUBMODULES = ("metrics", "pipeline")
 

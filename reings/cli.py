@@ -46,118 +46,128 @@ def _cmd_bench(args) -> int:
 def _cmd_run(args) -> int:
     from . import pipeline
 
-    return pipeline.main_run(args) or 0
+    cfg = config_from_args(args)
+    if not cfg.output.out:
+        args.parser.error("the following arguments are required: --out (or output.out in --config)")
+    return pipeline.main_run(cfg, overwrite=args.overwrite, quiet=args.quiet) or 0
 
 
 def _cmd_eval(args) -> int:
     from . import evaluate
 
-    return evaluate.main_eval(args) or 0
+    return evaluate.main_eval(args, config_from_args(args)) or 0
 
 
-def _positive_int(text: str) -> int:
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
-    if v < 1:
-        raise argparse.ArgumentTypeError(f"must be >= 1, got {v}")
-    return v
+# {{{ options generated from reings.config.RunConfig
+
+_DEST = "config:"  # argparse dest prefix of the generated options: "config:reings.cvps_fraction"
 
 
-def _number(text: str) -> float:
-    try:
-        return float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+def option_name(path: str, f) -> str:
+    """The command-line spelling of a RunConfig field: its `cli` metadata, else --leaf-name."""
+    return f.metadata.get("cli") or "--" + path.rsplit(".", 1)[-1].replace("_", "-")
 
 
-def _fraction(text: str) -> float:
-    v = _number(text)
-    if not 0.0 < v <= 1.0:
-        raise argparse.ArgumentTypeError(f"must be in (0, 1], got {v}")
-    return v
+def _option_type(f, tp):
+    """argparse `type=` of a field: the text parsed as the annotation says ("none" for an optional
+    field), then the field's choices and check; an error says what was expected."""
+    from .config import check_value, optional_of
+
+    inner = optional_of(tp)
+    kind = inner if inner is not None else tp
+    parse = f.metadata.get("parse")
+
+    def convert(text: str):
+        if inner is not None and text.strip().lower() == "none":
+            return None
+        try:
+            if parse is not None:
+                v = parse(text)
+            elif kind in (int, float):
+                try:
+                    v = kind(text)
+                except ValueError:
+                    raise ValueError(f"expected {'an integer' if kind is int else 'a number'}, got {text!r}") from None
+            else:
+                v = text
+        except ValueError as e:
+            raise argparse.ArgumentTypeError(str(e)) from None
+        why = check_value(f, v)
+        if why:
+            raise argparse.ArgumentTypeError(why)
+        return v
+
+    convert.__name__ = getattr(kind, "__name__", "value")
+    return convert
 
 
-def _prune_fraction(text: str) -> float:
-    v = _number(text)
-    if not 0.0 <= v < 1.0:  # also refuses nan
-        raise argparse.ArgumentTypeError(f"must be a fraction in [0, 1) (0 = off), got {text}")
-    return v
+def _default_text(v) -> str:
+    if v is None:
+        return "none"
+    if isinstance(v, bool):
+        return "on" if v else "off"
+    if isinstance(v, tuple):
+        return ",".join(map(str, v))
+    return str(v)
 
 
-def _nonneg_float(text: str) -> float:
-    v = _number(text)
-    if not (v >= 0.0 and v != float("inf")):  # also refuses nan
-        raise argparse.ArgumentTypeError(f"must be a finite number >= 0, got {text}")
-    return v
+def add_config_options(parser: argparse.ArgumentParser, exclude=()) -> None:
+    """One option per RunConfig field (dotted paths in `exclude` left out), in an argument group
+    per section; help = the field's documentation; default = argparse.SUPPRESS, so the namespace
+    holds only what was given (`config_from_args` lays it over --config or the defaults)."""
+    from dataclasses import MISSING, fields
+
+    from .config import RunConfig, leaf_fields
+
+    groups = {"": parser.add_argument_group("run options (reings.config.RunConfig)")}
+    for f in fields(RunConfig):
+        if f.default_factory is not MISSING:
+            cls = f.default_factory
+            groups[f.name] = parser.add_argument_group(
+                f"{f.name} options (RunConfig.{f.name}, {cls.__name__}: {cls.__doc__.strip().rstrip('.')})")
+    for path, f, tp in leaf_fields(RunConfig):
+        if path in exclude:
+            continue
+        group = groups[path.rpartition(".")[0]]
+        default = f.default if f.default is not MISSING else f.default_factory()
+        help_ = f"{f.metadata.get('help', '')} (default: {_default_text(default)})".replace("%", "%%")
+        kw = {"dest": _DEST + path, "default": argparse.SUPPRESS, "help": help_}
+        if tp is bool:
+            group.add_argument(option_name(path, f), action=argparse.BooleanOptionalAction, **kw)
+            continue
+        choices = f.metadata.get("choices")
+        metavar = (f.metadata.get("metavar") or ("{" + ",".join(map(str, choices)) + "}" if choices else None)
+                   or path.rsplit(".", 1)[-1].upper())
+        group.add_argument(option_name(path, f), type=_option_type(f, tp), metavar=metavar, **kw)
 
 
-def _iterations(text: str):
-    """N, or A,B,C (reings: coarse, fine, final): positive integers."""
-    parts = [p.strip() for p in str(text).split(",")]
-    if len(parts) not in (1, 3):
-        raise argparse.ArgumentTypeError(f"expected N or A,B,C (three stages), got {text!r}")
-    vals = tuple(_positive_int(p) for p in parts)
-    return vals[0] if len(vals) == 1 else vals
+def options_markdown() -> str:
+    """The options table of docs/pipeline.md, from RunConfig (tests/test_config.py keeps the doc
+    equal to it): `python -c "from reings.cli import options_markdown as m; print(m())"`."""
+    from dataclasses import MISSING
+
+    from .config import leaf_fields
+
+    rows = ["| option | RunConfig field | default | meaning |", "|---|---|---|---|"]
+    for path, f, tp in leaf_fields():
+        name = option_name(path, f)
+        if tp is bool:
+            name += f"`, `--no-{name[2:]}"
+        default = f.default if f.default is not MISSING else f.default_factory()
+        text = " ".join(f.metadata.get("help", "").split()).replace("|", "\\|")
+        rows.append(f"| `{name}` | `{path}` | {_default_text(default)} | {text} |")
+    return "\n".join(rows) + "\n"
 
 
-def _nonneg_int(text: str) -> int:
-    try:
-        v = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
-    if v < 0:
-        raise argparse.ArgumentTypeError(f"must be >= 0, got {v}")
-    return v
+def config_from_args(args):
+    """The RunConfig of parsed arguments: --config FILE (else the defaults) with every generated
+    option that was given laid over it."""
+    from .config import RunConfig, load_run_config, with_values
 
-
-def _add_common_fit_args(r, methods_flag: str) -> None:
-    """Options shared by `run` and `eval`."""
-    r.add_argument("--device", default="pocl", help="pocl | cuda | cuda:N | opencl:P:D | reference")
-    r.add_argument("--depth-prior", default="stereo", help="stereo | onnx:PATH | none | exact (procedural only)")
-    r.add_argument("--preset", default="quick", choices=["quick", "paper"],
-                   help="iteration counts: quick (3dgs/dngaussian 600, reings 200/200/600) or paper (6000 per stage)")
-    r.add_argument("--iterations", type=_iterations, default=None,
-                   help="override the preset's iteration count: N (every stage) or, for reings, A,B,C per stage")
-    r.add_argument("--eval-every", type=_nonneg_int, default=None,
-                   help="test-PSNR probe every N iterations for the PSNR-vs-seconds plot (default: ~15 per stage; 0: off)")
-    r.add_argument("--seed", type=int, default=0)
-    r.add_argument("--init-points", type=_positive_int, default=5000,
-                   help="random initial points of dngaussian/3dgs and of reings without EHPS (DNGaussian LLFF: ~5000)")
-    r.add_argument("--sh-degree", type=int, choices=[0, 1, 2, 3], default=None,
-                   help="maximum SH degree (default: 0 with --preset quick; with paper 1 for reings "
-                        "(model-size study, docs/results.md) and 3 for the baselines)")
-    r.add_argument("--ivps-depth", choices=["expected", "hard"], default="expected",
-                   help="IVPS depth: 'expected' (normal render depth/alpha, default) or 'hard' (paper Eq. 5 literally)")
-    r.add_argument("--extent", choices=["sfm", "frusta"], default="sfm",
-                   help="scene box for EHPS and random inits: SfM of the training views (falls back to their "
-                        "frusta) or the training frusta directly")
-    r.add_argument("--cvps-fraction", type=_fraction, default=0.2,
-                   help="CVPS: fraction of the fine-stage Gaussians kept (default 0.2 from the model-size "
-                        "study, docs/results.md; the paper's value is 0.4)")
-    r.add_argument("--max-gaussians", type=_positive_int, default=None,
-                   help="cap on the Gaussian count that densification respects in every stage (default: none)")
-    r.add_argument("--final-prune", type=_prune_fraction, default=0.1, metavar="FRACTION",
-                   help="reings (not in the paper): after the final stage remove this fraction of the Gaussians "
-                        "with the lowest importance Omega_G (Eq. 7, training views only) before evaluation; "
-                        "in [0, 1), 0 = off; default 0.1 (the model-size study: no PSNR loss, docs/results.md)")
-    r.add_argument("--prune-curve", action="store_true",
-                   help="study/reporting: also evaluate test PSNR/SSIM of the final model cut to its top "
-                        "100%%, 90%%, ..., 40%% by training-view Omega_G (metrics.json prune_curve); the test "
-                        "views are used only for this report, never to rank or select, and the reported "
-                        "model is unchanged")
-    r.add_argument("--depth-smooth", type=_nonneg_float, default=None, metavar="WEIGHT",
-                   help="weight of DNGaussian's edge-aware depth smoothness in the depth passes "
-                        "(default: the recipe's 0.1 from the middle of each stage, but 0 with the stereo prior, "
-                        "where it showed no benefit, docs/results.md; 0 = off)")
-    r.add_argument("--factor", type=_positive_int, default=8, help="LLFF image downsampling factor")
-    r.add_argument("--no-lpips", action="store_true", help="skip LPIPS (and AVGE)")
-    r.add_argument("--quiet", action="store_true", help="no progress bars or stage lines")
-    for k, what in (("ehps", "EHPS coarse init (random points instead)"),
-                    ("ivps", "IVPS re-initialisation (fine stage starts from the coarse Gaussians)"),
-                    ("cvps", "CVPS re-initialisation (final stage starts from the fine Gaussians)")):
-        r.add_argument(f"--no-{k}", action="store_true", help=f"ablation: no {what}; applies to {methods_flag} reings")
+    base = load_run_config(args.config) if getattr(args, "config", None) else RunConfig()
+    given = {k[len(_DEST):]: v for k, v in vars(args).items() if k.startswith(_DEST)}
+    return with_values(base, given)
+# }}}
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -172,34 +182,44 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("rest", nargs=argparse.REMAINDER)
     b.set_defaults(func=_cmd_bench)
 
-    r = sub.add_parser("run", help="fit one scene and evaluate its test views (docs/pipeline.md)")
-    r.add_argument("--method", default="reings",
-                   help="reings | dngaussian | 3dgs, or an ablation: reings-no-ehps, reings-no-ivps, reings-no-cvps")
-    r.add_argument("--data", default=None, help="scene folder; omitted: the built-in procedural scene")
-    r.add_argument("--dataset", default=None, choices=["llff", "dtu", "colmap", "blender", "procedural"])
-    r.add_argument("--views", type=int, default=3, help="number of training views (>= 2)")
-    r.add_argument("--out", required=True, help="output folder (a rerun resumes an interrupted run there)")
+    config_help = "a RunConfig as TOML (a run's config.toml, say); the options given here override it"
+    r = sub.add_parser("run", help="fit one scene and evaluate its test views (docs/pipeline.md)",
+                       description="Fit one scene and evaluate its test views. Every option is a field of "
+                                   "reings.config.RunConfig; the run writes the resolved one as config.toml.")
+    r.add_argument("--config", metavar="TOML", help=config_help)
     r.add_argument("--overwrite", action="store_true", help="redo a finished run in --out (starts over)")
-    _add_common_fit_args(r, "--method")
-    r.set_defaults(func=_cmd_run)
+    r.add_argument("--quiet", action="store_true", help="no progress bars or stage lines")
+    add_config_options(r)
+    r.set_defaults(func=_cmd_run, parser=r)
 
-    e = sub.add_parser("eval", help="run every scene x view count x method of a dataset and tabulate (docs/pipeline.md)")
-    e.add_argument("--dataset", default=None, choices=["llff", "dtu", "colmap", "blender", "procedural"],
-                   help="dataset of the scenes under --root (default: detected per scene)")
+    e = sub.add_parser("eval", help="run every scene x view count x method (x seed) of a dataset and tabulate "
+                                    "(docs/pipeline.md)",
+                       description="Run every scene x view count x method x seed of a dataset, one `reings run` "
+                                   "folder each, and tabulate. The run options apply to every run.")
+    e.add_argument("--config", metavar="TOML", help=config_help)
     e.add_argument("--root", default=None, help="folder of scene folders (e.g. nerf_llff_data/)")
     e.add_argument("--scenes", default=None, help="comma list of scene folder names (default: every scene under --root)")
-    e.add_argument("--views", default="3", help="comma list of training-view counts, e.g. 2,3,4")
-    e.add_argument("--methods", "--method", dest="methods", default="reings",
-                   help="comma list: reings, dngaussian, 3dgs, reings-no-ehps, reings-no-ivps, reings-no-cvps, ...")
-    e.add_argument("--out", required=True, help="results folder: one run folder per dataset/method/views/scene")
+    e.add_argument("--views", default=None, help="comma list of training-view counts, e.g. 2,3,4 (default: the "
+                                                 "config's views, 3)")
+    e.add_argument("--methods", "--method", dest="methods", default=None,
+                   help="comma list: reings, dngaussian, 3dgs, reings-no-ehps, reings-no-ivps, reings-no-cvps, ... "
+                        "(default: the config's method, reings)")
+    e.add_argument("--seeds", default=None, help="comma list of seeds, one run folder per seed; the tables show "
+                                                 "the mean over seeds and its min-max (default: --seed, 0)")
+    e.add_argument("--out", required=True, help="results folder: one run folder per dataset/method/views/scene(/seed)")
     e.add_argument("--table-only", action="store_true", help="only rebuild results.json/results.md from the runs in --out")
     e.add_argument("--prepare-only", action="store_true",
                    help="only fill the depth-prior and SfM caches of every scene x view count (no training)")
     e.add_argument("--keep-going", action="store_true", help="go on with the other runs when one fails")
-    _add_common_fit_args(e, "--methods")
-    e.set_defaults(func=_cmd_eval)
+    e.add_argument("--quiet", action="store_true", help="no progress bars or stage lines")
+    add_config_options(e, exclude=EVAL_SETS)
+    e.set_defaults(func=_cmd_eval, parser=e)
 
     return p
+
+
+# RunConfig fields `reings eval` sets per run (its --methods, --views, --seeds, --root/--scenes, --out)
+EVAL_SETS = ("method", "views", "data", "output.out")
 
 
 def main(argv=None) -> int:

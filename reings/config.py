@@ -1,87 +1,178 @@
-"""Training configuration as dataclasses, plus named presets.
+"""Configuration as typed, frozen dataclasses, each field documented once.
 
-Each field's trailing comment is its help text (the CLI builds argparse from these dataclasses).
-Learning rates of the means are multiplied by the scene extent (`spatial_lr_scale` in 3DGS) where
-the optimizer is built (`reings.optim.make_optimizer`), not here.
+Two families live here:
 
-Presets:
-    "3dgs"        original 3DGS (METHOD.md §5.6), commit 82bc469 defaults
-    "dngaussian"  DNGaussian LLFF recipe (METHOD.md §2.2-2.4), SH colour instead of the neural field
-    "dngaussian_dtu"  DNGaussian DTU recipe (METHOD.md §2.2 right column)
+    TrainConfig (OptimConfig, LossConfig, DensifyConfig)
+        the recipe of one fit (`reings.train.fit`); named recipes in PRESETS:
+        "3dgs" (original 3DGS, commit 82bc469 defaults), "dngaussian" (DNGaussian's LLFF recipe,
+        SH colour instead of its neural colour field), "dngaussian_dtu" (its DTU recipe).
+    RunConfig (ReInGSConfig, OutputConfig)
+        everything `reings run` / `reings.run` needs: data, method and ablation switches, views,
+        seed, device, preset, iterations per fitting stage, the ReInGS knobs, the depth prior,
+        outputs, and the TrainConfig overrides a user sets (SH degree, Gaussian cap, smoothness).
+
+Every field is declared with `opt(default, "help")`: the help text sits in the field's metadata,
+and the command line (`reings.cli` generates `reings run` / `reings eval` from RunConfig), the
+comments of the `config.toml` a run writes (`to_toml`) and `field_help` all read it there.
+RunConfig and its sections check and normalise their values when built (`__post_init__`), so a
+config from Python, from the command line or from a TOML file fails the same way: a ValueError
+naming the field. Learning rates of the means are multiplied by the scene extent
+(`spatial_lr_scale` in 3DGS) where the optimizer is built (`reings.optim.make_optimizer`).
+
+This module imports the standard library only (the CLI starts from it).
 """
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, field, replace
+import math
+import numbers
+import os
+import typing
+from dataclasses import MISSING, asdict, dataclass, field, fields, is_dataclass, replace
 
+
+def opt(default=MISSING, help: str = "", *, factory=None, cli: str | None = None, choices=None,
+        check=None, parse=None, metavar: str | None = None):
+    """A dataclass field with its documentation and command-line facts in the metadata.
+
+    help: the one description of the field (CLI help, TOML comment). cli: the option name when it
+    is not `--<field-name>`. choices: the allowed values. check: f(value) -> None or the reason the
+    value is refused ("must be >= 1, got 0"), applied by the CLI and on construction. parse:
+    f(text) -> value for the CLI instead of the type's own parser."""
+    md = {"help": help, "cli": cli, "choices": None if choices is None else tuple(choices),
+          "check": check, "parse": parse, "metavar": metavar}
+    if factory is not None:
+        return field(default_factory=factory, metadata=md)
+    return field(default=default, metadata=md)
+
+
+def field_help(cls, name: str) -> str:
+    """The documentation of field `name` of dataclass `cls`."""
+    for f in fields(cls):
+        if f.name == name:
+            return f.metadata.get("help", "")
+    raise KeyError(f"{cls.__name__} has no field {name!r}")
+
+
+# {{{ value checks (None = fine, else the reason)
+
+def at_least(lo):
+    return lambda v: None if v >= lo else f"must be >= {lo}, got {v}"
+
+
+def finite_nonneg(v):
+    return None if (v >= 0.0 and v != math.inf) else f"must be a finite number >= 0, got {v}"  # refuses nan
+
+
+def fraction_open_closed(v):
+    return None if 0.0 < v <= 1.0 else f"must be in (0, 1], got {v}"
+
+
+def prune_fraction(v):
+    return None if 0.0 <= v < 1.0 else f"must be a fraction in [0, 1) (0 = off), got {v}"
+
+
+def positive_all(v):
+    bad = [x for x in v if x < 1]
+    return f"must be >= 1, got {bad[0]}" if bad else None
+
+
+def parse_iterations(text: str):
+    """N, or A,B,C (one count per reings fitting stage: coarse, fine, final); positive integers."""
+    parts = [p.strip() for p in str(text).split(",")]
+    if len(parts) not in (1, 3):
+        raise ValueError(f"expected N or A,B,C (one count per reings stage: coarse, fine, final), got {text!r}")
+    vals = []
+    for p in parts:
+        try:
+            vals.append(int(p))
+        except ValueError:
+            raise ValueError(f"expected an integer, got {p!r}") from None
+    bad = positive_all(vals)
+    if bad:
+        raise ValueError(bad)
+    return tuple(vals)
+# }}}
+
+
+# {{{ TrainConfig: the recipe of one fit
 
 @dataclass(frozen=True)
 class OptimConfig:
-    position_lr_init: float = 0.00016  # lr of the means at the schedule start, times the scene extent
-    position_lr_final: float = 0.0000016  # lr of the means at the schedule end, times the scene extent
-    position_lr_delay_mult: float = 0.01  # 3DGS delay multiplier (inactive while position_lr_delay_steps = 0)
-    position_lr_delay_steps: int = 0  # 3DGS reverse-cosine warm-up length (0 = off, as in 3DGS and DNGaussian)
-    position_lr_start: int = 0  # iterations the means' lr is held at init before decaying (DNGaussian: 500)
-    position_lr_max_steps: int = 30_000  # length of the log-linear decay, counted from position_lr_start
-    sh_dc_lr: float = 0.0025  # lr of the SH DC coefficients (f_dc)
-    sh_rest_lr: float = 0.0025 / 20.0  # lr of the higher SH coefficients (f_rest)
-    opacity_lr: float = 0.05  # lr of the opacity logits
-    scaling_lr: float = 0.005  # lr of the log-scales
-    rotation_lr: float = 0.001  # lr of the quaternions
-    beta1: float = 0.9  # Adam beta1
-    beta2: float = 0.999  # Adam beta2
-    eps: float = 1e-15  # Adam epsilon (3DGS: 1e-15)
+    """Optimizer and learning rates."""
+
+    position_lr_init: float = opt(0.00016, "lr of the means at the schedule start, times the scene extent")
+    position_lr_final: float = opt(0.0000016, "lr of the means at the schedule end, times the scene extent")
+    position_lr_delay_mult: float = opt(0.01, "3DGS delay multiplier (inactive while position_lr_delay_steps = 0)")
+    position_lr_delay_steps: int = opt(0, "3DGS reverse-cosine warm-up length (0 = off, as in 3DGS and DNGaussian)")
+    position_lr_start: int = opt(0, "iterations the means' lr is held at init before decaying (DNGaussian: 500)")
+    position_lr_max_steps: int = opt(30_000, "length of the log-linear decay, counted from position_lr_start")
+    sh_dc_lr: float = opt(0.0025, "lr of the SH DC coefficients (f_dc)")
+    sh_rest_lr: float = opt(0.0025 / 20.0, "lr of the higher SH coefficients (f_rest)")
+    opacity_lr: float = opt(0.05, "lr of the opacity logits")
+    scaling_lr: float = opt(0.005, "lr of the log-scales")
+    rotation_lr: float = opt(0.001, "lr of the quaternions")
+    beta1: float = opt(0.9, "Adam beta1")
+    beta2: float = opt(0.999, "Adam beta2")
+    eps: float = opt(1e-15, "Adam epsilon (3DGS: 1e-15)")
 
 
 @dataclass(frozen=True)
 class LossConfig:
-    photometric_form: str = "3dgs"  # "3dgs": (1-l)*L1 + l*(1-SSIM); "dngaussian": L1 + l*(1-SSIM)
-    lambda_dssim: float = 0.2  # the SSIM weight l (DNGaussian: 0.2 LLFF, 0.6 DTU)
-    hard_depth: bool = False  # DNGaussian hard depth term: opacity fixed, gradient to the means only
-    hard_depth_from: int = 1  # first iteration of the hard depth term
-    hard_depth_opacity: float = 0.95  # the fixed opacity of the hard-depth render (ReInGS: 0.99)
-    soft_depth: bool = False  # DNGaussian soft depth term: real opacities, gradient to opacities only
-    soft_depth_from: int = 1001  # first iteration of the soft depth term
-    soft_depth_ema_gate: float | None = None  # DTU: soft depth only while EMA(0.9) of the hard loss < this
-    depth_patch_range: tuple[int, int] = (5, 17)  # patch size drawn uniformly in [lo, hi], anew per term
-    depth_margin: float = 0.00025  # margin L2: errors with |diff| <= margin are ignored ("error_tolerance")
-    depth_w_local: float = 0.1  # weight of the local (per-patch std) normalised depth term
-    depth_w_global: float = 1.0  # weight of the global (whole-image std) normalised depth term
-    depth_smooth_weight: float = 0.0  # edge-aware depth smoothness weight, in both depth passes (DNGaussian LLFF: 0.1)
-    depth_smooth_from: int = 3001  # first iteration of the smoothness term (DNGaussian: iteration > 3000)
-    shape_pena: float = 0.0  # weight of mean(max scale / min scale)
-    scale_pena: float = 0.0  # weight of mean(max scale^2)
-    opa_pena: float = 0.0  # weight of 1 - mean(o^2 | o>0.2) + mean((1-o)^2 | o<0.2)
+    """Losses and their weights."""
+
+    photometric_form: str = opt("3dgs", '"3dgs": (1-l)*L1 + l*(1-SSIM); "dngaussian": L1 + l*(1-SSIM)')
+    lambda_dssim: float = opt(0.2, "the SSIM weight l (DNGaussian: 0.2 LLFF, 0.6 DTU)")
+    hard_depth: bool = opt(False, "DNGaussian hard depth term: opacity fixed, gradient to the means only")
+    hard_depth_from: int = opt(1, "first iteration of the hard depth term")
+    hard_depth_opacity: float = opt(0.95, "the fixed opacity of the hard-depth render (ReInGS: 0.99)")
+    soft_depth: bool = opt(False, "DNGaussian soft depth term: real opacities, gradient to opacities only")
+    soft_depth_from: int = opt(1001, "first iteration of the soft depth term")
+    soft_depth_ema_gate: float | None = opt(None, "DTU: soft depth only while EMA(0.9) of the hard loss < this")
+    depth_patch_range: tuple[int, int] = opt((5, 17), "patch size drawn uniformly in [lo, hi], anew per term")
+    depth_margin: float = opt(0.00025, 'margin L2: errors with |diff| <= margin are ignored ("error_tolerance")')
+    depth_w_local: float = opt(0.1, "weight of the local (per-patch std) normalised depth term")
+    depth_w_global: float = opt(1.0, "weight of the global (whole-image std) normalised depth term")
+    depth_smooth_weight: float = opt(0.0, "edge-aware depth smoothness weight, in both depth passes (DNGaussian LLFF: 0.1)")
+    depth_smooth_from: int = opt(3001, "first iteration of the smoothness term (DNGaussian: iteration > 3000)")
+    shape_pena: float = opt(0.0, "weight of mean(max scale / min scale)")
+    scale_pena: float = opt(0.0, "weight of mean(max scale^2)")
+    opa_pena: float = opt(0.0, "weight of 1 - mean(o^2 | o>0.2) + mean((1-o)^2 | o<0.2)")
 
 
 @dataclass(frozen=True)
 class DensifyConfig:
-    densify_from: int = 500  # densify only at iterations > this
-    densify_until: int = 15_000  # ... and < this (3DGS/DNGaussian `iteration < densify_until_iter`)
-    densify_interval: int = 100  # densify every this many iterations
-    grad_threshold: float = 0.0002  # mean NDC-scaled screen gradient norm that triggers clone/split
-    percent_dense: float = 0.01  # clone if max scale <= this * extent, else split
-    split_opacity_thresh: float | None = None  # DNGaussian: clone/split only Gaussians with opacity > this
-    split_n: int = 2  # samples per split Gaussian (scale divided by 0.8 * split_n)
-    prune_opacity: float = 0.005  # prune Gaussians with opacity below this at each densification
-    opacity_reset_interval: int | None = 3000  # reset opacities to min(o, 0.01) every this many its (None = off)
-    size_prune_from: int | None = 3000  # from this iteration (> opacity reset interval in 3DGS) also prune big ones (None = off)
-    max_screen_size: float | None = 20.0  # prune if max screen radius (px) exceeds this (with size_prune_from)
-    max_world_size: float | None = 0.1  # prune if max scale exceeds this * extent (with size_prune_from)
-    max_gaussians: int | None = None  # optional cap on the Gaussian count (highest-gradient candidates win)
-    clean_views: bool = False  # drop Gaussians no training view sees, at the first iteration (DNGaussian)
+    """Densification and pruning during a fit."""
+
+    densify_from: int = opt(500, "densify only at iterations > this")
+    densify_until: int = opt(15_000, "... and < this (3DGS/DNGaussian `iteration < densify_until_iter`)")
+    densify_interval: int = opt(100, "densify every this many iterations")
+    grad_threshold: float = opt(0.0002, "mean NDC-scaled screen gradient norm that triggers clone/split")
+    percent_dense: float = opt(0.01, "clone if max scale <= this * extent, else split")
+    split_opacity_thresh: float | None = opt(None, "DNGaussian: clone/split only Gaussians with opacity > this")
+    split_n: int = opt(2, "samples per split Gaussian (scale divided by 0.8 * split_n)")
+    prune_opacity: float = opt(0.005, "prune Gaussians with opacity below this at each densification")
+    opacity_reset_interval: int | None = opt(3000, "reset opacities to min(o, 0.01) every this many its (None = off)")
+    size_prune_from: int | None = opt(3000, "from this iteration (> opacity reset interval in 3DGS) also prune big "
+                                            "ones (None = off)")
+    max_screen_size: float | None = opt(20.0, "prune if max screen radius (px) exceeds this (with size_prune_from)")
+    max_world_size: float | None = opt(0.1, "prune if max scale exceeds this * extent (with size_prune_from)")
+    max_gaussians: int | None = opt(None, "optional cap on the Gaussian count (highest-gradient candidates win)")
+    clean_views: bool = opt(False, "drop Gaussians no training view sees, at the first iteration (DNGaussian)")
 
 
 @dataclass(frozen=True)
 class TrainConfig:
-    iterations: int = 30_000  # training iterations
-    seed: int = 0  # seed of every random draw (view order, patch sizes, split samples)
-    sh_degree: int = 3  # maximum SH degree
-    sh_degree_interval: int = 1000  # raise the active SH degree by 1 every this many iterations
-    background: tuple[float, float, float] = (0.0, 0.0, 0.0)  # background colour
-    near: float = 0.01  # near plane of the renders
-    optim: OptimConfig = field(default_factory=OptimConfig)  # optimizer and learning rates
-    loss: LossConfig = field(default_factory=LossConfig)  # losses and weights
-    densify: DensifyConfig = field(default_factory=DensifyConfig)  # densification and pruning
+    """The recipe of one fit (`reings.train.fit`)."""
+
+    iterations: int = opt(30_000, "training iterations")
+    seed: int = opt(0, "seed of every random draw of the fit (view order, patch sizes, split samples)")
+    sh_degree: int = opt(3, "maximum SH degree")
+    sh_degree_interval: int = opt(1000, "raise the active SH degree by 1 every this many iterations")
+    background: tuple[float, float, float] = opt((0.0, 0.0, 0.0), "background colour")
+    near: float = opt(0.01, "near plane of the renders")
+    optim: OptimConfig = opt(factory=OptimConfig, help="optimizer and learning rates")
+    loss: LossConfig = opt(factory=LossConfig, help="losses and weights")
+    densify: DensifyConfig = opt(factory=DensifyConfig, help="densification and pruning")
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -122,14 +213,386 @@ PRESETS: dict[str, TrainConfig] = {
     "dngaussian_dtu": _dngaussian_dtu(),
 }
 PRESET_HELP: dict[str, str] = {
-    "3dgs": "original 3DGS (METHOD.md §5.6): 30k its, (1-0.2)L1 + 0.2 D-SSIM, opacity reset",
-    "dngaussian": "DNGaussian LLFF (METHOD.md §2.2): 6k its, hard+soft depth, SH colour",
-    "dngaussian_dtu": "DNGaussian DTU (METHOD.md §2.2)",
+    "3dgs": "original 3DGS: 30k its, (1-0.2)L1 + 0.2 D-SSIM, opacity reset",
+    "dngaussian": "DNGaussian LLFF: 6k its, hard+soft depth, SH colour",
+    "dngaussian_dtu": "DNGaussian DTU",
 }
 
 
 def preset(name: str) -> TrainConfig:
-    """The TrainConfig of a named preset (ValueError lists the names)."""
+    """The TrainConfig of a named recipe (ValueError lists the names)."""
     if name not in PRESETS:
         raise ValueError(f"unknown preset {name!r}; choose from {sorted(PRESETS)}")
     return PRESETS[name]
+# }}}
+
+
+# {{{ methods, stages, run presets
+
+METHODS = ("reings", "dngaussian", "3dgs")
+ABLATIONS = ("ehps", "ivps", "cvps")  # ReInGSConfig switches, in stage order
+ABLATION_METHODS = ("reings-no-ehps", "reings-no-ivps", "reings-no-cvps")
+# the stages of each method, in order (reings.pipeline.STAGES holds their functions); the fitting
+# ones take RunConfig.iterations in this order
+STAGES = {"reings": ("ehps", "coarse", "ivps", "fine", "cvps", "final", "final_prune"),
+          "dngaussian": ("init", "dngaussian"),
+          "3dgs": ("init", "3dgs")}
+FIT_STAGES = {"reings": ("coarse", "fine", "final"), "dngaussian": ("dngaussian",), "3dgs": ("3dgs",)}
+DATASETS = ("llff", "llff_nex", "colmap", "dtu", "blender", "procedural")
+
+
+@dataclass(frozen=True)
+class RunPreset:
+    help: str
+    iterations: dict  # method -> iterations per fitting stage (FIT_STAGES order)
+    sh_degree: dict  # method -> maximum SH degree
+
+
+RUN_PRESETS = {
+    "quick": RunPreset("3dgs/dngaussian 600 iterations, reings 200/200/600, SH degree 0",
+                       {"3dgs": (600,), "dngaussian": (600,), "reings": (200, 200, 600)},
+                       {"3dgs": 0, "dngaussian": 0, "reings": 0}),
+    # SH 1 for reings from the model-size study (docs/results.md): -61% parameters per Gaussian,
+    # test PSNR -0.14..+0.37 dB (mean +0.07) against SH 3; the baselines keep their recipes' 3
+    "paper": RunPreset("6000 iterations per stage (the paper's schedule); SH degree 1 for reings, 3 for the baselines",
+                       {"3dgs": (6000,), "dngaussian": (6000,), "reings": (6000, 6000, 6000)},
+                       {"3dgs": 3, "dngaussian": 3, "reings": 1}),
+}
+
+
+def parse_method(name: str, reings_config: ReInGSConfig | None = None) -> tuple[str, ReInGSConfig]:
+    """("reings" | "dngaussian" | "3dgs", ReInGSConfig) of a method name.
+
+    Ablations are spelled as the base name plus switched-off stages: "reings-no-ehps",
+    "reings-no-ivps-no-cvps" (paper Table 4). They apply on top of `reings_config`."""
+    if not isinstance(name, str) or not name.strip():
+        raise ValueError(f"unknown method {name!r}: use {', '.join(METHODS)} (ablations: {', '.join(ABLATION_METHODS)})")
+    rc = reings_config or ReInGSConfig()
+    n = name.strip().lower()
+    if n in METHODS:
+        return n, rc
+    if n.startswith("reings-"):
+        parts = n[len("reings-"):].split("-")
+        if len(parts) % 2 == 0 and all(a == "no" and b in ABLATIONS for a, b in zip(parts[::2], parts[1::2])):
+            off = parts[1::2]
+            if len(set(off)) == len(off):
+                return "reings", replace(rc, **{k: False for k in off})
+    raise ValueError(f"unknown method {name!r}: use {', '.join(METHODS)} or an ablation such as "
+                     f"{', '.join(ABLATION_METHODS)} (combine: reings-no-ivps-no-cvps)")
+
+
+def method_label(base: str, rc: ReInGSConfig) -> str:
+    """The inverse of `parse_method`: "reings-no-ehps" etc. (the base name for the baselines)."""
+    if base != "reings":
+        return base
+    return "reings" + "".join(f"-no-{k}" for k in ABLATIONS if not getattr(rc, k))
+# }}}
+
+
+# {{{ checking and converting field values
+
+_HINTS: dict = {}
+
+
+def _hints(cls) -> dict:
+    if cls not in _HINTS:
+        _HINTS[cls] = typing.get_type_hints(cls)
+    return _HINTS[cls]
+
+
+def optional_of(tp):
+    """X for `X | None`, else None."""
+    args = typing.get_args(tp)
+    if type(None) in args and len(args) == 2:
+        return next(a for a in args if a is not type(None))
+    return None
+
+
+def type_name(tp) -> str:
+    inner = optional_of(tp)
+    if inner is not None:
+        return type_name(inner) + " or none"
+    if typing.get_origin(tp) is tuple:
+        return "a list of " + {int: "integers", float: "numbers", str: "strings"}.get(typing.get_args(tp)[0], "values")
+    return {bool: "true or false", int: "an integer", float: "a number", str: "a string"}.get(tp, getattr(tp, "__name__", str(tp)))
+
+
+def convert(tp, v):
+    """`v` as a value of annotation `tp` (numpy scalars -> Python, int -> float, a sequence or a
+    single value -> tuple); ValueError with the expected kind if it is none."""
+    inner = optional_of(tp)
+    if inner is not None:
+        return None if v is None else convert(inner, v)
+    if is_dataclass(tp):
+        if isinstance(v, tp):
+            return v
+        if isinstance(v, dict):
+            return from_dict(tp, v)
+    elif typing.get_origin(tp) is tuple:
+        args = typing.get_args(tp)
+        seq = list(v) if isinstance(v, (list, tuple)) else [v]
+        kinds = [args[0]] * len(seq) if len(args) == 2 and args[1] is Ellipsis else list(args)
+        if len(kinds) == len(seq):
+            return tuple(convert(k, x) for k, x in zip(kinds, seq))
+    elif tp is bool:
+        if isinstance(v, bool) or type(v).__name__ == "bool_":
+            return bool(v)
+    elif tp is int:
+        if isinstance(v, numbers.Integral) and not isinstance(v, bool) and type(v).__name__ != "bool_":
+            return int(v)
+    elif tp is float:
+        if isinstance(v, numbers.Real) and not isinstance(v, bool) and type(v).__name__ != "bool_":
+            return float(v)
+    elif tp is str:
+        if isinstance(v, (str, os.PathLike)):
+            return os.fspath(v)
+    raise ValueError(f"must be {type_name(tp)}, got {v!r}")
+
+
+def check_value(f, v):
+    """None, or why field `f` refuses value `v` (already converted)."""
+    if v is None:
+        return None
+    md = f.metadata
+    if md.get("choices") and v not in md["choices"]:
+        return f"must be one of {', '.join(map(str, md['choices']))}, got {v!r}"
+    return md["check"](v) if md.get("check") else None
+
+
+def _coerce_fields(obj) -> None:
+    """Convert and check every field of a frozen dataclass in place; ValueError names the field."""
+    hints = _hints(type(obj))
+    for f in fields(obj):
+        try:
+            v = convert(hints[f.name], getattr(obj, f.name))
+        except ValueError as e:
+            raise ValueError(f"{f.name} {e}") from None
+        why = check_value(f, v)
+        if why:
+            raise ValueError(f"{f.name} {why}")
+        object.__setattr__(obj, f.name, v)
+
+
+def from_dict(cls, d: dict, where: str = ""):
+    """An instance of dataclass `cls` from a (nested) dict; unknown keys are errors."""
+    known = {f.name: f for f in fields(cls)}
+    bad = [k for k in d if k not in known]
+    if bad:
+        raise ValueError(f"unknown key {where + bad[0]!r} (known in {cls.__name__}: {', '.join(known)})")
+    hints = _hints(cls)
+    kw = {}
+    for k, v in d.items():
+        tp = hints[k]
+        kw[k] = from_dict(tp, v, f"{where}{k}.") if is_dataclass(tp) and isinstance(v, dict) else v
+    return cls(**kw)
+# }}}
+
+
+# {{{ RunConfig
+
+@dataclass(frozen=True)
+class ReInGSConfig:
+    """ReInGS re-initialisation (paper §3): EHPS, IVPS, CVPS, and the final prune."""
+
+    gamma: float = opt(1.4, "EHPS: expansion of the SfM box about its centre", cli="--ehps-gamma",
+                       check=lambda v: None if v > 0 else f"must be > 0, got {v}")
+    beta1: float = opt(200.0, "EHPS: uniform grid points = beta1 * max side of the expanded box", cli="--ehps-beta1",
+                       check=at_least(0))
+    beta2: float = opt(50.0, "EHPS: uniform random points = beta2 * max side of the expanded box", cli="--ehps-beta2",
+                       check=at_least(0))
+    min_init_points: int = opt(2000, "EHPS: floor on the number of points (scenes in small units; keeps the 4:1 "
+                                     "grid:random ratio)", cli="--ehps-min-points", check=at_least(1))
+    delta: float = opt(0.03, "IVPS: weight of the depth-consistency score Omega_D in Omega_P (Eq. 6)",
+                       cli="--ivps-delta", check=lambda v: None if 0 <= v <= 1 else f"must be in [0, 1], got {v}")
+    ivps_fraction: float = opt(0.10, "IVPS: fraction of the pixels of each training view drawn as new points",
+                               check=fraction_open_closed)
+    ivps_hard_opacity: float = opt(0.99, "IVPS and the coarse stage's hard depth: the forced opacity of the depth "
+                                         "render (Eq. 5)", check=fraction_open_closed)
+    ivps_min_alpha: float = opt(0.5, "IVPS: pixels whose hard-render alpha is below this are never drawn",
+                                check=lambda v: None if 0 <= v <= 1 else f"must be in [0, 1], got {v}")
+    # "expected" by default: the hard depth lands ~70% in front of the surface on the procedural scene
+    # (faint EHPS Gaussians own it), the expected depth 15-25% (tests/test_reings_stages.py); quick
+    # preset, procedural scene, test PSNR seeds 0/1: hard 14.90/14.87, expected 21.54/20.69
+    ivps_depth: str = opt("expected", "IVPS: the depth D that scores and back-projects the pixels: 'expected' "
+                                      "(the normal render's depth / alpha, real opacities) or 'hard' (paper Eq. 5 "
+                                      "literally: every opacity forced to ivps_hard_opacity)",
+                          choices=("expected", "hard"))
+    # 0.2 from the model-size study (docs/results.md; H200, full schedule, fern and flower at 2/3/4
+    # views): final Gaussians -12..-28%, test PSNR -0.08..+0.55 dB (mean +0.14) against the paper's 0.4
+    cvps_fraction: float = opt(0.20, "CVPS: fraction of the fine-stage Gaussians kept, drawn with p ~ Omega_G "
+                                     "(Eq. 7-8; the paper's value is 0.4)", check=fraction_open_closed)
+    # 0.1 from the same study's prune curves (30 runs): keeping 90% changed test PSNR by -0.02 dB on
+    # average (worst -0.22, within the run-to-run spread); 80% cost 0.05 dB, 50% about 1 dB
+    final_prune: float = opt(0.1, "reings only, not in the paper: after the final stage remove this fraction of "
+                                  "the Gaussians with the lowest Omega_G (Eq. 7, training views only) before "
+                                  "evaluation; 0 = off", check=prune_fraction, metavar="FRACTION")
+    ehps: bool = opt(True, "EHPS initialisation (off: random points in the SfM box, as DNGaussian; ablation)")
+    ivps: bool = opt(True, "IVPS re-initialisation (off: the fine stage starts from the coarse Gaussians; ablation)")
+    cvps: bool = opt(True, "CVPS re-initialisation (off: the final stage starts from the fine Gaussians; ablation)")
+
+    def __post_init__(self):
+        _coerce_fields(self)
+
+
+@dataclass(frozen=True)
+class OutputConfig:
+    """What the run writes and reports."""
+
+    out: str | None = opt(None, "output folder (metrics.json, config.toml, renders, ...); a rerun into it resumes "
+                                "an interrupted run. Python only: None = write nothing", metavar="DIR")
+    lpips: bool = opt(True, "compute LPIPS (and AVGE) on the test views")
+    eval_every: int | None = opt(None, "test-PSNR probe every N iterations for the PSNR-vs-seconds plot "
+                                       "(none: about 15 per stage; 0: off)", check=at_least(0), metavar="N")
+    checkpoint_every: int = opt(250, "rewrite the running stage's checkpoint every N iterations", check=at_least(1),
+                                metavar="N")
+    prune_curve: bool = opt(False, "study/reporting: also evaluate test PSNR/SSIM of the final model cut to its top "
+                                   "100%, 90%, ..., 40% by training-view Omega_G (metrics.json prune_curve); the "
+                                   "test views rank nothing and the reported model is unchanged")
+
+    def __post_init__(self):
+        _coerce_fields(self)
+
+
+@dataclass(frozen=True)
+class RunConfig:
+    """One `reings run`: a scene, a method, a few-shot split, and how to fit and report it."""
+
+    method: str = opt("reings", "reings | dngaussian | 3dgs, or an ablation: reings-no-ehps, reings-no-ivps, "
+                                "reings-no-cvps (combinable: reings-no-ivps-no-cvps); stored as the base name "
+                                "with the reings switches set")
+    data: str | None = opt(None, "scene folder; none: the built-in procedural scene", metavar="DIR")
+    dataset: str | None = opt(None, "scene format (none: detected from the folder)", choices=DATASETS)
+    factor: int = opt(8, "image downsampling factor (LLFF: images_8, 504x378)", check=at_least(1))
+    views: int = opt(3, "number of training views (>= 2)")
+    seed: int = opt(0, "seed of every random draw: initial points, IVPS/CVPS draws, and each fit's view order "
+                       "and depth patches", check=at_least(0))
+    device: str = opt("pocl", "pocl | cuda | cuda:N | opencl:P:D | reference (`reings devices` lists them)")
+    preset: str = opt("quick", "schedule: " + "; ".join(f"{k}: {p.help}" for k, p in RUN_PRESETS.items()),
+                      choices=tuple(RUN_PRESETS))
+    iterations: tuple[int, ...] | None = opt(
+        None, "iterations of the fitting stages: N for every stage, or A,B,C for reings' coarse, fine, final "
+              "(the baselines take the last); none: the preset's", parse=parse_iterations, check=positive_all,
+        metavar="N|A,B,C")
+    depth_prior: str = opt("stereo", "stereo | onnx:PATH | none | exact (the procedural scene's true depths)")
+    extent: str = opt("sfm", "scene box for EHPS and the random inits: 'sfm' (SfM of the training views, their "
+                             "frusta as fallback) or 'frusta' (the training frusta directly)", choices=("sfm", "frusta"))
+    init_points: int = opt(5000, "random initial points of dngaussian/3dgs and of reings without EHPS",
+                           check=at_least(1))
+    sh_degree: int | None = opt(None, "maximum SH degree; none: the preset's", choices=(0, 1, 2, 3))
+    max_gaussians: int | None = opt(None, "cap on the Gaussian count that densification respects in every stage "
+                                          "(none: no cap)", check=at_least(1), metavar="N")
+    # None: the recipe's 0.1 except with the stereo prior, whose hole-filled edges are not the mono
+    # network's the term was designed for; there 30 paired full-schedule runs moved test PSNR by
+    # +0.01 dB on average when it was off (docs/results.md)
+    depth_smooth: float | None = opt(None, "weight of DNGaussian's edge-aware depth smoothness in every depth pass; "
+                                           "none: the recipe's 0.1 (from the middle of each stage), but 0 with the "
+                                           "stereo prior; 0 = off", check=finite_nonneg, metavar="WEIGHT")
+    reings: ReInGSConfig = opt(factory=ReInGSConfig, help="the ReInGS stages")
+    output: OutputConfig = opt(factory=OutputConfig, help="outputs and reports")
+
+    def __post_init__(self):
+        _coerce_fields(self)
+        base, rc = parse_method(self.method, self.reings)
+        object.__setattr__(self, "method", base)
+        object.__setattr__(self, "reings", rc)
+        if self.views < 2:
+            raise ValueError(f"views must be an integer >= 2 (the SfM box needs two training views), got {self.views}")
+        if self.iterations is not None and len(self.iterations) not in (1, 3):
+            raise ValueError(f"iterations must be one count or three (reings: coarse, fine, final), "
+                             f"got {self.iterations}")
+
+    @property
+    def label(self) -> str:
+        """The method's name with its ablations: "reings-no-ivps", "dngaussian"."""
+        return method_label(self.method, self.reings)
+
+    def resolved(self) -> RunConfig:
+        """This config with the preset's values filled in: `iterations` one count per fitting stage
+        (FIT_STAGES), `sh_degree` an integer."""
+        p = RUN_PRESETS[self.preset]
+        n = len(FIT_STAGES[self.method])
+        its = self.iterations or p.iterations[self.method]
+        its = its * n if len(its) == 1 else its[-n:]
+        sh = p.sh_degree[self.method] if self.sh_degree is None else self.sh_degree
+        return replace(self, iterations=its, sh_degree=sh)
+
+    def stage_iterations(self) -> dict:
+        """{fitting stage name: iterations} of the resolved config."""
+        r = self.resolved()
+        return dict(zip(FIT_STAGES[r.method], r.iterations))
+
+
+def leaf_fields(cls=RunConfig, prefix: str = ""):
+    """(dotted path, field, type) of every non-dataclass field under `cls`, in declaration order."""
+    hints = _hints(cls)
+    for f in fields(cls):
+        tp = hints[f.name]
+        if is_dataclass(tp):
+            yield from leaf_fields(tp, prefix + f.name + ".")
+        else:
+            yield prefix + f.name, f, tp
+
+
+LEGACY_KEYWORDS = {"reings_config": "reings", "with_lpips": "output.lpips"}
+
+
+def with_values(cfg, values: dict):
+    """A copy of `cfg` with `values` {dotted path or unique leaf name: value} set; KeyError names an
+    unknown key. Sections are rebuilt first, so the method's ablations apply to the new switches."""
+    paths = {p: p for p, _, _ in leaf_fields(type(cfg))}
+    paths.update({p.rsplit(".", 1)[-1]: p for p in list(paths)})  # leaf names are unique in RunConfig
+    paths.update({f.name: f.name for f in fields(cfg)})
+    paths.update(LEGACY_KEYWORDS)
+    nested: dict = {}
+    for k, v in values.items():
+        if k not in paths:
+            raise KeyError(k)
+        head, _, rest = paths[k].partition(".")
+        if rest:
+            nested.setdefault(head, {})[rest] = v
+        else:
+            nested.setdefault(head, {})[""] = v
+    kw = {}
+    for head, sub in nested.items():
+        cur = sub.pop("", getattr(cfg, head))
+        kw[head] = with_values(cur, sub) if sub else cur
+    return replace(cfg, **kw)
+
+
+def run_config(config: RunConfig | None = None, **keywords) -> RunConfig:
+    """`config` (default RunConfig()) with `keywords` set: RunConfig's field names, their sections'
+    leaf names (`cvps_fraction=0.4`, `eval_every=0`, `out=`), or the older `reings_config=` and
+    `with_lpips=`. TypeError names an unknown keyword."""
+    cfg = config if config is not None else RunConfig()
+    try:
+        return with_values(cfg, keywords)
+    except KeyError as e:
+        raise TypeError(f"run() got an unexpected keyword argument {e.args[0]!r}") from None
+# }}}
+
+
+# {{{ TOML
+
+def to_toml(cfg) -> str:
+    """`cfg` (a dataclass) as a TOML document: one key per field with its help as a comment, a
+    table per nested dataclass; a None field is written as a comment (absent = None on loading)."""
+    from .io.toml import dumps
+
+    return dumps(cfg, title=f"reings {type(cfg).__name__} (load with: reings run --config THIS_FILE)")
+
+
+def load_run_config(path) -> RunConfig:
+    """The RunConfig of a TOML file (`reings run --config`); ValueError names the file and key."""
+    from .io.toml import loads
+
+    path = os.fspath(path)
+    try:
+        with open(path, "rb") as f:
+            data = f.read()
+    except OSError as e:
+        raise FileNotFoundError(f"--config {path}: {e.strerror or e}") from None
+    try:
+        return from_dict(RunConfig, loads(data.decode("utf-8")))
+    except ValueError as e:
+        raise ValueError(f"{path}: {e}") from None
+# }}}

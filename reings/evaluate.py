@@ -3,9 +3,12 @@
     reings eval --dataset llff --root data/llff --views 2,3,4 --methods reings,dngaussian \
         --device cuda:0 --preset paper --out runs/llff_paper
 
-Each run is `reings.pipeline.run` into its own folder `OUT/<dataset>/<method>/<k>views/<scene>/`.
-A run whose folder holds `metrics.json` is finished and skipped; one holding checkpoints is
-resumed. A run being worked on holds an exclusive lock (`fcntl.flock` on `<run>/.lock`, freed
+Each run is `reings.pipeline.run(RunConfig)` into its own folder
+`OUT/<dataset>/<method>/<k>views/<scene>/` (`<scene>_seed<s>/` for a seed s other than 0: with
+`--seeds 0,1,2` every cell of the table is the mean over seeds, with its min-max). The run options
+(`reings run`'s, generated from `reings.config.RunConfig`, or `--config run.toml`) apply to every
+run; eval sets the method, views, seed, data and folder of each. A run whose folder holds
+`metrics.json` is finished and skipped; one holding checkpoints is resumed. A run being worked on holds an exclusive lock (`fcntl.flock` on `<run>/.lock`, freed
 when its process ends however it ends), so several `reings eval` processes with the same
 arguments and different `--device` values share the work: each skips the runs another holds.
 
@@ -116,8 +119,9 @@ def discover_scenes(root: str, dataset: str | None) -> list[tuple[str, str]]:
     return found
 
 
-def run_dir(out: str, dataset: str, method: str, views: int, scene: str) -> str:
-    return os.path.join(out, dataset, method, f"{views}views", scene)
+def run_dir(out: str, dataset: str, method: str, views: int, scene: str, seed: int = 0) -> str:
+    """OUT/<dataset>/<method>/<k>views/<scene>, and <scene>_seed<s> for seeds other than 0."""
+    return os.path.join(out, dataset, method, f"{views}views", scene if not seed else f"{scene}_seed{seed}")
 
 
 class RunLock:
@@ -154,33 +158,27 @@ class RunLock:
 # {{{ table
 
 def _setting_tag(m: dict) -> str:
-    """What distinguishes two runs of the same method beyond scene/views: preset, iteration
-    override, seed, depth prior."""
-    from .pipeline import _iters_of
+    """What distinguishes two runs of the same method beyond scene, views and seed (seeds are
+    replicates: one cell shows their mean and spread): preset, iteration override, depth prior,
+    smoothness, final prune."""
+    from .config import RUN_PRESETS, ReInGSConfig
 
     cfg = m.get("config") or {}
     preset = m.get("preset", cfg.get("preset", "?"))
     tag = [str(preset)]
     base = m.get("base_method") or str(m.get("method", "")).split("-")[0]
     its = cfg.get("iterations")
-    try:
-        default = list(_iters_of(base, preset, None))
-    except (KeyError, ValueError):
-        default = None
+    p = RUN_PRESETS.get(preset)
+    default = list(p.iterations[base]) if p is not None and base in p.iterations else None
     if its is not None and default is not None and list(its) != default:
         tag.append("its " + ("/".join(map(str, its)) if len(set(its)) > 1 else str(its[0])))
-    if m.get("seed", 0) not in (0, None):
-        tag.append(f"seed {m['seed']}")
     if m.get("depth_prior", "stereo") != "stereo":
         tag.append(f"prior {m['depth_prior']}")
     if cfg.get("depth_smooth") is not None:
         tag.append(f"smooth {cfg['depth_smooth']:g}")
     fp = (cfg.get("reings_config") or {}).get("final_prune")  # absent: a run from before the option
-    if base == "reings" and fp is not None:
-        from .pipeline import ReInGSConfig
-
-        if fp != ReInGSConfig.final_prune:
-            tag.append(f"prune {fp:g}")
+    if base == "reings" and fp is not None and fp != ReInGSConfig.final_prune:
+        tag.append(f"prune {fp:g}")
     return ", ".join(tag)
 
 
@@ -221,6 +219,59 @@ def _dataset_of(m: dict, path: str) -> str:
     return str(m.get("dataset") or "unknown")
 
 
+def _run_entry(m: dict, path: str) -> dict:
+    sec = m.get("seconds") or {}
+    entry = {k: m["mean"].get(k) for k in METRICS}
+    entry.update({"seconds": sec.get("method", sec.get("total")), "seconds_total": sec.get("total"),
+                  "gaussians": (m.get("stages") or [{}])[-1].get("gaussians") if m.get("stages") else None,
+                  "device": m.get("device"), "device_name": m.get("device_name"), "run": path,
+                  "seed": int(m.get("seed") or 0)})
+    return entry
+
+
+def _mean(xs):
+    xs = [x for x in xs if x is not None]
+    return float(np.mean(xs)) if xs else None
+
+
+def _scene_over_seeds(by_seed: dict) -> dict:
+    """One scene's entry: the run's (one seed), or the mean over seeds with `seeds`, `runs`, and
+    per metric `spread` [min, max] and `std` (ddof 1)."""
+    seeds = sorted(by_seed)
+    if len(seeds) == 1:
+        return by_seed[seeds[0]]
+    first = by_seed[seeds[0]]
+    e = {k: _mean([by_seed[s].get(k) for s in seeds]) for k in METRICS + ("seconds", "seconds_total", "gaussians")}
+    e.update({"device": first.get("device"), "device_name": first.get("device_name"), "run": first["run"],
+              "seeds": seeds, "runs": {str(s): by_seed[s]["run"] for s in seeds}})
+    e["spread"], e["std"] = {}, {}
+    for k in METRICS:
+        vals = [by_seed[s][k] for s in seeds if by_seed[s].get(k) is not None]
+        if len(vals) > 1:
+            e["spread"][k] = [float(min(vals)), float(max(vals))]
+            e["std"][k] = float(np.std(vals, ddof=1))
+    return e
+
+
+def _cell(per_scene_seed: dict, n_all: int) -> tuple[dict, dict]:
+    """A table cell (one method, setting, view count): the mean over scenes of each scene's mean over
+    seeds; with several seeds also, per metric, the min-max (`spread`) and std (ddof 1) over seeds of
+    the mean over the scenes that seed covers. Returns (cell, {scene: its entry})."""
+    scenes = {s: _scene_over_seeds(by_seed) for s, by_seed in per_scene_seed.items()}
+    cell = {k: _mean([e.get(k) for e in scenes.values()]) for k in METRICS + ("seconds", "gaussians")}
+    seeds = sorted({seed for by_seed in per_scene_seed.values() for seed in by_seed})
+    cell.update({"n_scenes": len(scenes), "complete": len(scenes) >= n_all, "seeds": seeds})
+    if len(seeds) > 1:
+        cell["spread"], cell["std"] = {}, {}
+        for k in METRICS:
+            per_seed = [_mean([by_seed[s].get(k) for by_seed in per_scene_seed.values() if s in by_seed]) for s in seeds]
+            per_seed = [v for v in per_seed if v is not None]
+            if len(per_seed) > 1:
+                cell["spread"][k] = [float(min(per_seed)), float(max(per_seed))]
+                cell["std"][k] = float(np.std(per_seed, ddof=1))
+    return cell, scenes
+
+
 def build_table(out: str, expected_scenes: dict | None = None) -> dict:
     """results.json content from the runs under `out`. expected_scenes: {dataset: [scene, ...]}
     (the denominator of "complete"; default: every scene seen in that dataset)."""
@@ -231,51 +282,39 @@ def build_table(out: str, expected_scenes: dict | None = None) -> dict:
             continue
         m = r["metrics"]
         ds = _dataset_of(m, r["path"])
-        scene = _scene_of(m, r["path"])
-        views = int(m.get("views", 0))
-        tag = _setting_tag(m)
-        method = str(m.get("method", "?"))
         d = datasets.setdefault(ds, {"views": set(), "scenes": set(), "groups": {}})
+        views, scene = int(m.get("views", 0)), _scene_of(m, r["path"])
         d["views"].add(views)
         d["scenes"].add(scene)
-        g = d["groups"].setdefault((method, tag), {})
-        entry = {k: m["mean"].get(k) for k in METRICS}
-        sec = m.get("seconds") or {}
-        entry.update({"seconds": sec.get("method", sec.get("total")), "seconds_total": sec.get("total"),
-                      "gaussians": (m.get("stages") or [{}])[-1].get("gaussians") if m.get("stages") else None,
-                      "device": m.get("device"), "device_name": m.get("device_name"), "run": r["path"]})
-        g.setdefault(views, {})[scene] = entry
+        entry = _run_entry(m, r["path"])
+        g = d["groups"].setdefault((str(m.get("method", "?")), _setting_tag(m)), {})
+        g.setdefault(views, {}).setdefault(scene, {})[entry["seed"]] = entry
     result = {"generated": datetime.datetime.now().isoformat(timespec="seconds"), "out": os.path.abspath(out),
               "paper_note": PAPER_NOTE, "datasets": {},
               "runs": [{k: v for k, v in r.items() if k != "metrics"} for r in runs]}
     for ds, d in sorted(datasets.items()):
         scenes_all = sorted(set(d["scenes"]) | set((expected_scenes or {}).get(ds, [])))
-        views_all = sorted(d["views"])
-        tags = {t for (_, t) in d["groups"]}
         n_tags = {}
         for (method, _) in d["groups"]:
             n_tags[method] = n_tags.get(method, 0) + 1
         methods = {}
         for (method, tag), by_views in sorted(d["groups"].items(), key=lambda kv: (_method_order(kv[0][0]), kv[0][1])):
-            name = method if n_tags[method] == 1 else f"{method} [{tag}]"
-            mean = {}
+            mean, scenes = {}, {}
             for v, per_scene in sorted(by_views.items()):
-                vals = {k: [e[k] for e in per_scene.values() if e.get(k) is not None] for k in METRICS + ("seconds", "gaussians")}
-                mean[v] = {k: (float(np.mean(x)) if x else None) for k, x in vals.items()}
-                mean[v]["n_scenes"] = len(per_scene)
-                mean[v]["complete"] = len(per_scene) >= len(scenes_all)
+                mean[v], per = _cell(per_scene, len(scenes_all))
+                for s, e in per.items():
+                    scenes.setdefault(s, {})[v] = e
+            name = method if n_tags[method] == 1 else f"{method} [{tag}]"
             methods[name] = {"method": method, "setting": tag, "mean": mean,
-                             "scenes": {s: {v: by_views[v][s] for v in sorted(by_views) if s in by_views[v]}
-                                        for s in sorted({s for pv in by_views.values() for s in pv})}}
-        family = _FAMILY.get(ds, ds)
-        paper = [p for p in PAPER.get(family, [])]
-        result["datasets"][ds] = {"views": views_all, "scenes": scenes_all, "settings": sorted(tags),
-                                  "methods": methods, "paper": paper}
+                             "scenes": {s: scenes[s] for s in sorted(scenes)}}
+        result["datasets"][ds] = {"views": sorted(d["views"]), "scenes": scenes_all,
+                                  "settings": sorted({t for (_, t) in d["groups"]}), "methods": methods,
+                                  "paper": list(PAPER.get(_FAMILY.get(ds, ds), []))}
     return result
 
 
 def _method_order(method: str):
-    from .pipeline import METHODS
+    from .config import METHODS
 
     base = method.split("-")[0]
     return (METHODS.index(base) if base in METHODS else 99, method)
@@ -287,9 +326,87 @@ def _fmt(v, k) -> str:
     return f"{v:.2f}" if k == "psnr" else f"{v:.3f}"
 
 
+def _fmt_spread(e: dict, k: str) -> str:
+    """The value, and its min-max over seeds in brackets when there are several."""
+    s = _fmt(e.get(k), k)
+    lo_hi = (e.get("spread") or {}).get(k)
+    return s + (f" [{_fmt(lo_hi[0], k)}–{_fmt(lo_hi[1], k)}]" if lo_hi else "")
+
+
 def _header(views: list, first: str = "Method") -> list[str]:
     cols = [first] + [f"{k.upper()}{ARROW[k]} {v}v" for k in METRICS for v in views]
     return ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
+
+
+def _mean_rows(d: dict, cols: list) -> list[str]:
+    """The mean table's rows: ours, each followed by the paper's row of the same method."""
+    lines, shown_paper = [], set()
+    for name, mth in d["methods"].items():
+        cells = [name + " (ours)"]
+        for k in METRICS:
+            for v in cols:
+                e = mth["mean"].get(v)
+                if e is None:
+                    cells.append("")
+                    continue
+                s = _fmt_spread(e, k)
+                if not e["complete"]:
+                    s += f" ({e['n_scenes']}/{len(d['scenes'])})"
+                cells.append(s)
+        lines.append("| " + " | ".join(cells) + " |")
+        for i, p in enumerate(d["paper"]):
+            if p["method"] == mth["method"] and i not in shown_paper:
+                shown_paper.add(i)
+                lines.append(_paper_line(p, cols))
+    for i, p in enumerate(d["paper"]):  # paper rows of methods not run: listed at the end
+        if i not in shown_paper and any(v in cols for v in p["views"]):
+            lines.append(_paper_line(p, cols))
+    return lines
+
+
+def _cost_rows(d: dict, cols: list) -> list[str]:
+    lines = ["| Method | " + " | ".join(f"{v}v seconds | {v}v Gaussians" for v in cols) + " | devices |",
+             "|" + "---|" * (2 + 2 * len(cols))]
+    for name, mth in d["methods"].items():
+        cells = [name]
+        for v in cols:
+            e = mth["mean"].get(v) or {}
+            cells += [("–" if e.get("seconds") is None else f"{e['seconds']:.1f}"),
+                      ("–" if e.get("gaussians") is None else f"{e['gaussians']:.0f}")]
+        devs = sorted({str(x.get("device_name") or x.get("device")) for pv in mth["scenes"].values() for x in pv.values()})
+        cells.append(", ".join(devs))
+        lines.append("| " + " | ".join(cells) + " |")
+    return lines
+
+
+def _dataset_section(ds: str, d: dict) -> list[str]:
+    views = d["views"]
+    paper_views = sorted({v for p in d["paper"] for v in p["views"]})
+    cols = sorted(set(views) | ({v for v in paper_views if v in views} if views else set()))
+    lines = [f"## {ds.upper()}: mean over {len(d['scenes'])} scene(s) ({', '.join(d['scenes'])})", ""]
+    if len(d["settings"]) > 1:
+        per = "; ".join(f"{name}: {m['setting']}" for name, m in d["methods"].items())
+        lines += [f"Settings differ between rows ({per}).", ""]
+    elif d["settings"]:
+        lines += [f"Setting: {d['settings'][0]}.", ""]
+    seeds = sorted({s for m in d["methods"].values() for e in m["mean"].values() for s in e.get("seeds", [])})
+    if len(seeds) > 1:
+        lines += [f"Seeds {', '.join(map(str, seeds))}: each value is the mean over seeds, [min–max] the range "
+                  "over seeds of the mean over scenes (per scene: of that scene's runs).", ""]
+    n_paper = PAPER_SCENES.get(_FAMILY.get(ds, ds))
+    if n_paper and d["paper"] and len(d["scenes"]) != n_paper:
+        lines += [f"The paper's means are over all {n_paper} {ds.upper()} scenes, ours over "
+                  f"{len(d['scenes'])}: compare per scene with care.", ""]
+    lines += _header(cols) + _mean_rows(d, cols)
+    lines += ["", "Seconds and final Gaussian counts (mean over scenes):", ""] + _cost_rows(d, cols)
+    lines += ["", f"### {ds.upper()}: per scene", ""] + _header(cols, "Scene / method")
+    for s in d["scenes"]:
+        for name, mth in d["methods"].items():
+            per = mth["scenes"].get(s)
+            if per:
+                cells = [f"{s} / {name}"] + [_fmt_spread(per[v], k) if v in per else "" for k in METRICS for v in cols]
+                lines.append("| " + " | ".join(cells) + " |")
+    return lines + [""]
 
 
 def render_markdown(res: dict) -> str:
@@ -298,62 +415,7 @@ def render_markdown(res: dict) -> str:
              "Means are over scenes of each scene's mean over its test views. A mean marked `(k/n)` covers k of "
              "the n scenes only. Seconds = training + re-initialisation wall clock (probes excluded).", ""]
     for ds, d in res["datasets"].items():
-        views = d["views"]
-        paper_views = sorted({v for p in d["paper"] for v in p["views"]})
-        cols = sorted(set(views) | ({v for v in paper_views if v in views} if views else set()))
-        lines += [f"## {ds.upper()}: mean over {len(d['scenes'])} scene(s) ({', '.join(d['scenes'])})", ""]
-        if len(d["settings"]) > 1:
-            per = "; ".join(f"{name}: {m['setting']}" for name, m in d["methods"].items())
-            lines += [f"Settings differ between rows ({per}).", ""]
-        elif d["settings"]:
-            lines += [f"Setting: {d['settings'][0]}.", ""]
-        n_paper = PAPER_SCENES.get(_FAMILY.get(ds, ds))
-        if n_paper and d["paper"] and len(d["scenes"]) != n_paper:
-            lines += [f"The paper's means are over all {n_paper} {ds.upper()} scenes, ours over "
-                      f"{len(d['scenes'])}: compare per scene with care.", ""]
-        lines += _header(cols)
-        shown_paper = set()
-        for name, mth in d["methods"].items():
-            cells = [name + " (ours)"]
-            for k in METRICS:
-                for v in cols:
-                    e = mth["mean"].get(v)
-                    if e is None:
-                        cells.append("")
-                        continue
-                    s = _fmt(e.get(k), k)
-                    if not e["complete"]:
-                        s += f" ({e['n_scenes']}/{len(d['scenes'])})"
-                    cells.append(s)
-            lines.append("| " + " | ".join(cells) + " |")
-            for i, p in enumerate(d["paper"]):
-                if p["method"] == mth["method"] and i not in shown_paper:
-                    shown_paper.add(i)
-                    lines.append(_paper_line(p, cols))
-        for i, p in enumerate(d["paper"]):  # paper rows of methods not run: listed at the end
-            if i not in shown_paper and any(v in cols for v in p["views"]):
-                lines.append(_paper_line(p, cols))
-        lines += ["", "Seconds and final Gaussian counts (mean over scenes):", "",
-                  "| Method | " + " | ".join(f"{v}v seconds | {v}v Gaussians" for v in cols) + " | devices |",
-                  "|" + "---|" * (2 + 2 * len(cols))]
-        for name, mth in d["methods"].items():
-            cells = [name]
-            for v in cols:
-                e = mth["mean"].get(v) or {}
-                cells += [("–" if e.get("seconds") is None else f"{e['seconds']:.1f}"),
-                          ("–" if e.get("gaussians") is None else f"{e['gaussians']:.0f}")]
-            devs = sorted({str(x.get("device_name") or x.get("device")) for pv in mth["scenes"].values() for x in pv.values()})
-            cells.append(", ".join(devs))
-            lines.append("| " + " | ".join(cells) + " |")
-        lines += ["", f"### {ds.upper()}: per scene", ""] + _header(cols, "Scene / method")
-        for s in d["scenes"]:
-            for name, mth in d["methods"].items():
-                per = mth["scenes"].get(s)
-                if not per:
-                    continue
-                cells = [f"{s} / {name}"] + [_fmt((per.get(v) or {}).get(k), k) if v in per else "" for k in METRICS for v in cols]
-                lines.append("| " + " | ".join(cells) + " |")
-        lines.append("")
+        lines += _dataset_section(ds, d)
     unfinished = [r["path"] for r in res["runs"] if r["status"] != "done"]
     if unfinished:
         lines += ["Unfinished or unreadable run folders: " + ", ".join(f"`{p}`" for p in unfinished), ""]
@@ -371,7 +433,7 @@ def _paper_line(p: dict, cols: list) -> str:
 
 
 def write_tables(out: str, expected_scenes: dict | None = None) -> dict:
-    from .pipeline import write_json_atomic, write_text_atomic
+    from .outputs import write_json_atomic, write_text_atomic
 
     res = build_table(out, expected_scenes)
     write_json_atomic(os.path.join(out, "results.json"), res)
@@ -380,100 +442,139 @@ def write_tables(out: str, expected_scenes: dict | None = None) -> dict:
 # }}}
 
 
-def _plan(args):
-    """Validate the arguments; return (jobs, expected scenes per dataset) with jobs =
-    [(dataset, scene, data_path, views, method_label, base, ReInGSConfig)]."""
+# {{{ the runs
+
+def plan(args, base) -> tuple[list, dict]:
+    """Validate the eval arguments; return (jobs, expected scenes per dataset) with jobs =
+    [(dataset, scene, RunConfig of that run, its folder set as output.out)]: every scene x view
+    count x method x seed, from `base` (the run options)."""
     from dataclasses import replace
 
-    from .pipeline import ReInGSConfig, method_label, parse_method
+    from .config import run_config
 
-    views = parse_list(args.views, "views", int)
+    views = parse_list(args.views, "views", int) or [base.views]
     bad = [v for v in views if v < 2]
     if bad:
         raise EvalError(f"--views: every count must be >= 2, got {bad}")
-    methods = []
-    for name in parse_list(args.methods, "methods"):
-        base, rc = parse_method(name, ReInGSConfig(ivps_depth=getattr(args, "ivps_depth", "expected"),
-                                                   cvps_fraction=getattr(args, "cvps_fraction", ReInGSConfig.cvps_fraction),
-                                                   final_prune=getattr(args, "final_prune",
-                                                                       ReInGSConfig.final_prune)))
-        if base == "reings":
-            rc = replace(rc, ehps=rc.ehps and not args.no_ehps, ivps=rc.ivps and not args.no_ivps,
-                         cvps=rc.cvps and not args.no_cvps)
-        lab = method_label(base, rc)
-        if lab not in [m[0] for m in methods]:
-            methods.append((lab, base, rc))
-    if args.dataset == "procedural" and args.root is None:
+    seeds = parse_list(args.seeds, "seeds", int) or [base.seed]
+    methods = {}  # label -> config with that method (ablations on top of the base switches)
+    for name in parse_list(args.methods, "methods") or [base.label]:
+        c = run_config(base, method=name)
+        methods.setdefault(c.label, c)
+    dataset = base.dataset
+    if dataset == "procedural" and args.root is None:
         scenes = [("procedural", "procedural", None)]
     else:
         if args.root is None:
             raise EvalError("--root is required (the folder of scene folders), except with --dataset procedural")
         if not os.path.isdir(args.root):
             raise EvalError(f"--root {args.root}: folder not found")
-        found = discover_scenes(args.root, args.dataset)
+        found = discover_scenes(args.root, dataset)
         if args.scenes:
             want = parse_list(args.scenes, "scenes")
             kinds = dict(found)
             missing = [s for s in want if s not in kinds]
             if missing:
-                raise EvalError(f"--scenes: no {args.dataset or ''} scene folder {', '.join(missing)} under {args.root} "
+                raise EvalError(f"--scenes: no {dataset or ''} scene folder {', '.join(missing)} under {args.root} "
                                 f"(found: {', '.join(kinds) or 'none'})")
             found = [(s, kinds[s]) for s in want]
         if not found:
-            raise EvalError(f"--root {args.root}: no {args.dataset or ''} scene folders found")
+            raise EvalError(f"--root {args.root}: no {dataset or ''} scene folders found")
         scenes = [(s, k, os.path.join(args.root, s)) for s, k in found]
     jobs, expected = [], {}
     for s, kind, path in scenes:
-        ds = args.dataset or kind
+        ds = dataset or kind
         expected.setdefault(ds, []).append(s)
         for v in views:
-            for lab, base, rc in methods:
-                jobs.append((ds, s, path, v, lab, base, rc))
+            for lab, c in methods.items():
+                for seed in seeds:
+                    rd = run_dir(args.out, ds, lab, v, s, seed)
+                    cfg = run_config(c, data=path, dataset=None if path is None else dataset, views=v, seed=seed)
+                    jobs.append((ds, s, replace(cfg, output=replace(cfg.output, out=rd))))
     return jobs, expected
 
 
-def _prepare(jobs, args) -> None:
+def _prepare(jobs) -> None:
     """Fill the depth-prior and SfM caches (no training)."""
     from .data.depth_prior import get_depth_prior
     from .data.sfm import sfm_extent
     from .data.splits import few_shot_split
     from .pipeline import load_run_scene
 
-    seen = set()
-    prior = None if args.depth_prior == "exact" else get_depth_prior(args.depth_prior)
-    for ds, s, path, v, *_ in jobs:
-        if (s, path, v) in seen:
+    seen, priors = set(), {}
+    for ds, s, cfg in jobs:
+        key = (s, cfg.data, cfg.views, cfg.factor, cfg.depth_prior)
+        if key in seen:
             continue
-        seen.add((s, path, v))
+        seen.add(key)
+        if cfg.depth_prior not in priors:
+            priors[cfg.depth_prior] = None if cfg.depth_prior == "exact" else get_depth_prior(cfg.depth_prior)
+        prior = priors[cfg.depth_prior]
         t = time.perf_counter()
-        scene = load_run_scene(path, None if path is None else args.dataset, factor=args.factor)
-        tr, _ = few_shot_split(scene, v)
+        scene = load_run_scene(cfg.data, cfg.dataset, factor=cfg.factor)
+        tr, _ = few_shot_split(scene, cfg.views)
         train = scene.subset(tr)
         if prior is not None and getattr(prior, "enabled", True):
             prior.compute(train)
         ext = sfm_extent(train)
-        print(f"prepared {ds}/{s} {v} views: sfm {ext.method} ({ext.num_sfm_points} points"
+        print(f"prepared {ds}/{s} {cfg.views} views: sfm {ext.method} ({ext.num_sfm_points} points"
               f"{', cached' if ext.cached else ''}), {time.perf_counter() - t:.1f} s", flush=True)
 
 
-def _settings_differ(metrics_path: str, args, base: str) -> str:
-    """'' if the finished run at `metrics_path` used the requested preset/iterations/seed/prior."""
-    from .pipeline import _iters_of
+def _settings_differ(metrics_path: str, cfg) -> str:
+    """'' if the finished run at `metrics_path` has the settings `cfg` asks for (the keys both
+    record, except the data path and format: folders move between machines)."""
+    from .pipeline import run_settings
 
     try:
         with open(metrics_path) as f:
-            m = json.load(f)
-        cfg = m.get("config") or {}
-        want = {"preset": args.preset, "iterations": list(_iters_of(base, args.preset, args.iterations)),
-                "seed": args.seed, "depth_prior": args.depth_prior, "init_points": args.init_points}
-        return ", ".join(f"{k} {cfg.get(k)!r} != {v!r}" for k, v in want.items() if k in cfg and cfg.get(k) != v)
-    except (OSError, ValueError, KeyError):
+            have = json.load(f).get("config") or {}
+        want = json.loads(json.dumps(run_settings(cfg.resolved(), None)))
+        keys = [k for k in want if k in have and k not in ("data", "dataset")]
+        return ", ".join(f"{k} {have[k]!r} != {want[k]!r}" for k in keys if have[k] != want[k])
+    except (OSError, ValueError, KeyError, AttributeError):
         return ""
 
 
-def main_eval(args) -> int:
+def _run_one(i: int, n: int, ds: str, scene: str, cfg, args, say) -> str | None:
+    """One job under its lock: 'busy' if another process holds it, else None (done, skipped or
+    run). Exceptions propagate."""
+    from . import pipeline
+
+    rd = cfg.output.out
+    seed = f" seed {cfg.seed}" if cfg.seed else ""
+    head = f"[{i}/{n}] {ds} {scene} {cfg.views} views {cfg.label}{seed}"
+    if os.path.exists(os.path.join(rd, "metrics.json")):
+        diff = _settings_differ(os.path.join(rd, "metrics.json"), cfg)
+        if diff:
+            print(f"{head}: WARNING: finished earlier with other settings ({diff}); kept, not redone "
+                  "(remove the folder or use another --out)", file=sys.stderr, flush=True)
+        say(f"{head}: done already ({rd})")
+        return None
+    lock = RunLock(rd)
+    if not lock.acquire():
+        say(f"{head}: held by another process, skipped")
+        return "busy"
+    try:
+        if os.path.exists(os.path.join(rd, "metrics.json")):  # finished while we waited for the lock
+            return None
+        resumed = os.path.isdir(os.path.join(rd, "checkpoints"))
+        say(f"{head}: {'resuming' if resumed else 'running'} on {cfg.device} -> {rd}")
+        t = time.perf_counter()
+        mm = pipeline.run(cfg, quiet=args.quiet).metrics["mean"]
+        say(f"{head}: " + " ".join(f"{k.upper()} {mm[k]:.3f}" for k in METRICS if k in mm)
+            + f" ({time.perf_counter() - t:.0f} s)")
+    except Exception as e:
+        print(f"{head}: FAILED: {type(e).__name__}: {e}", file=sys.stderr, flush=True)
+        raise
+    finally:
+        lock.release()
+    return None
+
+
+def main_eval(args, base) -> int:
+    """`reings eval` with its own options in `args` and the run options in `base` (a RunConfig)."""
     from .backends import get_backend
-    from .pipeline import run
 
     out = args.out
     if os.path.exists(out) and not os.path.isdir(out):
@@ -485,59 +586,30 @@ def main_eval(args) -> int:
         n = sum(r["status"] == "done" for r in res["runs"])
         print(f"{n} finished run(s) -> {os.path.join(out, 'results.md')}, results.json")
         return 0
-    jobs, expected = _plan(args)
+    jobs, expected = plan(args, base)
     if args.prepare_only:
-        _prepare(jobs, args)
+        _prepare(jobs)
         return 0
-    get_backend(args.device)  # unknown device: error before any folder is made
+    get_backend(base.device)  # unknown device: error before any folder is made
     os.makedirs(out, exist_ok=True)
-    failed, skipped_busy = [], []
+    failed, busy = [], 0
     say = lambda msg: print(msg, flush=True)  # noqa: E731 - one line per run even with --quiet (bars off)
-    for i, (ds, s, path, v, lab, base, rc) in enumerate(jobs, 1):
-        rd = run_dir(out, ds, lab, v, s)
-        head = f"[{i}/{len(jobs)}] {ds} {s} {v} views {lab}"
-        if os.path.exists(os.path.join(rd, "metrics.json")):
-            diff = _settings_differ(os.path.join(rd, "metrics.json"), args, base)
-            if diff:
-                print(f"{head}: WARNING: finished earlier with other settings ({diff}); kept, not redone "
-                      "(remove the folder or use another --out)", file=sys.stderr, flush=True)
-            say(f"{head}: done already ({rd})")
-            continue
-        lock = RunLock(rd)
-        if not lock.acquire():
-            say(f"{head}: held by another process, skipped")
-            skipped_busy.append(rd)
-            continue
+    for i, (ds, s, cfg) in enumerate(jobs, 1):
         try:
-            if os.path.exists(os.path.join(rd, "metrics.json")):  # finished while we waited for the lock
-                continue
-            resumed = os.path.isdir(os.path.join(rd, "checkpoints"))
-            say(f"{head}: {'resuming' if resumed else 'running'} on {args.device} -> {rd}")
-            t = time.perf_counter()
-            r = run(data=path, dataset=None if path is None else args.dataset, method=lab, views=v, device=args.device,
-                    depth_prior=args.depth_prior, preset=args.preset, iterations=args.iterations, seed=args.seed,
-                    out=rd, factor=args.factor, quiet=args.quiet, reings_config=rc, eval_every=args.eval_every,
-                    with_lpips=not args.no_lpips, init_points=args.init_points, sh_degree=args.sh_degree,
-                    max_gaussians=args.max_gaussians, extent=args.extent,
-                    prune_curve=getattr(args, "prune_curve", False), depth_smooth=getattr(args, "depth_smooth", None))
-            mm = r.metrics["mean"]
-            say(f"{head}: " + " ".join(f"{k.upper()} {mm[k]:.3f}" for k in METRICS if k in mm)
-                + f" ({time.perf_counter() - t:.0f} s)")
+            busy += _run_one(i, len(jobs), ds, s, cfg, args, say) == "busy"
         except (KeyboardInterrupt, SystemExit):
             raise
         except Exception as e:
-            failed.append((rd, f"{type(e).__name__}: {e}"))
-            print(f"{head}: FAILED: {type(e).__name__}: {e}", file=sys.stderr, flush=True)
+            failed.append((cfg.output.out, f"{type(e).__name__}: {e}"))
             if not args.keep_going:
                 write_tables(out, expected)
                 raise
-        finally:
-            lock.release()
     res = write_tables(out, expected)
     n = sum(r["status"] == "done" for r in res["runs"])
     print(f"{n} finished run(s) in {out}; table: {os.path.join(out, 'results.md')}"
-          + (f"; {len(skipped_busy)} held by other processes" if skipped_busy else ""))
+          + (f"; {busy} held by other processes" if busy else ""))
     if failed:
         print(f"reings: error: {len(failed)} run(s) failed: " + "; ".join(f"{p}: {e}" for p, e in failed), file=sys.stderr)
         return 1
     return 0
+# }}}

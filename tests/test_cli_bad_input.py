@@ -121,15 +121,15 @@ def test_eval_unknown_scene(tmp_path, capsys):
 
 def _record_run(monkeypatch):
     """Replace reings.pipeline.run (what `reings run` and `reings eval` call) by a stub that records
-    its keyword arguments; returns the list of recorded calls."""
+    the RunConfig it gets; returns the list of recorded configs."""
     from reings import pipeline
 
     calls = []
 
-    def fake_run(**kw):
-        calls.append(kw)
-        return pipeline.RunResult(None, {"mean": {"psnr": 1.0}, "method": kw.get("method"), "data": "procedural",
-                                         "views": kw.get("views"), "device": "pocl",
+    def fake_run(config, **kw):
+        calls.append(config)
+        return pipeline.RunResult(None, {"mean": {"psnr": 1.0}, "method": config.label, "data": "procedural",
+                                         "views": config.views, "device": "pocl",
                                          "seconds": {"method": 0.0, "total": 0.0}, "gaussians": {}})
 
     monkeypatch.setattr(pipeline, "run", fake_run)
@@ -148,13 +148,15 @@ def test_iterations_and_depth_smooth_reach_run(kind, tmp_path, monkeypatch):
     calls = _record_run(monkeypatch)
     assert main(_cli(kind, tmp_path / "a", "--iterations", "100,300,600", "--depth-smooth", "0.05")) == 0
     assert len(calls) == 1
-    assert calls[-1]["iterations"] == (100, 300, 600) and isinstance(calls[-1]["iterations"], tuple)
-    assert calls[-1]["depth_smooth"] == 0.05
+    assert calls[-1].iterations == (100, 300, 600)
+    assert calls[-1].stage_iterations() == {"coarse": 100, "fine": 300, "final": 600}
+    assert calls[-1].depth_smooth == 0.05
     assert main(_cli(kind, tmp_path / "b", "--iterations", "7")) == 0
-    assert calls[-1]["iterations"] == 7 and type(calls[-1]["iterations"]) is int
-    assert calls[-1]["depth_smooth"] is None  # absent: the preset's weight
+    assert calls[-1].iterations == (7,) and calls[-1].stage_iterations() == {"coarse": 7, "fine": 7, "final": 7}
+    assert calls[-1].depth_smooth is None  # absent: the preset's weight
     assert main(_cli(kind, tmp_path / "c", "--depth-smooth", "0")) == 0
-    assert calls[-1]["depth_smooth"] == 0.0 and calls[-1]["iterations"] is None  # 0 = off, not "absent"
+    assert calls[-1].depth_smooth == 0.0 and calls[-1].iterations is None  # 0 = off, not "absent"
+    assert calls[-1].stage_iterations() == {"coarse": 200, "fine": 200, "final": 600}  # the quick preset
     assert len(calls) == 3
 
 

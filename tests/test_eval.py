@@ -3,7 +3,9 @@ from __future__ import annotations
 
 import json
 import os
+import pathlib
 
+import numpy as np
 import pytest
 
 from reings import evaluate
@@ -11,13 +13,13 @@ from reings.cli import main
 
 
 def _fake_run(out, dataset, method, views, scene, psnr, ssim, lpips, avge, seconds=10.0, preset="quick",
-              iterations=None, gaussians=1000):
-    d = out / dataset / method / f"{views}views" / scene
+              iterations=None, gaussians=1000, seed=0):
+    d = pathlib.Path(evaluate.run_dir(str(out), dataset, method, views, scene, seed))
     d.mkdir(parents=True)
     base = method.split("-")[0]
     its = iterations or {"reings": [200, 200, 600]}.get(base, [600])
     m = {"method": method, "base_method": base, "scene": scene, "dataset": dataset, "views": views,
-         "preset": preset, "device": "cuda:0", "device_name": "FakeGPU", "seed": 0, "depth_prior": "stereo",
+         "preset": preset, "device": "cuda:0", "device_name": "FakeGPU", "seed": seed, "depth_prior": "stereo",
          "mean": {"psnr": psnr, "ssim": ssim, "lpips": lpips, "avge": avge},
          "seconds": {"method": seconds, "total": seconds + 5},
          "stages": [{"stage": "final", "gaussians": gaussians}],
@@ -124,18 +126,18 @@ def test_eval_passes_final_prune_and_prune_curve(tmp_path, monkeypatch):
 
     calls = []
 
-    def fake_run(**kw):
-        calls.append(kw)
+    def fake_run(config, **kw):
+        calls.append(config)
         return pipeline.RunResult(None, {"mean": {"psnr": 1.0}}, [])
 
     monkeypatch.setattr(pipeline, "run", fake_run)
     base = ["eval", "--dataset", "procedural", "--views", "2", "--methods", "reings", "--quiet"]
     assert main(base + ["--final-prune", "0.3", "--prune-curve", "--out", str(tmp_path / "a")]) == 0
     assert len(calls) == 1
-    assert calls[0]["reings_config"].final_prune == 0.3 and calls[0]["prune_curve"] is True
+    assert calls[0].reings.final_prune == 0.3 and calls[0].output.prune_curve is True
     assert main(base + ["--out", str(tmp_path / "b")]) == 0
-    assert calls[1]["reings_config"].final_prune == 0.1 and calls[1]["prune_curve"] is False  # the default
-    assert calls[1]["depth_smooth"] is None
+    assert calls[1].reings.final_prune == 0.1 and calls[1].output.prune_curve is False  # the default
+    assert calls[1].depth_smooth is None
 
 
 def test_setting_tag_names_smoothness_and_prune():
@@ -162,7 +164,7 @@ def test_depth_smooth_overrides_every_stage(method, stages, tmp_path, device):
               with_lpips=False, eval_every=0, device=device)
     pipeline.run(out=str(tmp_path / "r"), depth_smooth=0.25, **kw)
     m = json.loads((tmp_path / "r" / "metrics.json").read_text())
-    fits = [s for s in m["stages"] if "config" in s]  # reings also records its final_prune step
+    fits = [s for s in m["stages"] if "config" in s]  # the stages that do not fit (ehps, ivps, ...) have none
     assert [s["stage"] for s in fits] == stages
     assert [s["config"]["loss"]["depth_smooth_weight"] for s in fits] == [0.25] * len(stages)
     assert m["config"]["depth_smooth"] == 0.25
@@ -174,4 +176,79 @@ def test_depth_smooth_overrides_every_stage(method, stages, tmp_path, device):
     if method == "dngaussian":  # the stereo prior's default is no smoothness
         pipeline.run(out=str(tmp_path / "s"), **{**kw, "depth_prior": "stereo"})
         m = json.loads((tmp_path / "s" / "metrics.json").read_text())
-        assert [s["config"]["loss"]["depth_smooth_weight"] for s in m["stages"]] == [0.0]
+        assert [s["config"]["loss"]["depth_smooth_weight"] for s in m["stages"] if "config" in s] == [0.0]
+
+
+# -- seeds: one run folder per seed, the table's mean and min-max over seeds
+
+def test_table_mean_and_spread_over_seeds(tmp_path, capsys):
+    out = tmp_path / "res"
+    for seed, psnr in ((0, 20.0), (1, 21.0), (2, 22.0)):
+        _fake_run(out, "llff", "reings", 3, "fern", psnr, 0.7, 0.2, 0.1, seed=seed, seconds=10.0 * (seed + 1))
+    for seed, psnr in ((0, 24.0), (1, 26.0)):
+        _fake_run(out, "llff", "reings", 3, "flower", psnr, 0.8, 0.1, 0.1, seed=seed)
+    assert (out / "llff" / "reings" / "3views" / "fern_seed2" / "metrics.json").is_file()
+    assert main(["eval", "--table-only", "--out", str(out)]) == 0
+    res = json.loads((out / "results.json").read_text())
+    mth = res["datasets"]["llff"]["methods"]
+    assert list(mth) == ["reings"]  # seeds are replicates, not settings
+    cell = mth["reings"]["mean"]["3"]
+    assert cell["psnr"] == pytest.approx((21.0 + 25.0) / 2)  # mean over scenes of each scene's mean over seeds
+    assert cell["seeds"] == [0, 1, 2] and cell["n_scenes"] == 2 and cell["complete"]
+    per_seed = [(20 + 24) / 2, (21 + 26) / 2, 22.0]  # per seed: the mean over the scenes it covers
+    assert cell["spread"]["psnr"] == pytest.approx([min(per_seed), max(per_seed)])
+    assert cell["std"]["psnr"] == pytest.approx(float(np.std(per_seed, ddof=1)))
+    assert cell["spread"]["ssim"] == pytest.approx([0.7, 0.75])  # seed 2 covers fern (0.7) only
+    fern = mth["reings"]["scenes"]["fern"]["3"]
+    assert fern["psnr"] == pytest.approx(21.0) and fern["spread"]["psnr"] == [20.0, 22.0] and fern["seeds"] == [0, 1, 2]
+    assert fern["seconds"] == pytest.approx(20.0) and fern["runs"]["2"] == os.path.join("llff", "reings", "3views", "fern_seed2")
+    md = (out / "results.md").read_text()
+    assert "| reings (ours) | 23.00 [22.00–23.50] |" in md
+    assert "| fern / reings | 21.00 [20.00–22.00] |" in md and "| flower / reings | 25.00 [24.00–26.00] |" in md
+    assert "Seeds 0, 1, 2:" in md
+    capsys.readouterr()
+
+
+def test_eval_seeds_one_run_each(tmp_path, monkeypatch, capsys):
+    from reings import pipeline
+
+    calls = []
+
+    def fake_run(config, **kw):
+        calls.append(config)
+        return pipeline.RunResult(None, {"mean": {"psnr": 1.0}}, [])
+
+    monkeypatch.setattr(pipeline, "run", fake_run)
+    out = tmp_path / "ev"
+    argv = ["eval", "--dataset", "procedural", "--views", "2,3", "--methods", "reings,dngaussian", "--seeds", "0,2",
+            "--no-cvps", "--cvps-fraction", "0.5", "--quiet", "--out", str(out)]
+    assert main(argv) == 0
+    got = [(c.views, c.label, c.seed, os.path.relpath(c.output.out, out)) for c in calls]
+    d = os.path.join
+    assert got == [(2, "reings-no-cvps", 0, d("procedural", "reings-no-cvps", "2views", "procedural")),
+                   (2, "reings-no-cvps", 2, d("procedural", "reings-no-cvps", "2views", "procedural_seed2")),
+                   (2, "dngaussian", 0, d("procedural", "dngaussian", "2views", "procedural")),
+                   (2, "dngaussian", 2, d("procedural", "dngaussian", "2views", "procedural_seed2")),
+                   (3, "reings-no-cvps", 0, d("procedural", "reings-no-cvps", "3views", "procedural")),
+                   (3, "reings-no-cvps", 2, d("procedural", "reings-no-cvps", "3views", "procedural_seed2")),
+                   (3, "dngaussian", 0, d("procedural", "dngaussian", "3views", "procedural")),
+                   (3, "dngaussian", 2, d("procedural", "dngaussian", "3views", "procedural_seed2"))]
+    assert all(c.reings.cvps_fraction == 0.5 and c.dataset is None and c.data is None for c in calls)  # built-in scene
+    calls.clear()
+    assert main(["eval", "--dataset", "procedural", "--views", "2", "--seed", "5", "--quiet", "--out", str(out)]) == 0
+    assert [(c.label, c.seed, os.path.basename(c.output.out)) for c in calls] == [("reings", 5, "procedural_seed5")]
+    assert main(["eval", "--dataset", "procedural", "--seeds", "0,x", "--out", str(out)]) == 2
+    assert "--seeds" in capsys.readouterr().err
+
+
+def test_eval_warns_about_a_finished_run_of_other_settings(tmp_path, monkeypatch, capsys):
+    from reings import pipeline
+
+    monkeypatch.setattr(pipeline, "run", lambda *a, **k: pytest.fail("a finished run is never redone"))
+    out = tmp_path / "ev"
+    d = out / "procedural" / "reings" / "2views" / "procedural"
+    d.mkdir(parents=True)
+    (d / "metrics.json").write_text(json.dumps({"mean": {"psnr": 1.0}, "config": {"preset": "paper", "seed": 0}}))
+    assert main(["eval", "--dataset", "procedural", "--views", "2", "--quiet", "--out", str(out)]) == 0
+    err = capsys.readouterr().err
+    assert "finished earlier with other settings (preset 'paper' != 'quick')" in err, err

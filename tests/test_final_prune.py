@@ -12,11 +12,12 @@ import pytest
 from cases import make_camera, make_gaussians, rotation_viewmat
 
 import reings
-from reings import pipeline
+from reings import pipeline, reinit
 from reings.backends import reference
 from reings.backends.base import ALPHA_MAX, ALPHA_MIN, EPS2D, T_MIN
 from reings.cli import build_parser, main
-from reings.pipeline import ReInGSConfig, cvps_select, gaussian_importance, prune_keep_indices
+from reings.config import ReInGSConfig
+from reings.reinit import cvps_select, gaussian_importance, prune_keep_indices
 from reings.rendering import render
 
 BG, NEAR = (0.0, 0.0, 0.0), 0.01
@@ -107,7 +108,7 @@ def test_importance_helper_is_cvps_basis(tiny, device, monkeypatch):
     # and it goes through the helper (no second copy of the loop): a fake Omega_G steers it
     fake = np.zeros(len(g))
     fake[[1, 4, 6, 7]] = 1.0
-    monkeypatch.setattr(pipeline, "gaussian_importance", lambda *a, **k: fake)
+    monkeypatch.setattr(reinit, "gaussian_importance", lambda *a, **k: fake)
     np.testing.assert_array_equal(cvps_select(g, train, rc, device, BG, NEAR, np.random.default_rng(0)), [1, 4, 6, 7])
 
 
@@ -156,28 +157,30 @@ def test_run_refuses_bad_final_prune(tmp_path):
 
 
 def test_cli_wires_the_flags(tmp_path, monkeypatch):
-    a = build_parser().parse_args(["run", "--out", "x"])
-    assert a.final_prune == 0.1 and a.prune_curve is False  # the default (model-size study)
+    from reings.cli import config_from_args
+
+    c = config_from_args(build_parser().parse_args(["run", "--out", "x"]))
+    assert c.reings.final_prune == 0.1 and c.output.prune_curve is False  # the default (model-size study)
     seen = {}
 
-    def fake_run(**kw):
-        seen.update(kw)
+    def fake_run(config, **kw):
+        seen["config"] = config
         return pipeline.RunResult(None, {"mean": {"psnr": 1.0}, "method": "reings", "data": "procedural",
                                          "views": 3, "device": "pocl", "seconds": {"method": 0.0, "total": 0.0},
                                          "gaussians": {}})
 
     monkeypatch.setattr(pipeline, "run", fake_run)
     assert main(["run", "--final-prune", "0.3", "--prune-curve", "--out", str(tmp_path / "o"), "--quiet"]) == 0
-    assert seen["reings_config"].final_prune == 0.3 and seen["prune_curve"] is True
+    assert seen["config"].reings.final_prune == 0.3 and seen["config"].output.prune_curve is True
     assert main(["run", "--out", str(tmp_path / "o"), "--quiet"]) == 0
-    assert seen["reings_config"].final_prune == 0.1 and seen["prune_curve"] is False
+    assert seen["config"].reings.final_prune == 0.1 and seen["config"].output.prune_curve is False
 
 
 class _InterruptEvaluate:
-    """pipeline._evaluate that raises KeyboardInterrupt at its first call (after the final stage)."""
+    """pipeline.score_test_views that raises KeyboardInterrupt at its first call (after the final stage)."""
 
     def __init__(self):
-        self.real = pipeline._evaluate
+        self.real = pipeline.score_test_views
 
     def __call__(self, *a, **k):
         raise KeyboardInterrupt
@@ -190,7 +193,7 @@ def test_run_final_prune_counts_curve_and_resume(tmp_path, monkeypatch):
     ref = reings.run(out=str(tmp_path / "ref"), **kw)
     m = json.loads((tmp_path / "ref" / "metrics.json").read_text())
     st = m["stages"][-1]
-    assert [s["stage"] for s in m["stages"]] == ["coarse", "fine", "final", "final_prune"]
+    assert [s["stage"] for s in m["stages"]] == ["ehps", "coarse", "ivps", "fine", "cvps", "final", "final_prune"]
     n0 = m["gaussians"]["final"]
     assert st["gaussians_before"] == n0 == m["stages"][-2]["gaussians"]
     assert st["gaussians"] == m["gaussians"]["final_prune"] == round(0.5 * n0) == len(ref.gaussians)
@@ -210,7 +213,7 @@ def test_run_final_prune_counts_curve_and_resume(tmp_path, monkeypatch):
     # interrupted after the final stage (in the curve's first evaluation), then resumed: the final
     # stage comes back from final.npz (the unpruned model) and the prune is applied once, identically
     out = tmp_path / "cut"
-    monkeypatch.setattr(pipeline, "_evaluate", _InterruptEvaluate())
+    monkeypatch.setattr(pipeline, "score_test_views", _InterruptEvaluate())
     with pytest.raises(KeyboardInterrupt):
         reings.run(out=str(out), **kw)
     monkeypatch.undo()

@@ -1,6 +1,7 @@
 """`reings.run`: training helps, PSNR-vs-seconds series and SVG, outputs, resume, refusals."""
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import xml.etree.ElementTree as ET
@@ -10,7 +11,10 @@ import pytest
 
 import reings
 from reings import pipeline
-from reings.pipeline import ReInGSConfig, method_label, parse_method, psnr_time_svg
+from reings.config import (FIT_STAGES, STAGES, OutputConfig, ReInGSConfig, RunConfig, load_run_config, method_label,
+                           parse_method)
+from reings.cli import main
+from reings.outputs import psnr_time_svg
 
 
 def test_parse_method_and_label():
@@ -60,7 +64,8 @@ def test_short_fit_raises_test_psnr(tmp_path):
     secs = [p["seconds"] for p in pts]
     assert secs == sorted(secs) and secs[-1] > 0
     assert all(p["wall_seconds"] >= p["seconds"] - 1e-9 for p in pts)
-    st = r.metrics["stages"][0]
+    assert [s["stage"] for s in r.metrics["stages"]] == ["init", "dngaussian"]
+    st = r.metrics["stages"][1]
     assert st["eval_seconds"] > 0 and st["wall_seconds"] >= st["seconds"]
     assert r.metrics["seconds"]["method"] == pytest.approx(st["seconds"])
     # outputs
@@ -70,7 +75,12 @@ def test_short_fit_raises_test_psnr(tmp_path):
     assert m["model_bytes"]["dngaussian"] == pipeline.gaussians_nbytes(r.gaussians) > 0
     assert m["memory"]["peak_rss_mb"] > 0 and m["memory"]["device_peak_bytes"] > 0
     assert m["config"]["iterations"] == [100] and m["config"]["method"] == "dngaussian"
-    assert m["stages"][0]["config"]["iterations"] == 100
+    assert m["stages"][1]["config"]["iterations"] == 100 and m["stages"][1]["config"]["seed"] == 0
+    # the resolved configuration next to metrics.json, and in it
+    want = RunConfig(method="dngaussian", iterations=(100,), depth_prior="exact", sh_degree=0,
+                     output=OutputConfig(out=str(out), lpips=False, eval_every=50))
+    assert load_run_config(out / "config.toml") == want
+    assert m["run_config"] == json.loads(json.dumps(dataclasses.asdict(want)))
     ET.parse(out / "psnr_vs_time.svg")
     assert (out / "gaussians.ply").is_file() and len(os.listdir(out / "renders")) == len(m["test_names"])
     # a second run into the same folder is refused, before any work
@@ -95,10 +105,24 @@ class _Interrupt:
         return self.real(*a, **k)
 
 
+def test_stage_list_is_the_config_s():
+    for method, names in STAGES.items():
+        assert [n for n, _ in pipeline.stages_of(method)] == list(names)
+        fits = [n for n in names if n in FIT_STAGES[method]]
+        assert fits == list(FIT_STAGES[method])
+
+
 def test_interrupted_run_resumes_to_the_same_result(tmp_path, monkeypatch):
     kw = dict(method="reings", iterations=10, depth_prior="exact", quiet=True, with_lpips=False, eval_every=3,
               checkpoint_every=4, device="pocl", seed=3)
     ref = reings.run(out=str(tmp_path / "ref"), **kw)
+    # one name per stage: the stage list, the metrics keys, the fits' configs (with the run's seed)
+    m = ref.metrics
+    assert [s["stage"] for s in m["stages"]] == list(STAGES["reings"])
+    assert all(n in m["gaussians"] and n in m["seconds"] and n in m["model_bytes"] for n in STAGES["reings"])
+    assert [s["stage"] for s in m["stages"] if "config" in s] == list(FIT_STAGES["reings"])
+    assert [s["config"]["seed"] for s in m["stages"] if "config" in s] == [3, 3, 3]
+    assert m["gaussians"]["init"] == m["gaussians"]["ehps"]
 
     out = tmp_path / "cut"
     # probes: init, coarse 3/6/9/10, fine 3/6/9 <- interrupted there; fine's last checkpoint is at 8
@@ -125,3 +149,27 @@ def test_interrupted_run_resumes_to_the_same_result(tmp_path, monkeypatch):
     # --overwrite starts over (checkpoints removed) and gives the same result again
     again = reings.run(out=str(out), overwrite=True, **kw)
     assert again.metrics["mean"] == res.metrics["mean"]
+
+
+def test_config_toml_reproduces_the_run(tmp_path, capsys):
+    """`reings run --config A/config.toml --out B` is the same run as A (the resolved configuration)."""
+    a, b = tmp_path / "a", tmp_path / "b"
+    common = ["--depth-prior", "exact", "--no-lpips", "--quiet", "--eval-every", "0", "--device", "pocl"]
+    assert main(["run", "--method", "dngaussian", "--iterations", "20", "--seed", "4", "--out", str(a), *common]) == 0
+    cfg = load_run_config(a / "config.toml")
+    assert cfg.seed == 4 and cfg.iterations == (20,) and cfg.sh_degree == 0 and cfg.output.out == str(a)
+    assert main(["run", "--config", str(a / "config.toml"), "--out", str(b), "--quiet"]) == 0
+    ma, mb = (json.loads((d / "metrics.json").read_text()) for d in (a, b))
+    assert ma["mean"] == mb["mean"] and ma["gaussians"] == mb["gaussians"]
+    assert load_run_config(b / "config.toml") == dataclasses.replace(cfg, output=dataclasses.replace(cfg.output, out=str(b)))
+    capsys.readouterr()
+
+
+def test_run_takes_the_object_and_refuses_other_positionals(tmp_path):
+    with pytest.raises(TypeError, match="expected a RunConfig"):
+        reings.run("data/fern")
+    with pytest.raises(TypeError, match="unexpected keyword argument 'iters'"):
+        reings.run(iters=3)
+    r = reings.run(RunConfig(method="3dgs", iterations=(3,), depth_prior="none", output=OutputConfig(lpips=False, eval_every=0)),
+                   quiet=True)
+    assert [s["stage"] for s in r.metrics["stages"]] == ["init", "3dgs"] and r.metrics["run_config"]["method"] == "3dgs"

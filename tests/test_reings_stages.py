@@ -1,4 +1,4 @@
-"""ReInGS stage functions (reings.pipeline: ivps_points and its pieces) against the procedural
+"""ReInGS re-initialisation (reings.reinit: ivps_points and its pieces) against the procedural
 scene's exact geometry: back-projection (float64, exact), the hard-render depth normalisation,
 the pixel-centre convention, colour order and the SH DC encoding of the IVPS points."""
 from __future__ import annotations
@@ -9,7 +9,8 @@ import pytest
 from reings import render
 from reings.data import make_procedural_scene
 from reings.data.procedural import _layout, _Noise, _trace
-from reings.pipeline import ReInGSConfig, backproject_pixels, ivps_points, ivps_view_scores
+from reings.config import ReInGSConfig
+from reings.reinit import backproject_pixels, ivps_points, ivps_view_scores
 from reings.train import SH_C0, gaussians_from_points
 from reings.types import Gaussians
 
@@ -163,5 +164,5 @@ def test_faint_floaters_capture_the_hard_depth_not_the_expected_depth(scene, dev
         _, d, info = ivps_view_scores(g, cam, None, ReInGSConfig(ivps_depth=mode), device, BG, NEAR)
         err[mode] = np.median((np.abs(d - depth) / depth)[covered & info["valid"]])
     assert err["hard"] > 0.4 and err["expected"] < 0.1, err
-    with pytest.raises(ValueError):
-        ivps_view_scores(g, cam, None, ReInGSConfig(ivps_depth="median"), device, BG, NEAR)
+    with pytest.raises(ValueError, match="ivps_depth"):
+        ReInGSConfig(ivps_depth="median")
