@@ -33,7 +33,7 @@ import numpy as np
 METRICS = ("psnr", "ssim", "lpips", "avge")
 ARROW = {"psnr": "↑", "ssim": "↑", "lpips": "↓", "avge": "↓"}
 
-# {{{ the paper's numbers (../shared/docs/paper.txt), only as printed there
+# {{{ the paper's numbers (docs/method.md §6: the ReInGS paper's Tables 2-4), only as printed there
 # Table 2: LLFF, 2/3/4 views, rows "without sparsity discrepancy" (random init, as our runs).
 # Table 3: DTU, 3 views, rows without sparsity discrepancy.
 # Table 4: LLFF, 3 views ablations (PSNR, LPIPS, SSIM only; no AVGE). The check marks of Table 4
@@ -70,7 +70,7 @@ PAPER = {
         {"method": "3dgs", "name": "3DGS ✗SD (paper)", "source": "paper Table 3", "views": {3: _row(12.77, 0.681, 0.278, 0.167)}},
     ],
 }
-PAPER_NOTE = ("Paper numbers: the ReInGS paper (../shared/docs/paper.txt), as printed; ✗SD = the paper's rows without "
+PAPER_NOTE = ("Paper numbers: the ReInGS paper (Tables 2-4, copied in docs/method.md §6), as printed; ✗SD = the paper's rows without "
               "sparsity discrepancy (random initial points, as these runs). Table 4 (ablations, LLFF 3 views) "
               "prints no AVGE, and its row-to-switch mapping is read from §4.2 (the extracted check marks are "
               "ambiguous). DTU numbers for 2 and 4 views are in the paper's appendix Table 5, not available here.")
@@ -103,7 +103,8 @@ def parse_list(text, what: str, cast=str) -> list:
 def discover_scenes(root: str, dataset: str | None) -> list[tuple[str, str]]:
     """(name, kind) of every scene folder directly under `root` whose format is detected (and, with
     `dataset`, belongs to it); folders that are not scenes (DTU's masks/, ...) are skipped."""
-    from .data.scene import SceneError, detect_format
+    from .data.loader import detect_format
+    from .data.types import SceneError
 
     found = []
     for name in sorted(os.listdir(root)):

@@ -109,7 +109,7 @@ def test_every_field_is_documented_and_named_once():
     for cls in (C.TrainConfig, C.OptimConfig, C.LossConfig, C.DensifyConfig):  # the fit recipe too
         assert all(f.metadata.get("help") for f in fields(cls)), cls
     # the datasets RunConfig accepts are the loader's
-    from reings.data.scene import KINDS
+    from reings.data.types import KINDS
 
     assert set(C.DATASETS) == set(KINDS)
 

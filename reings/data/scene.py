@@ -10,7 +10,5 @@ from __future__ import annotations
 from .loader import DATASET_ALIASES, canonical_kind, detect_format, load_scene
 from .types import KINDS, Scene, SceneError, make_camera
 
-_ALIASES = DATASET_ALIASES  # the pre-split private name, still read by reings.pipeline
-
 __all__ = ["KINDS", "Scene", "SceneError", "make_camera", "DATASET_ALIASES", "canonical_kind", "detect_format",
            "load_scene"]
