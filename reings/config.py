@@ -238,6 +238,7 @@ STAGES = {"reings": ("ehps", "coarse", "ivps", "fine", "cvps", "final", "final_p
           "dngaussian": ("init", "dngaussian"),
           "3dgs": ("init", "3dgs")}
 FIT_STAGES = {"reings": ("coarse", "fine", "final"), "dngaussian": ("dngaussian",), "3dgs": ("3dgs",)}
+RECIPES = ("auto", "llff", "dtu")  # RunConfig.recipe: the recipe family of the fits
 DATASETS = ("llff", "llff_nex", "colmap", "dtu", "blender", "procedural")
 
 
@@ -487,6 +488,10 @@ class RunConfig:
     depth_smooth: float | None = opt(None, "weight of DNGaussian's edge-aware depth smoothness in every depth pass; "
                                            "none: the recipe's 0.1 (from the middle of each stage), but 0 with the "
                                            "stereo prior; 0 = off", check=finite_nonneg, metavar="WEIGHT")
+    recipe: str = opt("auto", "training recipe family of every fit: 'llff' (DNGaussian's LLFF recipe) or 'dtu' "
+                              "(DNGaussian's DTU recipe: SSIM weight 0.6, 10x lower means lr, patches 17-53, "
+                              "margin 0.01, stronger penalties, soft depth gated by the hard loss, no "
+                              "smoothness); auto: 'dtu' for DTU scenes, else 'llff'", choices=RECIPES)
     reings: ReInGSConfig = opt(factory=ReInGSConfig, help="the ReInGS stages")
     output: OutputConfig = opt(factory=OutputConfig, help="outputs and reports")
 

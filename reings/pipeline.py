@@ -146,6 +146,8 @@ def run_settings(cfg: RunConfig, dataset_kind: str) -> dict:
          "sh_degree": cfg.sh_degree, "reings_config": rc, "max_gaussians": cfg.max_gaussians, "extent": cfg.extent}
     if cfg.depth_smooth is not None:
         s["depth_smooth"] = cfg.depth_smooth
+    if cfg.recipe != "auto":  # "auto" is the value before the option existed
+        s["recipe"] = cfg.recipe
     if cfg.seed:  # the seed reaches every fit too (before, only the initial points and IVPS/CVPS draws)
         s["fit_seed"] = cfg.seed
     return s
@@ -154,29 +156,40 @@ def run_settings(cfg: RunConfig, dataset_kind: str) -> dict:
 
 # {{{ the fits' recipes
 
-def baseline_recipe(method: str, iters: int, sh_degree: int):
+def recipe_family(recipe: str, dataset_kind: str) -> str:
+    """The recipe family of a run's fits: RunConfig.recipe, with "auto" -> "dtu" for DTU scenes
+    (DNGaussian trains DTU with its own recipe, docs/method.md §2.2), else "llff"."""
+    if recipe != "auto":
+        return recipe
+    return "dtu" if dataset_kind == "dtu" else "llff"
+
+
+def baseline_recipe(method: str, iters: int, sh_degree: int, family: str = "llff"):
     """The TrainConfig of a baseline fit (and the base of the ReInGS fits): 3DGS's, with
-    densification until half the schedule, or DNGaussian's LLFF recipe; squeezed to `iters`."""
+    densification until half the schedule, or DNGaussian's recipe of `family` ("llff" | "dtu");
+    squeezed to `iters`."""
     from .config import preset
 
     if method == "3dgs":
         base = preset("3dgs")
         base = replace(base, densify=replace(base.densify, densify_until=base.iterations // 2))
     else:
-        base = preset("dngaussian")
+        base = preset({"llff": "dngaussian", "dtu": "dngaussian_dtu"}[family])
     return replace(with_iterations(base, iters), sh_degree=sh_degree)
 
 
-def coarse_recipe(iters: int, sh_degree: int, hard_opacity: float):
+def coarse_recipe(iters: int, sh_degree: int, hard_opacity: float, family: str = "llff"):
     """The coarse ReInGS fit: DNGaussian's recipe, hard depth only at the IVPS opacity."""
-    c = baseline_recipe("dngaussian", iters, sh_degree)
+    c = baseline_recipe("dngaussian", iters, sh_degree, family)
     return replace(c, loss=replace(c.loss, hard_depth_opacity=hard_opacity, soft_depth=False))
 
 
-def soft_depth_recipe(iters: int, sh_degree: int):
+def soft_depth_recipe(iters: int, sh_degree: int, family: str = "llff"):
     """The fine and final ReInGS fits: DNGaussian's recipe with soft depth only (paper Eq. 9), no
-    clean_views (their initial points come from the training views)."""
-    c = baseline_recipe("dngaussian", iters, sh_degree)
+    clean_views (their initial points come from the training views). Without the hard pass there
+    is no hard loss to gate the soft term on (the DTU recipe's EMA gate), so the gate is off."""
+    c = baseline_recipe("dngaussian", iters, sh_degree, family)
+    c = replace(c, loss=replace(c.loss, soft_depth_ema_gate=None))
     return replace(c, loss=replace(c.loss, hard_depth=False), densify=replace(c.densify, clean_views=False))
 # }}}
 
@@ -189,8 +202,9 @@ class RunContext:
 
     bg, near = (0.0, 0.0, 0.0), 0.01
 
-    def __init__(self, cfg: RunConfig, backend, train, test, priors, box, log, progress):
+    def __init__(self, cfg: RunConfig, backend, train, test, priors, box, log, progress, family: str = "llff"):
         self.cfg, self.backend, self.train, self.test, self.priors, self.box = cfg, backend, train, test, priors, box
+        self.family = family  # the fits' recipe family (recipe_family)
         self.device = cfg.device
         self.log, self.progress = log, progress
         self.iterations = cfg.stage_iterations()
@@ -312,12 +326,12 @@ def stage_ehps(ctx: RunContext, name: str):
 def stage_baseline_fit(ctx: RunContext, name: str):
     """The one fit of 3dgs or dngaussian (the stage is named after the method); only DNGaussian's
     recipe has depth terms."""
-    recipe = baseline_recipe(name, ctx.iterations[name], ctx.cfg.sh_degree)
+    recipe = baseline_recipe(name, ctx.iterations[name], ctx.cfg.sh_degree, ctx.family)
     return ctx.fit(name, recipe, ctx.g, use_priors=name == "dngaussian")
 
 
 def stage_coarse(ctx: RunContext, name: str):
-    recipe = coarse_recipe(ctx.iterations[name], ctx.cfg.sh_degree, ctx.cfg.reings.ivps_hard_opacity)
+    recipe = coarse_recipe(ctx.iterations[name], ctx.cfg.sh_degree, ctx.cfg.reings.ivps_hard_opacity, ctx.family)
     return ctx.fit(name, recipe, ctx.g, use_priors=True)
 
 
@@ -334,7 +348,8 @@ def stage_ivps(ctx: RunContext, name: str):
 
 def stage_soft_fit(ctx: RunContext, name: str):
     """The fine and final fits (paper Eq. 9)."""
-    return ctx.fit(name, soft_depth_recipe(ctx.iterations[name], ctx.cfg.sh_degree), ctx.g, use_priors=True)
+    return ctx.fit(name, soft_depth_recipe(ctx.iterations[name], ctx.cfg.sh_degree, ctx.family), ctx.g,
+                   use_priors=True)
 
 
 def stage_cvps(ctx: RunContext, name: str):
@@ -440,7 +455,8 @@ def _prepare(cfg: RunConfig, backend, prior, overwrite: bool, quiet: bool):
     t = time.perf_counter()
     box = frusta_only_extent(train) if cfg.extent == "frusta" else sfm_extent(train)
     timings["sfm"] = time.perf_counter() - t
-    ctx = RunContext(cfg, backend, train, test, priors, box, log, progress=not quiet)
+    ctx = RunContext(cfg, backend, train, test, priors, box, log, progress=not quiet,
+                     family=recipe_family(cfg.recipe, scene.kind))
     ctx.timings.update(timings)
     return ctx, settings, scene, tr_idx, te_idx
 
@@ -457,7 +473,7 @@ def _metrics(ctx: RunContext, m: dict, settings: dict, scene, tr_idx, te_idx, cu
         "data": cfg.data or "procedural", "train_indices": list(map(int, tr_idx)),
         "test_indices": list(map(int, te_idx)), "train_names": list(ctx.train.names),
         "test_names": list(ctx.test.names), "depth_prior": cfg.depth_prior, "seed": cfg.seed,
-        "sh_degree": cfg.sh_degree,
+        "sh_degree": cfg.sh_degree, "recipe": ctx.family,
         "mean": {k: m[k] for k in ("psnr", "ssim", "lpips", "avge") if k in m and m[k] is not None},
         "per_image": m.get("per_image"), "seconds": ctx.timings, "gaussians": ctx.counts,
         "model_bytes": ctx.model_bytes, "peak_rss_mb": _peak_rss_mb(),
