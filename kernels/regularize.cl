@@ -11,6 +11,9 @@
                                zeroed by the host); each work-item a contiguous chunk, one atomic
                                add per item.
      regularize_grads          the three penalties' gradients, one work-item per Gaussian.
+     opacity_decay             logits <- logit(f * sigmoid(logits)) in place (Binocular3DGS's opacity
+                               decay, the device trainer's `decay_opacity`; twin
+                               reference_view_warp.opacity_decay, float64): one work-item per Gaussian.
 
    Defines
      REGULARIZE_FP64   1: the per-Gaussian math in double (as numpy); 0 (default): in float.
@@ -88,3 +91,22 @@ __kernel void regularize_grads(const int n,
         v_logits[i] = v_logits[i] + (float)(opa_pena * ((go * o) * ((real)1.0 - o)));
     }
 }
+
+/* logit(f s(x)) = log f - log((1 - f) + exp(-x)), rewritten for x < 0 as
+   x + log f - log1p((1 - f) exp(x)) so that exp never overflows: finite for every finite x.
+   log_f = log f and one_minus_f = 1 - f come from the host (in `real`). Non-finite logits map as
+   the twin maps them: NaN -> NaN, -inf -> -inf, +inf -> log f - log(1 - f). */
+__kernel void opacity_decay(const int n, const real log_f, const real one_minus_f,
+                            __global float *logits)  /* [N] in place */
+{
+    const int i = get_global_id(0);
+    if (!(i < n)) return;
+    const real x = (real)logits[i];
+    real y;
+    if (x >= (real)0)
+        y = log_f - log(one_minus_f + exp(-x));
+    else
+        y = x + log_f - log1p(one_minus_f * exp(x));
+    logits[i] = (float)y;
+}
+

@@ -137,6 +137,14 @@ class LossConfig:
     shape_pena: float = opt(0.0, "weight of mean(max scale / min scale)")
     scale_pena: float = opt(0.0, "weight of mean(max scale^2)")
     opa_pena: float = opt(0.0, "weight of 1 - mean(o^2 | o>0.2) + mean((1-o)^2 | o<0.2)")
+    view_warp_weight: float = opt(0.0, "binocular view-consistency term (Han et al. 2024, docs/binocular.md): the "
+                                       "weight of the L1 between the training image and a virtual view shifted "
+                                       "along the camera x axis, warped back by the rendered depth (authors: 1); "
+                                       "0 = off")
+    view_warp_smooth: float = opt(0.05, "weight of the edge-aware disparity smoothness inside the view_warp term")
+    view_warp_baseline: float = opt(0.4, "largest |baseline| of the virtual view, world units (drawn uniformly "
+                                         "per iteration, random sign; authors: 0.4 in COLMAP units)")
+    view_warp_from: int = opt(20_000, "first iteration of the view_warp term (authors: 2/3 of the schedule)")
 
 
 @dataclass(frozen=True)
@@ -158,6 +166,9 @@ class DensifyConfig:
     max_world_size: float | None = opt(0.1, "prune if max scale exceeds this * extent (with size_prune_from)")
     max_gaussians: int | None = opt(None, "optional cap on the Gaussian count (highest-gradient candidates win)")
     clean_views: bool = opt(False, "drop Gaussians no training view sees, at the first iteration (DNGaussian)")
+    opacity_decay: float | None = opt(None, "multiply every opacity by this factor after each photometric "
+                                            "backward, before its Adam step (Binocular3DGS: 0.995); None = off")
+    opacity_decay_from: int = opt(500, "the opacity decay runs at iterations > this (authors: densify_from)")
 
 
 @dataclass(frozen=True)
@@ -186,7 +197,7 @@ def _dngaussian_llff() -> TrainConfig:
                           opacity_lr=0.05, scaling_lr=0.003, rotation_lr=0.001),
         loss=LossConfig(photometric_form="dngaussian", lambda_dssim=0.2, hard_depth=True, hard_depth_from=1,
                         hard_depth_opacity=0.95, soft_depth=True, soft_depth_from=1001, depth_patch_range=(5, 17),
-                        depth_margin=0.00025, depth_smooth_weight=0.1, depth_smooth_from=3001,
+                        depth_margin=0.00025, depth_smooth_weight=0.1, depth_smooth_from=3001, view_warp_from=4000,
                         shape_pena=0.002, scale_pena=0.001, opa_pena=0.001),
         densify=DensifyConfig(densify_from=500, densify_until=6000, densify_interval=100, grad_threshold=0.0013,
                               percent_dense=0.01, split_opacity_thresh=0.1, prune_opacity=0.01,
@@ -492,6 +503,18 @@ class RunConfig:
                               "(DNGaussian's DTU recipe: SSIM weight 0.6, 10x lower means lr, patches 17-53, "
                               "margin 0.01, stronger penalties, soft depth gated by the hard loss, no "
                               "smoothness); auto: 'dtu' for DTU scenes, else 'llff'", choices=RECIPES)
+    view_warp: float = opt(0.0, "reings fits only: weight of the binocular view-consistency term (Han et al. "
+                                "2024; docs/binocular.md) from 2/3 of each fit; 0 = off", check=finite_nonneg,
+                           metavar="WEIGHT")
+    view_warp_disparity: float = opt(4.0, "the view_warp term's largest virtual-view shift, in pixels at the median "
+                                          "depth of the scene's SfM points in the training views (scale-free; the "
+                                          "authors' 0.4 COLMAP units is 2.6-5.5 px on the LLFF scenes here)",
+                                     check=lambda v: None if v > 0 and v == v and v != float("inf")
+                                     else f"must be positive and finite, got {v}", metavar="PIXELS")
+    opacity_decay: float | None = opt(None, "reings fits only: multiply every opacity by this factor each iteration "
+                                            "after densification starts (Binocular3DGS: 0.995); none = off",
+                                      check=lambda v: None if v is None or 0 < v <= 1
+                                      else f"must lie in (0, 1], got {v}", metavar="FACTOR")
     reings: ReInGSConfig = opt(factory=ReInGSConfig, help="the ReInGS stages")
     output: OutputConfig = opt(factory=OutputConfig, help="outputs and reports")
 

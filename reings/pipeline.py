@@ -56,6 +56,22 @@ class RunResult:
 
 # {{{ small helpers
 
+def typical_depth(cameras, box) -> float:
+    """The scene's typical depth from the training views: the median over the cameras of the
+    median camera-space z of the SfM points in front of them (box.points), or, without points,
+    of the box centre's z (at least 1e-6)."""
+    pts = np.asarray(box.points, np.float64).reshape(-1, 3)
+    if not len(pts):
+        pts = (0.5 * (np.asarray(box.lo, np.float64) + np.asarray(box.hi, np.float64)))[None]
+    meds = []
+    for cam in cameras:
+        z = pts @ cam.viewmat[2, :3] + cam.viewmat[2, 3]
+        z = z[np.isfinite(z) & (z > 0)]
+        if len(z):
+            meds.append(float(np.median(z)))
+    return max(float(np.median(meds)) if meds else 1.0, 1e-6)
+
+
 def auto_eval_every(iters: int, points: int = 15) -> int:
     """Test-PSNR probes every this many iterations: about `points` per stage."""
     return max(1, int(round(iters / points)))
@@ -148,6 +164,10 @@ def run_settings(cfg: RunConfig, dataset_kind: str) -> dict:
         s["depth_smooth"] = cfg.depth_smooth
     if cfg.recipe != "auto":  # "auto" is the value before the option existed
         s["recipe"] = cfg.recipe
+    if cfg.view_warp:  # keys absent when off: older run folders stay resumable
+        s["view_warp"], s["view_warp_disparity"] = cfg.view_warp, cfg.view_warp_disparity
+    if cfg.opacity_decay is not None:
+        s["opacity_decay"] = cfg.opacity_decay
     if cfg.seed:  # the seed reaches every fit too (before, only the initial points and IVPS/CVPS draws)
         s["fit_seed"] = cfg.seed
     return s
@@ -220,6 +240,18 @@ class RunContext:
         self.clock = {"train": 0.0, "wall": 0.0, "probe": 0.0}  # cumulative across stages
         self._omega = None
 
+    def binocular(self, recipe):
+        """`recipe` with the run's view_warp term and opacity decay (reings fits): the largest
+        baseline from view_warp_disparity pixels at the scene's typical depth."""
+        c = self.cfg
+        if c.view_warp:
+            b = c.view_warp_disparity * typical_depth(self.train.cameras, self.box) / np.mean(
+                [cam.fx for cam in self.train.cameras])
+            recipe = replace(recipe, loss=replace(recipe.loss, view_warp_weight=c.view_warp, view_warp_baseline=b))
+        if c.opacity_decay is not None:
+            recipe = replace(recipe, densify=replace(recipe.densify, opacity_decay=c.opacity_decay))
+        return recipe
+
     def checkpoint(self, name: str):
         out = self.cfg.output.out
         return os.path.join(out, "checkpoints", name + ".npz") if out else None
@@ -268,6 +300,8 @@ class RunContext:
             recipe = replace(recipe, densify=replace(recipe.densify, max_gaussians=c.max_gaussians))
         if self.smooth_w is not None:
             recipe = replace(recipe, loss=replace(recipe.loss, depth_smooth_weight=self.smooth_w))
+        if c.method == "reings":
+            recipe = self.binocular(recipe)
         ee = auto_eval_every(recipe.iterations) if c.output.eval_every is None else c.output.eval_every
         if not self.series and ee:  # the starting point of the curve: the initial Gaussians
             self.series.append({"stage": "init", "iteration": 0, "seconds": 0.0, "wall_seconds": 0.0,

@@ -28,6 +28,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from .backends.reference_view_warp import draw_baseline, virtual_camera
 from .config import TrainConfig
 from .types import Camera, Gaussians
 
@@ -95,6 +96,7 @@ class History:
     seconds: list = field(default_factory=list)  # wall seconds since the start of this fit
     densify: list = field(default_factory=list)  # (iteration, counts) of each densification
     eval: list = field(default_factory=list)  # (iteration, seconds, metrics) from eval_fn
+    view_warp: list = field(default_factory=list)  # (iteration, loss, valid fraction) of the view_warp term, when logged
 
     def to_dict(self) -> dict:
         return {k: getattr(self, k) for k in self.__dataclass_fields__}
@@ -132,6 +134,13 @@ def _load_checkpoint(path: str):
     hist = History(**json.loads(bytes(d.pop("history")).decode()))
     extra = json.loads(bytes(d.pop("extra")).decode())
     return TrainState.from_arrays(d), rng_state, hist, extra
+
+
+def warp_baseline(seed: int, it: int, max_baseline: float) -> float:
+    """The signed baseline of iteration `it`'s virtual view (view_warp): |b| ~ U[0, max), random sign
+    (reference_view_warp.draw_baseline), from a generator of its own per iteration, so the term
+    shifts no other draw and a resumed fit draws the same baselines."""
+    return draw_baseline(np.random.default_rng([seed, 1, it]), max_baseline)
 
 
 def _view_of(it: int, seed: int, n_views: int) -> int:
@@ -332,7 +341,7 @@ class _Iteration:
         gate = L.soft_depth_ema_gate is None or (self.hard_ema is not None and self.hard_ema < L.soft_depth_ema_gate)
         if L.soft_depth and has_target and it >= L.soft_depth_from and gate:
             self.depth_pass(it, cam, vi, "soft", None, ("opacity_logits",), False)
-        loss, rgb = self.photometric_pass(cam, vi, self.book.logs(it))
+        loss, rgb = self.photometric_pass(it, cam, vi, self.book.logs(it))
         st.iteration = it
         self.densify(it)
         self.book.end(it, deg, loss, rgb, self.images[vi])
@@ -359,21 +368,42 @@ class _Iteration:
             tr.adam_step(self.opt, gr, groups)
         return loss
 
-    def photometric_pass(self, cam, vi: int, log: bool):
-        """The photometric pass (+ regularisers, densification statistics), stepping every group.
-        Returns (loss, rendered image) on logging iterations, else (None, None)."""
+    def photometric_pass(self, it: int, cam, vi: int, log: bool):
+        """The photometric pass (+ regularisers, the view_warp term, densification statistics,
+        the opacity decay), stepping every group. Returns (loss, rendered image) on logging
+        iterations, else (None, None).
+
+        With the view_warp term (docs/binocular.md §4.2): the virtual view (the training camera
+        shifted by a drawn baseline along its x axis) is rendered first and its image kept; the
+        term's depth cotangent joins the training render's backward (whose screen gradients feed
+        the densification statistics, as the authors'); the virtual render is then redone (the
+        backend holds one frame) and backpropagated into the held gradients: one Adam step."""
         from .losses import regularizers
 
-        tr, L, ph = self.tr, self.L, self.tr.phase
+        tr, L, D, ph = self.tr, self.L, self.cfg.densify, self.tr.phase
         loss = rgb = None
+        warp = L.view_warp_weight > 0 and it >= L.view_warp_from
+        if warp:
+            b = warp_baseline(self.cfg.seed, it, L.view_warp_baseline)
+            vcam = virtual_camera(cam, b)
+            with ph("warp_render"):
+                virt = tr.keep_rgb(tr.forward(vcam, self.k, self.bg, self.near))
         with ph("photo_render"):
             fr = tr.forward(cam, self.k, self.bg, self.near)
         with ph("photo_loss"):
             v_rgb = tr.photometric(fr, vi, self.w_l1, self.w_ssim)
             if log:
                 loss, rgb = tr.read_loss(), tr.read_rgb(fr)
+        v_depth = None
+        if warp:
+            with ph("view_warp"):
+                v_virt, v_depth = tr.view_warp(virt, fr, vi, b, L.view_warp_weight, L.view_warp_smooth)
+                if log:
+                    w = tr.read_view_warp()
+                    loss += w["loss"]
+                    self.book.history.view_warp.append((it, w["loss"], w["valid_fraction"]))
         with ph("photo_backward"):
-            gr = tr.backward(fr, v_rgb)
+            gr = tr.backward(fr, v_rgb, v_depth)
         with ph("regularize"):
             if self.reg_on:
                 if log:  # the penalties' value (host, float64) at the parameters before the step
@@ -382,6 +412,13 @@ class _Iteration:
                 tr.regularize(gr, L.shape_pena, L.scale_pena, L.opa_pena)
         with ph("accumulate"):
             tr.accumulate(fr)
+        if warp:
+            with ph("warp_backward"):
+                gr = tr.hold(gr)
+                tr.backward(tr.forward(vcam, self.k, self.bg, self.near), v_virt, into=gr)
+        if D.opacity_decay is not None and it > D.opacity_decay_from:
+            with ph("opacity_decay"):  # after the backward, before the step (Binocular3DGS)
+                tr.opacity_decay(D.opacity_decay)
         with ph("adam"):
             tr.adam_step(self.opt, gr, self.groups)
         return loss, rgb
@@ -413,9 +450,9 @@ def with_iterations(config: TrainConfig, iterations: int) -> TrainConfig:
         optim=replace(o, position_lr_start=int(round(o.position_lr_start * f)),
                       position_lr_max_steps=sc(o.position_lr_max_steps)),
         loss=replace(L, soft_depth_from=sc(L.soft_depth_from), hard_depth_from=max(1, sc(L.hard_depth_from)),
-                     depth_smooth_from=sc(L.depth_smooth_from)),
+                     depth_smooth_from=sc(L.depth_smooth_from), view_warp_from=sc(L.view_warp_from)),
         densify=replace(d, densify_from=sc(d.densify_from), densify_until=sc(d.densify_until),
                         densify_interval=max(10, sc(d.densify_interval)),
-                        opacity_reset_interval=sc(d.opacity_reset_interval),
+                        opacity_reset_interval=sc(d.opacity_reset_interval), opacity_decay_from=sc(d.opacity_decay_from),
                         size_prune_from=sc(d.size_prune_from)),
     )

@@ -190,11 +190,41 @@ class Trainer(Protocol):
         """The loss of the last `depth_loss` (a read from the device)."""
 
     def backward(self, frame: Frame, v_rgb: Any = None, v_depth: Any = None,
-                 opacity_override: float | None = None, grad_fields: Sequence[str] | None = None) -> Any:
+                 opacity_override: float | None = None, grad_fields: Sequence[str] | None = None,
+                 into: Any = None) -> Any:
         """The VJP of the frame's render for the cotangents v_rgb / v_depth (from the loss methods;
         None: zero) and the frame's `opacity_override`, restricted to `grad_fields` (None: every
         field). Returns the gradients per parameter group (handle for `regularize`, `adam_step`);
-        only the groups of `grad_fields` are present."""
+        only the groups of `grad_fields` are present. into: gradients from `hold` (same fields and
+        SH count): this backward's gradients are added into them (reference_state.grad_add;
+        kernels/grad_add.cl) and `into` is returned."""
+
+    def hold(self, grads: Any) -> Any:
+        """The gradients of the last `backward` as a handle that survives the next `backward` (to
+        be passed as its `into`): the photometric pass with view_warp backpropagates two renders
+        and steps once."""
+
+    def keep_rgb(self, frame: Frame) -> Any:
+        """The frame's rendered image as a handle that survives the next `forward` (the virtual
+        view's image that `view_warp` reads after the training view's forward)."""
+
+    def view_warp(self, virt: Any, frame: Frame, view: int, baseline: float, weight: float,
+                  smooth_weight: float) -> tuple[Any, Any]:
+        """The binocular view-consistency term (Han et al. 2024; docs/binocular.md): the virtual
+        image `virt` (from `keep_rgb` of a forward from reference_view_warp.virtual_camera(cam,
+        baseline)) warped into training view `view` by this frame's rendered depth, against
+        training image `view`; weight * (L1 + smooth_weight * disparity smoothness)
+        (reference_view_warp.view_warp_fwd_bwd; kernels/view_warp.cl). Returns (dL/d virt for the
+        virtual frame's `backward`, dL/d depth for this frame's); the loss and the valid fraction
+        wait for `read_view_warp`."""
+
+    def read_view_warp(self) -> dict:
+        """{"loss", "valid_fraction"} of the last `view_warp` (a read from the device)."""
+
+    def opacity_decay(self, factor: float) -> None:
+        """Every held opacity logit x <- logit(factor * sigmoid(x)), in place, Adam moments
+        untouched (Binocular3DGS's opacity decay: reference_state.opacity_decay_;
+        kernels/regularize.cl opacity_decay)."""
 
     def regularize(self, grads: Any, shape_pena: float, scale_pena: float, opa_pena: float) -> None:
         """Add DNGaussian's shape / scale / opacity penalties' gradients at the held parameters
@@ -278,6 +308,11 @@ class Backend(Protocol):
                    w_local: float = 0.1, w_global: float = 1.0, smooth=None) -> tuple[float, np.ndarray]:
         """(DNGaussian's depth loss, float32 dL/d depth) of a host [H,W] depth against its target;
         smooth: None or (reference_loss.DepthSmoothWeights, w_smooth) for the depth_smooth term."""
+
+    def view_warp(self, virt: np.ndarray, depth: np.ndarray, gt: np.ndarray, fx: float, baseline: float,
+                  weight: float, smooth_weight: float) -> tuple[dict, np.ndarray, np.ndarray]:
+        """({"loss", "valid_fraction"}, float32 dL/d virt [H,W,3], float32 dL/d depth [H,W]) of the
+        view_warp term (reference_view_warp.view_warp_fwd_bwd; kernels/view_warp.cl) on host arrays."""
 
     def trainer(self, images: Sequence[np.ndarray], engine: str = "auto", adam: str = "auto",
                 profile: dict | None = None) -> Trainer:

@@ -27,7 +27,8 @@ import numpy as np
 
 from ..types import ACCUM, FIELDS, PARAM_NAMES, Camera, Gaussians, RenderOutput
 from .reference_loss import DepthSmoothWeights, regularize_fwd_bwd
-from .reference_state import adam_update, densify_accumulate, ndc_grad_norm, sh_pack, zero_stats
+from .reference_state import (adam_update, densify_accumulate, grad_add, ndc_grad_norm, opacity_decay_, sh_pack,
+                              zero_stats)
 
 _F32 = np.float32
 
@@ -69,7 +70,7 @@ class HostTrainer:
         self.state = None
         self.targets: list = []  # per view: the depth target as given, or None
         self.smooth: list = []  # per view: DepthSmoothWeights or None
-        self._loss = self._depth_loss = None
+        self._loss = self._depth_loss = self._warp = None
         self._zeros: dict = {}  # (H, W) -> zero colour cotangent of the depth passes
         self._tmp = np.empty(0, _F32)  # Adam scratch, grown geometrically
 
@@ -147,9 +148,10 @@ class HostTrainer:
         return self._depth_loss
 
     def backward(self, fr: HostFrame, v_rgb=None, v_depth=None, opacity_override: float | None = None,
-                 grad_fields=None) -> dict:
+                 grad_fields=None, into: dict | None = None) -> dict:
         """Trainer.backward: backend.render_vjp of the frame's Gaussians; returns {group: gradient}
-        for the groups of `grad_fields` (SH gradients of inactive coefficients zero)."""
+        for the groups of `grad_fields` (SH gradients of inactive coefficients zero), or adds them
+        into `into` (reference_state.grad_add) and returns it."""
         if v_rgb is None:
             key = (fr.height, fr.width)
             if key not in self._zeros:
@@ -167,7 +169,36 @@ class HostTrainer:
             sh = np.zeros((n, kmax, 3), _F32)
             sh[:, : vg.sh.shape[1]] = vg.sh
             out["sh_dc"], out["sh_rest"] = sh[:, :1], sh[:, 1:]
-        return {k: out[k] for k in groups}
+        res = {k: out[k] for k in groups}
+        if into is None:
+            return res
+        if set(into) != set(res):
+            raise ValueError(f"backward into: held groups {sorted(into)} != {sorted(res)}")
+        for k, g in res.items():
+            grad_add(into[k], g)
+        return into
+
+    def hold(self, grads: dict) -> dict:
+        """Trainer.hold: writable float32 copies (render_vjp's arrays are fresh, but `regularize`
+        may have rebound them)."""
+        return {k: np.array(v, dtype=_F32) for k, v in grads.items()}
+
+    def keep_rgb(self, fr: HostFrame) -> np.ndarray:
+        """Trainer.keep_rgb: the frame's image (a fresh array per forward)."""
+        return fr.out.rgb
+
+    def view_warp(self, virt, fr: HostFrame, view: int, baseline: float, weight: float, smooth_weight: float):
+        """Trainer.view_warp: backend.view_warp on the host arrays; returns (dL/d virt, dL/d depth)."""
+        self._warp, v_virt, v_depth = self.b.view_warp(virt, fr.out.depth, self.images[view], fr.cam.fx, baseline,
+                                                        weight, smooth_weight)
+        return v_virt, v_depth
+
+    def read_view_warp(self) -> dict:
+        return dict(self._warp)
+
+    def opacity_decay(self, factor: float) -> None:
+        """Trainer.opacity_decay: reference_state.opacity_decay_ on the state's logits, in place."""
+        opacity_decay_(self.state.params["opacity_logits"], factor)
 
     def regularize(self, grads: dict, shape_pena: float, scale_pena: float, opa_pena: float) -> None:
         """Trainer.regularize: reference_loss.regularize_fwd_bwd's gradients added into `grads`."""

@@ -615,6 +615,16 @@ class ReferenceBackend:
     photometric_loss = staticmethod(_photometric_loss)
     depth_loss = staticmethod(_depth_loss)
 
+    @staticmethod
+    def view_warp(virt, depth, gt, fx: float, baseline: float, weight: float, smooth_weight: float):
+        """Backend.view_warp: reference_view_warp's float64 twin, float32 cotangents."""
+        from .reference_view_warp import view_warp_fwd_bwd, view_warp_state
+
+        loss, v_virt, v_depth = view_warp_fwd_bwd(virt, depth, gt, fx, baseline, weight, smooth_weight)
+        valid = float(view_warp_state(virt, depth, gt, fx, baseline).valid.mean())
+        return ({"loss": float(loss), "valid_fraction": valid}, v_virt.astype(np.float32),
+                v_depth.astype(np.float32))
+
     def trainer(self, images, engine: str = "auto", adam: str = "auto", profile: dict | None = None):
         """Backend.trainer: the HostTrainer (reings/backends/host_trainer.py); "device" is a
         ValueError (no device here). `adam` is ignored: the host trainer's Adam is numpy."""

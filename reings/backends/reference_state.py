@@ -4,6 +4,10 @@
     adam_update         kernels/adam.cl adam_step     one float32 Adam update, numpy's exact op sequence
     ndc_grad_norm,      kernels/densify_accumulate.cl 3DGS `add_densification_stats` for one view
     densify_accumulate
+    grad_add            kernels/grad_add.cl           the gradients of a second backward added in place
+    opacity_decay_      kernels/regularize.cl         logits <- logit(f sigmoid(logits)) in place, the
+                        opacity_decay                 float64 twin reference_view_warp.opacity_decay
+                                                      rounded to float32
 
 The state's arrays are named in `reings.types` (PARAM_NAMES; ACCUM, COUNT, RADII). These are the
 arithmetic that both training engines share: the host trainer (reings/backends/host_trainer.py)
@@ -76,3 +80,21 @@ def densify_accumulate(stats: dict, grad_norms: np.ndarray, visible: np.ndarray,
     if radii is not None:
         r = np.asarray(radii, np.float32)
         np.maximum(stats[RADII], np.where(vis, r, 0.0), out=stats[RADII])
+
+
+def grad_add(dst: np.ndarray, src: np.ndarray) -> None:
+    """dst += src in float32, in place (kernels/grad_add.cl: one IEEE add per element, same bits)."""
+    if dst.shape != src.shape:
+        raise ValueError(f"grad_add: shapes {dst.shape} and {src.shape} differ")
+    np.add(dst, np.asarray(src, np.float32), out=dst)
+
+
+def opacity_decay_(logits: np.ndarray, factor: float) -> None:
+    """The opacity decay of the float32 state, in place: logits <- float32(logit(factor *
+    sigmoid(logits))) computed in float64 (reference_view_warp.opacity_decay; kernels/regularize.cl
+    opacity_decay computes the same in double where the device has cl_khr_fp64)."""
+    from .reference_view_warp import opacity_decay
+
+    with np.errstate(invalid="ignore"):  # NaN logits stay NaN
+        logits[...] = opacity_decay(logits, factor).astype(np.float32)
+

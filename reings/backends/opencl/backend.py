@@ -112,6 +112,7 @@ class _Frame:
     isects: int = 0
     bufs: dict = field(default_factory=dict)
     key: tuple | None = None  # (camera, background, near, override) for forward reuse
+    camera: Camera | None = None  # the camera rendered
 
 
 class OpenCLBackend:
@@ -148,7 +149,7 @@ class OpenCLBackend:
         self.last_profile: dict[str, float] = {}
         self.last_stats: dict[str, int] = {}
         self.last_screen = None  # Backend.last_screen: (v_means2d, radii) of the last full render_vjp
-        self._photometric = self._depth_loss = None  # the loss kernels, built on first use
+        self._photometric = self._depth_loss = self._view_warp = None  # the loss kernels, built on first use
 
     # ------------------------------------------------------------------------------------------
     # plumbing
@@ -382,6 +383,7 @@ class OpenCLBackend:
         "out_depth", "out_alpha", "out_T", "radii", ...) stay valid until the next call on this
         backend; the caller must keep `inp` unchanged until `backward_device` has run."""
         fr = self._new_frame(int(n), camera.width, camera.height, int(sh_k))
+        fr.camera = camera
         fr.bufs["in"] = dict(inp)
         self._project_device(fr, fr.bufs["in"], camera, near, opacity_override)
         self._bin_device(fr)
@@ -434,6 +436,22 @@ class OpenCLBackend:
 
             self._depth_loss = DepthLossCL(self.handle)
         return self._depth_loss
+
+    @property
+    def view_warp_kernels(self):
+        """This device's ViewWarpCL (kernels/view_warp.cl), built on first use."""
+        if self._view_warp is None:
+            from .view_warp import ViewWarpCL
+
+            self._view_warp = ViewWarpCL(self.spec)
+        return self._view_warp
+
+    def view_warp(self, virt, depth, gt, fx: float, baseline: float, weight: float, smooth_weight: float):
+        """Backend.view_warp on this device (host arrays uploaded, the cotangents read back)."""
+        vw = self.view_warp_kernels
+        _, v_virt, v_depth = vw(virt, depth, gt, fx, baseline, weight, smooth_weight)
+        st = vw.read_stats()
+        return {"loss": st["loss"], "valid_fraction": st["valid_fraction"]}, v_virt, v_depth
 
     def photometric_loss(self, rgb: np.ndarray, gt: np.ndarray, w_l1: float, w_ssim: float):
         """Backend.photometric_loss on this device (host arrays uploaded, dL/d rgb read back)."""

@@ -120,6 +120,8 @@ class DeviceTrainer:
         self.k_reg_count = backend.kernel("regularize.cl", "regularize_opacity_count", REGULARIZE_FP64=int(self.fp64))
         self.k_reg_grads = backend.kernel("regularize.cl", "regularize_grads", REGULARIZE_FP64=int(self.fp64))
         self.k_accumulate = backend.kernel("densify_accumulate.cl", "densify_accumulate", DENSIFY_FP64=int(self.fp64))
+        self.k_decay = backend.kernel("regularize.cl", "opacity_decay", REGULARIZE_FP64=int(self.fp64))
+        self.k_grad_add = backend.kernel("grad_add.cl", "grad_add")
         self.real = _F64 if self.fp64 else _F32
         self.l1_wg = 1 if backend.cpu else 64  # L1-only loss work-group (kernels/l1.cl)
         self.k_l1_rows = backend.kernel("l1.cl", "l1_rows", L1_WG=self.l1_wg)
@@ -405,18 +407,78 @@ class DeviceTrainer:
         return self.photo.read_loss()
 
     def backward(self, fr, v_rgb=None, v_depth=None, opacity_override: float | None = None,
-                 grad_fields=None) -> dict:
+                 grad_fields=None, into: dict | None = None) -> dict:
         """Trainer.backward of `fr` with v_rgb (a device buffer) and/or v_depth (a device buffer,
         e.g. from `depth_loss`, or a host [H,W] array, uploaded). Returns the gradient buffers
         {field: buffer} of backend.backward_device plus "sh_k" (`adam_step` reads the SH groups
-        as strided views of the "sh" buffer)."""
+        as strided views of the "sh" buffer); with `into` (from `hold`), kernels/grad_add.cl adds
+        them into its buffers and returns it."""
         vd = v_depth
         if isinstance(v_depth, np.ndarray):
             vd = self.mem.get("pixel", "v_depth", fr.width * fr.height, 4)
             self._write(vd, np.asarray(v_depth, _F32))
         g = dict(self.b.backward_device(fr, v_rgb, vd, None, opacity_override, grad_fields))
         g["sh_k"] = fr.sh_k
-        return g
+        if into is None:
+            return g
+        if into.get("sh_k") != fr.sh_k or set(into) != set(g):
+            raise ValueError("backward into: the held gradients are of another SH count or field set")
+        for f, cols in self._grad_columns(fr.sh_k).items():
+            if self.n * cols:
+                self._launch("grad_add", self.k_grad_add, self.n * cols, _U32(self.n * cols), into[f], g[f])
+        return into
+
+    def _grad_columns(self, sh_k: int) -> dict:
+        """Floats per Gaussian of each gradient buffer of backend.backward_device."""
+        return {"means": 3, "quats": 4, "log_scales": 3, "opacity_logits": 1, "sh": 3 * sh_k}
+
+    def hold(self, grads: dict) -> dict:
+        """Trainer.hold: device copies of the gradient buffers (trainer-owned, so the next
+        backward, which reuses the backend's, leaves them alone)."""
+        out = {"sh_k": grads["sh_k"]}
+        for f, cols in self._grad_columns(grads["sh_k"]).items():
+            b = out[f] = self.mem.get("gauss", f"held_{f}", self.n, 4 * cols)
+            if self.n * cols:
+                self.cl.enqueue_copy(self.queue, b, grads[f], byte_count=4 * cols * self.n)
+        return out
+
+    def keep_rgb(self, fr):
+        """Trainer.keep_rgb: a device copy of the frame's image (trainer-owned buffer)."""
+        nb = 12 * fr.width * fr.height
+        b = self.mem.get("pixel", "kept_rgb", fr.width * fr.height, 12)
+        if nb:
+            self.cl.enqueue_copy(self.queue, b, fr.bufs["out_rgb"], byte_count=nb)
+        return b
+
+    def view_warp(self, virt, fr, view: int, baseline: float, weight: float, smooth_weight: float):
+        """Trainer.view_warp: ViewWarpCL.enqueue (kernels/view_warp.cl) of the kept virtual image
+        and the frame's depth buffer against training image `view`; the cotangents go into
+        trainer-owned buffers (returned); the loss stays on the device (`read_view_warp`)."""
+        vw = self.b.view_warp_kernels
+        npx = fr.width * fr.height
+        v_virt = self.mem.get("pixel", "vw_v_virt", npx, 12)
+        v_depth = self.mem.get("pixel", "vw_v_depth", npx, 4)
+        vw.enqueue(virt, fr.bufs["out_depth"], self.gt[view], v_virt, v_depth, fr.height, fr.width,
+                   fr.camera.fx, baseline, weight, smooth_weight)
+        if self.profile is not None:
+            self._events.extend(vw.events)
+        return v_virt, v_depth
+
+    def read_view_warp(self) -> dict:
+        """Trainer.read_view_warp: one small reduction and a 12-byte read."""
+        st = self.b.view_warp_kernels.read_stats()
+        return {"loss": st["loss"], "valid_fraction": st["valid_fraction"]}
+
+    def opacity_decay(self, factor: float) -> None:
+        """Trainer.opacity_decay: kernels/regularize.cl opacity_decay on the logits buffer."""
+        f = float(factor)
+        if not 0.0 < f <= 1.0:
+            raise ValueError(f"opacity_decay: factor must lie in (0, 1], got {factor!r}")
+        if f == 1.0 or self.n == 0:
+            return
+        r = self.real
+        self._launch("opacity_decay", self.k_decay, self.n, _I32(self.n), r(np.log(f)), r(1.0 - f),
+                     self.buf("p", "opacity_logits"))
 
     def regularize(self, grads: dict, shape_pena: float, scale_pena: float, opa_pena: float) -> None:
         """Trainer.regularize: kernels/regularize.cl adds the penalties' gradients into `grads`."""

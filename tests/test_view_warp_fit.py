@@ -1,0 +1,266 @@
+"""The view_warp term and the opacity decay inside the training loop (`reings.train.fit`,
+`_Iteration.photometric_pass`; docs/binocular.md §4): the Trainer contract's `keep_rgb`,
+`view_warp`, `hold`, `backward(into=)` and `opacity_decay` on both engines.
+
+Checked against independent references:
+  - the composed gradient (training render's depth cotangent + the virtual render's colour
+    cotangent, summed by `backward(into=)`) against a central difference of the float64 loss
+    view_warp_fwd(render64(virtual).rgb, render64(train).depth) along random directions, on the
+    reference backend; the difference's two ends share every discrete decision of the warp;
+  - the opacity decay kernel against the float64 twin and against logit(f * sigmoid(x)) computed
+    directly (moderate logits) and on poisoned logits;
+  - `backward(into=)` against the sum of the two separate backwards;
+  - a short fit with both on: the device engine against the host engine (bit-identical on PoCL,
+    as tests/test_device_fit.py), and a resumed fit against the uninterrupted one.
+"""
+from __future__ import annotations
+
+import os
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from cases import dngaussian_fit_case
+from reings.backends import get_backend
+from reings.backends.opencl import quirks
+from reings.backends.reference import render64
+from reings.backends.reference_state import grad_add, opacity_decay_
+from reings.backends.reference_view_warp import (opacity_decay, view_warp_fwd, view_warp_pattern,
+                                                 virtual_camera)
+from reings.state import TrainState
+from reings.train import fit, warp_baseline
+from reings.types import Gaussians
+
+ATOL, RTOL = 2e-5, 1e-5
+
+
+@pytest.fixture(scope="module")
+def case():
+    scene, init, cfg = dngaussian_fit_case(n_views=3, width=64, height=48, n_points=300, sh_degree=1, iterations=23,
+                                           soft_depth_from=3, densify_until=25)
+    cfg = replace(cfg, loss=replace(cfg.loss, view_warp_weight=1.0, view_warp_from=12, view_warp_baseline=0.3),
+                  densify=replace(cfg.densify, opacity_decay=0.99, opacity_decay_from=5))
+    return scene, init, cfg
+
+
+def _fit(case, device, **kw):
+    scene, init, cfg = case
+    return fit(scene, cfg, device=device, init=init, depth_targets=list(scene.depths), progress=False,
+               log_every=5, **kw)
+
+
+def _same_state(a, b, exact: bool, what: str):
+    assert len(a) == len(b) and a.adam.step == b.adam.step and a.iteration == b.iteration, what
+    for k in a.params:
+        for x, y, n in ((a.params[k], b.params[k], "param"), (a.adam.exp_avg[k], b.adam.exp_avg[k], "exp_avg")):
+            if exact:
+                np.testing.assert_array_equal(x, y, err_msg=f"{what} {n}/{k}")
+            else:
+                np.testing.assert_allclose(x, y, rtol=RTOL, atol=ATOL, err_msg=f"{what} {n}/{k}")
+
+
+# {{{ the composed gradient against a central difference (reference backend, float64)
+
+def _tiny_scene():
+    """Eight opaque-ish Gaussians in front of a textured card, a 40x32 camera."""
+    import reings
+
+    scene = reings.make_procedural_scene(n_views=2, width=40, height=32, supersample=1)
+    cam = scene.cameras[0]
+    rng = np.random.default_rng(3)
+    c = cam.center
+    fwd = cam.viewmat[2, :3]
+    right, up = cam.viewmat[0, :3], cam.viewmat[1, :3]
+    pts = c + fwd * rng.uniform(3.0, 4.0, (24, 1)) + right * rng.uniform(-1, 1, (24, 1)) + up * rng.uniform(-0.8, 0.8, (24, 1))
+    g = Gaussians(pts.astype(np.float32), np.tile(np.array([1, 0, 0, 0], np.float32), (24, 1)),
+                  np.full((24, 3), np.log(0.25), np.float32), rng.uniform(0.5, 2.0, 24).astype(np.float32),
+                  (rng.normal(0, 0.6, (24, 1, 3))).astype(np.float32))
+    gt = scene.images[0]
+    return g, cam, gt
+
+
+def _warp_loss64(g64: Gaussians, cam, vcam, gt, b):
+    """The float64 loss of the composition (independent of the trainer code; the Gaussians are
+    float32, the renders and the term float64)."""
+    _, _, tr, _ = render64(g64, cam, (0, 0, 0), 0.01, None, False)
+    _, _, vr, _ = render64(g64, vcam, (0, 0, 0), 0.01, None, False)
+    return view_warp_fwd(vr.rgb, tr.depth, gt, cam.fx, b, 1.0, 0.05)[0], vr.rgb, tr.depth
+
+
+def test_composed_gradient_matches_central_difference():
+    g, cam, gt = _tiny_scene()
+    b = 0.35
+    vcam = virtual_camera(cam, b)
+    be = get_backend("reference")
+    tr = be.trainer([gt], engine="host")
+    st = TrainState.from_gaussians(g, 0)
+    tr.upload(st)
+    virt = tr.keep_rgb(tr.forward(vcam, 1, (0, 0, 0), 0.01))
+    fr = tr.forward(cam, 1, (0, 0, 0), 0.01)
+    v_virt, v_depth = tr.view_warp(virt, fr, 0, b, 1.0, 0.05)
+    assert tr.read_view_warp()["valid_fraction"] > 0.2
+    gr = tr.hold(tr.backward(fr, None, v_depth))
+    gr = tr.backward(tr.forward(vcam, 1, (0, 0, 0), 0.01), v_virt, into=gr)
+    rng = np.random.default_rng(0)
+    base = {k: np.asarray(getattr(g, f), np.float64) for k, f in
+            (("means", "means"), ("log_scales", "log_scales"), ("opacity_logits", "opacity_logits"))}
+    checked = 0
+    for trial in range(30):
+        name = ("means", "log_scales", "opacity_logits")[trial % 3]
+        d = rng.normal(size=base[name].shape)
+        d /= np.linalg.norm(d)
+        eps = 2e-5
+        ends, ps = [], []
+        for s in (+1, -1):
+            p = dict(base)
+            p[name] = base[name] + s * eps * d
+            g64 = Gaussians(p["means"], g.quats, p["log_scales"], p["opacity_logits"], g.sh)
+            ps.append(np.asarray(getattr(g64, name), np.float64))  # Gaussians hold float32: the real step
+            loss, vrgb, dep = _warp_loss64(g64, cam, vcam, gt, b)
+            ends.append((loss, view_warp_pattern(vrgb, dep, gt, cam.fx, b)))
+        if not np.array_equal(ends[0][1], ends[1][1]):
+            continue  # a discrete decision flipped inside the step: the difference measures nothing
+        fd = ends[0][0] - ends[1][0]
+        an = float(np.sum(np.asarray(gr[name], np.float64) * (ps[0] - ps[1])))
+        assert abs(fd - an) <= 2e-3 * max(abs(fd), abs(an)) + 1e-9, (name, fd, an)
+        checked += abs(an) > 1e-7
+    assert checked >= 10, f"only {checked} informative directions"
+# }}}
+
+
+# {{{ the pieces on both engines
+
+def test_backward_into_is_the_sum(device, case):
+    scene, init, cfg = case
+    for engine in ("host", "device"):
+        be = get_backend(device)
+        tr = be.trainer(scene.images, engine=engine)
+        st = TrainState.from_gaussians(init, 1)
+        tr.upload(st)
+        parts = []
+        for cam in scene.cameras[:2]:
+            fr = tr.forward(cam, 1, (0, 0, 0), 0.01)
+            v = tr.photometric(fr, 0, 0.8, 0.2)
+            g = tr.hold(tr.backward(fr, v))
+            parts.append({k: _read(tr, g, k) for k in ("means", "opacity_logits", "sh_dc")})
+        fr = tr.forward(scene.cameras[0], 1, (0, 0, 0), 0.01)
+        held = tr.hold(tr.backward(fr, tr.photometric(fr, 0, 0.8, 0.2)))
+        fr = tr.forward(scene.cameras[1], 1, (0, 0, 0), 0.01)
+        both = tr.backward(fr, tr.photometric(fr, 0, 0.8, 0.2), into=held)
+        for k in parts[0]:
+            want = parts[0][k].copy()
+            grad_add(want, parts[1][k])
+            np.testing.assert_array_equal(_read(tr, both, k), want, err_msg=f"{engine} {k}")
+            assert np.abs(parts[1][k]).max() > 0
+
+
+def _read(tr, grads, name):
+    """A gradient group of either trainer as a host float32 array."""
+    if isinstance(grads[name if name in grads else "sh"], np.ndarray):
+        return np.array(grads[name], np.float32)
+    buf, stride, off, cols = tr._grad_view(grads, name)
+    a = np.empty((tr.n, stride), np.float32)
+    tr.cl.enqueue_copy(tr.queue, a, buf)
+    return a[:, off:off + cols].copy()
+
+
+POISON = np.array([0.0, -0.0, 1e-30, -1e-30, 1.0, -1.0, 5.0, -5.0, 20.0, -20.0, 88.0, -88.0, 90.0, -104.0,
+                   1e30, -1e30, 3.4e38, -3.4e38, np.inf, -np.inf, np.nan], np.float32)
+
+
+def test_opacity_decay_twin_is_logit_of_scaled_sigmoid():
+    x = np.linspace(-30, 30, 601)
+    for f in (0.5, 0.9, 0.995):
+        s = f / (1 + np.exp(-x))
+        np.testing.assert_allclose(opacity_decay(x, f), np.log(s / (1 - s)), rtol=1e-12, atol=1e-12)
+    np.testing.assert_array_equal(opacity_decay(x, 1.0), x)
+    for bad in (0.0, -0.1, 1.5, np.nan):
+        with pytest.raises(ValueError):
+            opacity_decay(x, bad)
+    y = POISON.copy()
+    opacity_decay_(y, 0.995)
+    assert np.isnan(y[-1]) and y[-2] == -np.inf and np.isfinite(y[:-3]).all() and np.isfinite(y[-3])
+    assert (np.diff(np.sort(y[np.isfinite(y)])) >= 0).all()
+
+
+def test_opacity_decay_kernel_matches_twin(device):
+    rng = np.random.default_rng(1)
+    x = np.concatenate([POISON, rng.normal(0, 8, 4000).astype(np.float32)])
+    g = Gaussians(np.zeros((len(x), 3), np.float32), np.tile(np.float32([1, 0, 0, 0]), (len(x), 1)),
+                  np.zeros((len(x), 3), np.float32), x, np.zeros((len(x), 1, 3), np.float32))
+    be = get_backend(device)
+    tr = be.trainer([np.zeros((4, 4, 3), np.float32)], engine="device")
+    tr.upload(TrainState.from_gaussians(g, 0))
+    for f in (0.995, 0.5):
+        tr.opacity_decay(f)
+    got = tr.read_params(("opacity_logits",))["opacity_logits"]
+    want = x.copy()
+    opacity_decay_(want, 0.995)
+    opacity_decay_(want, 0.5)
+    fin = np.isfinite(want)
+    np.testing.assert_array_equal(np.isnan(got), np.isnan(want))
+    np.testing.assert_array_equal(got[~fin & ~np.isnan(want)], want[~fin & ~np.isnan(want)])
+    ulp = np.abs(got[fin].astype(np.float64) - want[fin]) / np.spacing(np.abs(want[fin]).astype(np.float32))
+    limit = 0 if quirks.is_pocl(be.handle.device) and tr.fp64 else 4
+    assert ulp.max() <= limit, ulp.max()
+    host = be.trainer([np.zeros((4, 4, 3), np.float32)], engine="host")
+    st = TrainState.from_gaussians(g, 0)
+    host.upload(st)
+    host.opacity_decay(0.995)
+    w1 = x.copy()
+    opacity_decay_(w1, 0.995)
+    np.testing.assert_array_equal(st.params["opacity_logits"], w1)
+# }}}
+
+
+# {{{ a short fit with both terms on
+
+def test_fit_device_matches_host(device, case):
+    host = _fit(case, device, engine="host")
+    dev = _fit(case, device, engine="device")
+    assert [it for it, *_ in host.history.view_warp] == [15, 20, 23]
+    assert [it for it, *_ in dev.history.view_warp] == [15, 20, 23]
+    for (_, lh, vh), (_, ld, vd) in zip(host.history.view_warp, dev.history.view_warp):
+        assert lh > 0 and 0 < vh <= 1
+        np.testing.assert_allclose([ld, vd], [lh, vh], rtol=1e-5)
+    np.testing.assert_allclose(dev.history.loss, host.history.loss, rtol=1e-5)
+    exact = quirks.is_pocl(get_backend(device).handle.device)
+    _same_state(host.state, dev.state, exact, "device vs host engine with view_warp and opacity decay")
+
+
+def test_fit_terms_change_the_result(device, case):
+    """Each switch changes the fit (a wiring that dropped a term would leave the state as it is
+    with the term off)."""
+    scene, init, cfg = case
+    on = _fit(case, device).state.params["means"]
+    for off in (replace(cfg, loss=replace(cfg.loss, view_warp_weight=0.0)),
+                replace(cfg, densify=replace(cfg.densify, opacity_decay=None))):
+        r = fit(scene, off, device=device, init=init, depth_targets=list(scene.depths), progress=False)
+        p = r.state.params["means"]
+        assert p.shape != on.shape or np.abs(p - on).max() > 1e-4
+
+
+def test_fit_resume_is_bit_identical(device, case, tmp_path):
+    ref = _fit(case, device, engine="device")
+    path = os.path.join(tmp_path, "ck.npz")
+
+    class Stop(Exception):
+        pass
+
+    def crash(g):
+        raise Stop
+
+    with pytest.raises(Stop):  # stopped at 17, last checkpoint at 15: inside the view_warp span
+        _fit(case, device, engine="device", checkpoint=path, checkpoint_every=5, eval_fn=crash, eval_every=17)
+    res = _fit(case, device, engine="device", checkpoint=path, checkpoint_every=5)
+    _same_state(ref.state, res.state, True, "resumed vs uninterrupted")
+    assert [tuple(x) for x in res.history.view_warp] == [tuple(x) for x in ref.history.view_warp]
+
+
+def test_baselines_are_per_iteration_and_bounded():
+    bs = [warp_baseline(0, it, 0.4) for it in range(1, 400)]
+    assert all(-0.4 <= b <= 0.4 for b in bs) and min(bs) < -0.2 and max(bs) > 0.2
+    assert bs == [warp_baseline(0, it, 0.4) for it in range(1, 400)]
+    assert bs != [warp_baseline(1, it, 0.4) for it in range(1, 400)]
+# }}}
