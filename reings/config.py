@@ -503,7 +503,10 @@ class RunConfig:
                               "(DNGaussian's DTU recipe: SSIM weight 0.6, 10x lower means lr, patches 17-53, "
                               "margin 0.01, stronger penalties, soft depth gated by the hard loss, no "
                               "smoothness); auto: 'dtu' for DTU scenes, else 'llff'", choices=RECIPES)
-    view_warp: float = opt(0.0, "reings fits only: weight of the binocular view-consistency term (Han et al. "
+    # on by default from the H100 ablation of docs/results.md §9 (LLFF fern+flower, 3 views, seeds 0-2, full
+    # schedule): +0.54 dB on fern, +0.84 on flower, SSIM +0.022 alone; the opacity decay stays off: it moved
+    # flower by -1.58 dB alone and -0.26 dB on top of the term (fern: +0.46 / +0.47)
+    view_warp: float = opt(1.0, "reings fits only: weight of the binocular view-consistency term (Han et al. "
                                 "2024; docs/binocular.md) from 2/3 of each fit; 0 = off", check=finite_nonneg,
                            metavar="WEIGHT")
     view_warp_disparity: float = opt(4.0, "the view_warp term's largest virtual-view shift, in pixels at the median "
@@ -511,10 +514,14 @@ class RunConfig:
                                           "authors' 0.4 COLMAP units is 2.6-5.5 px on the LLFF scenes here)",
                                      check=lambda v: None if v > 0 and v == v and v != float("inf")
                                      else f"must be positive and finite, got {v}", metavar="PIXELS")
+    # none -> the recipe family's: on for DTU (scan24 3 views, seeds 0-2: 16.06 dB with it, 14.90 without),
+    # off for LLFF (fern+flower 2 views: 18.36 with it, 19.07 without; 3 views: 21.06 / 20.96, flower
+    # -0.26 dB): docs/results.md §9
     opacity_decay: float | None = opt(None, "reings fits only: multiply every opacity by this factor each iteration "
-                                            "after densification starts (Binocular3DGS: 0.995); none = off",
-                                      check=lambda v: None if v is None or 0 < v <= 1
-                                      else f"must lie in (0, 1], got {v}", metavar="FACTOR")
+                                            "after densification starts (Binocular3DGS: 0.995); 1 = off; none: the "
+                                            "recipe family's (0.995 for 'dtu', off for 'llff')",
+                                      check=lambda v: None if v is None or 0 < v <= 1 else f"must lie in (0, 1], got {v}",
+                                      metavar="FACTOR")
     reings: ReInGSConfig = opt(factory=ReInGSConfig, help="the ReInGS stages")
     output: OutputConfig = opt(factory=OutputConfig, help="outputs and reports")
 

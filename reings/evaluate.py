@@ -179,7 +179,7 @@ def _setting_tag(m: dict) -> str:
         tag.append(f"smooth {cfg['depth_smooth']:g}")
     if cfg.get("view_warp"):
         tag.append(f"warp {cfg['view_warp']:g}/{cfg.get('view_warp_disparity', 4.0):g}px")
-    if cfg.get("opacity_decay") is not None:
+    if cfg.get("opacity_decay") not in (None, 1):
         tag.append(f"decay {cfg['opacity_decay']:g}")
     fp = (cfg.get("reings_config") or {}).get("final_prune")  # absent: a run from before the option
     if base == "reings" and fp is not None and fp != ReInGSConfig.final_prune:

@@ -164,10 +164,11 @@ def run_settings(cfg: RunConfig, dataset_kind: str) -> dict:
         s["depth_smooth"] = cfg.depth_smooth
     if cfg.recipe != "auto":  # "auto" is the value before the option existed
         s["recipe"] = cfg.recipe
-    if cfg.view_warp:  # keys absent when off: older run folders stay resumable
-        s["view_warp"], s["view_warp_disparity"] = cfg.view_warp, cfg.view_warp_disparity
-    if cfg.opacity_decay is not None:
-        s["opacity_decay"] = cfg.opacity_decay
+    if cfg.method == "reings":  # the baselines ignore both; keys absent when off (older folders resume)
+        if cfg.view_warp:
+            s["view_warp"], s["view_warp_disparity"] = cfg.view_warp, cfg.view_warp_disparity
+        if cfg.opacity_decay is not None:
+            s["opacity_decay"] = cfg.opacity_decay
     if cfg.seed:  # the seed reaches every fit too (before, only the initial points and IVPS/CVPS draws)
         s["fit_seed"] = cfg.seed
     return s
@@ -182,6 +183,15 @@ def recipe_family(recipe: str, dataset_kind: str) -> str:
     if recipe != "auto":
         return recipe
     return "dtu" if dataset_kind == "dtu" else "llff"
+
+
+OPACITY_DECAY_BY_FAMILY = {"llff": 1.0, "dtu": 0.995}  # RunConfig.opacity_decay = none (docs/results.md §9)
+
+
+def opacity_decay_of(decay: float | None, family: str) -> float:
+    """The reings fits' opacity decay factor: RunConfig.opacity_decay, or for none the recipe
+    family's (1 = off)."""
+    return OPACITY_DECAY_BY_FAMILY[family] if decay is None else float(decay)
 
 
 def baseline_recipe(method: str, iters: int, sh_degree: int, family: str = "llff"):
@@ -248,8 +258,9 @@ class RunContext:
             b = c.view_warp_disparity * typical_depth(self.train.cameras, self.box) / np.mean(
                 [cam.fx for cam in self.train.cameras])
             recipe = replace(recipe, loss=replace(recipe.loss, view_warp_weight=c.view_warp, view_warp_baseline=b))
-        if c.opacity_decay is not None:
-            recipe = replace(recipe, densify=replace(recipe.densify, opacity_decay=c.opacity_decay))
+        decay = opacity_decay_of(c.opacity_decay, self.family)
+        if decay != 1:
+            recipe = replace(recipe, densify=replace(recipe.densify, opacity_decay=decay))
         return recipe
 
     def checkpoint(self, name: str):

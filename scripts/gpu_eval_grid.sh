@@ -4,7 +4,7 @@
 # usage: DATASET=llff SCENES=fern,flower VIEWS=3 METHODS=reings SEEDS=0,1,2 WORKERS=6 TAG=x scripts/gpu_eval_grid.sh [extra eval options]
 set -u
 OUT=${OUT:-/tmp/out}; ROOT=$PWD
-python3 -m pip install -q --no-index --no-deps --no-compile --target /tmp/site .whl/*.whl 2>/dev/null || exit 1
+[ -d /tmp/site/pyopencl ] || python3 -m pip install -q --no-index --no-deps --no-compile --target /tmp/site .whl/*.whl 2>/dev/null || exit 1
 mkdir -p /tmp/icd && cp /etc/OpenCL/vendors/*.icd /tmp/icd/ 2>/dev/null
 echo /usr/local/nvidia/lib64/libnvidia-opencl.so.1 > /tmp/icd/nvidia.icd
 export OCL_ICD_VENDORS=/tmp/icd PYTHONUNBUFFERED=1 REINGS_CACHE_DIR=$ROOT/.gpudata/cache PYTHONPATH=/tmp/site:$ROOT

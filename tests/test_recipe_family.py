@@ -79,3 +79,45 @@ def test_recipe_option():
     assert RunConfig(recipe="dtu").recipe == "dtu"
     with pytest.raises(ValueError, match="recipe"):
         RunConfig(recipe="blender")
+
+
+# {{{ the view_warp term and the opacity decay of the reings fits (RunContext.binocular)
+
+def _ctx(family: str, **kw):
+    import numpy as np
+
+    import reings
+    from reings.data.sfm import SfmExtent
+    from reings.pipeline import RunContext
+
+    scene = reings.make_procedural_scene(n_views=3, width=32, height=24, supersample=1)
+    cam = scene.cameras[0]
+    # points straight ahead of camera 0 at depths 2, 4, 6: its median is 4
+    pts = np.array([cam.center + z * cam.viewmat[2, :3] for z in (2.0, 4.0, 6.0)])
+    box = SfmExtent(pts.min(0), pts.max(0), "sfm", pts, np.zeros((3, 3), np.float32))
+    cfg = RunConfig(**kw).resolved()
+    return RunContext(cfg, None, scene.subset([0]), scene.subset([1]), None, box, print, False, family=family), cam
+
+
+def test_typical_depth_is_the_median_point_depth():
+    from reings.pipeline import typical_depth
+
+    ctx, cam = _ctx("llff")
+    assert abs(typical_depth([cam], ctx.box) - 4.0) < 1e-9
+
+
+@pytest.mark.parametrize("family, kw, weight, decay", [
+    ("llff", {}, 1.0, None), ("dtu", {}, 1.0, 0.995),                     # the defaults per family
+    ("dtu", {"opacity_decay": 1.0}, 1.0, None), ("llff", {"opacity_decay": 0.99}, 1.0, 0.99),
+    ("llff", {"view_warp": 0.0}, 0.0, None), ("llff", {"view_warp": 2.0, "view_warp_disparity": 8.0}, 2.0, None)])
+def test_binocular_settings_of_the_reings_fits(family, kw, weight, decay):
+    ctx, cam = _ctx(family, **kw)
+    base = soft_depth_recipe(600, 0, family)
+    r = ctx.binocular(base)
+    assert r.loss.view_warp_weight == weight and r.densify.opacity_decay == decay
+    if weight:
+        px = kw.get("view_warp_disparity", 4.0)
+        assert abs(r.loss.view_warp_baseline - px * 4.0 / cam.fx) < 1e-9  # px at the median depth 4
+        assert r.loss.view_warp_from == 400  # 2/3 of the squeezed schedule
+    else:
+        assert r.loss == base.loss
