@@ -145,6 +145,9 @@ class LossConfig:
     view_warp_baseline: float = opt(0.4, "largest |baseline| of the virtual view, world units (drawn uniformly "
                                          "per iteration, random sign; authors: 0.4 in COLMAP units)")
     view_warp_from: int = opt(20_000, "first iteration of the view_warp term (authors: 2/3 of the schedule)")
+    dark_background: bool = opt(False, "DTU (DNGaussian): training pixels darker than 30/255 whose 49 pixels above "
+                                       "are dark too are background: ground truth 0 there, and a pass per iteration "
+                                       "penalising mean(alpha^2) over them, stepping the opacities only")
 
 
 @dataclass(frozen=True)
@@ -169,6 +172,9 @@ class DensifyConfig:
     opacity_decay: float | None = opt(None, "multiply every opacity by this factor after each photometric "
                                             "backward, before its Adam step (Binocular3DGS: 0.995); None = off")
     opacity_decay_from: int = opt(500, "the opacity decay runs at iterations > this (authors: densify_from)")
+    dark_white_rules: bool = opt(False, "DTU (DNGaussian): at each densification, Gaussians whose DC colour max < "
+                                        "20/255 get their gradient accumulator / 10 and opacity 0.1, those with min > "
+                                        "240/255 their accumulator / 2")
 
 
 @dataclass(frozen=True)
@@ -522,6 +528,9 @@ class RunConfig:
                                             "recipe family's (0.995 for 'dtu', off for 'llff')",
                                       check=lambda v: None if v is None or 0 < v <= 1 else f"must lie in (0, 1], got {v}",
                                       metavar="FACTOR")
+    dtu_background: bool = opt(False, "every fit: DNGaussian's DTU background rules (dark-pixel mask of the training "
+                                      "views, ground truth 0 there, the mean(alpha^2) pass, the black / white Gaussian "
+                                      "rules; reings/background.py); not yet measured, so off")
     reings: ReInGSConfig = opt(factory=ReInGSConfig, help="the ReInGS stages")
     output: OutputConfig = opt(factory=OutputConfig, help="outputs and reports")
 

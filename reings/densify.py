@@ -179,9 +179,13 @@ def maybe_densify(state: TrainState, cfg, iteration: int, extent: float, rng: np
     or None."""
     dens, reset = schedule(cfg, iteration)
     out = None
+    if dens and cfg.dark_white_rules:  # DTU (reings.background): before densify-and-prune
+        from .background import dark_white_rules
+
+        out = {"dark_white": dark_white_rules(state)}
     if dens:
         size_prune = cfg.size_prune_from is not None and iteration > cfg.size_prune_from
-        out = densify_and_prune(state, cfg, extent, rng, size_prune=size_prune)
+        out = dict(out or {}, **densify_and_prune(state, cfg, extent, rng, size_prune=size_prune))
     if reset:
         reset_opacity(state)
         out = dict(out or {}, opacity_reset=True)

@@ -164,6 +164,8 @@ def run_settings(cfg: RunConfig, dataset_kind: str) -> dict:
         s["depth_smooth"] = cfg.depth_smooth
     if cfg.recipe != "auto":  # "auto" is the value before the option existed
         s["recipe"] = cfg.recipe
+    if cfg.dtu_background:
+        s["dtu_background"] = True
     if cfg.method == "reings":  # the baselines ignore both; keys absent when off (older folders resume)
         if cfg.view_warp:
             s["view_warp"], s["view_warp_disparity"] = cfg.view_warp, cfg.view_warp_disparity
@@ -250,6 +252,22 @@ class RunContext:
         self.clock = {"train": 0.0, "wall": 0.0, "probe": 0.0}  # cumulative across stages
         self._omega = None
 
+    def run_recipe(self, recipe):
+        """A stage's recipe with the run's settings: its seed, the Gaussian cap, the smoothness
+        weight, the binocular terms (reings fits), the DTU background rules."""
+        c = self.cfg
+        recipe = replace(recipe, seed=c.seed)
+        if c.max_gaussians:
+            recipe = replace(recipe, densify=replace(recipe.densify, max_gaussians=c.max_gaussians))
+        if self.smooth_w is not None:
+            recipe = replace(recipe, loss=replace(recipe.loss, depth_smooth_weight=self.smooth_w))
+        if c.method == "reings":
+            recipe = self.binocular(recipe)
+        if c.dtu_background:
+            recipe = replace(recipe, loss=replace(recipe.loss, dark_background=True),
+                             densify=replace(recipe.densify, dark_white_rules=True))
+        return recipe
+
     def binocular(self, recipe):
         """`recipe` with the run's view_warp term and opacity decay (reings fits): the largest
         baseline from view_warp_disparity pixels at the scene's typical depth."""
@@ -306,13 +324,7 @@ class RunContext:
         """One fitting stage: `recipe` with the run's seed and overrides, from `init`; its probes
         join the PSNR-vs-seconds series, its seconds (probes excluded) the method clock."""
         c = self.cfg
-        recipe = replace(recipe, seed=c.seed)
-        if c.max_gaussians:
-            recipe = replace(recipe, densify=replace(recipe.densify, max_gaussians=c.max_gaussians))
-        if self.smooth_w is not None:
-            recipe = replace(recipe, loss=replace(recipe.loss, depth_smooth_weight=self.smooth_w))
-        if c.method == "reings":
-            recipe = self.binocular(recipe)
+        recipe = self.run_recipe(recipe)
         ee = auto_eval_every(recipe.iterations) if c.output.eval_every is None else c.output.eval_every
         if not self.series and ee:  # the starting point of the curve: the initial Gaussians
             self.series.append({"stage": "init", "iteration": 0, "seconds": 0.0, "wall_seconds": 0.0,

@@ -270,6 +270,12 @@ def fit(views, config: TrainConfig, device: str = "pocl", init: Gaussians | None
     cfg, L = config, config.loss
     extent = scene_extent(cameras) if extent is None else extent
     backend = get_backend(device)
+    bg_masks = None
+    if L.dark_background:  # DNGaussian's DTU rule (reings.background): training views only
+        from .background import dark_background_mask, zero_background
+
+        bg_masks = [dark_background_mask(im) for im in images]
+        images = [zero_background(im, m) for im, m in zip(images, bg_masks)]
     trainer = backend.trainer(images, engine=engine, adam=adam, profile=profile)
     state, rng, history = _initial_state(init, cfg, checkpoint)
     opt = make_optimizer(state, cfg.optim, extent)
@@ -279,6 +285,8 @@ def fit(views, config: TrainConfig, device: str = "pocl", init: Gaussians | None
         g = state.gaussians(sh_degree_at(1, cfg.sh_degree, cfg.sh_degree_interval))
         D.clean_views(state, np.stack([backend.project_fwd(g, cam, cfg.near).radii > 0 for cam in cameras]))
     trainer.upload(state)
+    if bg_masks is not None:
+        trainer.upload_bg_masks(bg_masks)
     if depth_targets is not None and (L.hard_depth or L.soft_depth):
         trainer.upload_depth_targets(depth_targets, [(c.height, c.width) for c in cameras],
                                      smooth=L.depth_smooth_weight != 0)
@@ -341,6 +349,8 @@ class _Iteration:
         gate = L.soft_depth_ema_gate is None or (self.hard_ema is not None and self.hard_ema < L.soft_depth_ema_gate)
         if L.soft_depth and has_target and it >= L.soft_depth_from and gate:
             self.depth_pass(it, cam, vi, "soft", None, ("opacity_logits",), False)
+        if L.dark_background:
+            self.bg_pass(cam, vi)
         loss, rgb = self.photometric_pass(it, cam, vi, self.book.logs(it))
         st.iteration = it
         self.densify(it)
@@ -367,6 +377,19 @@ class _Iteration:
         with ph("adam"):
             tr.adam_step(self.opt, gr, groups)
         return loss
+
+    def bg_pass(self, cam, vi: int) -> None:
+        """DNGaussian's DTU background pass: real opacities, mean(alpha^2) over the view's
+        background pixels, gradient to the opacities only, their own Adam step."""
+        tr, ph = self.tr, self.tr.phase
+        with ph("bg_render"):
+            fr = tr.forward(cam, self.k, self.bg, self.near)
+        with ph("bg_alpha"):
+            va = tr.bg_alpha(fr, vi)
+        with ph("bg_backward"):
+            gr = tr.backward(fr, None, None, None, ("opacity_logits",), v_alpha=va)
+        with ph("adam"):
+            tr.adam_step(self.opt, gr, ("opacity_logits",))
 
     def photometric_pass(self, it: int, cam, vi: int, log: bool):
         """The photometric pass (+ regularisers, the view_warp term, densification statistics,

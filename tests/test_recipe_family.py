@@ -121,3 +121,15 @@ def test_binocular_settings_of_the_reings_fits(family, kw, weight, decay):
         assert r.loss.view_warp_from == 400  # 2/3 of the squeezed schedule
     else:
         assert r.loss == base.loss
+
+
+@pytest.mark.parametrize("method", ["reings", "dngaussian"])
+def test_run_recipe_per_method(method):
+    """The binocular terms reach the reings fits only; the DTU background rules every fit."""
+    ctx, _ = _ctx("dtu", method=method, seed=3, dtu_background=True)
+    r = ctx.run_recipe(baseline_recipe("dngaussian", 600, 0, "dtu"))
+    assert r.seed == 3 and r.loss.dark_background and r.densify.dark_white_rules
+    assert (r.loss.view_warp_weight, r.densify.opacity_decay) == ((1.0, 0.995) if method == "reings" else (0.0, None))
+    off = _ctx("dtu", method=method)[0].run_recipe(baseline_recipe("dngaussian", 600, 0, "dtu"))
+    assert not off.loss.dark_background and not off.densify.dark_white_rules
+# }}}

@@ -191,13 +191,23 @@ class Trainer(Protocol):
 
     def backward(self, frame: Frame, v_rgb: Any = None, v_depth: Any = None,
                  opacity_override: float | None = None, grad_fields: Sequence[str] | None = None,
-                 into: Any = None) -> Any:
+                 into: Any = None, v_alpha: Any = None) -> Any:
         """The VJP of the frame's render for the cotangents v_rgb / v_depth (from the loss methods;
         None: zero) and the frame's `opacity_override`, restricted to `grad_fields` (None: every
         field). Returns the gradients per parameter group (handle for `regularize`, `adam_step`);
         only the groups of `grad_fields` are present. into: gradients from `hold` (same fields and
         SH count): this backward's gradients are added into them (reference_state.grad_add;
-        kernels/grad_add.cl) and `into` is returned."""
+        kernels/grad_add.cl) and `into` is returned. v_alpha: a cotangent of the alpha image
+        (from `bg_alpha`), or None."""
+
+    def upload_bg_masks(self, masks: Sequence) -> None:
+        """The training views' background masks ([H,W] bool each, or None), once per fit
+        (reings.background.dark_background_mask; `bg_alpha` reads them)."""
+
+    def bg_alpha(self, frame: Frame, view: int) -> Any:
+        """dL/d alpha of DNGaussian's DTU background term mean(alpha^2) over view `view`'s
+        background pixels (reference_loss.bg_alpha_fwd_bwd; kernels/bg_alpha.cl), for
+        `backward(v_alpha=...)`."""
 
     def hold(self, grads: Any) -> Any:
         """The gradients of the last `backward` as a handle that survives the next `backward` (to

@@ -148,7 +148,7 @@ class HostTrainer:
         return self._depth_loss
 
     def backward(self, fr: HostFrame, v_rgb=None, v_depth=None, opacity_override: float | None = None,
-                 grad_fields=None, into: dict | None = None) -> dict:
+                 grad_fields=None, into: dict | None = None, v_alpha=None) -> dict:
         """Trainer.backward: backend.render_vjp of the frame's Gaussians; returns {group: gradient}
         for the groups of `grad_fields` (SH gradients of inactive coefficients zero), or adds them
         into `into` (reference_state.grad_add) and returns it."""
@@ -158,7 +158,7 @@ class HostTrainer:
                 self._zeros[key] = np.zeros((fr.height, fr.width, 3), _F32)
             v_rgb = self._zeros[key]
         gf = None if grad_fields is None else tuple(grad_fields)
-        vg = self.b.render_vjp(fr.gaussians, fr.cam, _f32(v_rgb), _f32(v_depth), None, background=fr.background,
+        vg = self.b.render_vjp(fr.gaussians, fr.cam, _f32(v_rgb), _f32(v_depth), _f32(v_alpha), background=fr.background,
                                near=fr.near, opacity_override=opacity_override, grad_fields=gf)
         n, kmax = len(self.state), 1 + self.state.params["sh_rest"].shape[1]
         if len(vg) != n:
@@ -177,6 +177,18 @@ class HostTrainer:
         for k, g in res.items():
             grad_add(into[k], g)
         return into
+
+    def upload_bg_masks(self, masks) -> None:
+        """Trainer.upload_bg_masks: kept as bool arrays."""
+        self.bg_masks = [None if m is None else np.asarray(m, bool) for m in masks]
+
+    def bg_alpha(self, fr: HostFrame, view: int) -> np.ndarray:
+        """Trainer.bg_alpha: scale * alpha on the background, scale = float32(2 / count) as the
+        kernel computes it (reference_loss.bg_alpha_fwd_bwd is the float64 form)."""
+        m = self.bg_masks[view]
+        n = int(m.sum())
+        scale = _F32(2.0 / n) if n else _F32(0)
+        return np.where(m, scale * np.asarray(fr.out.alpha, _F32), _F32(0)).astype(_F32)
 
     def hold(self, grads: dict) -> dict:
         """Trainer.hold: writable float32 copies (render_vjp's arrays are fresh, but `regularize`

@@ -368,3 +368,19 @@ def regularize_fwd_bwd(params: dict, shape_pena: float = 0.0, scale_pena: float 
         grads["opacity_logits"] = (opa_pena * go).astype(np.float32)
     return loss, grads
 # }}}
+
+
+# {{{ bg_alpha: DNGaussian's DTU background opacity term
+
+def bg_alpha_fwd_bwd(alpha: np.ndarray, mask: np.ndarray) -> tuple[float, np.ndarray]:
+    """(mean of alpha^2 over the pixels of `mask`, dL/d alpha = 2 alpha / count there, 0 elsewhere),
+    float64; (0, zeros) for an empty mask (kernels/bg_alpha.cl)."""
+    a = np.asarray(alpha, np.float64)
+    m = np.asarray(mask, bool)
+    if a.shape != m.shape:
+        raise ValueError(f"bg_alpha: alpha {a.shape} and mask {m.shape} differ")
+    n = int(m.sum())
+    if n == 0:
+        return 0.0, np.zeros_like(a)
+    return float(np.mean(a[m] ** 2)), np.where(m, 2.0 * a / n, 0.0)
+# }}}

@@ -122,6 +122,8 @@ class DeviceTrainer:
         self.k_accumulate = backend.kernel("densify_accumulate.cl", "densify_accumulate", DENSIFY_FP64=int(self.fp64))
         self.k_decay = backend.kernel("regularize.cl", "opacity_decay", REGULARIZE_FP64=int(self.fp64))
         self.k_grad_add = backend.kernel("grad_add.cl", "grad_add")
+        self.k_bg_alpha = backend.kernel("bg_alpha.cl", "bg_alpha_grad")
+        self.bg: list = []  # per view: (mask buffer, float32 2 / count) or None (upload_bg_masks)
         self.real = _F64 if self.fp64 else _F32
         self.l1_wg = 1 if backend.cpu else 64  # L1-only loss work-group (kernels/l1.cl)
         self.k_l1_rows = backend.kernel("l1.cl", "l1_rows", L1_WG=self.l1_wg)
@@ -407,7 +409,7 @@ class DeviceTrainer:
         return self.photo.read_loss()
 
     def backward(self, fr, v_rgb=None, v_depth=None, opacity_override: float | None = None,
-                 grad_fields=None, into: dict | None = None) -> dict:
+                 grad_fields=None, into: dict | None = None, v_alpha=None) -> dict:
         """Trainer.backward of `fr` with v_rgb (a device buffer) and/or v_depth (a device buffer,
         e.g. from `depth_loss`, or a host [H,W] array, uploaded). Returns the gradient buffers
         {field: buffer} of backend.backward_device plus "sh_k" (`adam_step` reads the SH groups
@@ -417,7 +419,7 @@ class DeviceTrainer:
         if isinstance(v_depth, np.ndarray):
             vd = self.mem.get("pixel", "v_depth", fr.width * fr.height, 4)
             self._write(vd, np.asarray(v_depth, _F32))
-        g = dict(self.b.backward_device(fr, v_rgb, vd, None, opacity_override, grad_fields))
+        g = dict(self.b.backward_device(fr, v_rgb, vd, v_alpha, opacity_override, grad_fields))
         g["sh_k"] = fr.sh_k
         if into is None:
             return g
@@ -431,6 +433,27 @@ class DeviceTrainer:
     def _grad_columns(self, sh_k: int) -> dict:
         """Floats per Gaussian of each gradient buffer of backend.backward_device."""
         return {"means": 3, "quats": 4, "log_scales": 3, "opacity_logits": 1, "sh": 3 * sh_k}
+
+    def upload_bg_masks(self, masks) -> None:
+        """Trainer.upload_bg_masks: float32 0/1 device buffers, once per fit."""
+        self.bg = []
+        for i, m in enumerate(masks):
+            if m is None:
+                self.bg.append(None)
+                continue
+            a = np.ascontiguousarray(np.asarray(m, bool), _F32)
+            buf = self.mem.get("pixel", f"bgmask{i}", a.size, 4)
+            self._write(buf, a)
+            n = int(a.sum())
+            self.bg.append((buf, _F32(2.0 / n) if n else _F32(0)))
+
+    def bg_alpha(self, fr, view: int):
+        """Trainer.bg_alpha: kernels/bg_alpha.cl into the v_alpha buffer (returned)."""
+        buf, scale = self.bg[view]
+        n = fr.width * fr.height
+        v = self.mem.get("pixel", "v_alpha", n, 4)
+        self._launch("bg_alpha", self.k_bg_alpha, n, _I32(n), scale, fr.bufs["out_alpha"], buf, v)
+        return v
 
     def hold(self, grads: dict) -> dict:
         """Trainer.hold: device copies of the gradient buffers (trainer-owned, so the next
