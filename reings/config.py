@@ -463,6 +463,10 @@ class OutputConfig:
                                        "(none: about 15 per stage; 0: off)", check=at_least(0), metavar="N")
     checkpoint_every: int = opt(250, "rewrite the running stage's checkpoint every N iterations", check=at_least(1),
                                 metavar="N")
+    profile: bool = opt(False, "record the wall seconds of every training phase (photometric, depth and background "
+                               "passes, the view_warp term's renders and kernels, Adam, densification) per stage in "
+                               "metrics.json `stages[].phases`; the device is waited for around each phase, so the run "
+                               "is slower")
     prune_curve: bool = opt(False, "study/reporting: also evaluate test PSNR/SSIM of the final model cut to its top "
                                    "100%, 90%, ..., 40% by training-view Omega_G (metrics.json prune_curve); the "
                                    "test views rank nothing and the reported model is unchanged")

@@ -329,10 +329,11 @@ class RunContext:
         if not self.series and ee:  # the starting point of the curve: the initial Gaussians
             self.series.append({"stage": "init", "iteration": 0, "seconds": 0.0, "wall_seconds": 0.0,
                                 **self.probe(init)})
+        prof = {} if c.output.profile else None  # phase -> wall seconds (Trainer.phase)
         r = fit(self.train, recipe, device=self.device, init=init,
                 depth_targets=self.priors if use_priors else None, progress=self.progress,
                 checkpoint=self.checkpoint(name), checkpoint_every=c.output.checkpoint_every,
-                eval_fn=self.probe if ee else None, eval_every=ee, desc=name, extent=self.extent)
+                eval_fn=self.probe if ee else None, eval_every=ee, desc=name, extent=self.extent, profile=prof)
         # history.eval: (iteration, seconds since this fit's start taken before the probe ran,
         # {"psnr", "eval_seconds"}); restored from the checkpoint on resume
         before, start = 0.0, dict(self.clock)
@@ -353,7 +354,8 @@ class RunContext:
                             "wall_seconds": float(r.seconds), "eval_seconds": before, "eval_every": ee,
                             "gaussians": len(g), "model_bytes": self.model_bytes[name],
                             "peak_rss_mb": _peak_rss_mb(), "device_peak_bytes": device_peak_bytes(self.backend),
-                            "config": recipe.to_dict(), "history": r.history.to_dict()})
+                            "config": recipe.to_dict(), "history": r.history.to_dict(),
+                            **({"phases": {k: v for k, v in prof.items() if k != "device_ms"}} if prof is not None else {})})
         last = f", test PSNR {self.series[-1]['psnr']:.2f}" if self.series and self.series[-1]["stage"] == name else ""
         self.log(f"[{c.label}] {name}: {recipe.iterations} its, {train_s:.1f} s, {len(g)} Gaussians{last}")
         return g

@@ -173,3 +173,20 @@ def test_run_takes_the_object_and_refuses_other_positionals(tmp_path):
     r = reings.run(RunConfig(method="3dgs", iterations=(3,), depth_prior="none", output=OutputConfig(lpips=False, eval_every=0)),
                    quiet=True)
     assert [s["stage"] for s in r.metrics["stages"]] == ["init", "3dgs"] and r.metrics["run_config"]["method"] == "3dgs"
+
+
+def test_profile_records_the_phases_of_every_fit(tmp_path):
+    """`--profile`: every fitting stage of metrics.json carries its phases' seconds, the
+    view_warp term's among them once it has started (from 2/3 of each fit: iteration 7 of 10)."""
+    r = reings.run(method="reings", iterations=10, depth_prior="exact", quiet=True, with_lpips=False, eval_every=0,
+                   profile=True, out=str(tmp_path / "p"))
+    fits = [st for st in r.metrics["stages"] if st["iterations"]]
+    assert [st["stage"] for st in fits] == ["coarse", "fine", "final"]
+    for st in fits:
+        ph = st["phases"]
+        assert {"photo_render", "photo_loss", "photo_backward", "adam", "warp_render", "view_warp",
+                "warp_backward"} <= set(ph), (st["stage"], sorted(ph))
+        assert all(v >= 0 for v in ph.values()) and st["config"]["loss"]["view_warp_weight"] == 1.0
+    off = reings.run(method="reings", iterations=10, depth_prior="exact", quiet=True, with_lpips=False, eval_every=0,
+                     out=str(tmp_path / "q"))
+    assert all("phases" not in st for st in off.metrics["stages"])
