@@ -305,3 +305,39 @@ def dngaussian_fit_case(n_views: int, width: int, height: int, n_points: int, sh
     cfg = replace(cfg, sh_degree=sh_degree, loss=replace(cfg.loss, soft_depth_from=soft_depth_from),
                   densify=replace(cfg.densify, densify_until=densify_until))
     return scene, init, cfg
+
+
+def assert_engines_agree(device: str, host_state, dev_state, what: str = "") -> None:
+    """The device engine's parameters against the host engine's: bit-identical on PoCL (both run
+    the same kernels in the same order, tests/test_device_fit.py), else within float32 rounding
+    carried by the iterations (2e-5 + 1e-5 |x|)."""
+    from reings.backends import get_backend
+    from reings.backends.opencl import quirks
+
+    exact = quirks.is_pocl(get_backend(device).handle.device)
+    for k in host_state.params:
+        if exact:
+            np.testing.assert_array_equal(dev_state.params[k], host_state.params[k], err_msg=f"{what} {k}")
+        else:
+            np.testing.assert_allclose(dev_state.params[k], host_state.params[k], rtol=1e-5, atol=2e-5,
+                                       err_msg=f"{what} {k}")
+
+
+def interrupt_and_resume(run, path: str, stop_at: int, every: int = 5):
+    """run(**kw) -> FitResult is a `fit` call; run it with checkpoints every `every` iterations,
+    interrupted by an exception at the eval of iteration `stop_at`, then again from the
+    checkpoint: returns the resumed FitResult."""
+    import os
+
+    import pytest
+
+    class Stop(Exception):
+        pass
+
+    def crash(g):
+        raise Stop
+
+    with pytest.raises(Stop):
+        run(checkpoint=path, checkpoint_every=every, eval_fn=crash, eval_every=stop_at)
+    assert os.path.exists(path)
+    return run(checkpoint=path, checkpoint_every=every)

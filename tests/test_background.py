@@ -9,10 +9,9 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from cases import dngaussian_fit_case
+from cases import assert_engines_agree, dngaussian_fit_case
 from reings.background import dark_background_mask, dark_white_rules, zero_background
 from reings.backends import get_backend
-from reings.backends.opencl import quirks
 from reings.backends.reference import render64
 from reings.backends.reference_loss import bg_alpha_fwd_bwd
 from reings.state import TrainState
@@ -140,12 +139,7 @@ def test_fit_with_background_rules_device_matches_host(device, dark_case):
     dev = fit(scene, cfg, engine="device", **kw)
     assert [d for _, d in host.history.densify] == [d for _, d in dev.history.densify]
     assert "dark_white" in host.history.densify[0][1]
-    exact = quirks.is_pocl(get_backend(device).handle.device)
-    for k in host.state.params:
-        if exact:
-            np.testing.assert_array_equal(dev.state.params[k], host.state.params[k], err_msg=k)
-        else:
-            np.testing.assert_allclose(dev.state.params[k], host.state.params[k], rtol=1e-5, atol=2e-5, err_msg=k)
+    assert_engines_agree(device, host.state, dev.state, "background rules")
     off = fit(scene, replace(cfg, loss=replace(cfg.loss, dark_background=False)), engine="device", **kw)
     assert off.state.adam.step["opacity_logits"] < dev.state.adam.step["opacity_logits"]  # the pass steps the opacities
 

@@ -31,6 +31,7 @@ import warnings
 import numpy as np
 import pytest
 
+from cases import assert_engines_agree
 from oclgrind_util import oclgrind_available, run_oclgrind
 from reings import losses
 from reings.backends import reference_loss as R
@@ -419,8 +420,6 @@ def test_device_engine_depth_on_device(device, small_case, monkeypatch, gate):
     the result equals the host engine's (bit for bit on PoCL, as tests/test_device_fit.py)."""
     from dataclasses import replace
 
-    from reings.backends import get_backend
-    from reings.backends.opencl import quirks
     from reings.backends.opencl.trainer import DeviceTrainer
 
     scene, init, cfg = small_case
@@ -446,12 +445,7 @@ def test_device_engine_depth_on_device(device, small_case, monkeypatch, gate):
     dev = _fit_small(small_case, device, cfg, engine="device")
     assert len(reads) == (0 if gate is None else cfg.iterations)  # hard depth from iteration 1
     host = _fit_small(small_case, device, cfg, engine="host")
-    exact = quirks.is_pocl(get_backend(device).handle.device)
-    for k in host.state.params:
-        if exact:
-            np.testing.assert_array_equal(dev.state.params[k], host.state.params[k], err_msg=k)
-        else:
-            np.testing.assert_allclose(dev.state.params[k], host.state.params[k], rtol=1e-5, atol=2e-5, err_msg=k)
+    assert_engines_agree(device, host.state, dev.state, "depth_smooth")
     np.testing.assert_allclose(dev.history.loss, host.history.loss, rtol=1e-5)
 
 

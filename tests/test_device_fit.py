@@ -22,7 +22,7 @@ import os
 import numpy as np
 import pytest
 
-from cases import dngaussian_fit_case
+from cases import dngaussian_fit_case, interrupt_and_resume
 from reings.backends import get_backend
 from reings.backends.opencl import quirks
 from reings.train import fit
@@ -80,18 +80,8 @@ def test_device_fit_checkpoint_resume(device, case, tmp_path):
     """Interrupted at iteration 12 (last checkpoint at 10, before the second densification) and
     resumed: the same state as the uninterrupted run."""
     ref = _fit(case, device, engine="device")
-    path = os.path.join(tmp_path, "ck.npz")
-
-    class Stop(Exception):
-        pass
-
-    def crash(g):
-        raise Stop
-
-    with pytest.raises(Stop):
-        _fit(case, device, engine="device", checkpoint=path, checkpoint_every=5, eval_fn=crash, eval_every=12)
-    assert os.path.exists(path)
-    res = _fit(case, device, engine="device", checkpoint=path, checkpoint_every=5)
+    res = interrupt_and_resume(lambda **kw: _fit(case, device, engine="device", **kw),
+                               os.path.join(tmp_path, "ck.npz"), stop_at=12)
     _assert_same_state(ref.state, res.state, True, "resumed vs uninterrupted")
     assert res.history.iteration == ref.history.iteration
     assert [tuple(x) for x in res.history.densify] == ref.history.densify  # JSON turns tuples into lists

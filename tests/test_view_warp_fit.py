@@ -21,7 +21,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from cases import dngaussian_fit_case
+from cases import dngaussian_fit_case, interrupt_and_resume
 from reings.backends import get_backend
 from reings.backends.opencl import quirks
 from reings.backends.reference import render64
@@ -242,18 +242,10 @@ def test_fit_terms_change_the_result(device, case):
 
 
 def test_fit_resume_is_bit_identical(device, case, tmp_path):
+    """Stopped at 17, last checkpoint at 15: inside the view_warp span."""
     ref = _fit(case, device, engine="device")
-    path = os.path.join(tmp_path, "ck.npz")
-
-    class Stop(Exception):
-        pass
-
-    def crash(g):
-        raise Stop
-
-    with pytest.raises(Stop):  # stopped at 17, last checkpoint at 15: inside the view_warp span
-        _fit(case, device, engine="device", checkpoint=path, checkpoint_every=5, eval_fn=crash, eval_every=17)
-    res = _fit(case, device, engine="device", checkpoint=path, checkpoint_every=5)
+    res = interrupt_and_resume(lambda **kw: _fit(case, device, engine="device", **kw),
+                               os.path.join(tmp_path, "ck.npz"), stop_at=17)
     _same_state(ref.state, res.state, True, "resumed vs uninterrupted")
     assert [tuple(x) for x in res.history.view_warp] == [tuple(x) for x in ref.history.view_warp]
 
