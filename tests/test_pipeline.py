@@ -190,3 +190,34 @@ def test_profile_records_the_phases_of_every_fit(tmp_path):
     off = reings.run(method="reings", iterations=10, depth_prior="exact", quiet=True, with_lpips=False, eval_every=0,
                      out=str(tmp_path / "q"))
     assert all("phases" not in st for st in off.metrics["stages"])
+
+
+def test_new_inputs_come_from_the_training_views_only(tmp_path, monkeypatch):
+    """The leakage guard for this session's inputs: the view_warp baseline's scene depth
+    (pipeline.typical_depth) sees the training cameras and the SfM box of the training views; the
+    DTU background masks (background.dark_background_mask) see the training images only."""
+    import reings.background as B
+    import reings.pipeline as P
+    from reings.data.splits import few_shot_split
+
+    seen_cams, seen_ims = [], []
+    td, dm = P.typical_depth, B.dark_background_mask
+
+    def typical_depth(cameras, box):
+        seen_cams.append([c.viewmat.tobytes() for c in cameras])
+        return td(cameras, box)
+
+    def mask(image, *a, **k):
+        seen_ims.append(np.asarray(image).tobytes())
+        return dm(image, *a, **k)
+
+    monkeypatch.setattr(P, "typical_depth", typical_depth)
+    monkeypatch.setattr(B, "dark_background_mask", mask)
+    reings.run(method="reings", iterations=6, depth_prior="exact", quiet=True, with_lpips=False, eval_every=0,
+               dtu_background=True, out=str(tmp_path / "g"))
+    scene = reings.make_procedural_scene()
+    tr, _ = few_shot_split(scene, 3)
+    train_cams = [scene.cameras[i].viewmat.tobytes() for i in tr]
+    train_ims = {np.asarray(scene.images[i], np.float32).tobytes() for i in tr}
+    assert seen_cams and all(c == train_cams for c in seen_cams)
+    assert seen_ims and set(seen_ims) <= train_ims
