@@ -1,8 +1,12 @@
 """What a run writes into its output folder, and how the folder is claimed.
 
-    prepare_out(out, settings, overwrite)   refuse a finished run (unless overwrite), refuse an
-                                            interrupted run of other settings, clear on overwrite,
-                                            record the settings in checkpoints/run.json
+    check_out(out, settings, overwrite)     refuse a finished run (unless overwrite), an
+                                            interrupted run of other settings or unknown settings
+                                            (fail closed); writes nothing
+    prepare_out(out, settings, overwrite)   the same, then claim: with overwrite the previous run
+                                            moves to out/.previous-run (finish_out deletes it after
+                                            the new run's metrics.json, restore_out puts it back
+                                            when the new run fails); checkpoints/run.json
     write_config(out, config)               config.toml: the resolved RunConfig (reings.config.to_toml)
     write_test_renders(out, names, rgbs, depths)   renders/<name>.png (8-bit RGB),
                                             depths/<name>.png (16-bit, min-max normalised)
@@ -61,40 +65,104 @@ def write_text_atomic(path: str, text: str) -> None:
         f.write(text)
 
 
-def prepare_out(out: str, settings: dict, overwrite: bool) -> None:
-    """Claim `out` for a run with `settings` (checkpoints/run.json): refuse a finished run (unless
-    overwrite) and checkpoints of other settings (unless overwrite); with overwrite, remove the
-    previous run's outputs and checkpoints first."""
+PREVIOUS = ".previous-run"  # where --overwrite keeps the replaced run until the new one finishes
+RUN_FOLDERS = ("renders", "depths")
+
+
+def check_out(out: str, settings: dict, overwrite: bool) -> None:
+    """Everything `prepare_out` would refuse, without writing anything (called before any work):
+    a non-folder `out`, a finished run (unless overwrite), an interrupted run of other settings
+    or with an unreadable checkpoints/run.json (unless overwrite: fail closed)."""
     if os.path.exists(out) and not os.path.isdir(out):
         raise NotADirectoryError(f"--out {out} exists and is not a folder")
-    done = os.path.join(out, "metrics.json")
-    ckdir = os.path.join(out, "checkpoints")
-    run_json = os.path.join(ckdir, "run.json")
-    if os.path.exists(done) and not overwrite:
-        raise FileExistsError(f"{out} already holds a finished run (metrics.json); pass --overwrite to redo it")
-    want = jsonable(settings)
-    if os.path.exists(run_json) and not overwrite:
-        try:
-            with open(run_json) as f:
-                old = json.load(f)
-        except (OSError, ValueError):
-            old = None
-        if old is not None and old != want:
-            diff = sorted(k for k in set(old) | set(want) if old.get(k) != want.get(k))
-            raise ValueError(f"{out} holds an interrupted run with other settings ({', '.join(diff)} differ); "
-                             "pass --overwrite to start over, or another --out")
     if overwrite:
-        for name in RUN_OUTPUTS:
-            try:
-                os.unlink(os.path.join(out, name))
-            except FileNotFoundError:
-                pass
-        if os.path.isdir(ckdir):
-            for name in os.listdir(ckdir):
-                if name.endswith(".npz") or name == "run.json":
-                    os.unlink(os.path.join(ckdir, name))
+        return
+    if os.path.exists(os.path.join(out, "metrics.json")):
+        raise FileExistsError(f"{out} already holds a finished run (metrics.json); pass --overwrite to redo it")
+    run_json = os.path.join(out, "checkpoints", "run.json")
+    if not os.path.exists(run_json):
+        return
+    try:
+        with open(run_json) as f:
+            old = json.load(f)
+        if not isinstance(old, dict):
+            raise ValueError("not a JSON object")
+    except (OSError, ValueError) as e:
+        raise ValueError(f"{run_json}: unreadable ({e}); the interrupted run's settings are unknown, so it is not "
+                         "resumed: pass --overwrite to start over, or another --out") from None
+    want = jsonable(settings)
+    if old != want:
+        diff = sorted(k for k in set(old) | set(want) if old.get(k) != want.get(k))
+        raise ValueError(f"{out} holds an interrupted run with other settings ({', '.join(diff)} differ); "
+                         "pass --overwrite to start over, or another --out")
+
+
+def _old_run_entries(out: str) -> list[str]:
+    """The entries of `out` that belong to a run: its files, render folders and checkpoints."""
+    names = [n for n in RUN_OUTPUTS + RUN_FOLDERS if os.path.lexists(os.path.join(out, n))]
+    ck = os.path.join(out, "checkpoints")
+    if os.path.isdir(ck):
+        names += [os.path.join("checkpoints", n) for n in sorted(os.listdir(ck))
+                  if n.endswith(".npz") or n == "run.json"]
+    return names
+
+
+def prepare_out(out: str, settings: dict, overwrite: bool) -> None:
+    """Claim `out` for a run with `settings` (checkpoints/run.json) after `check_out`. With
+    overwrite the previous run is not deleted but moved into `out/.previous-run/`; `finish_out`
+    deletes it once the new run has written metrics.json, `restore_out` puts it back when the new
+    run fails. (A `.previous-run` left by an overwrite that was killed already holds the last
+    finished run: it is kept, and the killed run's partial outputs are removed.)"""
+    import shutil
+
+    check_out(out, settings, overwrite)
+    ckdir = os.path.join(out, "checkpoints")
+    if overwrite:
+        prev = os.path.join(out, PREVIOUS)
+        keep_old = not os.path.isdir(prev)
+        for name in _old_run_entries(out):
+            src = os.path.join(out, name)
+            if keep_old:
+                dst = os.path.join(prev, name)
+                os.makedirs(os.path.dirname(dst), exist_ok=True)
+                os.replace(src, dst)
+            elif os.path.isdir(src) and not os.path.islink(src):
+                shutil.rmtree(src)
+            else:
+                os.unlink(src)
     os.makedirs(ckdir, exist_ok=True)
-    write_json_atomic(run_json, settings)
+    write_json_atomic(os.path.join(ckdir, "run.json"), settings)
+
+
+def finish_out(out: str) -> None:
+    """After a finished run: delete the run that --overwrite replaced (`prepare_out`)."""
+    import shutil
+
+    prev = os.path.join(out, PREVIOUS)
+    if os.path.isdir(prev):
+        shutil.rmtree(prev)
+
+
+def restore_out(out: str) -> bool:
+    """After a failed run: put the run that --overwrite replaced back (its files over the failed
+    run's). Returns True if there was one."""
+    import shutil
+
+    prev = os.path.join(out, PREVIOUS)
+    if not os.path.isdir(prev):
+        return False
+    for name in _old_run_entries(out):  # the failed run's partial outputs
+        p = os.path.join(out, name)
+        if os.path.isdir(p) and not os.path.islink(p):
+            shutil.rmtree(p)
+        else:
+            os.unlink(p)
+    for name in _old_run_entries(prev):
+        dst = os.path.join(out, name)
+        os.makedirs(os.path.dirname(dst), exist_ok=True)
+        os.replace(os.path.join(prev, name), dst)
+    shutil.rmtree(prev)
+    return True
 
 
 def write_config(out: str, config) -> str:

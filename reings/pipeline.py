@@ -483,7 +483,7 @@ def _prepare(cfg: RunConfig, backend, prior, overwrite: bool, quiet: bool):
     (RunContext, settings, scene, train indices, test indices)."""
     from .data.sfm import frusta_only_extent, sfm_extent
     from .data.splits import few_shot_split
-    from .outputs import prepare_out, write_config
+    from .outputs import check_out, prepare_out, write_config
 
     timings = {}
     t = time.perf_counter()
@@ -496,9 +496,8 @@ def _prepare(cfg: RunConfig, backend, prior, overwrite: bool, quiet: bool):
     if cfg.depth_prior == "exact" and train.depths is None:
         raise ValueError("--depth-prior exact needs a scene with exact depths (the procedural scene)")
     settings = run_settings(cfg, scene.kind)
-    if cfg.output.out:
-        prepare_out(cfg.output.out, settings, overwrite)
-        write_config(cfg.output.out, cfg)
+    if cfg.output.out:  # refusals first, writing nothing: the priors and the box may still fail
+        check_out(cfg.output.out, settings, overwrite)
     log = (lambda msg: None) if quiet else (lambda msg: print(msg, file=sys.stderr, flush=True))
     if cfg.reings.final_prune > 0 and cfg.method != "reings":
         log(f"[{cfg.label}] note: final_prune applies to reings only; ignored")
@@ -514,6 +513,9 @@ def _prepare(cfg: RunConfig, backend, prior, overwrite: bool, quiet: bool):
     t = time.perf_counter()
     box = frusta_only_extent(train) if cfg.extent == "frusta" else sfm_extent(train)
     timings["sfm"] = time.perf_counter() - t
+    if cfg.output.out:  # nothing is written before every input has been read and checked
+        prepare_out(cfg.output.out, settings, overwrite)
+        write_config(cfg.output.out, cfg)
     ctx = RunContext(cfg, backend, train, test, priors, box, log, progress=not quiet,
                      family=recipe_family(cfg.recipe, scene.kind))
     ctx.timings.update(timings)
@@ -564,17 +566,36 @@ def run(config: RunConfig | None = None, /, *, overwrite: bool = False, quiet: b
     RunConfig's field names and its sections' (`method=`, `views=`, `iterations=`, `out=`,
     `eval_every=`, `cvps_fraction=`, `reings=ReInGSConfig(...)`, ...; see `reings.config.run_config`).
 
-    overwrite: redo a finished run in `out` (its outputs and checkpoints are removed first); without
-        it a folder holding metrics.json is refused, and one holding checkpoints of the same
-        settings is resumed. quiet: no progress bars or stage lines. Neither changes the result.
+    overwrite: redo a finished run in `out` (its outputs and checkpoints move to
+        out/.previous-run, deleted when the new run has finished and put back if it fails);
+        without it a folder holding metrics.json is refused, and one holding checkpoints of the
+        same settings is resumed. quiet: no progress bars or stage lines. Neither changes the result.
     Returns RunResult(gaussians, metrics, stages): `metrics` is what metrics.json holds.
     """
-    from .outputs import jsonable, write_run_outputs, write_test_renders
-
     if config is not None and not isinstance(config, RunConfig):
         raise TypeError(f"run(config): expected a RunConfig, got {type(config).__name__} (pass data= by keyword)")
     cfg = run_config(config, **keywords).resolved()  # bad values: ValueError naming the field
     backend, prior = _check_before_writing(cfg, overwrite)
+    out = cfg.output.out
+    try:
+        result = _run_prepared(cfg, backend, prior, overwrite, quiet)
+    except BaseException:
+        if out and overwrite:  # the run --overwrite was to replace comes back (outputs.restore_out)
+            from .outputs import restore_out
+
+            restore_out(out)
+        raise
+    if out:
+        from .outputs import finish_out
+
+        finish_out(out)  # the replaced run goes only now that the new one is complete
+    return result
+
+
+def _run_prepared(cfg: RunConfig, backend, prior, overwrite: bool, quiet: bool) -> RunResult:
+    """`run` after the checks that need no scene: prepare, the stages, scoring, the outputs."""
+    from .outputs import jsonable, write_run_outputs, write_test_renders
+
     t_start = time.perf_counter()
     ctx, settings, scene, tr_idx, te_idx = _prepare(cfg, backend, prior, overwrite, quiet)
     for name, stage in stages_of(cfg.method):
