@@ -457,7 +457,8 @@ class OutputConfig:
     """What the run writes and reports."""
 
     out: str | None = opt(None, "output folder (metrics.json, config.toml, renders, ...); a rerun into it resumes "
-                                "an interrupted run. Python only: None = write nothing", metavar="DIR")
+                                "an interrupted run. Python only: None = write nothing", metavar="DIR",
+                          check=lambda v: None if v is None or v.strip() else "must name a folder, got an empty string")
     lpips: bool = opt(True, "compute LPIPS (and AVGE) on the test views")
     eval_every: int | None = opt(None, "test-PSNR probe every N iterations for the PSNR-vs-seconds plot "
                                        "(none: about 15 per stage; 0: off)", check=at_least(0), metavar="N")
@@ -543,6 +544,8 @@ class RunConfig:
         base, rc = parse_method(self.method, self.reings)
         object.__setattr__(self, "method", base)
         object.__setattr__(self, "reings", rc)
+        if self.dataset == "procedural" and self.data not in (None, "procedural"):
+            raise ValueError(f"dataset procedural is the built-in scene and takes no data folder, got data {self.data!r}")
         if self.views < 2:
             raise ValueError(f"views must be an integer >= 2 (the SfM box needs two training views), got {self.views}")
         if self.iterations is not None and len(self.iterations) not in (1, 3):

@@ -187,3 +187,15 @@ def test_run_refuses_bad_depth_smooth_before_writing(bad, tmp_path):
     with pytest.raises(ValueError, match="depth_smooth"):
         reings.pipeline.run(out=str(out), depth_smooth=bad, quiet=True)
     assert not out.exists()
+
+
+def test_issue14_items_2_and_5(tmp_path, capsys):
+    """Item 2: `--dataset procedural --data DIR` trained the procedural scene and labelled it with
+    DIR's name; item 5: `--out ''` trained and wrote nothing. Both are refused before any work."""
+    scene = tmp_path / "fern"
+    scene.mkdir()
+    _fails(["run", "--dataset", "procedural", "--data", str(scene), "--out", str(tmp_path / "o")], capsys,
+           "procedural", "takes no data folder", str(scene))
+    assert not (tmp_path / "o").exists()
+    _argparse_fails(["run", "--out", ""], capsys, "--out", "empty")
+    _argparse_fails(["run", "--out", "   "], capsys, "--out", "empty")

@@ -151,3 +151,19 @@ def test_blender_bad_json(tmp_path):
 
 def test_scene_error_is_value_error():
     assert issubclass(SceneError, ValueError)
+
+
+@pytest.mark.parametrize("convert", [lambda a: a.astype(np.complex128) + 1e-3j, lambda a: a.astype(str),
+                                     lambda a: a > 0])
+def test_poses_bounds_must_be_real(tmp_path, convert):
+    """Issue 14 item 10: a complex poses_bounds.npy was accepted with only a numpy warning (its
+    imaginary part dropped); strings and booleans are refused too, naming the file and dtype."""
+    import warnings
+
+    _llff(tmp_path)
+    pb = np.load(tmp_path / "poses_bounds.npy")
+    np.save(tmp_path / "poses_bounds.npy", convert(pb))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        with pytest.raises(SceneError, match=r"poses_bounds.npy: expected real numbers, got an array of dtype"):
+            load_scene(str(tmp_path))

@@ -106,3 +106,18 @@ def test_malformed(tmp_path, rng):
     p.write_bytes(raw.replace(b"property float x\n", b"property quux x\n"))
     with pytest.raises(PlyError, match="unsupported property"):
         read_ply(p)
+
+
+def test_absurd_vertex_count_is_a_named_error(tmp_path, rng):
+    """Issue 14 item 14: a header claiming 10^15 vertices raised MemoryError (the read was sized
+    from the header); the count is now checked against the file's size first."""
+    p = tmp_path / "huge.ply"
+    g = _g(rng, 3, 1)
+    write_ply(p, g)
+    raw = p.read_bytes()
+    p.write_bytes(raw.replace(b"element vertex 3\n", b"element vertex 1000000000000000\n"))
+    with pytest.raises(PlyError, match="1000000000000000 vertex elements need"):
+        read_ply(p)
+    p.write_bytes(raw.replace(b"element vertex 3\n", b"element face 99999999999\nproperty float q\nelement vertex 3\n"))
+    with pytest.raises(PlyError, match="face elements need"):
+        read_ply(p)

@@ -51,9 +51,17 @@ def _load_npy(path: str, ncols: int) -> np.ndarray:
         a = np.load(path, allow_pickle=False)
     except Exception as e:
         raise SceneError(f"{path}: cannot read .npy ({e})") from e
+    _check_real(path, a)
     if a.ndim != 2 or a.shape[1] != ncols:
         raise SceneError(f"{path}: expected shape (N, {ncols}), got {a.shape}")
     return a.astype(np.float64)
+
+
+def _check_real(path: str, a: np.ndarray) -> None:
+    """Real numbers only: complex, string, object, structured and boolean arrays are named errors
+    (a complex array was cast with only a numpy warning, its imaginary part dropped)."""
+    if a.dtype.kind not in "fiu":
+        raise SceneError(f"{path}: expected real numbers, got an array of dtype {a.dtype}")
 
 
 def _read_views(folder: str, names: list[str], scale: float):
@@ -118,9 +126,11 @@ def load_llff_nex(path: str, factor: int = 8, load_points: bool = True) -> Scene
     if not os.path.isfile(hwf_path):
         raise SceneError(f"{hwf_path}: file not found")
     try:
-        hwf = np.load(hwf_path, allow_pickle=False).astype(np.float64).ravel()
+        hwf = np.load(hwf_path, allow_pickle=False)
     except Exception as e:
         raise SceneError(f"{hwf_path}: cannot read .npy ({e})") from e
+    _check_real(hwf_path, hwf)
+    hwf = hwf.astype(np.float64).ravel()
     if hwf.shape != (6,) or not np.all(np.isfinite(hwf)) or np.any(hwf[:4] <= 0):
         raise SceneError(f"{hwf_path}: expected 6 finite values (h, w, fx, fy, cx, cy), got {hwf.tolist()}")
     H0, W0, fx, fy, cx, cy = hwf

@@ -11,6 +11,7 @@ and further elements after the vertices; it raises `PlyError` naming what is wro
 """
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import numpy as np
@@ -105,14 +106,20 @@ def read_ply(path) -> Gaussians:
     with open(path, "rb") as f:
         fmt, elements = _parse_header(f, path)
         endian = "<" if fmt == "binary_little_endian" else ">"
+        left = os.fstat(f.fileno()).st_size - f.tell()  # bytes after the header
         for name, count, props in elements:
             if any(p[0] == "list" for p in props):
                 raise PlyError(f"{path}: element {name!r} has list properties; it must come after 'vertex'")
             dt = np.dtype([(p[0], endian + p[1]) for p in props])
+            need = dt.itemsize * count
+            if need > left:  # checked before reading: a header's count cannot make us allocate more than the file
+                raise PlyError(f"{path}: truncated or corrupt: the header's {count} {name} elements need {need} bytes, "
+                               f"the file has {left} after the header")
+            left -= need
             if name != "vertex":
-                f.seek(dt.itemsize * count, 1)
+                f.seek(need, 1)
                 continue
-            buf = f.read(dt.itemsize * count)
+            buf = f.read(need)
             if len(buf) != dt.itemsize * count:
                 raise PlyError(f"{path}: truncated: {count} vertices need {dt.itemsize * count} bytes, got {len(buf)}")
             rec = np.frombuffer(buf, dtype=dt)
