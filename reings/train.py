@@ -116,24 +116,31 @@ def _psnr(a, b) -> float:
 
 
 def _save_checkpoint(path: str, state, rng, history: History, extra: dict) -> None:
-    tmp = path + ".tmp.npz"
+    from .io.files import atomic_write
+
     arrays = state.to_arrays()
     arrays["rng_state"] = np.frombuffer(json.dumps(rng.bit_generator.state).encode(), np.uint8)
     arrays["history"] = np.frombuffer(json.dumps(history.to_dict()).encode(), np.uint8)
     arrays["extra"] = np.frombuffer(json.dumps(extra).encode(), np.uint8)
-    np.savez(tmp, **arrays)
-    os.replace(tmp, path)  # atomic: a crash leaves the previous checkpoint intact
+    # atomic, through a unique temp file: a crash leaves the previous checkpoint intact, and a
+    # symlink planted at a predictable temp name is never written through
+    with atomic_write(path, binary=True) as f:
+        np.savez(f, **arrays)
 
 
 def _load_checkpoint(path: str):
     from .state import TrainState
 
-    with np.load(path) as z:
-        d = {k: z[k] for k in z.files}
-    rng_state = json.loads(bytes(d.pop("rng_state")).decode())
-    hist = History(**json.loads(bytes(d.pop("history")).decode()))
-    extra = json.loads(bytes(d.pop("extra")).decode())
-    return TrainState.from_arrays(d), rng_state, hist, extra
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            d = {k: z[k] for k in z.files}
+        rng_state = json.loads(bytes(d.pop("rng_state")).decode())
+        hist = History(**json.loads(bytes(d.pop("history")).decode()))
+        extra = json.loads(bytes(d.pop("extra")).decode())
+        return TrainState.from_arrays(d), rng_state, hist, extra
+    except Exception as e:  # truncated, not an npz, missing or malformed entries
+        raise ValueError(f"{path}: unreadable checkpoint ({type(e).__name__}: {e}); delete it to redo this stage, "
+                         "or rerun with --overwrite") from None
 
 
 def warp_baseline(seed: int, it: int, max_baseline: float) -> float:

@@ -102,3 +102,67 @@ def test_killed_overwrite_keeps_the_older_finished_run(tmp_path):
     assert not (out / "checkpoints" / "coarse.npz").exists()
     assert outputs.restore_out(str(out)) and (out / "metrics.json").read_text() == "{}"
     assert not (out / outputs.PREVIOUS).exists()
+
+
+def test_outputs_respect_the_umask(tmp_path):
+    """Issue 14 item 18: files written through atomic_write (metrics.json, the SVG, run.json,
+    results.*, the PLY, checkpoints) were 0600 from mkstemp; they now get 0666 & ~umask."""
+    from reings.io.files import atomic_write
+
+    old = os.umask(0o022)
+    try:
+        with atomic_write(tmp_path / "a.json") as f:
+            f.write("{}")
+        os.umask(0o077)
+        with atomic_write(tmp_path / "b.json") as f:
+            f.write("{}")
+    finally:
+        os.umask(old)
+    assert (os.stat(tmp_path / "a.json").st_mode & 0o777) == 0o644
+    assert (os.stat(tmp_path / "b.json").st_mode & 0o777) == 0o600
+
+
+def test_planted_symlinks_are_not_written_through(tmp_path):
+    """Issue 14 item 17: a symlink at OUT/gaussians.ply, or at a checkpoint's old predictable
+    temp name, made a run overwrite a file outside --out."""
+    import numpy as np
+
+    from reings.io.ply import write_ply
+    from reings.train import fit
+
+    victim = tmp_path / "victim.txt"
+    victim.write_text("precious")
+    out = tmp_path / "out"
+    out.mkdir()
+    os.symlink(victim, out / "gaussians.ply")
+    scene = reings.make_procedural_scene(n_views=2, width=16, height=12, supersample=1)
+    rng = np.random.default_rng(0)
+    from reings.train import gaussians_from_points, random_points_in_box
+
+    g = gaussians_from_points(random_points_in_box([-1, 0, 0], [1, 1, 3], 20, rng), None, 0, rng)
+    write_ply(out / "gaussians.ply", g)
+    assert victim.read_text() == "precious" and not os.path.islink(out / "gaussians.ply")
+    ck = out / "fit.npz"
+    os.symlink(victim, str(ck) + ".tmp.npz")
+    from reings.config import preset
+    from reings.train import with_iterations
+
+    fit(scene, with_iterations(preset("3dgs"), 2), init=g, progress=False, checkpoint=str(ck), checkpoint_every=1)
+    assert victim.read_text() == "precious" and not os.path.islink(ck)
+
+
+def test_unreadable_checkpoint_is_named(tmp_path):
+    """Issue 14 item 11: a truncated checkpoint gave a bare zipfile.BadZipFile."""
+    import numpy as np
+
+    from reings.config import preset
+    from reings.train import fit, gaussians_from_points, random_points_in_box, with_iterations
+
+    scene = reings.make_procedural_scene(n_views=2, width=16, height=12, supersample=1)
+    rng = np.random.default_rng(0)
+    g = gaussians_from_points(random_points_in_box([-1, 0, 0], [1, 1, 3], 20, rng), None, 0, rng)
+    ck = tmp_path / "fit.npz"
+    fit(scene, with_iterations(preset("3dgs"), 2), init=g, progress=False, checkpoint=str(ck), checkpoint_every=1)
+    ck.write_bytes(ck.read_bytes()[:100])
+    with pytest.raises(ValueError, match=r"fit.npz: unreadable checkpoint"):
+        fit(scene, with_iterations(preset("3dgs"), 4), init=g, progress=False, checkpoint=str(ck))

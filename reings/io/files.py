@@ -8,6 +8,8 @@
 atomic_write writes to a temporary file in the target's folder and renames it over the target on
 success (os.replace is atomic on one filesystem), so an interrupted run never leaves a
 half-written metrics.json, cache entry or table; on an exception the temporary file is removed.
+The temporary name is unique (mkstemp, O_EXCL) and the rename replaces a symlink at the target
+instead of writing through it; the file gets the mode open() would give it (0666 & ~umask).
 """
 from __future__ import annotations
 
@@ -24,6 +26,7 @@ def atomic_write(path, binary: bool = False):
     suffix = os.path.splitext(path)[1]
     fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix=suffix, dir=d)
     try:
+        os.fchmod(fd, 0o666 & ~_umask())  # mkstemp makes 0600: give the file the mode open() would
         with os.fdopen(fd, "wb" if binary else "w") as f:
             yield f
         os.replace(tmp, path)
@@ -33,6 +36,13 @@ def atomic_write(path, binary: bool = False):
         except OSError:
             pass
         raise
+
+
+def _umask() -> int:
+    """The process umask (read by setting and restoring it)."""
+    m = os.umask(0o022)
+    os.umask(m)
+    return m
 
 
 def cache_dir(sub: str) -> Path:

@@ -54,7 +54,9 @@ def write_ply(path, g: Gaussians) -> None:
         rec[f"rot_{i}"] = g.quats[:, i]
     header = ["ply", "format binary_little_endian 1.0", f"element vertex {n}"]
     header += [f"property float {a}" for a in names] + ["end_header"]
-    with open(path, "wb") as f:
+    from .files import atomic_write
+
+    with atomic_write(path, binary=True) as f:  # whole or not at all; never through a planted symlink
         f.write(("\n".join(header) + "\n").encode("ascii"))
         f.write(rec.tobytes())
 
