@@ -238,6 +238,9 @@ def main(argv=None) -> int:
             ValueError) as e:
         print(f"reings: error: {e}", file=sys.stderr)
         return 2
+    except OSError as e:  # a write that failed (full disk, a PNG OpenCV refused): one line naming the path
+        print(f"reings: error: {e}", file=sys.stderr)
+        return 1
     except KeyboardInterrupt:
         print("reings: interrupted", file=sys.stderr)
         return 130

@@ -183,10 +183,34 @@ def write_test_renders(out: str, names, rgbs, depths) -> None:
     os.makedirs(os.path.join(out, "depths"), exist_ok=True)
     for name, p, d in zip(names, rgbs, depths):
         stem = os.path.splitext(os.path.basename(name))[0]
-        cv2.imwrite(os.path.join(out, "renders", stem + ".png"),
-                    cv2.cvtColor((p * 255 + 0.5).astype(np.uint8), cv2.COLOR_RGB2BGR))
+        _write_png(os.path.join(out, "renders", stem + ".png"),
+                   cv2.cvtColor((p * 255 + 0.5).astype(np.uint8), cv2.COLOR_RGB2BGR))
         dn = (d - d.min()) / max(float(d.max() - d.min()), 1e-9)
-        cv2.imwrite(os.path.join(out, "depths", stem + ".png"), (dn * 65535).astype(np.uint16))
+        _write_png(os.path.join(out, "depths", stem + ".png"), (dn * 65535).astype(np.uint16))
+
+
+def _write_png(path: str, a: np.ndarray) -> None:
+    """cv2.imwrite through a unique temporary file in the same folder, renamed over `path`;
+    OSError naming the file when OpenCV reports failure (it returns False, it does not raise)."""
+    import tempfile
+
+    import cv2
+
+    from .io.files import _umask
+
+    fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix=".png", dir=os.path.dirname(os.path.abspath(path)))
+    os.close(fd)
+    try:
+        if not cv2.imwrite(tmp, np.ascontiguousarray(a)):
+            raise OSError(f"{path}: could not write the PNG (cv2.imwrite failed)")
+        os.chmod(tmp, 0o666 & ~_umask())
+        os.replace(tmp, path)
+    except BaseException:
+        try:
+            os.unlink(tmp)
+        except OSError:
+            pass
+        raise
 
 
 def write_run_outputs(out: str, gaussians, metrics: dict, series: list, bounds: list, title: str) -> None:

@@ -166,3 +166,27 @@ def test_unreadable_checkpoint_is_named(tmp_path):
     ck.write_bytes(ck.read_bytes()[:100])
     with pytest.raises(ValueError, match=r"fit.npz: unreadable checkpoint"):
         fit(scene, with_iterations(preset("3dgs"), 4), init=g, progress=False, checkpoint=str(ck))
+
+
+def test_failed_png_write_is_an_error(tmp_path, monkeypatch):
+    """Issue 14 item 8: cv2.imwrite returning False was ignored (exit 0, no renders)."""
+    import cv2
+
+    monkeypatch.setattr(cv2, "imwrite", lambda *a, **k: False)
+    out = tmp_path / "run"
+    with pytest.raises(OSError, match=r"renders/.*\.png: could not write the PNG"):
+        reings.run(out=str(out), **KW)
+    assert not (out / "metrics.json").exists()
+    assert not [n for n in os.listdir(out / "renders") if n.startswith(".tmp-")]  # no temp file left
+
+
+def test_cli_reports_a_failed_write_in_one_line(tmp_path, monkeypatch, capsys):
+    import cv2
+
+    from reings.cli import main
+
+    monkeypatch.setattr(cv2, "imwrite", lambda *a, **k: False)
+    rc = main(["run", "--method", "3dgs", "--iterations", "3", "--depth-prior", "none", "--no-lpips", "--eval-every", "0",
+               "--quiet", "--out", str(tmp_path / "run")])
+    err = capsys.readouterr().err
+    assert rc == 1 and err.startswith("reings: error:") and "could not write the PNG" in err and "Traceback" not in err
