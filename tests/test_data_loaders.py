@@ -250,3 +250,27 @@ def test_scene_validation_and_repr():
         Scene(ims, cams[:1], ["a", "b"])
     with pytest.raises(ValueError, match="camera is"):
         Scene([ims[0][:5]], cams[:1], ["a"])
+
+
+def test_dtu_mask_of_another_aspect_is_refused(tmp_path):
+    """Issue 14 item 4: a mask of the wrong size was stretched to the image silently; masks now
+    get the images' aspect check and the error names the mask file."""
+    from reings.data.types import SceneError
+
+    n, W, H = 2, 40, 30
+    K0 = np.array([[2892.3, 0.0, 823.2], [0, 2883.2, 619.1], [0, 0, 1]])
+    data = {}
+    for i in range(n):
+        R = _rot(1, 0.1 * i)
+        C = R.T @ np.array([0, 0, -700.0])
+        P = np.eye(4)
+        P[:3, :4] = K0 @ np.concatenate([R, (-R @ C)[:, None]], 1)
+        data[f"world_mat_{i}"], data[f"scale_mat_{i}"] = P, np.diag([200.0, 200.0, 200.0, 1.0])
+    np.savez(tmp_path / "cameras_sphere.npz", **data)
+    _write_images(str(tmp_path / "images_4"), [np.full((H, W, 3), 0.5, np.float32)] * n, "{:06d}.png")
+    masks = [np.ones((H * 4, W * 4), np.float32), np.ones((H * 4, W * 2), np.float32)]  # the second: 80x120
+    _write_images(str(tmp_path / "mask"), masks, "{:03d}.png")
+    with pytest.raises(SceneError, match=r"mask/001.png: 80x120 does not have DTU's"):
+        load_scene(str(tmp_path), calib_size=(W * 4, H * 4))
+    sc = load_scene(str(tmp_path), calib_size=(W * 4, H * 4), load_masks=False)  # images alone still load
+    assert len(sc) == n

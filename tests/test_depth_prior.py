@@ -341,3 +341,15 @@ def test_stereo_on_procedural_scene():
     # measured (200x150, views 0/12/23): confident 0.044 / 0.92, all (filled) 0.090 / 0.74
     assert absrel_c < 0.08 and w5_c > 0.85
     assert absrel_all < 0.15 and w5_all > 0.65
+
+
+@needs_onnx
+def test_onnx_degenerate_outputs_are_refused(tmp_path):
+    """Issue 14 item 7: a 1x1 output was resized into a constant depth map and accepted."""
+    pr = DP.get_depth_prior(f"onnx:{_graph(tmp_path / 'tiny.onnx', [1, 3, 'h', 'w'])}", cache=False)
+    for out in (np.ones((1, 1, 1), np.float32), np.ones((1, 1, 1, 1), np.float32), np.ones((1, 4, 60), np.float32)):
+        with pytest.raises(DP.DepthPriorError, match="too small to be the depth map of a 80x60 image"):
+            pr.postprocess(out, 60, 80)
+    with pytest.raises(DP.DepthPriorError, match="constant map"):
+        pr.postprocess(np.full((1, 60, 80), 3.0, np.float32), 60, 80)
+    assert pr.postprocess(np.arange(60 * 80, dtype=np.float32).reshape(1, 60, 80), 60, 80).shape == (60, 80)

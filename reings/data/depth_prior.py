@@ -260,6 +260,9 @@ PREPROCESS = {
 _PRE_ALIASES = {"da": "depth_anything", "da1": "depth_anything", "da2": "depth_anything", "dpt": "midas"}
 
 
+MIN_OUTPUT_SIDE = 8  # an ONNX prior's map must have at least this many pixels per side (or the image's)
+
+
 class OnnxDepthPrior(DepthPrior):
     """A monocular relative-depth network run by onnxruntime (see the module docstring)."""
 
@@ -398,6 +401,12 @@ class OnnxDepthPrior(DepthPrior):
             raise DepthPriorError(f"{self.path}: output shape {np.shape(out)} is not a single depth map")
         if not np.all(np.isfinite(d)):
             raise DepthPriorError(f"{self.path}: the network returned non-finite values")
+        if min(d.shape) < min(MIN_OUTPUT_SIDE, h, w):
+            raise DepthPriorError(f"{self.path}: output shape {np.shape(out)} is too small to be the depth map of a "
+                                  f"{w}x{h} image (each side must have >= {MIN_OUTPUT_SIDE} pixels)")
+        if float(d.max()) == float(d.min()):
+            raise DepthPriorError(f"{self.path}: the network returned a constant map ({float(d.min())!r}); "
+                                  "that is no depth")
         if d.shape != (h, w):
             d = cv2.resize(d, (w, h), interpolation=cv2.INTER_LINEAR)
         if self.conversion == "disparity":

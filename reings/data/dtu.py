@@ -208,7 +208,11 @@ def load_dtu(path: str, factor: int | None = 4, normalize: bool = True, light: i
             raise SceneError(f"{mdir}: {len(mnames)} masks but {len(names)} images")
         masks = []
         for mn, im in zip(mnames, ims):
-            m = imgs.read_mask(os.path.join(mdir, mn))
+            mp = os.path.join(mdir, mn)
+            m = imgs.read_mask(mp)
+            mh, mw = m.shape[:2]
+            if abs((mw / mh) / (W0 / H0) - 1) > 0.02:  # the images' rule: a mask is never stretched
+                raise SceneError(f"{mp}: {mw}x{mh} does not have DTU's {W0}x{H0} aspect")
             masks.append(imgs.resize(m[:, :, None], im.shape[1], im.shape[0])[:, :, 0])
     meta = {"factor": factor, "normalized": bool(normalize)}
     if centres_scale is not None:
