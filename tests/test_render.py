@@ -257,3 +257,28 @@ def test_bench_smoke(device, tmp_path):
         assert k in r, k
     assert r["max_err_rgb"] < 1e-3 and r["grad_cos_means"] > 0.999
     assert all(s["ours_correct"] for s in recs[1:])
+
+
+def test_buffer_beyond_the_device_limit_is_named():
+    """Issue 14 item 13: a render larger than the device's largest buffer raised a raw
+    pyopencl LogicError (INVALID_BUFFER_SIZE); now a ValueError names the buffer, size and limit.
+    The limit is lowered on a private backend instead of allocating gigabytes."""
+    import reings
+    from reings.backends.opencl.backend import OpenCLBackend
+    from reings.backends.opencl.scratch import DeviceLimitError
+
+    scene = reings.make_procedural_scene(n_views=1, width=64, height=48, supersample=1)
+    rng = np.random.default_rng(0)
+    from reings.train import gaussians_from_points, random_points_in_box
+
+    g = gaussians_from_points(random_points_in_box([-1, 0, 0], [1, 1, 3], 50, rng), None, 0, rng)
+    be = OpenCLBackend("pocl")
+    be.render(g, scene.cameras[0])  # fits
+    be.scratch.max_alloc = 64 * 48 * 4  # one float per pixel: the RGB buffers no longer fit
+    big = scene.cameras[0]
+    from dataclasses import replace
+
+    big = replace(big, width=128, height=96, K=big.K * np.array([[2], [2], [1]]))
+    with pytest.raises(DeviceLimitError, match=r"needs \d+ bytes .* largest allocation, 12288 bytes"):
+        be.render(g, big)
+    assert isinstance(DeviceLimitError("x"), ValueError)

@@ -31,6 +31,12 @@ import numpy as np
 from . import quirks
 
 SPACES = ("gauss", "isect", "tile", "pixel", "small")
+
+
+class DeviceLimitError(ValueError):
+    """A buffer larger than the device can allocate (the message names the buffer, the size and
+    the limit). A ValueError, so `reings` prints it as one line."""
+
 GROWTH = 1.5
 MIN_BYTES = 64  # OpenCL forbids zero-sized buffers
 
@@ -50,6 +56,7 @@ class Scratch:
         self.allocations = 0  # how many buffers were created (tests check that steady state is 0)
         self.peak_bytes = 0  # high-water mark of nbytes() (replaced buffers are released on growth)
         self.retain = quirks.is_oclgrind(handle.device)  # keep replaced buffers alive (module doc)
+        self.max_alloc = int(handle.device.max_mem_alloc_size)  # CL_DEVICE_MAX_MEM_ALLOC_SIZE
         self.retired: list = []
 
     def get(self, space: str, name: str, rows: int, row_bytes: int):
@@ -69,9 +76,14 @@ class Scratch:
         buf, cap = self._bufs.get(key, (None, 0))
         key_old_cap = cap if buf is not None else None
         if buf is None or cap < need:
+            if need > self.max_alloc:
+                raise DeviceLimitError(
+                    f"the {space} buffer {name!r} needs {need} bytes ({rows} rows of {row_bytes}), more than this "
+                    f"device's largest allocation, {self.max_alloc} bytes (CL_DEVICE_MAX_MEM_ALLOC_SIZE on "
+                    f"{self.handle.device.name.strip()}); use a smaller image or fewer Gaussians, or another device")
             if buf is not None and self.retain:
                 self.retired.append(buf)
-            cap = max(need, int(cap * GROWTH))
+            cap = min(max(need, int(cap * GROWTH)), self.max_alloc)
             buf = cl.Buffer(self.context, self.flags, cap)
             self._bufs[key] = (buf, cap)
             self.allocations += 1
