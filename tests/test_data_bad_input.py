@@ -167,3 +167,22 @@ def test_poses_bounds_must_be_real(tmp_path, convert):
         warnings.simplefilter("error")
         with pytest.raises(SceneError, match=r"poses_bounds.npy: expected real numbers, got an array of dtype"):
             load_scene(str(tmp_path))
+
+
+@pytest.mark.parametrize("bad, needle", [(np.array([None, 1], dtype=object), "cannot read"),
+                                         (np.eye(3), "expected a 4x4 (or 3x4) matrix, got shape (3, 3)"),
+                                         (np.full((4, 4), "a"), "expected real numbers"),
+                                         (np.eye(4) * 1j, "expected real numbers")])
+def test_dtu_camera_entries_name_the_file(tmp_path, bad, needle):
+    """Issue 14 item 16: a cameras_sphere.npz with an object array, strings or a world_mat of the
+    wrong shape gave messages (or an IndexError) that did not name the file."""
+    import re
+
+    from reings.data.images import write_png
+
+    (tmp_path / "image").mkdir()
+    for i in range(2):
+        write_png(str(tmp_path / "image" / f"{i:06d}.png"), np.full((30, 40, 3), 0.5, np.float32))
+    np.savez(tmp_path / "cameras_sphere.npz", world_mat_0=bad, world_mat_1=np.eye(4))
+    with pytest.raises(SceneError, match=r"cameras_sphere.npz \(world_mat_0, 000000.png\): " + re.escape(needle)):
+        load_scene(str(tmp_path))

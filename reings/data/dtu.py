@@ -104,6 +104,24 @@ def _image_folder(path: str, factor: int) -> str:
     raise SceneError(f"{path}: no DTU image folder (images_{factor}/, image/, images/ or rect_*.png)")
 
 
+def _matrix(cams, key: str, npz_path: str, image: str) -> np.ndarray:
+    """Entry `key` of a cameras npz as a float64 4x4 (3x4 is padded), or a SceneError naming the
+    file, the entry and the image: object arrays (refused by allow_pickle=False), strings, complex
+    numbers, other shapes."""
+    where = f"{npz_path} ({key}, {image})"
+    try:
+        a = cams[key]
+    except Exception as e:  # e.g. "Object arrays cannot be loaded when allow_pickle=False"
+        raise SceneError(f"{where}: cannot read ({e})") from None
+    if a.dtype.kind not in "fiu":
+        raise SceneError(f"{where}: expected real numbers, got dtype {a.dtype}")
+    if a.shape == (3, 4):
+        a = np.vstack([a, [0, 0, 0, 1]])
+    if a.shape != (4, 4):
+        raise SceneError(f"{where}: expected a 4x4 (or 3x4) matrix, got shape {a.shape}")
+    return a.astype(np.float64)
+
+
 def _mask_folder(path: str) -> str | None:
     scan = os.path.basename(os.path.normpath(path))
     parent = os.path.dirname(os.path.abspath(path))
@@ -148,9 +166,9 @@ def load_dtu(path: str, factor: int | None = 4, normalize: bool = True, light: i
             where = f"{npz_path} (world_mat_{i}, {names[i]})"
             if f"world_mat_{i}" not in keys:
                 raise SceneError(f"{npz_path}: world_mat_{i} missing")
-            P = cams[f"world_mat_{i}"].astype(np.float64)
+            P = _matrix(cams, f"world_mat_{i}", npz_path, names[i])
             if normalize and f"scale_mat_{i}" in keys:
-                P = P @ cams[f"scale_mat_{i}"].astype(np.float64)
+                P = P @ _matrix(cams, f"scale_mat_{i}", npz_path, names[i])
             if not np.all(np.isfinite(P)):
                 raise SceneError(f"{where}: non-finite (NaN/inf) value in the projection matrix")
             try:
