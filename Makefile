@@ -16,8 +16,12 @@ $(VENV)/.installed: pyproject.toml
 	scripts/ensure_pocl.sh $(PY)
 	touch $@
 
+# the LPIPS model: REINGS_LPIPS_MODEL if set, else the development layout's ../shared/models (the
+# package itself looks only at explicit places: reings.metrics.find_lpips_model)
+LPIPS_MODEL ?= $(or $(REINGS_LPIPS_MODEL),$(wildcard ../shared/models/lpips_vgg.onnx))
+
 run: $(VENV)/.installed
-	$(VENV)/bin/reings run --device $(DEVICE) --preset quick --out $(OUT) --overwrite
+	$(if $(LPIPS_MODEL),REINGS_LPIPS_MODEL=$(abspath $(LPIPS_MODEL)) )$(VENV)/bin/reings run --device $(DEVICE) --preset quick --out $(OUT) --overwrite
 
 test: $(VENV)/.installed
 	$(PY) -m pytest -q -ra

@@ -20,7 +20,8 @@ renders as 8-bit PNGs, which clips them too); NaN or Inf raise a `ValueError`.
   outside the mask (img * m + (1 - m)) before the metric. `dtu_metrics` bundles the three.
 
 The ONNX model is found from the `model` argument, else the `REINGS_LPIPS_MODEL` environment
-variable, else `lpips_<net>.onnx` in a few usual places (see `find_lpips_model`).
+variable, else `lpips_<net>.onnx` in the user cache's models folder (`find_lpips_model`); never
+the working directory. `lpips_model_info` gives its path and sha256 (recorded in metrics.json).
 """
 from __future__ import annotations
 
@@ -188,31 +189,18 @@ class LPIPSModelNotFound(FileNotFoundError):
 
 
 def _candidate_paths(net: str) -> list[Path]:
-    fname = f"lpips_{net}.onnx"
-    here = Path(__file__).resolve()
-    cache = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache"))
-    cands = [
-        Path.cwd() / fname,
-        Path.cwd() / "models" / fname,
-        Path.cwd() / "shared" / "models" / fname,
-        Path.cwd().parent / "shared" / "models" / fname,
-        here.parents[1] / "models" / fname,  # <repo>/models
-        here.parents[2] / "shared" / "models" / fname,  # <repo>/../shared/models
-        cache / "reings" / "models" / fname,
-        Path("/work/shared/models") / fname,
-    ]
-    out, seen = [], set()
-    for c in cands:
-        if str(c) not in seen:
-            seen.add(str(c))
-            out.append(c)
-    return out
+    """The one implicit place: the user cache, `reings.io.files.cache_dir("models")`
+    ($REINGS_CACHE_DIR/models, else $XDG_CACHE_HOME/reings/models, else ~/.cache/reings/models).
+    Never the working directory nor a development folder: a stray lpips_vgg.onnx there must not
+    silently replace the metric (issue 14 item 9)."""
+    from .io.files import cache_dir
+
+    return [cache_dir("models") / f"lpips_{net}.onnx"]
 
 
 def find_lpips_model(model=None, net: str = "vgg") -> Path:
-    """Path of the LPIPS ONNX model: `model` if given, else $REINGS_LPIPS_MODEL, else the first
-    existing `lpips_<net>.onnx` among ./, ./models/, ./shared/models/, ../shared/models/,
-    <repo>/models/, <repo>/../shared/models/, ~/.cache/reings/models/."""
+    """Path of the LPIPS ONNX model: `model` if given, else $REINGS_LPIPS_MODEL, else
+    `lpips_<net>.onnx` in the user cache's models folder (`_candidate_paths`)."""
     if model is not None:
         p = Path(model).expanduser()
         if not p.is_file():
@@ -229,9 +217,28 @@ def find_lpips_model(model=None, net: str = "vgg") -> Path:
         if c.is_file():
             return c
     raise LPIPSModelNotFound(
-        f"lpips_{net}.onnx not found. Pass lpips(..., model=PATH) or set REINGS_LPIPS_MODEL. "
-        "Looked in: " + ", ".join(str(c) for c in cands)
+        f"lpips_{net}.onnx not found. Pass lpips(..., model=PATH), set REINGS_LPIPS_MODEL, or put it at "
+        + ", ".join(str(c) for c in cands)
     )
+
+
+_SHA256: dict[tuple, str] = {}
+
+
+def lpips_model_info(model=None, net: str = "vgg") -> dict:
+    """{"path", "sha256", "net"} of the model `lpips` would use (metrics.json records it)."""
+    import hashlib
+
+    p = find_lpips_model(model, net).resolve()
+    st = p.stat()
+    key = (str(p), st.st_size, st.st_mtime_ns)
+    if key not in _SHA256:
+        h = hashlib.sha256()
+        with open(p, "rb") as f:
+            for chunk in iter(lambda: f.read(1 << 20), b""):
+                h.update(chunk)
+        _SHA256[key] = h.hexdigest()
+    return {"path": str(p), "sha256": _SHA256[key], "net": net}
 
 
 _SESSIONS: dict[tuple, object] = {}

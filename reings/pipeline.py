@@ -557,6 +557,10 @@ def _metrics(ctx: RunContext, m: dict, settings: dict, scene, tr_idx, te_idx, cu
         metrics["prune_curve"] = curve
     if "lpips_error" in m:
         metrics["lpips_error"] = m["lpips_error"]
+    elif m.get("lpips") is not None:  # which network scored LPIPS (path and sha256)
+        from .metrics import lpips_model_info
+
+        metrics["lpips_model"] = lpips_model_info()
     return metrics
 
 

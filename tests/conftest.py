@@ -1,10 +1,31 @@
 """Shared fixtures. Devices under test come from REINGS_TEST_DEVICES (comma list, default
-"pocl"); "cuda" is added by setting it, e.g. REINGS_TEST_DEVICES=pocl,cuda on a GPU machine."""
+"pocl"); "cuda" is added by setting it, e.g. REINGS_TEST_DEVICES=pocl,cuda on a GPU machine.
+
+The LPIPS model: the package looks only at explicit places (reings.metrics.find_lpips_model). For
+the tests, REINGS_LPIPS_MODEL is set, when unset, from REINGS_MODELS, else from the models folder
+beside REINGS_DATA, else from the development layout `<repo>/../shared/models`; without one the
+LPIPS tests skip."""
 from __future__ import annotations
 
 import os
 
 import pytest
+
+
+def _lpips_for_tests() -> None:
+    if os.environ.get("REINGS_LPIPS_MODEL"):
+        return
+    repo = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    dirs = [os.environ.get("REINGS_MODELS"),
+            os.path.join(os.environ["REINGS_DATA"], "..", "models") if os.environ.get("REINGS_DATA") else None,
+            os.path.join(repo, "..", "shared", "models")]
+    for d in dirs:
+        if d and os.path.isfile(os.path.join(d, "lpips_vgg.onnx")):
+            os.environ["REINGS_LPIPS_MODEL"] = os.path.abspath(os.path.join(d, "lpips_vgg.onnx"))
+            return
+
+
+_lpips_for_tests()
 
 
 def _devices():

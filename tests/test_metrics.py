@@ -246,3 +246,25 @@ def test_fern_consecutive_test_images(capsys):
     assert 10 < r["psnr"] < 20
     assert 0.1 < r["ssim"] < 0.7
     assert 0.15 < r["lpips"] < 0.7
+
+
+def test_lpips_model_only_from_explicit_places(tmp_path, monkeypatch):
+    """Issue 14 item 9: an lpips_vgg.onnx in the working directory replaced the model; now only
+    the argument, REINGS_LPIPS_MODEL and the user cache's models folder count, and
+    lpips_model_info gives the path and sha256 that metrics.json records."""
+    import hashlib
+
+    monkeypatch.delenv("REINGS_LPIPS_MODEL", raising=False)
+    monkeypatch.setenv("REINGS_CACHE_DIR", str(tmp_path / "cache"))
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "lpips_vgg.onnx").write_bytes(b"a planted model")
+    (tmp_path / "models").mkdir()
+    (tmp_path / "models" / "lpips_vgg.onnx").write_bytes(b"a planted model")
+    with pytest.raises(M.LPIPSModelNotFound, match="REINGS_LPIPS_MODEL"):
+        M.find_lpips_model()
+    (tmp_path / "cache" / "models").mkdir(parents=True)
+    real = tmp_path / "cache" / "models" / "lpips_vgg.onnx"
+    real.write_bytes(b"the user's model")
+    assert M.find_lpips_model() == real
+    info = M.lpips_model_info()
+    assert info["path"] == str(real.resolve()) and info["sha256"] == hashlib.sha256(b"the user's model").hexdigest()
