@@ -117,6 +117,7 @@ def prepare_out(out: str, settings: dict, overwrite: bool) -> None:
 
     check_out(out, settings, overwrite)
     ckdir = os.path.join(out, "checkpoints")
+    _remove_stale_temps(out)
     if overwrite:
         prev = os.path.join(out, PREVIOUS)
         keep_old = not os.path.isdir(prev)
@@ -132,6 +133,20 @@ def prepare_out(out: str, settings: dict, overwrite: bool) -> None:
                 os.unlink(src)
     os.makedirs(ckdir, exist_ok=True)
     write_json_atomic(os.path.join(ckdir, "run.json"), settings)
+
+
+def _remove_stale_temps(out: str) -> None:
+    """Delete the `.tmp-*` files (reings.io.files.atomic_write, PNG writes) that a killed run left
+    in `out`, its checkpoints, renders and depths: no live writer owns them once the folder is
+    claimed again (`reings eval` holds a lock per run folder; two `reings run` into one folder at
+    the same time are not supported)."""
+    for d in (out, *(os.path.join(out, n) for n in ("checkpoints",) + RUN_FOLDERS)):
+        if not os.path.isdir(d):
+            continue
+        for n in os.listdir(d):
+            p = os.path.join(d, n)
+            if n.startswith(".tmp-") and (os.path.islink(p) or os.path.isfile(p)):
+                os.unlink(p)
 
 
 def finish_out(out: str) -> None:

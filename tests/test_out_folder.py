@@ -190,3 +190,15 @@ def test_cli_reports_a_failed_write_in_one_line(tmp_path, monkeypatch, capsys):
                "--quiet", "--out", str(tmp_path / "run")])
     err = capsys.readouterr().err
     assert rc == 1 and err.startswith("reings: error:") and "could not write the PNG" in err and "Traceback" not in err
+
+
+def test_stale_temp_files_are_removed_when_the_folder_is_claimed(tmp_path):
+    """Issue 14 item 12 (part): a kill can leave 0-byte `.tmp-*` files that no rerun removed."""
+    out = tmp_path / "run"
+    for d in ("", "checkpoints", "renders", "depths"):
+        (out / d).mkdir(parents=True, exist_ok=True)
+        (out / d / ".tmp-abc123.json").write_bytes(b"")
+    (out / "keep.tmp-not-ours").write_text("x")
+    reings.run(out=str(out), **KW)
+    left = [str(p.relative_to(out)) for p in out.rglob(".tmp-*")]
+    assert left == [] and (out / "keep.tmp-not-ours").exists()
