@@ -3,7 +3,7 @@
     python bench/bench_metrics.py [--repeat 5] [--json OUT.jsonl]
 
 Uses two fern images when REINGS_DATA holds llff/fern, else two procedural views. LPIPS needs
-lpips_vgg.onnx (REINGS_LPIPS_MODEL or the usual search); it is skipped with a note if absent.
+lpips_vgg.onnx (REINGS_LPIPS_MODEL, or the user cache; reings.metrics.find_lpips_model); it is skipped with a note if absent.
 Pin the process (e.g. `taskset -c 0,1`) to measure a 2-core laptop-class budget.
 """
 from __future__ import annotations
