@@ -33,7 +33,6 @@ from __future__ import annotations
 
 import dataclasses
 import os
-import resource
 import sys
 import time
 from dataclasses import dataclass, field, replace
@@ -91,8 +90,15 @@ def device_peak_bytes(backend) -> int | None:
     return None
 
 
-def _peak_rss_mb() -> float:
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+def _peak_rss_mb() -> float | None:
+    """This process's peak resident memory in MiB (None where the platform has no `resource`:
+    Windows). ru_maxrss is in KiB on Linux, in bytes on macOS."""
+    try:
+        import resource
+    except ImportError:
+        return None
+    v = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    return v / 2**20 if sys.platform == "darwin" else v / 1024
 
 
 def test_psnr(g, test, device, bg, near) -> float:

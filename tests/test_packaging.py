@@ -29,3 +29,31 @@ def test_pycolmap_range_is_the_working_one():
     and the range is capped below the next major."""
     spec = next(d for d in _extras()["data"] if d.startswith("pycolmap"))
     assert ">=4.0" in spec and "<5" in spec, spec
+
+
+def test_license_and_typing_marker():
+    """Item 22 (part): a LICENSE matching pyproject's license, and the PEP 561 marker."""
+    try:
+        import tomllib
+    except ImportError:  # Python 3.10
+        import tomli as tomllib
+    with open(ROOT / "pyproject.toml", "rb") as f:
+        proj = tomllib.load(f)["project"]
+    assert proj["license"] == {"file": "LICENSE"}
+    text = (ROOT / "LICENSE").read_text()
+    assert text.startswith("MIT License") and "License :: OSI Approved :: MIT License" in proj["classifiers"]
+    assert (ROOT / "reings" / "py.typed").is_file()
+
+
+def test_imports_without_posix_only_modules():
+    """Item 22 (part): `import resource` at module level kept the package from importing where it
+    does not exist (Windows); the pipeline now imports, and reports no peak RSS there."""
+    import subprocess
+    import sys
+
+    code = ("import sys; sys.modules['resource'] = None; sys.modules['fcntl'] = None\n"
+            "import reings, reings.pipeline, reings.evaluate\n"
+            "assert reings.pipeline._peak_rss_mb() is None\n"
+            "print('ok')")
+    p = subprocess.run([sys.executable, "-c", code], cwd=str(ROOT), capture_output=True, text=True, timeout=120)
+    assert p.returncode == 0 and "ok" in p.stdout, p.stderr[-2000:]
