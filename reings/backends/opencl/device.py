@@ -35,7 +35,16 @@ class DeviceHandle:
         return f"{self.device.name.strip()} [{self.platform.name.strip()}]"
 
 
+_ICD_CHECKED = False
+
+
 def _platforms():
+    global _ICD_CHECKED
+    if not _ICD_CHECKED:  # before the loader's first call: NVIDIA's library without an ICD file (icd.py)
+        from .icd import register_nvidia_icd
+
+        register_nvidia_icd()
+        _ICD_CHECKED = True
     import pyopencl as cl
 
     try:
