@@ -479,9 +479,45 @@ def _check_before_writing(cfg: RunConfig, overwrite: bool):
     out = cfg.output.out
     if out and os.path.exists(os.path.join(out, "metrics.json")) and not overwrite:  # before any work
         raise FileExistsError(f"{out} already holds a finished run (metrics.json); pass --overwrite to redo it")
+    _check_extras(cfg)
     backend = get_backend(cfg.device)  # unknown device -> DeviceNotFound, before anything is written
     prior = None if cfg.depth_prior == "exact" else get_depth_prior(cfg.depth_prior)
     return backend, prior
+
+
+EXTRAS_HINT = "pip install 'reings[data]'"
+
+
+class MissingExtraError(ValueError):
+    """A run needs an optional package that is not installed (one line: which, why, how)."""
+
+
+def _check_extras(cfg: RunConfig) -> None:
+    """The optional packages this run will need, checked before any work (issue 14 item 21):
+    OpenCV to read a scene's images or write the renders, onnxruntime for LPIPS when a model is
+    there to run (without a model LPIPS is skipped and reported as such)."""
+    import importlib.util
+
+    def have(mod: str) -> bool:
+        try:
+            return importlib.util.find_spec(mod) is not None
+        except (ImportError, ValueError):  # a module set to None in sys.modules, a broken install
+            return False
+
+    if not have("cv2"):
+        if cfg.data not in (None, "procedural"):
+            raise MissingExtraError(f"reading the images of --data {cfg.data} needs OpenCV: {EXTRAS_HINT}")
+        if cfg.output.out:
+            raise MissingExtraError(f"writing the test renders into --out needs OpenCV: {EXTRAS_HINT} "
+                                    "(or run without --out)")
+    if cfg.output.lpips and not have("onnxruntime"):
+        from .metrics import LPIPSModelNotFound, find_lpips_model
+
+        try:
+            find_lpips_model()
+        except LPIPSModelNotFound:
+            return
+        raise MissingExtraError(f"LPIPS needs onnxruntime: {EXTRAS_HINT}, or pass --no-lpips")
 
 
 def _prepare(cfg: RunConfig, backend, prior, overwrite: bool, quiet: bool):

@@ -57,3 +57,28 @@ def test_imports_without_posix_only_modules():
             "print('ok')")
     p = subprocess.run([sys.executable, "-c", code], cwd=str(ROOT), capture_output=True, text=True, timeout=120)
     assert p.returncode == 0 and "ok" in p.stdout, p.stderr[-2000:]
+
+
+def test_missing_extras_are_named_before_any_work(tmp_path):
+    """Item 21: without the extras, `reings run` trained for minutes and then crashed at
+    `import cv2` (renders) or onnxruntime (LPIPS). Now one line names the package, before work."""
+    import subprocess
+    import sys
+
+    def run(block: str, *args) -> subprocess.CompletedProcess:
+        code = (f"import sys; sys.modules[{block!r}] = None\n"
+                "from reings.cli import main\n"
+                f"sys.exit(main({list(args)!r}))")
+        return subprocess.run([sys.executable, "-c", code], cwd=str(ROOT), capture_output=True, text=True,
+                              timeout=120)
+
+    out = str(tmp_path / "o")
+    p = run("cv2", "run", "--quiet", "--out", out)
+    assert p.returncode == 2 and "needs OpenCV" in p.stderr and "reings[data]" in p.stderr, p.stderr[-2000:]
+    assert "Traceback" not in p.stderr and not (tmp_path / "o").exists()
+    model = ROOT.parent / "shared" / "models" / "lpips_vgg.onnx"
+    import os
+
+    if os.environ.get("REINGS_LPIPS_MODEL") or model.is_file():
+        p = run("onnxruntime", "run", "--quiet", "--out", out)
+        assert p.returncode == 2 and "LPIPS needs onnxruntime" in p.stderr and "--no-lpips" in p.stderr, p.stderr[-2000:]
