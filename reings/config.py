@@ -520,6 +520,10 @@ class RunConfig:
     view_warp: float = opt(1.0, "reings fits only: weight of the binocular view-consistency term (Han et al. "
                                 "2024; docs/binocular.md) from 2/3 of each fit; 0 = off", check=finite_nonneg,
                            metavar="WEIGHT")
+    view_warp_start: float = opt(2 / 3, "reings fits only: where the view_warp term starts, as a fraction of each "
+                                        "fit's iterations (Binocular3DGS: 2/3)",
+                                 check=lambda v: None if 0 <= v < 1 else f"must lie in [0, 1), got {v}",
+                                 metavar="FRACTION")
     view_warp_disparity: float = opt(4.0, "the view_warp term's largest virtual-view shift, in pixels at the median "
                                           "depth of the scene's SfM points in the training views (scale-free; the "
                                           "authors' 0.4 COLMAP units is 2.6-5.5 px on the LLFF scenes here)",

@@ -175,6 +175,8 @@ def run_settings(cfg: RunConfig, dataset_kind: str) -> dict:
     if cfg.method == "reings":  # the baselines ignore both; keys absent when off (older folders resume)
         if cfg.view_warp:
             s["view_warp"], s["view_warp_disparity"] = cfg.view_warp, cfg.view_warp_disparity
+            if abs(cfg.view_warp_start - 2 / 3) > 1e-12:  # absent at the value before the option existed
+                s["view_warp_start"] = cfg.view_warp_start
         if cfg.opacity_decay is not None:
             s["opacity_decay"] = cfg.opacity_decay
     if cfg.seed:  # the seed reaches every fit too (before, only the initial points and IVPS/CVPS draws)
@@ -276,12 +278,15 @@ class RunContext:
 
     def binocular(self, recipe):
         """`recipe` with the run's view_warp term and opacity decay (reings fits): the largest
-        baseline from view_warp_disparity pixels at the scene's typical depth."""
+        baseline from view_warp_disparity pixels at the scene's typical depth, the start at
+        view_warp_start of the fit's iterations."""
         c = self.cfg
         if c.view_warp:
             b = c.view_warp_disparity * typical_depth(self.train.cameras, self.box) / np.mean(
                 [cam.fx for cam in self.train.cameras])
-            recipe = replace(recipe, loss=replace(recipe.loss, view_warp_weight=c.view_warp, view_warp_baseline=b))
+            start = max(1, int(round(c.view_warp_start * recipe.iterations)))
+            recipe = replace(recipe, loss=replace(recipe.loss, view_warp_weight=c.view_warp, view_warp_baseline=b,
+                                                  view_warp_from=start))
         decay = opacity_decay_of(c.opacity_decay, self.family)
         if decay != 1:
             recipe = replace(recipe, densify=replace(recipe.densify, opacity_decay=decay))

@@ -109,7 +109,8 @@ def test_typical_depth_is_the_median_point_depth():
 @pytest.mark.parametrize("family, kw, weight, decay", [
     ("llff", {}, 1.0, None), ("dtu", {}, 1.0, 0.995),                     # the defaults per family
     ("dtu", {"opacity_decay": 1.0}, 1.0, None), ("llff", {"opacity_decay": 0.99}, 1.0, 0.99),
-    ("llff", {"view_warp": 0.0}, 0.0, None), ("llff", {"view_warp": 2.0, "view_warp_disparity": 8.0}, 2.0, None)])
+    ("llff", {"view_warp": 0.0}, 0.0, None), ("llff", {"view_warp": 2.0, "view_warp_disparity": 8.0}, 2.0, None),
+    ("llff", {"view_warp_start": 0.25}, 1.0, None), ("llff", {"view_warp_start": 0.0}, 1.0, None)])
 def test_binocular_settings_of_the_reings_fits(family, kw, weight, decay):
     ctx, cam = _ctx(family, **kw)
     base = soft_depth_recipe(600, 0, family)
@@ -118,7 +119,8 @@ def test_binocular_settings_of_the_reings_fits(family, kw, weight, decay):
     if weight:
         px = kw.get("view_warp_disparity", 4.0)
         assert abs(r.loss.view_warp_baseline - px * 4.0 / cam.fx) < 1e-9  # px at the median depth 4
-        assert r.loss.view_warp_from == 400  # 2/3 of the squeezed schedule
+        start = kw.get("view_warp_start")
+        assert r.loss.view_warp_from == (400 if start is None else max(1, round(start * 600)))  # 2/3 by default
     else:
         assert r.loss == base.loss
 
