@@ -1,4 +1,4 @@
-"""The `reings` command line: devices, bench, run, eval.
+"""The `reings` command line: devices, bench, run, eval, render, export.
 
 Errors a user can cause (missing files, bad arguments, no OpenCL platform, an --out that already
 holds a finished run) print one line `reings: error: ...` and exit with status 2; they are
@@ -50,6 +50,70 @@ def _cmd_run(args) -> int:
     if not cfg.output.out:
         args.parser.error("the following arguments are required: --out (or output.out in --config)")
     return pipeline.main_run(cfg, overwrite=args.overwrite, quiet=args.quiet) or 0
+
+
+def _parse_size(text: str) -> tuple[int, int]:
+    try:
+        w, h = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise CLIError(f"--size {text!r}: expected WIDTHxHEIGHT, e.g. 504x378") from None
+    if w < 1 or h < 1 or w > 16384 or h > 16384:
+        raise CLIError(f"--size {text!r}: width and height must lie in 1..16384")
+    return w, h
+
+
+def _parse_background(text: str) -> tuple[float, float, float]:
+    try:
+        bg = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        bg = ()
+    if len(bg) != 3 or not all(0.0 <= v <= 1.0 for v in bg):
+        raise CLIError(f"--background {text!r}: expected R,G,B in [0, 1], e.g. 1,1,1")
+    return bg  # type: ignore[return-value]
+
+
+def _cmd_render(args) -> int:
+    import os
+
+    from .video import render_path
+
+    if args.frames < 1:
+        raise CLIError(f"--frames must be >= 1, got {args.frames}")
+    if not args.fps > 0:
+        raise CLIError(f"--fps must be positive, got {args.fps}")
+    size = _parse_size(args.size) if args.size else None
+    bg = _parse_background(args.background)
+    path = "cameras" if args.cameras else args.path
+    if not args.out and not args.frames_dir:
+        raise CLIError("nothing to write: pass --out VIDEO and/or --frames-dir DIR")
+    from .video import FOURCC
+
+    for p in (args.out, args.depth_out):
+        if p and os.path.splitext(p)[1].lower() not in FOURCC:
+            raise CLIError(f"{p}: unknown video extension (use {', '.join(FOURCC)})")
+        if p and os.path.exists(p) and not args.overwrite:
+            raise CLIError(f"{p} exists; pass --overwrite to replace it")
+    pf = render_path(args.run, path=path, frames=args.frames, size=size, cameras=args.cameras,
+                     device=args.device, background=bg, depth=bool(args.depth_out))
+    h, w = pf.frames[0].shape[:2]
+    if args.out:
+        pf.write(args.out, fps=args.fps)
+    if args.depth_out:
+        pf.write_depth(args.depth_out, fps=args.fps)
+    if args.frames_dir:
+        pf.write_frames(args.frames_dir)
+    wrote = ", ".join(p for p in (args.out, args.depth_out, args.frames_dir) if p)
+    print(f"rendered {len(pf.frames)} frames {w}x{h} ({path}) of {pf.meta['gaussians']} Gaussians on {pf.device} "
+          f"in {pf.seconds:.2f} s ({pf.fps:.1f} frames/s, encoding excluded) -> {wrote}")
+    return 0
+
+
+def _cmd_export(args) -> int:
+    from .export import export_run
+
+    paths = export_run(args.run, args.out, format=args.format, sh_degree=args.sh_degree, overwrite=args.overwrite)
+    print("\n".join(paths))
+    return 0
 
 
 def _cmd_eval(args) -> int:
@@ -215,6 +279,37 @@ def build_parser() -> argparse.ArgumentParser:
     add_config_options(e, exclude=EVAL_SETS)
     e.set_defaults(func=_cmd_eval, parser=e)
 
+    v = sub.add_parser("render", help="render a fly-through video of a finished run (docs/product.md)",
+                       description="Render a camera path of a finished run (its gaussians.ply and cameras.json) "
+                                   "into a video, PNG frames and/or a colour-mapped depth video.")
+    v.add_argument("run", metavar="RUN_DIR", help="a finished `reings run` folder")
+    v.add_argument("--path", default="spiral", choices=("spiral", "ellipse", "interpolate"),
+                   help="spiral: the LLFF forward-facing spiral; ellipse: a loop around an object; interpolate: "
+                        "through the training views (default: spiral)")
+    v.add_argument("--cameras", metavar="FILE", help="render the cameras of this cameras.json as given (no path)")
+    v.add_argument("--frames", type=int, default=120, help="frames of the path (default 120)")
+    v.add_argument("--fps", type=float, default=30.0, help="frames per second of the video (default 30)")
+    v.add_argument("--size", metavar="WxH", help="frame size (default: the training images')")
+    v.add_argument("--background", default="0,0,0", metavar="R,G,B", help="background colour in [0, 1] (default black)")
+    v.add_argument("--device", default="pocl", help="pocl | cuda | cuda:N | opencl:P:D | reference")
+    v.add_argument("--out", metavar="VIDEO", help="video file (.mp4, .avi, ...)")
+    v.add_argument("--depth-out", metavar="VIDEO", help="also a colour-mapped depth video")
+    v.add_argument("--frames-dir", metavar="DIR", help="also one PNG per frame in DIR")
+    v.add_argument("--overwrite", action="store_true", help="replace existing video files")
+    v.set_defaults(func=_cmd_render)
+
+    x = sub.add_parser("export", help="export a finished run's model (PLY with SH degree 3, or the 3DGS/Inria "
+                                      "folder layout)")
+    x.add_argument("run", metavar="RUN_DIR", help="a finished `reings run` folder")
+    x.add_argument("--format", default="ply", choices=("ply", "inria"),
+                   help="ply: OUT/point_cloud.ply; inria: point_cloud/iteration_N/point_cloud.ply, cameras.json, "
+                        "cfg_args (default ply)")
+    x.add_argument("--sh-degree", type=int, default=3, choices=(0, 1, 2, 3),
+                   help="SH degree of the exported PLY, zero-padded (default 3)")
+    x.add_argument("--out", required=True, metavar="DIR", help="output folder")
+    x.add_argument("--overwrite", action="store_true", help="replace existing files in --out")
+    x.set_defaults(func=_cmd_export)
+
     return p
 
 
@@ -246,7 +341,8 @@ def main(argv=None) -> int:
         return 130
     except Exception as e:  # device errors carry their own class names
         name = type(e).__name__
-        if name in ("DeviceNotFound", "KernelBuildError", "SceneError", "DepthPriorError", "LPIPSModelNotFound"):
+        if name in ("DeviceNotFound", "KernelBuildError", "SceneError", "DepthPriorError", "LPIPSModelNotFound",
+                    "CamerasFileError", "PlyError"):
             print(f"reings: error: {e}", file=sys.stderr)
             return 2
         raise

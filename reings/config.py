@@ -486,7 +486,11 @@ class RunConfig:
     data: str | None = opt(None, "scene folder; none: the built-in procedural scene", metavar="DIR")
     dataset: str | None = opt(None, "scene format (none: detected from the folder)", choices=DATASETS)
     factor: int = opt(8, "image downsampling factor (LLFF: images_8, 504x378)", check=at_least(1))
-    views: int = opt(3, "number of training views (>= 2)")
+    views: int = opt(3, "number of training views (>= 2); with --holdout none every view given is used")
+    holdout: str = opt("protocol", "which views are held out: 'protocol' (the dataset's published few-shot split; "
+                                   "the metrics are on its test views) or 'none' (train on every view given, "
+                                   "for your own photos; the metrics are then on the training views)",
+                       choices=("protocol", "none"))
     seed: int = opt(0, "seed of every random draw: initial points, IVPS/CVPS draws, and each fit's view order "
                        "and depth patches", check=at_least(0))
     device: str = opt("pocl", "pocl | cuda | cuda:N | opencl:P:D | reference (`reings devices` lists them)")

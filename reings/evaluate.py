@@ -591,6 +591,9 @@ def main_eval(args, base) -> int:
         n = sum(r["status"] == "done" for r in res["runs"])
         print(f"{n} finished run(s) -> {os.path.join(out, 'results.md')}, results.json")
         return 0
+    if base.holdout != "protocol":
+        raise EvalError("reings eval scores held-out views by the datasets' protocols; --holdout none is for "
+                        "reings run (training on every view of your own photos)")
     jobs, expected = plan(args, base)
     if args.prepare_only:
         _prepare(jobs)

@@ -26,7 +26,7 @@ import os
 
 import numpy as np
 
-RUN_OUTPUTS = ("metrics.json", "config.toml", "psnr_vs_time.svg", "gaussians.ply")
+RUN_OUTPUTS = ("metrics.json", "config.toml", "cameras.json", "psnr_vs_time.svg", "gaussians.ply")
 
 
 def jsonable(x):
@@ -198,13 +198,13 @@ def write_test_renders(out: str, names, rgbs, depths) -> None:
     os.makedirs(os.path.join(out, "depths"), exist_ok=True)
     for name, p, d in zip(names, rgbs, depths):
         stem = os.path.splitext(os.path.basename(name))[0]
-        _write_png(os.path.join(out, "renders", stem + ".png"),
+        write_png_atomic(os.path.join(out, "renders", stem + ".png"),
                    cv2.cvtColor((p * 255 + 0.5).astype(np.uint8), cv2.COLOR_RGB2BGR))
         dn = (d - d.min()) / max(float(d.max() - d.min()), 1e-9)
-        _write_png(os.path.join(out, "depths", stem + ".png"), (dn * 65535).astype(np.uint16))
+        write_png_atomic(os.path.join(out, "depths", stem + ".png"), (dn * 65535).astype(np.uint16))
 
 
-def _write_png(path: str, a: np.ndarray) -> None:
+def write_png_atomic(path: str, a: np.ndarray) -> None:
     """cv2.imwrite through a unique temporary file in the same folder, renamed over `path`;
     OSError naming the file when OpenCV reports failure (it returns False, it does not raise)."""
     import tempfile

@@ -179,6 +179,8 @@ def run_settings(cfg: RunConfig, dataset_kind: str) -> dict:
                 s["view_warp_start"] = cfg.view_warp_start
         if cfg.opacity_decay is not None:
             s["opacity_decay"] = cfg.opacity_decay
+    if cfg.holdout != "protocol":
+        s["holdout"], s["views"] = cfg.holdout, None  # every view given trains
     if cfg.seed:  # the seed reaches every fit too (before, only the initial points and IVPS/CVPS draws)
         s["fit_seed"] = cfg.seed
     return s
@@ -241,6 +243,7 @@ class RunContext:
     the device, the random generator, the clock, and the records that become metrics.json."""
 
     bg, near = (0.0, 0.0, 0.0), 0.01
+    in_memory = False  # the scene came from reings.run(scene=...), not from a folder
 
     def __init__(self, cfg: RunConfig, backend, train, test, priors, box, log, progress, family: str = "llff"):
         self.cfg, self.backend, self.train, self.test, self.priors, self.box = cfg, backend, train, test, priors, box
@@ -525,24 +528,37 @@ def _check_extras(cfg: RunConfig) -> None:
         raise MissingExtraError(f"LPIPS needs onnxruntime: {EXTRAS_HINT}, or pass --no-lpips")
 
 
-def _prepare(cfg: RunConfig, backend, prior, overwrite: bool, quiet: bool):
-    """Load and split the scene, claim the output folder, compute the priors and the scene box:
+def _prepare(cfg: RunConfig, backend, prior, overwrite: bool, quiet: bool, scene=None):
+    """Load (unless `scene` is given) and split the scene, claim the output folder, compute the priors and the scene box:
     (RunContext, settings, scene, train indices, test indices)."""
     from .data.sfm import frusta_only_extent, sfm_extent
     from .data.splits import few_shot_split
+    from .io.cameras import write_cameras_json
     from .outputs import check_out, prepare_out, write_config
 
     timings = {}
     t = time.perf_counter()
-    scene = load_run_scene(cfg.data, cfg.dataset, factor=cfg.factor)
-    tr_idx, te_idx = few_shot_split(scene, cfg.views)
-    train, test = scene.subset(tr_idx), scene.subset(te_idx)  # training side sees only `train`
+    in_memory = scene is not None
+    scene = load_run_scene(cfg.data, cfg.dataset, factor=cfg.factor) if scene is None else scene
+    if cfg.holdout == "none":  # every view trains; the metrics are on the training views
+        if len(scene) < 2:
+            raise ValueError(f"{cfg.data or 'the scene'}: --holdout none needs at least 2 views, got {len(scene)}")
+        tr_idx, te_idx = list(range(len(scene))), []
+        train = scene.subset(tr_idx)
+        test = train
+    else:
+        tr_idx, te_idx = few_shot_split(scene, cfg.views)
+        train, test = scene.subset(tr_idx), scene.subset(te_idx)  # training side sees only `train`
     if not len(test):
         raise ValueError(f"{cfg.data or 'procedural'}: the split leaves no test view")
     timings["load"] = time.perf_counter() - t
     if cfg.depth_prior == "exact" and train.depths is None:
         raise ValueError("--depth-prior exact needs a scene with exact depths (the procedural scene)")
     settings = run_settings(cfg, scene.kind)
+    if in_memory:  # a resume must find the same images and cameras
+        from .data.cachekey import scene_digest
+
+        settings["scene_digest"] = scene_digest(scene)
     if cfg.output.out:  # refusals first, writing nothing: the priors and the box may still fail
         check_out(cfg.output.out, settings, overwrite)
     log = (lambda msg: None) if quiet else (lambda msg: print(msg, file=sys.stderr, flush=True))
@@ -563,9 +579,13 @@ def _prepare(cfg: RunConfig, backend, prior, overwrite: bool, quiet: bool):
     if cfg.output.out:  # nothing is written before every input has been read and checked
         prepare_out(cfg.output.out, settings, overwrite)
         write_config(cfg.output.out, cfg)
+        write_cameras_json(os.path.join(cfg.output.out, "cameras.json"),
+                           [("train", train.names, train.cameras)]
+                           + ([("test", test.names, test.cameras)] if te_idx else []))
     ctx = RunContext(cfg, backend, train, test, priors, box, log, progress=not quiet,
                      family=recipe_family(cfg.recipe, scene.kind))
     ctx.timings.update(timings)
+    ctx.in_memory = in_memory
     return ctx, settings, scene, tr_idx, te_idx
 
 
@@ -573,13 +593,18 @@ def _metrics(ctx: RunContext, m: dict, settings: dict, scene, tr_idx, te_idx, cu
     """metrics.json (docs/pipeline.md lists the keys)."""
     cfg, backend, box = ctx.cfg, ctx.backend, ctx.box
     dev_peak = device_peak_bytes(backend)
-    scene_name = "procedural" if cfg.data in (None, "procedural") else os.path.basename(os.path.normpath(cfg.data))
+    if ctx.in_memory:  # reings.run(scene=...) / reings.reconstruct
+        scene_name = os.path.basename(os.path.normpath(scene.source)) if scene.source else "in-memory"
+    else:
+        scene_name = ("procedural" if cfg.data in (None, "procedural")
+                      else os.path.basename(os.path.normpath(cfg.data)))
     metrics = {
         "method": cfg.label, "base_method": cfg.method, "scene": scene_name, "dataset": scene.kind,
-        "preset": cfg.preset, "views": cfg.views, "device": cfg.device,
+        "preset": cfg.preset, "views": len(tr_idx), "holdout": cfg.holdout,
+        "scored_on": "train" if cfg.holdout == "none" else "test", "device": cfg.device,
         "device_name": getattr(backend, "device_name", cfg.device),
-        "data": cfg.data or "procedural", "train_indices": list(map(int, tr_idx)),
-        "test_indices": list(map(int, te_idx)), "train_names": list(ctx.train.names),
+        "data": "in-memory" if ctx.in_memory else cfg.data or "procedural", "train_indices": list(map(int, tr_idx)),
+        "test_indices": list(map(int, te_idx if cfg.holdout == "protocol" else tr_idx)), "train_names": list(ctx.train.names),
         "test_names": list(ctx.test.names), "depth_prior": cfg.depth_prior, "seed": cfg.seed,
         "sh_degree": cfg.sh_degree, "recipe": ctx.family,
         "mean": {k: m[k] for k in ("psnr", "ssim", "lpips", "avge") if k in m and m[k] is not None},
@@ -611,12 +636,14 @@ def _metrics(ctx: RunContext, m: dict, settings: dict, scene, tr_idx, te_idx, cu
     return metrics
 
 
-def run(config: RunConfig | None = None, /, *, overwrite: bool = False, quiet: bool = False,
+def run(config: RunConfig | None = None, /, *, scene=None, overwrite: bool = False, quiet: bool = False,
         **keywords) -> RunResult:
     """Fit one scene and evaluate its test views: `run(RunConfig(...))`, or `run(**keywords)` with
     RunConfig's field names and its sections' (`method=`, `views=`, `iterations=`, `out=`,
     `eval_every=`, `cvps_fraction=`, `reings=ReInGSConfig(...)`, ...; see `reings.config.run_config`).
 
+    scene: a `reings.Scene` in memory (images, cameras, names; kind picks the split protocol)
+        instead of `data`: nothing is read from disk.
     overwrite: redo a finished run in `out` (its outputs and checkpoints move to
         out/.previous-run, deleted when the new run has finished and put back if it fails);
         without it a folder holding metrics.json is refused, and one holding checkpoints of the
@@ -626,10 +653,17 @@ def run(config: RunConfig | None = None, /, *, overwrite: bool = False, quiet: b
     if config is not None and not isinstance(config, RunConfig):
         raise TypeError(f"run(config): expected a RunConfig, got {type(config).__name__} (pass data= by keyword)")
     cfg = run_config(config, **keywords).resolved()  # bad values: ValueError naming the field
+    if scene is not None:
+        from .data.types import Scene
+
+        if not isinstance(scene, Scene):
+            raise TypeError(f"run(scene=...): expected a reings.Scene, got {type(scene).__name__}")
+        if cfg.data is not None:
+            raise ValueError(f"run: pass either data ({cfg.data!r}) or scene, not both")
     backend, prior = _check_before_writing(cfg, overwrite)
     out = cfg.output.out
     try:
-        result = _run_prepared(cfg, backend, prior, overwrite, quiet)
+        result = _run_prepared(cfg, backend, prior, overwrite, quiet, scene)
     except BaseException:
         if out and overwrite:  # the run --overwrite was to replace comes back (outputs.restore_out)
             from .outputs import restore_out
@@ -643,12 +677,12 @@ def run(config: RunConfig | None = None, /, *, overwrite: bool = False, quiet: b
     return result
 
 
-def _run_prepared(cfg: RunConfig, backend, prior, overwrite: bool, quiet: bool) -> RunResult:
+def _run_prepared(cfg: RunConfig, backend, prior, overwrite: bool, quiet: bool, scene=None) -> RunResult:
     """`run` after the checks that need no scene: prepare, the stages, scoring, the outputs."""
     from .outputs import jsonable, write_run_outputs, write_test_renders
 
     t_start = time.perf_counter()
-    ctx, settings, scene, tr_idx, te_idx = _prepare(cfg, backend, prior, overwrite, quiet)
+    ctx, settings, scene, tr_idx, te_idx = _prepare(cfg, backend, prior, overwrite, quiet, scene)
     for name, stage in stages_of(cfg.method):
         ctx.g = stage(ctx, name)
     ctx.timings["method"] = ctx.clock["train"]  # training + re-initialisation, probes excluded
@@ -670,7 +704,7 @@ def _run_prepared(cfg: RunConfig, backend, prior, overwrite: bool, quiet: bool) 
     metrics = jsonable(_metrics(ctx, m, settings, scene, tr_idx, te_idx, curve))
     if out:
         write_run_outputs(out, ctx.g, metrics, ctx.series, ctx.bounds,
-                          f"{cfg.label} on {metrics['scene']}, {cfg.views} views ({cfg.device})")
+                          f"{cfg.label} on {metrics['scene']}, {metrics['views']} views ({cfg.device})")
     return RunResult(ctx.g, metrics, ctx.stages)
 
 

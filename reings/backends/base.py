@@ -23,7 +23,7 @@ from __future__ import annotations
 
 from contextlib import AbstractContextManager
 from dataclasses import dataclass
-from typing import Any, Iterable, Protocol, Sequence
+from typing import Any, Iterable, Iterator, Protocol, Sequence
 
 import numpy as np
 
@@ -301,6 +301,12 @@ class Backend(Protocol):
                near: float = 0.01, opacity_override: float | None = None,
                want_importance: bool = False) -> RenderOutput:
         """project_fwd -> bin -> rasterize_fwd of host Gaussians (reings.render)."""
+
+    def render_frames(self, gaussians: Gaussians, cameras: Sequence[Camera],
+                      background: Sequence[float] = (0, 0, 0), near: float = 0.01,
+                      depth: bool = False) -> Iterator[tuple[np.ndarray, np.ndarray | None]]:
+        """(rgb [H,W,3], depth [H,W] or None) of one model from many cameras, one frame at a time
+        (a camera path): the same images as `render`, the Gaussians sent to the device once."""
 
     def render_vjp(self, gaussians: Gaussians, camera: Camera, v_rgb: np.ndarray,
                    v_depth: np.ndarray | None = None, v_alpha: np.ndarray | None = None,

@@ -643,6 +643,12 @@ class ReferenceBackend:
                             importance=None if out.importance is None else f32(out.importance),
                             stats=stats)
 
+    def render_frames(self, gaussians: Gaussians, cameras, background=(0, 0, 0), near: float = 0.01,
+                      depth: bool = False):
+        for cam in cameras:
+            out = self.render(gaussians, cam, background, near)
+            yield out.rgb, (out.depth if depth else None)
+
     def render_vjp(self, gaussians: Gaussians, camera: Camera, v_rgb: np.ndarray,
                    v_depth: np.ndarray | None = None, v_alpha: np.ndarray | None = None,
                    background: Sequence[float] = (0, 0, 0), near: float = 0.01,

@@ -34,3 +34,17 @@ def hash_rounded(h, a, decimals: int = 6) -> None:
     """A float array rounded to `decimals` places (negative zero folded to zero)."""
     r = np.round(np.asarray(a, np.float64), decimals) + 0.0
     hash_array(h, r)
+
+
+def scene_digest(scene) -> str:
+    """sha256 of a scene's images, cameras and names (an in-memory scene's identity in a run's
+    resume settings)."""
+    import hashlib
+
+    h = hashlib.sha256()
+    for name, im, cam in zip(scene.names, scene.images, scene.cameras):
+        h.update(str(name).encode())
+        hash_image(h, im)
+        hash_rounded(h, cam.K)
+        hash_rounded(h, cam.viewmat)
+    return h.hexdigest()

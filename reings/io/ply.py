@@ -36,8 +36,13 @@ def attribute_names(sh_degree: int) -> list[str]:
             + [f"scale_{i}" for i in range(3)] + [f"rot_{i}" for i in range(4)])
 
 
-def write_ply(path, g: Gaussians) -> None:
-    """Write `g` as a binary little-endian 3DGS .ply."""
+def write_ply(path, g: Gaussians, comments=()) -> None:
+    """Write `g` as a binary little-endian 3DGS .ply; `comments`: header comment lines (one line
+    each, ASCII, e.g. provenance)."""
+    comments = [str(c) for c in comments]
+    for c in comments:
+        if "\n" in c or "\r" in c or not c.isascii():
+            raise ValueError(f"write_ply: a header comment must be one ASCII line, got {c!r}")
     names = attribute_names(g.sh_degree)
     n, k = len(g), g.sh.shape[1]
     rec = np.zeros(n, dtype=np.dtype([(a, "<f4") for a in names]))
@@ -52,7 +57,7 @@ def write_ply(path, g: Gaussians) -> None:
         rec[f"scale_{i}"] = g.log_scales[:, i]
     for i in range(4):
         rec[f"rot_{i}"] = g.quats[:, i]
-    header = ["ply", "format binary_little_endian 1.0", f"element vertex {n}"]
+    header = ["ply", "format binary_little_endian 1.0", *(f"comment {c}" for c in comments), f"element vertex {n}"]
     header += [f"property float {a}" for a in names] + ["end_header"]
     from .files import atomic_write
 
@@ -100,6 +105,18 @@ def _parse_header(f, path):
     if fmt not in ("binary_little_endian", "binary_big_endian"):
         raise PlyError(f"{path}: format {fmt!r} is not supported (binary_little_endian or binary_big_endian)")
     return fmt, elements
+
+
+def pad_sh(g: Gaussians, sh_degree: int) -> Gaussians:
+    """`g` with its SH coefficients zero-padded (or cut) to `sh_degree`: the same colours up to
+    that degree (the extra bands are zero), for viewers that expect a fixed degree (3)."""
+    if sh_degree not in range(len(SH_COUNTS)):
+        raise ValueError(f"sh_degree must be 0..{len(SH_COUNTS) - 1}, got {sh_degree!r}")
+    k = SH_COUNTS[sh_degree]
+    sh = np.zeros((len(g), k, 3), np.float32)
+    m = min(k, g.sh.shape[1])
+    sh[:, :m] = g.sh[:, :m]
+    return Gaussians(g.means, g.quats, g.log_scales, g.opacity_logits, sh)
 
 
 def read_ply(path) -> Gaussians:

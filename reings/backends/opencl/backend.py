@@ -482,6 +482,24 @@ class OpenCLBackend:
         self._frame = fr
         return RenderOutput(rgb=rgb, depth=depth, alpha=alpha, final_T=final_T, importance=imp, stats=stats)
 
+    def render_frames(self, gaussians: Gaussians, cameras, background: Sequence[float] = (0, 0, 0),
+                      near: float = 0.01, depth: bool = False):
+        """`render` of many cameras: the Gaussians are uploaded once; only rgb (and depth) are read."""
+        inp = None
+        for cam in cameras:
+            fr = self._new_frame(len(gaussians), cam.width, cam.height, gaussians.sh.shape[1])
+            if inp is None:
+                inp = self._upload_gaussians(gaussians)
+            fr.bufs["in"] = inp
+            self._project_device(fr, inp, cam, near, None)
+            self._bin_device(fr)
+            self._raster_fwd(fr, background, False)
+            H, W = cam.height, cam.width
+            rgb = self._read(fr.bufs["out_rgb"], (H, W, 3), _F32)
+            d = self._read(fr.bufs["out_depth"], (H, W), _F32) if depth else None
+            self._finish()
+            yield rgb, d
+
     def _reusable(self, g: Gaussians, key: tuple) -> _Frame | None:
         """The previous forward, if it was computed on exactly these inputs (CPU devices only)."""
         fr = self._frame
