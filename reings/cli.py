@@ -1,4 +1,4 @@
-"""The `reings` command line: devices, bench, run, eval, render, export.
+"""The `reings` command line: devices, bench, run, eval, process, render, export.
 
 Errors a user can cause (missing files, bad arguments, no OpenCL platform, an --out that already
 holds a finished run) print one line `reings: error: ...` and exit with status 2; they are
@@ -106,6 +106,12 @@ def _cmd_render(args) -> int:
     print(f"rendered {len(pf.frames)} frames {w}x{h} ({path}) of {pf.meta['gaussians']} Gaussians on {pf.device} "
           f"in {pf.seconds:.2f} s ({pf.fps:.1f} frames/s, encoding excluded) -> {wrote}")
     return 0
+
+
+def _cmd_process(args) -> int:
+    from .data.process import main_process
+
+    return main_process(args)
 
 
 def _cmd_export(args) -> int:
@@ -278,6 +284,20 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--quiet", action="store_true", help="no progress bars or stage lines")
     add_config_options(e, exclude=EVAL_SETS)
     e.set_defaults(func=_cmd_eval, parser=e)
+
+    q = sub.add_parser("process", help="register a folder of photos with COLMAP into a scene `reings run` reads",
+                       description="Structure from motion of unposed photos (pycolmap, CPU): features, matching, "
+                                   "mapping, undistortion to PINHOLE cameras. Writes SCENE_DIR/images, "
+                                   "SCENE_DIR/sparse/0 and SCENE_DIR/process.json.")
+    q.add_argument("photos", metavar="PHOTOS_DIR", help="folder of photos (png, jpg, ...) of one scene")
+    q.add_argument("--out", required=True, metavar="SCENE_DIR", help="the scene folder to write")
+    q.add_argument("--overwrite", action="store_true", help="replace a non-empty SCENE_DIR (once the new one is done)")
+    q.add_argument("--partial", action="store_true", help="make the scene from the photos that register when "
+                                                          "some do not (default: an error naming them)")
+    q.add_argument("--per-image-camera", action="store_true", help="one camera per photo (photos from different "
+                                                                   "cameras or zoom settings); default: one shared")
+    q.add_argument("--quiet", action="store_true", help="no progress bar")
+    q.set_defaults(func=_cmd_process)
 
     v = sub.add_parser("render", help="render a fly-through video of a finished run (docs/product.md)",
                        description="Render a camera path of a finished run (its gaussians.ply and cameras.json) "

@@ -352,3 +352,99 @@ def _triangulate_known_poses(pycolmap, image_dir, names, cameras, work_dir, max_
         "track_length": np.array([p.track.length() for p in pts], dtype=np.int64),
         "num_matched_pairs": n_pairs,
     }
+
+
+# {{{ structure from motion of unposed photos (`reings process`)
+
+def map_photos(image_dir: str, names: list[str], work_dir: str, single_camera: bool = True,
+               max_features: int = 8192, num_threads: int = -1, step=None) -> tuple:
+    """COLMAP's automatic flow on unposed photos, on the CPU: SIFT features (SIMPLE_RADIAL, one
+    camera for all photos when `single_camera`), exhaustive matching with geometric verification,
+    incremental mapping. `step(name)` is called before each step (progress).
+
+    Returns (the reconstruction with the most registered images, its model folder under
+    `work_dir`, {name: why not registered}). SceneError when no model can be made."""
+    pycolmap = _pycolmap()
+    step = step or (lambda name: None)
+    db_path = os.path.join(work_dir, "database.db")
+    if os.path.exists(db_path):
+        os.remove(db_path)
+    old_level = pycolmap.logging.minloglevel
+    pycolmap.logging.minloglevel = 2
+    try:
+        step("features")
+        reader = pycolmap.ImageReaderOptions()
+        reader.camera_model = "SIMPLE_RADIAL"
+        ext = pycolmap.FeatureExtractionOptions()
+        ext.num_threads, ext.use_gpu = num_threads, False
+        ext.sift.max_num_features = max_features
+        mode = pycolmap.CameraMode.SINGLE if single_camera else pycolmap.CameraMode.AUTO
+        try:
+            pycolmap.extract_features(db_path, image_dir, image_names=list(names), camera_mode=mode,
+                                      reader_options=reader, extraction_options=ext, device=pycolmap.Device.cpu)
+        except Exception as e:
+            raise SceneError(f"{image_dir}: COLMAP feature extraction failed: {e}") from e
+        step("matching")
+        match = pycolmap.FeatureMatchingOptions()
+        match.num_threads, match.use_gpu = num_threads, False
+        try:
+            pycolmap.match_exhaustive(db_path, matching_options=match, device=pycolmap.Device.cpu)
+        except Exception as e:
+            raise SceneError(f"{image_dir}: COLMAP feature matching failed: {e}") from e
+        feats = _feature_counts(pycolmap, db_path)
+        step("mapping")
+        opts = pycolmap.IncrementalPipelineOptions()
+        opts.num_threads = num_threads
+        opts.min_model_size = 2  # few-shot: a model of two photos is a model
+        opts.mapper.init_min_num_inliers = 30
+        opts.mapper.abs_pose_min_num_inliers = 15
+        opts.triangulation.ignore_two_view_tracks = False
+        out_dir = os.path.join(work_dir, "sparse")
+        os.makedirs(out_dir, exist_ok=True)
+        try:
+            recs = pycolmap.incremental_mapping(db_path, image_dir, out_dir, options=opts)
+        except Exception as e:
+            raise SceneError(f"{image_dir}: COLMAP mapping failed: {e}") from e
+    finally:
+        pycolmap.logging.minloglevel = old_level
+    if not recs:
+        raise SceneError(f"{image_dir}: COLMAP could not register any pair of the {len(names)} photos "
+                         f"(features per photo: {_fmt_counts(feats)}); photos of one scene with more overlap, "
+                         "texture and sharpness are needed")
+    key = max(recs, key=lambda k: recs[k].num_reg_images())
+    rec = recs[key]
+    registered = {rec.images[i].name for i in rec.reg_image_ids()}
+    missing = {}
+    for n in names:
+        if n not in registered:
+            f = feats.get(n, 0)
+            missing[n] = (f"only {f} features" if f < 100 else
+                          "not matched to the registered photos (too little overlap, or another scene)")
+    return rec, os.path.join(out_dir, str(key)), missing
+
+
+def _feature_counts(pycolmap, db_path) -> dict:
+    db = pycolmap.Database.open(db_path)
+    try:
+        return {im.name: int(db.num_keypoints_for_image(im.image_id)) for im in db.read_all_images()}
+    finally:
+        db.close()
+
+
+def _fmt_counts(feats: dict) -> str:
+    return ", ".join(f"{n}: {c}" for n, c in sorted(feats.items())) or "none"
+
+
+def undistort_model(model_dir: str, image_dir: str, out_dir: str, names: list[str]) -> None:
+    """COLMAP's image undistorter: PINHOLE cameras and undistorted images in `out_dir`
+    (`images/`, `sparse/`)."""
+    pycolmap = _pycolmap()
+    old_level = pycolmap.logging.minloglevel
+    pycolmap.logging.minloglevel = 2
+    try:
+        pycolmap.undistort_images(out_dir, model_dir, image_dir, image_names=list(names))
+    except Exception as e:
+        raise SceneError(f"{model_dir}: COLMAP undistortion failed: {e}") from e
+    finally:
+        pycolmap.logging.minloglevel = old_level
+# }}}
