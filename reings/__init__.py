@@ -27,7 +27,7 @@ _LAZY = {
     "evaluate_images": "reings.metrics",
     "fit": "reings.train",
     "run": "reings.pipeline",
-    "reconstruct": "reings.reconstruct",
+    "reconstruct": "reings.inmemory",
     "render_path": "reings.video",
     "export_run": "reings.export",
     "process_photos": "reings.data.process",

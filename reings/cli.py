@@ -1,4 +1,4 @@
-"""The `reings` command line: devices, bench, run, eval, process, render, export.
+"""The `reings` command line: devices, bench, run, eval, process, render, view, export.
 
 Errors a user can cause (missing files, bad arguments, no OpenCL platform, an --out that already
 holds a finished run) print one line `reings: error: ...` and exit with status 2; they are
@@ -112,6 +112,15 @@ def _cmd_process(args) -> int:
     from .data.process import main_process
 
     return main_process(args)
+
+
+def _cmd_view(args) -> int:
+    from .viewer import main_view
+
+    try:
+        return main_view(args)
+    except ImportError as e:
+        raise CLIError(str(e)) from e
 
 
 def _cmd_export(args) -> int:
@@ -317,6 +326,14 @@ def build_parser() -> argparse.ArgumentParser:
     v.add_argument("--frames-dir", metavar="DIR", help="also one PNG per frame in DIR")
     v.add_argument("--overwrite", action="store_true", help="replace existing video files")
     v.set_defaults(func=_cmd_render)
+
+    w = sub.add_parser("view", help="an interactive viewer of a run or a .ply in the browser (extra: view)",
+                       description="Serve the Gaussians of a finished run (or any 3DGS .ply) to the browser "
+                                   "with viser, the training cameras drawn as frustums.")
+    w.add_argument("model", metavar="RUN_DIR|PLY", help="a finished `reings run` folder or a 3DGS .ply file")
+    w.add_argument("--host", default="127.0.0.1", help="address to listen on (default 127.0.0.1; 0.0.0.0 for all)")
+    w.add_argument("--port", type=int, default=8080, help="port (default 8080)")
+    w.set_defaults(func=_cmd_view)
 
     x = sub.add_parser("export", help="export a finished run's model (PLY with SH degree 3, or the 3DGS/Inria "
                                       "folder layout)")

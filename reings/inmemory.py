@@ -1,4 +1,4 @@
-"""`reings.reconstruct`: the whole method on images and cameras held in memory.
+"""`reings.reconstruct` (this module: reings.inmemory): the whole method on images and cameras held in memory.
 
     g = reings.reconstruct(images, cameras, device="cuda")            # -> reings.Gaussians
     g = reings.reconstruct(images, cameras, method="dngaussian", preset="paper", out="runs/x")

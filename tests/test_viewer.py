@@ -1,0 +1,92 @@
+"""`reings view`: the splats' arrays against their definitions, and a real headless Chromium
+screenshot of the served scene (skipped where no Chromium or viser is installed; CI installs
+both)."""
+from __future__ import annotations
+
+import os
+import shutil
+import socket
+import subprocess
+
+import numpy as np
+import pytest
+
+import reings
+from reings.paths import look_at
+from reings.viewer import SH_C0, splat_arrays
+
+
+def test_splat_arrays_match_the_definitions():
+    rng = np.random.default_rng(0)
+    n = 50
+    g = reings.Gaussians(means=rng.normal(size=(n, 3)), quats=rng.normal(size=(n, 4)),
+                         log_scales=rng.uniform(-3, 0, (n, 3)), opacity_logits=rng.normal(size=n),
+                         sh=rng.normal(size=(n, 4, 3)))
+    c, cov, rgb, op = splat_arrays(g)
+    for i in (0, 17, 49):
+        q = g.quats[i].astype(np.float64)
+        q /= np.linalg.norm(q)
+        w, x, y, z = q
+        R = np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+                      [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+                      [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
+        S = np.diag(np.exp(g.log_scales[i].astype(np.float64)))
+        np.testing.assert_allclose(cov[i], R @ S @ S @ R.T, rtol=1e-5, atol=1e-8)
+        np.testing.assert_allclose(np.linalg.eigvalsh(cov[i]), np.sort(np.diag(S @ S)), rtol=1e-4)
+    np.testing.assert_allclose(rgb, np.clip(0.5 + SH_C0 * g.sh[:, 0], 0, 1), atol=1e-6)
+    np.testing.assert_allclose(op[:, 0], 1 / (1 + np.exp(-g.opacity_logits)), rtol=1e-6)
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _block(colour, n=400, seed=0):
+    """Opaque splats filling a block in front of the camera, all of one colour (degree-0 SH)."""
+    rng = np.random.default_rng(seed)
+    dc = (np.asarray(colour, np.float64) - 0.5) / SH_C0
+    return reings.Gaussians(means=rng.uniform([-1, -0.7, 4], [1, 0.7, 5], (n, 3)), quats=np.tile([1.0, 0, 0, 0], (n, 1)),
+                            log_scales=np.full((n, 3), np.log(0.12)), opacity_logits=np.full(n, 4.0),
+                            sh=np.tile(dc, (n, 1, 1)))
+
+
+def _screenshot(url: str, path: str, tmp) -> None:
+    assert _CHROME, "REINGS_REQUIRE_BROWSER is set but no Chromium is installed"
+    r = subprocess.run([_CHROME, "--headless=new", "--no-sandbox", "--disable-gpu", "--use-angle=swiftshader",
+                        "--enable-unsafe-swiftshader", "--no-first-run", "--disable-background-networking",
+                        "--disable-component-update", "--disable-sync", f"--user-data-dir={tmp}",
+                        "--window-size=800,600", "--virtual-time-budget=20000", f"--screenshot={path}", url],
+                       capture_output=True, text=True, timeout=180)
+    assert r.returncode == 0 and os.path.isfile(path), r.stderr[-2000:]
+
+
+_CHROME = shutil.which("chromium") or shutil.which("chromium-browser") or shutil.which("google-chrome")
+
+
+@pytest.mark.skipif(not _CHROME and not os.environ.get("REINGS_REQUIRE_BROWSER"),
+                    reason="no Chromium installed (CI installs it and sets REINGS_REQUIRE_BROWSER)")
+@pytest.mark.parametrize("colour, channel", [((1.0, 0.05, 0.05), 0), ((0.05, 0.8, 0.05), 1)])
+def test_the_browser_shows_the_scene(tmp_path, colour, channel):
+    if not os.environ.get("REINGS_REQUIRE_BROWSER"):
+        pytest.importorskip("viser")
+    import cv2
+    from reings.viewer import serve
+
+    K = np.array([[300.0, 0, 200], [0, 300.0, 150], [0, 0, 1]])
+    cam = look_at(np.zeros(3), np.array([0, 0, 4.5]), np.array([0, -1.0, 0]), K, 400, 300)
+    port = _free_port()
+    server = serve(_block(colour), port=port, cameras=[cam])
+    try:
+        shot = str(tmp_path / "shot.png")
+        _screenshot(f"http://127.0.0.1:{port}/", shot, tmp_path / "chrome")
+    finally:
+        server.stop()
+    im = cv2.imread(shot)[..., ::-1].astype(int)
+    centre = im[200:400, 250:450]  # the middle of the 800x600 window: the block, seen from the camera
+    others = [c for c in range(3) if c != channel]
+    hit = (centre[..., channel] > 150) & np.all(centre[..., others] < 90, axis=-1)
+    assert hit.mean() > 0.5, f"{hit.mean():.2f} of the centre shows the model's colour"
+    anywhere = (im[..., others[0]] > 150) & (im[..., channel] < 90) & (im[..., others[1]] < 90)
+    assert anywhere.mean() < 0.01  # and not the other model's colour
