@@ -361,6 +361,9 @@ def main(argv=None) -> int:
         args = argparse.Namespace(func=_cmd_bench, rest=argv[1:])
     else:
         args = parser.parse_args(argv)
+    from .log import configure_cli
+
+    configure_cli(bool(getattr(args, "quiet", False)))
     try:
         return int(args.func(args) or 0)
     except CLIError as e:

@@ -561,7 +561,9 @@ def _prepare(cfg: RunConfig, backend, prior, overwrite: bool, quiet: bool, scene
         settings["scene_digest"] = scene_digest(scene)
     if cfg.output.out:  # refusals first, writing nothing: the priors and the box may still fail
         check_out(cfg.output.out, settings, overwrite)
-    log = (lambda msg: None) if quiet else (lambda msg: print(msg, file=sys.stderr, flush=True))
+    from .log import logger, progress_enabled
+
+    log = logger.info
     if cfg.reings.final_prune > 0 and cfg.method != "reings":
         log(f"[{cfg.label}] note: final_prune applies to reings only; ignored")
 
@@ -582,7 +584,7 @@ def _prepare(cfg: RunConfig, backend, prior, overwrite: bool, quiet: bool, scene
         write_cameras_json(os.path.join(cfg.output.out, "cameras.json"),
                            [("train", train.names, train.cameras)]
                            + ([("test", test.names, test.cameras)] if te_idx else []))
-    ctx = RunContext(cfg, backend, train, test, priors, box, log, progress=not quiet,
+    ctx = RunContext(cfg, backend, train, test, priors, box, log, progress=progress_enabled(quiet),
                      family=recipe_family(cfg.recipe, scene.kind))
     ctx.timings.update(timings)
     ctx.in_memory = in_memory
@@ -636,7 +638,7 @@ def _metrics(ctx: RunContext, m: dict, settings: dict, scene, tr_idx, te_idx, cu
     return metrics
 
 
-def run(config: RunConfig | None = None, /, *, scene=None, overwrite: bool = False, quiet: bool = False,
+def run(config: RunConfig | None = None, /, *, scene=None, overwrite: bool = False, quiet: bool = True,
         **keywords) -> RunResult:
     """Fit one scene and evaluate its test views: `run(RunConfig(...))`, or `run(**keywords)` with
     RunConfig's field names and its sections' (`method=`, `views=`, `iterations=`, `out=`,
@@ -647,7 +649,9 @@ def run(config: RunConfig | None = None, /, *, scene=None, overwrite: bool = Fal
     overwrite: redo a finished run in `out` (its outputs and checkpoints move to
         out/.previous-run, deleted when the new run has finished and put back if it fails);
         without it a folder holding metrics.json is refused, and one holding checkpoints of the
-        same settings is resumed. quiet: no progress bars or stage lines. Neither changes the result.
+        same settings is resumed. quiet (default): no progress bars; quiet=False draws them when
+        stderr is a terminal. Stage lines go to the "reings" logger (reings.log). Neither
+        changes the result.
     Returns RunResult(gaussians, metrics, stages): `metrics` is what metrics.json holds.
     """
     if config is not None and not isinstance(config, RunConfig):

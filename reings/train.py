@@ -236,7 +236,7 @@ def _initial_state(init: Gaussians, cfg: TrainConfig, checkpoint: str | None):
 
 
 def fit(views, config: TrainConfig, device: str = "pocl", init: Gaussians | None = None,
-        depth_targets=None, progress: bool = True, checkpoint: str | None = None,
+        depth_targets=None, progress: bool = False, checkpoint: str | None = None,
         checkpoint_every: int = 250, eval_fn=None, eval_every: int = 0, log_every: int = 10,
         desc: str = "fit", extent: float | None = None, engine: str = "auto", adam: str = "auto",
         profile: dict | None = None) -> FitResult:

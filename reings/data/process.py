@@ -53,7 +53,9 @@ def process_photos(photos_dir, out_dir, overwrite: bool = False, partial: bool =
     tmp = tempfile.mkdtemp(prefix=".tmp-process-", dir=parent)
     bar = None
     try:
-        if not quiet:
+        from ..log import progress_enabled
+
+        if progress_enabled(quiet):
             from tqdm import tqdm
 
             bar = tqdm(total=4, desc="process", leave=False, file=sys.stderr, dynamic_ncols=True)

@@ -14,7 +14,9 @@ backend, the device trainer, the loss classes) launches through it.
 """
 from __future__ import annotations
 
+import contextlib
 import os
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -84,14 +86,55 @@ class KernelLibrary:
                 raise FileNotFoundError(f"kernel source {path} does not exist")
             src = path.read_text()
             try:
-                prg = cl.Program(self.context, src).build(options=self.options(defines, filename), devices=[self.device])
+                with _compiler_output() as said:
+                    prg = cl.Program(self.context, src).build(options=self.options(defines, filename),
+                                                              devices=[self.device])
             except cl.RuntimeError as e:  # build failure: show the log with the file name
-                raise KernelBuildError(f"building {path} with {self.options(defines, filename)} failed:\n{e}") from e
+                raise KernelBuildError(f"building {path} with {self.options(defines, filename)} failed:\n{e}"
+                                       + (f"\ncompiler output:\n{said[0]}" if said and said[0] else "")) from e
             self._programs[key] = prg
         return prg
 
     def get(self, filename: str, kernel: str, **defines):
         return getattr(self.program(filename, **defines), kernel)
+
+
+@contextlib.contextmanager
+def _compiler_output():
+    """Hold back what the OpenCL compiler prints during a build (PoCL's clang writes warnings to
+    the process's stderr; pyopencl turns a non-empty build log into a CompilerWarning): a
+    successful build is silent; the captured text is yielded (list of one string, filled on exit)
+    for a failed build's error. REINGS_CL_VERBOSE=1 lets everything through."""
+    import warnings
+
+    said: list[str] = []
+    if os.environ.get("REINGS_CL_VERBOSE"):
+        yield said
+        return
+    import tempfile
+
+    try:
+        fd = sys.stderr.fileno()
+    except (AttributeError, ValueError, OSError):  # no real stderr (e.g. captured): nothing to hold back
+        fd = None
+    if fd is None:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            yield said
+        return
+    sys.stderr.flush()
+    saved = os.dup(fd)
+    with tempfile.TemporaryFile() as tmp:
+        os.dup2(tmp.fileno(), fd)
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                yield said
+        finally:
+            os.dup2(saved, fd)
+            os.close(saved)
+            tmp.seek(0)
+            said.append(tmp.read().decode("utf-8", "replace"))
 
 
 _LIBS: dict[int, KernelLibrary] = {}
