@@ -8,7 +8,7 @@ Each run is `reings.pipeline.run(RunConfig)` into its own folder
 `--seeds 0,1,2` every cell of the table is the mean over seeds, with its min-max). The run options
 (`reings run`'s, generated from `reings.config.RunConfig`, or `--config run.toml`) apply to every
 run; eval sets the method, views, seed, data and folder of each. A run whose folder holds
-`metrics.json` is finished and skipped; one holding checkpoints is resumed. A run being worked on holds an exclusive lock (`fcntl.flock` on `<run>/.lock`, freed
+`metrics.json` is finished and skipped; one holding checkpoints is resumed. A run being worked on holds an exclusive lock (`fcntl.flock`, on Windows `msvcrt.locking`, on `<run>/.lock`, freed
 when its process ends however it ends), so several `reings eval` processes with the same
 arguments and different `--device` values share the work: each skips the runs another holds.
 
@@ -126,34 +126,58 @@ def run_dir(out: str, dataset: str, method: str, views: int, scene: str, seed: i
 
 
 class RunLock:
-    """An exclusive, non-blocking flock on `<folder>/.lock`; freed when the process ends."""
+    """An exclusive, non-blocking lock on `<folder>/.lock`, freed when the process ends: fcntl.flock
+    on POSIX, msvcrt.locking on Windows (the equivalent; no extra package)."""
 
     def __init__(self, folder: str):
         self.path = os.path.join(folder, ".lock")
         self.fd = None
 
     def acquire(self) -> bool:
-        import fcntl
+        import socket
 
         os.makedirs(os.path.dirname(self.path), exist_ok=True)
         fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
         try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            _lock(fd)
         except OSError:
             os.close(fd)
             return False
         os.ftruncate(fd, 0)
-        os.write(fd, f"{os.getpid()} {os.uname().nodename}\n".encode())
+        os.write(fd, f"{os.getpid()} {socket.gethostname()}\n".encode())
         self.fd = fd
         return True
 
     def release(self) -> None:
         if self.fd is not None:
-            import fcntl
-
-            fcntl.flock(self.fd, fcntl.LOCK_UN)
+            _unlock(self.fd)
             os.close(self.fd)
             self.fd = None
+
+
+def _lock(fd: int) -> None:
+    """Non-blocking exclusive lock of an open file; OSError when another process holds it."""
+    try:
+        import fcntl
+    except ImportError:  # Windows
+        import msvcrt
+
+        os.lseek(fd, 0, os.SEEK_SET)
+        msvcrt.locking(fd, msvcrt.LK_NBLCK, 1)
+        return
+    fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+
+
+def _unlock(fd: int) -> None:
+    try:
+        import fcntl
+    except ImportError:  # Windows
+        import msvcrt
+
+        os.lseek(fd, 0, os.SEEK_SET)
+        msvcrt.locking(fd, msvcrt.LK_UNLCK, 1)
+        return
+    fcntl.flock(fd, fcntl.LOCK_UN)
 
 
 # {{{ table

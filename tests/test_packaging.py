@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import re
+import sys
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -82,3 +83,34 @@ def test_missing_extras_are_named_before_any_work(tmp_path):
     if os.environ.get("REINGS_LPIPS_MODEL") or model.is_file():
         p = run("onnxruntime", "run", "--quiet", "--out", out)
         assert p.returncode == 2 and "LPIPS needs onnxruntime" in p.stderr and "--no-lpips" in p.stderr, p.stderr[-2000:]
+
+
+def test_cache_dir_follows_the_platform(monkeypatch, tmp_path):
+    """$REINGS_CACHE_DIR first, else platformdirs' user cache folder (on Linux: $XDG_CACHE_HOME)."""
+    import platformdirs
+
+    from reings.io.files import cache_dir
+
+    monkeypatch.setenv("REINGS_CACHE_DIR", str(tmp_path / "mine"))
+    assert cache_dir("depth") == tmp_path / "mine" / "depth"
+    monkeypatch.delenv("REINGS_CACHE_DIR")
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
+    assert cache_dir("sfm") == Path(platformdirs.user_cache_dir("reings", appauthor=False)) / "sfm"
+    if sys.platform.startswith("linux"):
+        assert cache_dir("sfm") == tmp_path / "xdg" / "reings" / "sfm"
+
+
+def test_run_lock_is_exclusive_across_processes(tmp_path):
+    """reings eval's per-run lock (fcntl on POSIX, msvcrt on Windows): a second process cannot take it."""
+    import subprocess
+
+    from reings.evaluate import RunLock
+
+    lock = RunLock(str(tmp_path / "run"))
+    assert lock.acquire()
+    code = ("import sys; from reings.evaluate import RunLock; "
+            f"sys.exit(0 if not RunLock({str(tmp_path / 'run')!r}).acquire() else 1)")
+    assert subprocess.run([sys.executable, "-c", code]).returncode == 0
+    lock.release()
+    code = code.replace("0 if not", "0 if")
+    assert subprocess.run([sys.executable, "-c", code]).returncode == 0

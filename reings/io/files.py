@@ -2,8 +2,8 @@
 
     with atomic_write("out/metrics.json") as f: json.dump(m, f)      # text
     with atomic_write(path, binary=True) as f: np.savez(f, ...)     # bytes
-    cache_dir("depth")  ->  $REINGS_CACHE_DIR/depth, else $XDG_CACHE_HOME/reings/depth,
-                            else ~/.cache/reings/depth
+    cache_dir("depth")  ->  $REINGS_CACHE_DIR/depth, else the user cache folder of the platform
+                            (platformdirs; on Linux $XDG_CACHE_HOME/reings/depth or ~/.cache/reings/depth)
 
 atomic_write writes to a temporary file in the target's folder and renames it over the target on
 success (os.replace is atomic on one filesystem), so an interrupted run never leaves a
@@ -46,9 +46,14 @@ def _umask() -> int:
 
 
 def cache_dir(sub: str) -> Path:
-    """$REINGS_CACHE_DIR/<sub>, else $XDG_CACHE_HOME/reings/<sub>, else ~/.cache/reings/<sub>."""
+    """$REINGS_CACHE_DIR/<sub>, else the platform's user cache folder for reings (platformdirs:
+    $XDG_CACHE_HOME/reings or ~/.cache/reings on Linux, ~/Library/Caches/reings on macOS,
+    %LOCALAPPDATA%\\reings\\Cache on Windows) / <sub>."""
     env = os.environ.get("REINGS_CACHE_DIR")
     if env:
         return Path(env).expanduser() / sub
-    base = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache"))
-    return base / "reings" / sub
+    try:
+        import platformdirs
+    except ImportError:  # pragma: no cover - platformdirs comes with pyopencl (pytools)
+        return Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "reings" / sub
+    return Path(platformdirs.user_cache_dir("reings", appauthor=False)) / sub
