@@ -7,7 +7,9 @@
 
 atomic_write writes to a temporary file in the target's folder and renames it over the target on
 success (os.replace is atomic on one filesystem), so an interrupted run never leaves a
-half-written metrics.json, cache entry or table; on an exception the temporary file is removed.
+half-written metrics.json, cache entry or table; on an exception the temporary file is removed,
+and an OSError of the write (a full disk, a file-size limit) is raised again naming the target. The
+data is fsynced before the rename.
 The temporary name is unique (mkstemp, O_EXCL) and the rename replaces a symlink at the target
 instead of writing through it; the file gets the mode open() would give it (0666 & ~umask).
 """
@@ -17,6 +19,13 @@ import os
 import tempfile
 from contextlib import contextmanager
 from pathlib import Path
+
+
+class WriteError(OSError):
+    """A write the OS refused (full disk, size limit, ...): errno kept, the message names the file."""
+
+    def __str__(self) -> str:
+        return str(self.strerror)
 
 
 @contextmanager
@@ -29,12 +38,16 @@ def atomic_write(path, binary: bool = False):
         os.fchmod(fd, 0o666 & ~_umask())  # mkstemp makes 0600: give the file the mode open() would
         with os.fdopen(fd, "wb" if binary else "w") as f:
             yield f
+            f.flush()
+            os.fsync(f.fileno())  # on disk before it takes the target's name (a crash leaves old or new)
         os.replace(tmp, path)
-    except BaseException:
+    except BaseException as e:
         try:
             os.unlink(tmp)
         except OSError:
             pass
+        if isinstance(e, OSError) and e.errno is not None and not e.filename:  # a failed write: name the file
+            raise WriteError(e.errno, f"writing {path}: {e.strerror or e}") from e
         raise
 
 
