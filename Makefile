@@ -12,7 +12,7 @@ OUT    ?= runs/procedural
 $(VENV)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install -q --upgrade pip
-	$(PY) -m pip install -q -e ".[data,test,view]"
+	$(PY) -m pip install -q -e ".[data,test,view,cluster]"
 	scripts/ensure_pocl.sh $(PY)
 	touch $@
 

@@ -1,4 +1,4 @@
-"""The `reings` command line: devices, bench, run, eval, process, render, view, export.
+"""The `reings` command line: devices, bench, run, eval, worker, process, render, view, export.
 
 Errors a user can cause (missing files, bad arguments, no OpenCL platform, an --out that already
 holds a finished run) print one line `reings: error: ...` and exit with status 2; they are
@@ -121,6 +121,12 @@ def _cmd_view(args) -> int:
         return main_view(args)
     except ImportError as e:
         raise CLIError(str(e)) from e
+
+
+def _cmd_worker(args) -> int:
+    from .cluster import main_worker
+
+    return main_worker(args)
 
 
 def _cmd_export(args) -> int:
@@ -290,6 +296,11 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--prepare-only", action="store_true",
                    help="only fill the depth-prior and SfM caches of every scene x view count (no training)")
     e.add_argument("--keep-going", action="store_true", help="go on with the other runs when one fails")
+    e.add_argument("--cluster", metavar="local[:N]|tcp://HOST:PORT",
+                   help="run the grid as Dask tasks: a local cluster (one worker per GPU, or N workers: GPUs "
+                        "first, then PoCL on the spare cores) or an existing scheduler (extra: cluster; "
+                        "docs/cluster.md)")
+    e.add_argument("--gpu-only", action="store_true", help="with --cluster: tasks ask for the resource GPU=1")
     e.add_argument("--quiet", action="store_true", help="no progress bars or stage lines")
     add_config_options(e, exclude=EVAL_SETS)
     e.set_defaults(func=_cmd_eval, parser=e)
@@ -334,6 +345,15 @@ def build_parser() -> argparse.ArgumentParser:
     w.add_argument("--host", default="127.0.0.1", help="address to listen on (default 127.0.0.1; 0.0.0.0 for all)")
     w.add_argument("--port", type=int, default=8080, help="port (default 8080)")
     w.set_defaults(func=_cmd_view)
+
+    k = sub.add_parser("worker", help="a Dask worker for `reings eval --cluster tcp://...`, bound to one device",
+                       description="Start a Dask worker (under a nanny that restarts it) bound to one device: it "
+                                   "runs one run at a time (resource RUN=1, and GPU=1 on a GPU). Extra: cluster.")
+    k.add_argument("--scheduler", required=True, metavar="tcp://HOST:PORT", help="the Dask scheduler's address")
+    k.add_argument("--device", default="pocl", help="pocl | cuda | cuda:N | opencl:P:D")
+    k.add_argument("--pocl-threads", type=int, default=0, help="PoCL: threads of this worker (default: all cores)")
+    k.add_argument("--name", default="", help="worker name shown by the dashboard")
+    k.set_defaults(func=_cmd_worker)
 
     x = sub.add_parser("export", help="export a finished run's model (PLY with SH degree 3, or the 3DGS/Inria "
                                       "folder layout)")
@@ -382,7 +402,7 @@ def main(argv=None) -> int:
     except Exception as e:  # device errors carry their own class names
         name = type(e).__name__
         if name in ("DeviceNotFound", "KernelBuildError", "SceneError", "DepthPriorError", "LPIPSModelNotFound",
-                    "CamerasFileError", "PlyError"):
+                    "CamerasFileError", "PlyError", "ClusterError"):
             print(f"reings: error: {e}", file=sys.stderr)
             return 2
         raise

@@ -622,10 +622,18 @@ def main_eval(args, base) -> int:
     if args.prepare_only:
         _prepare(jobs)
         return 0
-    get_backend(base.device)  # unknown device: error before any folder is made
+    cluster = getattr(args, "cluster", None)
+    if not cluster or cluster.startswith("local"):
+        get_backend(base.device)  # unknown device: error before any folder is made
     os.makedirs(out, exist_ok=True)
     failed, busy = [], 0
     say = lambda msg: print(msg, flush=True)  # noqa: E731 - one line per run even with --quiet (bars off)
+    if cluster:
+        from .cluster import connect, run_grid
+
+        with connect(cluster, base.device) as client:
+            failed = run_grid(client, jobs, gpu_only=getattr(args, "gpu_only", False), quiet=args.quiet, say=say)
+        jobs = []  # all submitted
     for i, (ds, s, cfg) in enumerate(jobs, 1):
         try:
             busy += _run_one(i, len(jobs), ds, s, cfg, args, say) == "busy"

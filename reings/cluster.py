@@ -1,0 +1,201 @@
+"""`reings eval --cluster`: an evaluation grid as Dask tasks (optional extra `cluster`).
+
+    reings eval ... --cluster local            one worker per device: every NVIDIA GPU when --device
+                                               is cuda, else one PoCL worker
+    reings eval ... --cluster local:N          N workers: the GPUs first (--device cuda), the others
+                                               PoCL workers sharing the spare cores
+    reings eval ... --cluster tcp://HOST:8786  an existing scheduler, with workers started by
+                                               `reings worker --scheduler tcp://HOST:8786 --device cuda:0`
+
+Each run of the grid (dataset, scene, views, method, seed, settings: one `RunConfig`) is one task.
+Every reings worker runs one run at a time (it offers the resource RUN=1, and GPU=1 on a GPU) and
+renders on its own device (`REINGS_WORKER_DEVICE` in the worker's environment, which replaces
+the run's --device; the device is not part of a run's settings, so a run resumes on any device).
+`--gpu-only` makes the tasks ask for GPU=1.
+
+Runs write into the shared --out, as serial `reings eval` does: a finished run (metrics.json) is
+never redone; a task whose worker dies is rescheduled by Dask and resumes from the run's own
+checkpoints; the per-run lock still keeps two workers (or a serial `reings eval`) off one run on a
+shared local filesystem. The table is built when the grid ends (`--table-only` rebuilds it).
+`dask.distributed` is imported only here, only when a cluster is asked for.
+"""
+from __future__ import annotations
+
+import os
+import sys
+import time
+
+WORKER_DEVICE = "REINGS_WORKER_DEVICE"
+
+
+class ClusterError(ValueError):
+    """A --cluster or worker setting that cannot work (one line)."""
+
+
+def _distributed():
+    try:
+        import distributed
+    except ImportError as e:
+        raise ClusterError("--cluster needs dask.distributed: pip install 'reings[cluster]'") from e
+    return distributed
+
+
+def worker_specs(n: int | None, device: str) -> list[dict]:
+    """The workers of a local cluster: [{"device", "resources", "env"}], GPUs first (module
+    docstring); PoCL workers get POCL_MAX_PTHREAD_COUNT = their share of the spare cores."""
+    gpus = []
+    if device.startswith("cuda"):
+        from .backends.opencl.device import list_devices
+
+        gpus = [d for d in list_devices() if d.get("nv_ptx")]
+        if not gpus:
+            raise ClusterError(f"--cluster local with --device {device}: no NVIDIA GPU found")
+        gpus = [f"cuda:{i}" for i in range(len(gpus))]
+    n = (len(gpus) or 1) if n is None else n
+    if n < 1:
+        raise ClusterError(f"--cluster local:N needs N >= 1, got {n}")
+    specs = [{"device": d, "resources": {"RUN": 1, "GPU": 1}, "env": {WORKER_DEVICE: d}} for d in gpus[:n]]
+    cpu = n - len(specs)
+    if cpu:
+        cores = os.cpu_count() or 1
+        spare = max(1, cores - len(specs))  # one core stays with each GPU worker's host side
+        per = max(1, spare // cpu)
+        cpu_dev = "pocl" if device.startswith("cuda") or device in ("", "auto") else device
+        specs += [{"device": cpu_dev, "resources": {"RUN": 1},
+                   "env": {WORKER_DEVICE: cpu_dev, "POCL_MAX_PTHREAD_COUNT": str(per)}} for _ in range(cpu)]
+    return specs
+
+
+def start_local(n: int | None, device: str, quiet: bool = True):
+    """A local Dask cluster of one worker process per spec (`worker_specs`), each under a nanny
+    (which restarts a worker that dies); returns the connected Client."""
+    distributed = _distributed()
+    from distributed.deploy.spec import SpecCluster
+
+    specs = worker_specs(n, device)
+    workers = {f"reings-{i}-{s['device'].replace(':', '')}": {
+        "cls": distributed.Nanny,
+        "options": {"nthreads": 1, "resources": s["resources"], "env": s["env"], "silence_logs": 40}}
+        for i, s in enumerate(specs)}
+    scheduler = {"cls": distributed.Scheduler, "options": {"dashboard_address": ":0"}}
+    cluster = SpecCluster(workers=workers, scheduler=scheduler, asynchronous=False, silence_logs=40)
+    return distributed.Client(cluster)
+
+
+def connect(spec: str, device: str):
+    """A Client for --cluster `spec`: 'local', 'local:N', or a scheduler address."""
+    distributed = _distributed()
+    if spec == "local" or spec.startswith("local:"):
+        n = None
+        if spec.startswith("local:"):
+            try:
+                n = int(spec.split(":", 1)[1])
+            except ValueError:
+                raise ClusterError(f"--cluster {spec!r}: expected local:N with an integer N") from None
+        return start_local(n, device)
+    if "://" not in spec:
+        raise ClusterError(f"--cluster {spec!r}: expected local, local:N or a scheduler address tcp://HOST:PORT")
+    try:
+        return distributed.Client(spec, timeout="20s")
+    except (OSError, TimeoutError) as e:
+        raise ClusterError(f"--cluster {spec}: cannot reach the scheduler ({e})") from e
+
+
+def run_task(cfg) -> dict:
+    """One run on the worker that executes it (its device from REINGS_WORKER_DEVICE)."""
+    from dataclasses import replace
+
+    from . import pipeline
+    from .evaluate import RunLock
+
+    dev = os.environ.get(WORKER_DEVICE)
+    if dev:
+        cfg = replace(cfg, device=dev)
+    rd = cfg.output.out
+    if os.path.exists(os.path.join(rd, "metrics.json")):
+        return {"out": rd, "status": "done already"}
+    lock = RunLock(rd)
+    if not lock.acquire():
+        # another process holds the run: wait for it (a dead holder's lock is freed by the OS)
+        while not lock.acquire():
+            time.sleep(2.0)
+    try:
+        if os.path.exists(os.path.join(rd, "metrics.json")):
+            return {"out": rd, "status": "done already"}
+        resumed = os.path.isdir(os.path.join(rd, "checkpoints"))
+        t = time.perf_counter()
+        m = pipeline.run(cfg, quiet=True).metrics
+        return {"out": rd, "status": "resumed" if resumed else "ran", "mean": m["mean"],
+                "seconds": time.perf_counter() - t, "device": cfg.device, "pid": os.getpid()}
+    finally:
+        lock.release()
+
+
+def run_grid(client, jobs, gpu_only: bool = False, quiet: bool = False, say=print) -> list:
+    """Submit every job (ds, scene, cfg) not finished yet; wait with a progress line; returns
+    [(out, error)] of the failed runs."""
+    distributed = _distributed()
+    todo = [(ds, s, cfg) for ds, s, cfg in jobs if not os.path.exists(os.path.join(cfg.output.out, "metrics.json"))]
+    say(f"{len(jobs)} run(s), {len(jobs) - len(todo)} finished already; {len(todo)} to do on "
+        f"{len(client.scheduler_info().get('workers', {}))} worker(s); dashboard: {client.dashboard_link}")
+    res = {"GPU": 1} if gpu_only else {"RUN": 1}
+    futs = {}
+    for ds, s, cfg in todo:
+        key = "reings-run-" + cfg.output.out.replace(os.sep, "_")
+        futs[client.submit(run_task, cfg, key=key, resources=res, pure=False)] = cfg
+    failed, done, t0 = [], 0, time.perf_counter()
+    bar = None
+    from .log import progress_enabled
+
+    if progress_enabled(quiet) and todo:
+        from tqdm import tqdm
+
+        bar = tqdm(total=len(todo), desc="grid", file=sys.stderr, dynamic_ncols=True)
+    for fut in distributed.as_completed(list(futs)):
+        cfg = futs[fut]
+        try:
+            r = fut.result()
+            done += 1
+            mm = r.get("mean") or {}
+            say(f"[{done + len(failed)}/{len(todo)}] {cfg.output.out}: {r['status']}"
+                + ("" if not mm else " " + " ".join(f"{k.upper()} {v:.3f}" for k, v in mm.items()))
+                + (f" ({r['seconds']:.0f} s on {r['device']})" if "seconds" in r else ""))
+        except Exception as e:  # the run raised, or its workers kept dying (KilledWorker)
+            failed.append((cfg.output.out, f"{type(e).__name__}: {e}"))
+            say(f"[{done + len(failed)}/{len(todo)}] {cfg.output.out}: FAILED: {type(e).__name__}: {e}")
+        if bar is not None:
+            el = time.perf_counter() - t0
+            left = len(todo) - done - len(failed)
+            bar.set_postfix_str(f"done {done} failed {len(failed)} running {min(left, len(futs))} "
+                                f"ETA {el / max(done + len(failed), 1) * left:.0f} s")
+            bar.update(1)
+    if bar is not None:
+        bar.close()
+    return failed
+
+
+def main_worker(args) -> int:
+    """`reings worker`: a Dask worker (under a nanny) bound to one device, until interrupted."""
+    import asyncio
+
+    distributed = _distributed()
+    from .backends import get_backend
+
+    get_backend(args.device)  # an unknown device fails here, not in the first task
+    res = {"RUN": 1, **({"GPU": 1} if args.device.startswith(("cuda", "opencl")) and args.device != "pocl" else {})}
+    env = {WORKER_DEVICE: args.device}
+    if args.pocl_threads:
+        env["POCL_MAX_PTHREAD_COUNT"] = str(args.pocl_threads)
+
+    async def serve():
+        async with distributed.Nanny(args.scheduler, nthreads=1, resources=res, env=env,
+                                     name=args.name or None) as nanny:
+            print(f"reings worker on {args.device} ({', '.join(f'{k}={v}' for k, v in res.items())}) "
+                  f"-> {args.scheduler}", flush=True)
+            await nanny.finished()
+
+    try:
+        asyncio.run(serve())
+    except KeyboardInterrupt:
+        pass
+    return 0

@@ -1,0 +1,84 @@
+"""`reings eval --cluster` (issue 16): a local Dask cluster of 2 worker processes on PoCL runs a
+grid of 4 quick procedural runs; one worker is killed (SIGKILL) during a task; the grid completes,
+and its table equals a serial `reings eval` of the same grid."""
+from __future__ import annotations
+
+import glob
+import json
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+
+import pytest
+
+pytest.importorskip("distributed")
+
+GRID = ["--dataset", "procedural", "--views", "2,3", "--seeds", "0,1", "--methods", "dngaussian",
+        "--iterations", "40", "--checkpoint-every", "5", "--depth-prior", "exact", "--no-lpips",
+        "--eval-every", "0", "--quiet"]
+
+
+def _means(out) -> dict:
+    return {os.path.relpath(p, out): json.load(open(p))["mean"]
+            for p in sorted(glob.glob(os.path.join(out, "procedural", "*", "*", "*", "metrics.json")))}
+
+
+def _quality_table(out) -> str:
+    """results.md without its generation line and the seconds/Gaussians table."""
+    text = open(os.path.join(out, "results.md")).read()
+    keep = [ln for ln in text.splitlines() if not ln.startswith("Generated") and "seconds" not in ln]
+    return "\n".join(ln for ln in keep if "pthread" not in ln)
+
+
+@pytest.mark.slow
+def test_killed_worker_and_the_serial_table(tmp_path, monkeypatch):
+    from reings.cli import build_parser, config_from_args
+    from reings.cluster import start_local, run_grid
+    from reings.evaluate import plan, write_tables
+
+    monkeypatch.setattr(os, "cpu_count", lambda: 2)  # one PoCL thread per worker, on any machine
+    out = tmp_path / "grid"
+    args = build_parser().parse_args(["eval", *GRID, "--out", str(out)])
+    jobs, expected = plan(args, config_from_args(args))
+    assert len(jobs) == 4
+    client = start_local(2, "pocl")
+    try:
+        result = {}
+        t = threading.Thread(target=lambda: result.setdefault("failed", run_grid(client, jobs, quiet=True,
+                                                                                   say=lambda m: None)))
+        t.start()
+        deadline = time.time() + 300
+        while not glob.glob(str(out / "**" / "checkpoints" / "*.npz"), recursive=True):
+            assert time.time() < deadline, "no run wrote a checkpoint"
+            time.sleep(0.2)
+        pids = client.run(os.getpid)  # {worker address: pid}
+        victim = sorted(pids.values())[0]
+        os.kill(victim, signal.SIGKILL)  # a worker dies during its task
+        t.join(timeout=600)
+        assert not t.is_alive()
+        assert result["failed"] == []
+        assert victim not in client.run(os.getpid).values()  # the nanny started a new process
+    finally:
+        client.close()
+        client.cluster.close()
+    write_tables(str(out), expected)
+
+    serial = tmp_path / "serial"
+    env = {**os.environ, "POCL_MAX_PTHREAD_COUNT": "1"}
+    r = subprocess.run([sys.executable, "-m", "reings.cli", "eval", *GRID, "--out", str(serial)],
+                       capture_output=True, text=True, env=env, timeout=900)
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert _means(out) == _means(serial) and len(_means(out)) == 4
+    assert _quality_table(out) == _quality_table(serial)
+
+
+def test_cluster_errors(tmp_path, capsys):
+    from reings.cli import main
+
+    assert main(["eval", *GRID, "--out", str(tmp_path / "o"), "--cluster", "local:x"]) == 2
+    assert "expected local:N" in capsys.readouterr().err
+    assert main(["eval", *GRID, "--out", str(tmp_path / "o"), "--cluster", "nowhere"]) == 2
+    assert "scheduler address" in capsys.readouterr().err
