@@ -256,7 +256,7 @@ STAGES = {"reings": ("ehps", "coarse", "ivps", "fine", "cvps", "final", "final_p
           "3dgs": ("init", "3dgs")}
 FIT_STAGES = {"reings": ("coarse", "fine", "final"), "dngaussian": ("dngaussian",), "3dgs": ("3dgs",)}
 RECIPES = ("auto", "llff", "dtu")  # RunConfig.recipe: the recipe family of the fits
-DATASETS = ("llff", "llff_nex", "colmap", "dtu", "blender", "procedural")
+DATASETS = ("llff", "llff_nex", "colmap", "dtu", "blender", "nerfstudio", "procedural")
 
 
 @dataclass(frozen=True)

@@ -29,8 +29,15 @@ def detect_format(path: str) -> str:
     if not os.path.isdir(path):
         raise SceneError(f"{path}: not a folder")
     has = lambda *p: os.path.exists(os.path.join(path, *p))  # noqa: E731
-    if has("transforms_train.json") or has("transforms.json"):
+    if has("transforms_train.json"):
         return "blender"
+    if has("transforms.json"):  # nerfstudio's single file (intrinsics fl_x...), else a one-split Blender scene
+        from .blender import _read_json
+
+        meta = _read_json(os.path.join(path, "transforms.json"))
+        frames = meta.get("frames") if isinstance(meta, dict) else None
+        first = frames[0] if isinstance(frames, list) and frames and isinstance(frames[0], dict) else {}
+        return "nerfstudio" if "fl_x" in meta or "fl_x" in first or "camera_model" in meta else "blender"
     if has("cameras_sphere.npz") or has("cameras.npz"):
         return "dtu"
     from .dtu import find_regnerf_calibration
@@ -44,7 +51,7 @@ def detect_format(path: str) -> str:
             if has(*sub, f):
                 return "colmap"
     raise SceneError(
-        f"{path}: cannot detect the dataset format (no transforms_train.json, cameras_sphere.npz, "
+        f"{path}: cannot detect the dataset format (no transforms_train.json, transforms.json, cameras_sphere.npz, "
         "Calibration/cal18, poses_bounds.npy or COLMAP sparse/0); pass dataset=..."
     )
 
@@ -54,13 +61,14 @@ def load_scene(path=None, dataset: str | None = None, factor: int | None = 8, **
 
     Args:
         path: scene folder, or None / "procedural" for the built-in procedural scene.
-        dataset: one of "llff", "llff_nex", "colmap", "dtu", "blender", "procedural" (or None).
+        dataset: one of "llff", "llff_nex", "colmap", "dtu", "blender", "nerfstudio", "procedural" (or None).
         factor: downsampling factor (None = the protocol's: 8 for LLFF/NeX/COLMAP, 4 for DTU).
             LLFF: reads `images_{factor}/` (or area-resizes `images/`); 8 -> 504x378.
             NeX: counted from the original LLFF capture (stored images are 1/4 of it).
             COLMAP: `images_{factor}/` if present, else `images/` resized by 1/factor.
             DTU: counted from 1600x1200, and the default 8 is read as the protocol's 4
             (400x300), since 8 is LLFF's default; pass `dtu_factor=` for another DTU size.
+            nerfstudio: the images (undistorted first) are downscaled by `factor`, as COLMAP's.
             Blender/procedural: ignored.
         **kwargs: passed to the format's loader (e.g. `white_background` for blender).
     """
@@ -98,4 +106,8 @@ def load_scene(path=None, dataset: str | None = None, factor: int | None = 8, **
         from .blender import load_blender
 
         return load_blender(path, **kwargs)
+    if kind == "nerfstudio":
+        from .blender import load_nerfstudio
+
+        return load_nerfstudio(path, factor=factor, **kwargs)
     raise SceneError(f"unknown dataset {kind!r}")  # pragma: no cover

@@ -21,7 +21,7 @@ DTU_EXCLUDED = [3, 4, 5, 6, 7, 16, 17, 18, 19, 20, 21, 36, 37, 38, 39]
 BLENDER_TRAIN_IDS = [26, 86, 2, 55, 75, 93, 16, 73, 8]  # [MEMORY] FreeNeRF/DietNeRF 8-view list
 LLFF_HOLDOUT = 8
 
-_PROTOCOL_OF_KIND = {"llff": "llff", "llff_nex": "llff", "colmap": "llff", "procedural": "llff",
+_PROTOCOL_OF_KIND = {"llff": "llff", "llff_nex": "llff", "colmap": "llff", "nerfstudio": "llff", "procedural": "llff",
                      "dtu": "dtu", "blender": "blender"}
 
 

@@ -27,7 +27,7 @@ class SceneError(ValueError):
     """Bad scene input: the message names the file and the problem."""
 
 
-KINDS = ("llff", "llff_nex", "colmap", "dtu", "blender", "procedural")  # dataset kinds; `Scene.kind` is one
+KINDS = ("llff", "llff_nex", "colmap", "dtu", "blender", "nerfstudio", "procedural")  # dataset kinds; `Scene.kind` is one
 
 
 @dataclass
