@@ -106,7 +106,7 @@ def run_task(cfg) -> dict:
     from dataclasses import replace
 
     from . import pipeline
-    from .evaluate import RunLock
+    from .io.lock import RunLock
 
     dev = os.environ.get(WORKER_DEVICE)
     if dev:

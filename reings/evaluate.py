@@ -30,6 +30,8 @@ import time
 
 import numpy as np
 
+from .io.lock import RunLock  # the per-run lock (also reings.cluster's)
+
 METRICS = ("psnr", "ssim", "lpips", "avge")
 ARROW = {"psnr": "↑", "ssim": "↑", "lpips": "↓", "avge": "↓"}
 
@@ -123,61 +125,6 @@ def discover_scenes(root: str, dataset: str | None) -> list[tuple[str, str]]:
 def run_dir(out: str, dataset: str, method: str, views: int, scene: str, seed: int = 0) -> str:
     """OUT/<dataset>/<method>/<k>views/<scene>, and <scene>_seed<s> for seeds other than 0."""
     return os.path.join(out, dataset, method, f"{views}views", scene if not seed else f"{scene}_seed{seed}")
-
-
-class RunLock:
-    """An exclusive, non-blocking lock on `<folder>/.lock`, freed when the process ends: fcntl.flock
-    on POSIX, msvcrt.locking on Windows (the equivalent; no extra package)."""
-
-    def __init__(self, folder: str):
-        self.path = os.path.join(folder, ".lock")
-        self.fd = None
-
-    def acquire(self) -> bool:
-        import socket
-
-        os.makedirs(os.path.dirname(self.path), exist_ok=True)
-        fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
-        try:
-            _lock(fd)
-        except OSError:
-            os.close(fd)
-            return False
-        os.ftruncate(fd, 0)
-        os.write(fd, f"{os.getpid()} {socket.gethostname()}\n".encode())
-        self.fd = fd
-        return True
-
-    def release(self) -> None:
-        if self.fd is not None:
-            _unlock(self.fd)
-            os.close(self.fd)
-            self.fd = None
-
-
-def _lock(fd: int) -> None:
-    """Non-blocking exclusive lock of an open file; OSError when another process holds it."""
-    try:
-        import fcntl
-    except ImportError:  # Windows
-        import msvcrt
-
-        os.lseek(fd, 0, os.SEEK_SET)
-        msvcrt.locking(fd, msvcrt.LK_NBLCK, 1)
-        return
-    fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-
-
-def _unlock(fd: int) -> None:
-    try:
-        import fcntl
-    except ImportError:  # Windows
-        import msvcrt
-
-        os.lseek(fd, 0, os.SEEK_SET)
-        msvcrt.locking(fd, msvcrt.LK_UNLCK, 1)
-        return
-    fcntl.flock(fd, fcntl.LOCK_UN)
 
 
 # {{{ table

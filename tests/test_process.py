@@ -134,3 +134,16 @@ def test_reconstruct_in_memory_writes_nothing(tmp_path, monkeypatch):
         reings.reconstruct([im * 2 for im in scene.images], scene.cameras)
     u8 = [np.rint(im * 255).astype(np.uint8) for im in scene.images]  # uint8 is taken as 0..255
     assert len(reings.reconstruct(u8, scene.cameras, bounds=scene.bounds, iterations=5, depth_prior="none")) > 0
+
+
+def test_two_photos_make_a_scene(photos, tmp_path, capsys):
+    """The fewest views COLMAP can work with: two photos register into a model of two images."""
+    root, scene = photos
+    two = tmp_path / "two"
+    _write_photos(two, scene, VIEWS[:2])
+    assert main(["process", str(two), "--out", str(tmp_path / "s"), "--quiet"]) == 0
+    assert "registered 2 of 2 photos" in capsys.readouterr().out
+    sc = reings.load_scene(str(tmp_path / "s"), dataset="colmap", factor=1)
+    assert len(sc) == 2
+    d_est = np.linalg.norm(sc.cameras[0].center - sc.cameras[1].center)
+    assert d_est > 0  # two distinct poses (the scale of a two-view model is arbitrary)
