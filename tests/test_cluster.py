@@ -17,7 +17,7 @@ import pytest
 pytest.importorskip("distributed")
 
 GRID = ["--dataset", "procedural", "--views", "2,3", "--seeds", "0,1", "--methods", "dngaussian",
-        "--iterations", "40", "--checkpoint-every", "5", "--depth-prior", "exact", "--no-lpips",
+        "--iterations", "24", "--checkpoint-every", "4", "--depth-prior", "exact", "--no-lpips",
         "--eval-every", "0", "--quiet"]
 
 

@@ -41,7 +41,6 @@ def _wait_for(out, pattern, proc, timeout=300):
 
 # (what must exist before the signal, extra delay in s, signal)
 MOMENTS = [("config.toml", 0.0, signal.SIGKILL),                 # right after the folder is claimed
-           ("checkpoints/coarse.npz", 0.0, signal.SIGKILL),      # just after the first checkpoint
            ("checkpoints/fine.npz", 0.0, signal.SIGINT),         # Ctrl-C in the fine fit
            ("checkpoints/final.npz", "random", signal.SIGKILL),  # somewhere in the final fit
            ("renders/*.png", 0.0, signal.SIGKILL)]               # while the test renders are written

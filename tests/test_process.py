@@ -64,7 +64,7 @@ def test_photos_to_video(photos, capsys):
     assert _similarity_residual(est, true) < 0.02  # the true camera layout, up to scale and frame
 
     run = root / "run"
-    assert main(["run", "--data", str(sc), "--holdout", "none", "--preset", "quick", "--iterations", "40",
+    assert main(["run", "--data", str(sc), "--holdout", "none", "--preset", "quick", "--iterations", "20",
                  "--factor", "1", "--depth-prior", "none", "--no-lpips", "--eval-every", "0", "--quiet",
                  "--out", str(run)]) == 0
     m = json.loads((run / "metrics.json").read_text())
