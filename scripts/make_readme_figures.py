@@ -8,7 +8,6 @@ Writes, small enough to commit:
                              with the view's PSNR (from metrics.json)
     <out>/psnr_vs_time.svg   the run's own PSNR-against-seconds plot
     <out>/flythrough.jpg     6 frames of the LLFF spiral (`reings render --path spiral`)
-    <out>/viewer.jpg         with --viewer: headless Chromium's screenshot of `reings view RUN_DIR`
 The ground truth is read from the run's `data` folder (its `test_indices`).
 """
 from __future__ import annotations
@@ -32,34 +31,6 @@ def _label(im, text):
     return out
 
 
-def _viewer_shot(run: str, path: str) -> None:
-    import shutil
-    import socket
-    import subprocess
-    import tempfile
-
-    import cv2
-
-    from reings.viewer import serve
-
-    with socket.socket() as so:
-        so.bind(("127.0.0.1", 0))
-        port = so.getsockname()[1]
-    server = serve(run, port=port)
-    try:
-        with tempfile.TemporaryDirectory() as tmp:
-            png = os.path.join(tmp, "shot.png")
-            chrome = shutil.which("chromium") or shutil.which("google-chrome")
-            subprocess.run([chrome, "--headless=new", "--no-sandbox", "--disable-gpu", "--use-angle=swiftshader",
-                            "--enable-unsafe-swiftshader", "--no-first-run", "--disable-background-networking",
-                            "--disable-component-update", "--disable-sync", f"--user-data-dir={tmp}/u",
-                            "--window-size=1000,700", "--virtual-time-budget=30000", f"--screenshot={png}",
-                            f"http://127.0.0.1:{port}/"], check=True, capture_output=True, timeout=300)
-            cv2.imwrite(path, cv2.imread(png), [cv2.IMWRITE_JPEG_QUALITY, 85])
-    finally:
-        server.stop()
-
-
 def main(argv=None) -> int:
     import cv2
 
@@ -70,7 +41,6 @@ def main(argv=None) -> int:
     ap.add_argument("run")
     ap.add_argument("--out", default="docs/img")
     ap.add_argument("--device", default="pocl")
-    ap.add_argument("--viewer", action="store_true", help="also screenshot the browser viewer (viser, Chromium)")
     a = ap.parse_args(argv)
     m = json.load(open(os.path.join(a.run, "metrics.json")))
     os.makedirs(a.out, exist_ok=True)
@@ -89,8 +59,6 @@ def main(argv=None) -> int:
     pf = render_path(a.run, path="spiral", frames=24, size=(w, h), device=a.device)
     strip = np.concatenate([f[..., ::-1] for f in pf.frames[::4]], 1)
     cv2.imwrite(os.path.join(a.out, "flythrough.jpg"), strip, [cv2.IMWRITE_JPEG_QUALITY, 85])
-    if a.viewer:
-        _viewer_shot(a.run, os.path.join(a.out, "viewer.jpg"))
     print(f"wrote {a.out}/render_vs_gt.jpg, psnr_vs_time.svg, flythrough.jpg from {a.run}")
     return 0
 
