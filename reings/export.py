@@ -68,14 +68,10 @@ def export_run(run_dir, out, format: str = "ply", sh_degree: int = 3, overwrite:
     if not out:
         raise ValueError("--out must name a folder")
     g, _ = load_run(run_dir)
+    from .io.files import read_json
+
     mpath = os.path.join(run_dir, "metrics.json")
-    try:
-        with open(mpath, encoding="utf-8") as f:
-            metrics = json.load(f)
-    except FileNotFoundError:
-        raise FileNotFoundError(f"{run_dir}: no metrics.json (not a finished run)") from None
-    except (json.JSONDecodeError, UnicodeDecodeError) as e:
-        raise ValueError(f"{mpath}: unreadable ({e})") from None
+    metrics = read_json(mpath, f"{run_dir}: no metrics.json (not a finished run)")
     if not isinstance(metrics, dict):
         raise ValueError(f"{mpath}: expected a JSON object")
     if os.path.exists(out) and not os.path.isdir(out):

@@ -120,14 +120,10 @@ def write_cameras_json(path, groups) -> None:
 def read_cameras_json(path, split: str | None = None) -> list[CameraRecord]:
     """The cameras of a cameras.json (ours or 3DGS's), in file order; `split` keeps only that
     split's entries ("train", "test")."""
+    from .files import read_json
+
     path = os.fspath(path)
-    try:
-        with open(path, encoding="utf-8") as f:
-            data = json.load(f)
-    except FileNotFoundError:
-        raise FileNotFoundError(f"{path}: cameras file not found") from None
-    except (json.JSONDecodeError, UnicodeDecodeError) as e:
-        raise CamerasFileError(f"{path}: not a JSON file ({e})") from None
+    data = read_json(path, f"{path}: cameras file not found", CamerasFileError, "not a JSON file")
     if not isinstance(data, list) or not data:
         raise CamerasFileError(f"{path}: expected a non-empty JSON list of cameras")
     recs = [record_of(e, path, i) for i, e in enumerate(data)]

@@ -70,3 +70,18 @@ def cache_dir(sub: str) -> Path:
     except ImportError:  # pragma: no cover - platformdirs comes with pyopencl (pytools)
         return Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "reings" / sub
     return Path(platformdirs.user_cache_dir("reings", appauthor=False)) / sub
+
+
+def read_json(path, missing: str, error=ValueError, what: str = "unreadable"):
+    """The JSON value in `path`: FileNotFoundError(`missing`) when there is no file, `error`
+    naming the file when it is not JSON (or not UTF-8)."""
+    import json
+
+    path = os.fspath(path)
+    try:
+        with open(path, encoding="utf-8") as f:
+            return json.load(f)
+    except FileNotFoundError:
+        raise FileNotFoundError(missing) from None
+    except (json.JSONDecodeError, UnicodeDecodeError) as e:
+        raise error(f"{path}: {what} ({e})") from None
