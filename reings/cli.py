@@ -301,6 +301,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "first, then PoCL on the spare cores) or an existing scheduler (extra: cluster; "
                         "docs/cluster.md)")
     e.add_argument("--gpu-only", action="store_true", help="with --cluster: tasks ask for the resource GPU=1")
+    e.add_argument("--runs-per-gpu", type=int, default=1, metavar="K",
+                   help="with --cluster local: K workers per GPU, so K runs share each GPU (default 1; "
+                        "docs/cluster.md has the measured runs per hour)")
     e.add_argument("--quiet", action="store_true", help="no progress bars or stage lines")
     add_config_options(e, exclude=EVAL_SETS)
     e.set_defaults(func=_cmd_eval, parser=e)
@@ -352,6 +355,8 @@ def build_parser() -> argparse.ArgumentParser:
     k.add_argument("--scheduler", required=True, metavar="tcp://HOST:PORT", help="the Dask scheduler's address")
     k.add_argument("--device", default="pocl", help="pocl | cuda | cuda:N | opencl:P:D")
     k.add_argument("--pocl-threads", type=int, default=0, help="PoCL: threads of this worker (default: all cores)")
+    k.add_argument("--runs", type=int, default=1, metavar="K",
+                   help="K workers on this device, K runs sharing it (default 1)")
     k.add_argument("--name", default="", help="worker name shown by the dashboard")
     k.set_defaults(func=_cmd_worker)
 

@@ -4,6 +4,8 @@
                                                is cuda, else one PoCL worker
     reings eval ... --cluster local:N          N workers: the GPUs first (--device cuda), the others
                                                PoCL workers sharing the spare cores
+    reings eval ... --runs-per-gpu K           K workers per GPU, K runs sharing it (a single run
+                                               leaves most of a large GPU idle; docs/cluster.md)
     reings eval ... --cluster tcp://HOST:8786  an existing scheduler, with workers started by
                                                `reings worker --scheduler tcp://HOST:8786 --device cuda:0`
 
@@ -40,9 +42,12 @@ def _distributed():
     return distributed
 
 
-def worker_specs(n: int | None, device: str) -> list[dict]:
-    """The workers of a local cluster: [{"device", "resources", "env"}], GPUs first (module
-    docstring); PoCL workers get POCL_MAX_PTHREAD_COUNT = their share of the spare cores."""
+def worker_specs(n: int | None, device: str, runs_per_gpu: int = 1) -> list[dict]:
+    """The workers of a local cluster: [{"device", "resources", "env"}], GPUs first, each GPU
+    `runs_per_gpu` times (module docstring); PoCL workers get POCL_MAX_PTHREAD_COUNT = their share
+    of the spare cores."""
+    if runs_per_gpu < 1:
+        raise ClusterError(f"--runs-per-gpu needs K >= 1, got {runs_per_gpu}")
     gpus = []
     if device.startswith("cuda"):
         from .backends.opencl.device import list_devices
@@ -50,7 +55,7 @@ def worker_specs(n: int | None, device: str) -> list[dict]:
         gpus = [d for d in list_devices() if d.get("nv_ptx")]
         if not gpus:
             raise ClusterError(f"--cluster local with --device {device}: no NVIDIA GPU found")
-        gpus = [f"cuda:{i}" for i in range(len(gpus))]
+        gpus = [f"cuda:{i}" for i in range(len(gpus)) for _ in range(runs_per_gpu)]
     n = (len(gpus) or 1) if n is None else n
     if n < 1:
         raise ClusterError(f"--cluster local:N needs N >= 1, got {n}")
@@ -66,13 +71,13 @@ def worker_specs(n: int | None, device: str) -> list[dict]:
     return specs
 
 
-def start_local(n: int | None, device: str, quiet: bool = True):
+def start_local(n: int | None, device: str, runs_per_gpu: int = 1):
     """A local Dask cluster of one worker process per spec (`worker_specs`), each under a nanny
     (which restarts a worker that dies); returns the connected Client."""
     distributed = _distributed()
     from distributed.deploy.spec import SpecCluster
 
-    specs = worker_specs(n, device)
+    specs = worker_specs(n, device, runs_per_gpu)
     workers = {f"reings-{i}-{s['device'].replace(':', '')}": {
         "cls": distributed.Nanny,
         "options": {"nthreads": 1, "resources": s["resources"], "env": s["env"], "silence_logs": 40}}
@@ -82,21 +87,28 @@ def start_local(n: int | None, device: str, quiet: bool = True):
     return distributed.Client(cluster)
 
 
-def connect(spec: str, device: str):
-    """A Client for --cluster `spec`: 'local', 'local:N', or a scheduler address."""
-    distributed = _distributed()
+def parse_spec(spec: str) -> tuple[str, object]:
+    """--cluster `spec` checked before anything is made: ("local", N or None) or ("address", spec)."""
     if spec == "local" or spec.startswith("local:"):
-        n = None
-        if spec.startswith("local:"):
-            try:
-                n = int(spec.split(":", 1)[1])
-            except ValueError:
-                raise ClusterError(f"--cluster {spec!r}: expected local:N with an integer N") from None
-        return start_local(n, device)
+        if spec == "local":
+            return "local", None
+        try:
+            return "local", int(spec.split(":", 1)[1])
+        except ValueError:
+            raise ClusterError(f"--cluster {spec!r}: expected local:N with an integer N") from None
     if "://" not in spec:
         raise ClusterError(f"--cluster {spec!r}: expected local, local:N or a scheduler address tcp://HOST:PORT")
+    return "address", spec
+
+
+def connect(spec: str, device: str, runs_per_gpu: int = 1):
+    """A Client for --cluster `spec`: 'local', 'local:N', or a scheduler address."""
+    kind, arg = parse_spec(spec)
+    distributed = _distributed()
+    if kind == "local":
+        return start_local(arg, device, runs_per_gpu)
     try:
-        return distributed.Client(spec, timeout="20s")
+        return distributed.Client(arg, timeout="20s")
     except (OSError, TimeoutError) as e:
         raise ClusterError(f"--cluster {spec}: cannot reach the scheduler ({e})") from e
 
@@ -175,9 +187,13 @@ def run_grid(client, jobs, gpu_only: bool = False, quiet: bool = False, say=prin
 
 
 def main_worker(args) -> int:
-    """`reings worker`: a Dask worker (under a nanny) bound to one device, until interrupted."""
+    """`reings worker`: Dask workers (each under a nanny) bound to one device, `--runs` of them
+    (runs sharing the device), until interrupted."""
     import asyncio
 
+    runs = int(getattr(args, "runs", 1))
+    if runs < 1:
+        raise ClusterError(f"--runs {runs}: needs K >= 1")
     distributed = _distributed()
     from .backends import get_backend
 
@@ -187,12 +203,20 @@ def main_worker(args) -> int:
     if args.pocl_threads:
         env["POCL_MAX_PTHREAD_COUNT"] = str(args.pocl_threads)
 
+
     async def serve():
-        async with distributed.Nanny(args.scheduler, nthreads=1, resources=res, env=env,
-                                     name=args.name or None) as nanny:
-            print(f"reings worker on {args.device} ({', '.join(f'{k}={v}' for k, v in res.items())}) "
-                  f"-> {args.scheduler}", flush=True)
-            await nanny.finished()
+        nannies = [distributed.Nanny(args.scheduler, nthreads=1, resources=res, env=env,
+                                     name=(f"{args.name}-{i}" if runs > 1 else args.name) if args.name else None)
+                   for i in range(runs)]
+        for n in nannies:
+            await n
+        print(f"reings worker on {args.device} ({', '.join(f'{k}={v}' for k, v in res.items())}"
+              f"{f', {runs} runs at once' if runs > 1 else ''}) -> {args.scheduler}", flush=True)
+        try:
+            await asyncio.gather(*(n.finished() for n in nannies))
+        finally:
+            for n in nannies:
+                await n.close()
 
     try:
         asyncio.run(serve())

@@ -570,6 +570,16 @@ def main_eval(args, base) -> int:
         _prepare(jobs)
         return 0
     cluster = getattr(args, "cluster", None)
+    rpg = getattr(args, "runs_per_gpu", 1)
+    if rpg != 1 and not (cluster and cluster.startswith("local")):
+        raise EvalError(f"--runs-per-gpu {rpg}: only with --cluster local[:N] (workers of an existing scheduler "
+                        "are started with `reings worker --runs K`)")
+    if rpg < 1:
+        raise EvalError(f"--runs-per-gpu {rpg}: needs K >= 1")
+    if cluster:
+        from .cluster import parse_spec
+
+        parse_spec(cluster)  # a bad spec: error before any folder is made
     if not cluster or cluster.startswith("local"):
         get_backend(base.device)  # unknown device: error before any folder is made
     os.makedirs(out, exist_ok=True)
@@ -578,7 +588,7 @@ def main_eval(args, base) -> int:
     if cluster:
         from .cluster import connect, run_grid
 
-        with connect(cluster, base.device) as client:
+        with connect(cluster, base.device, getattr(args, "runs_per_gpu", 1)) as client:
             failed = run_grid(client, jobs, gpu_only=getattr(args, "gpu_only", False), quiet=args.quiet, say=say)
         jobs = []  # all submitted
     for i, (ds, s, cfg) in enumerate(jobs, 1):

@@ -82,3 +82,27 @@ def test_cluster_errors(tmp_path, capsys):
     assert "expected local:N" in capsys.readouterr().err
     assert main(["eval", *GRID, "--out", str(tmp_path / "o"), "--cluster", "nowhere"]) == 2
     assert "scheduler address" in capsys.readouterr().err
+    assert main(["eval", *GRID, "--out", str(tmp_path / "o"), "--runs-per-gpu", "4"]) == 2
+    assert "only with --cluster local" in capsys.readouterr().err
+    assert main(["eval", *GRID, "--out", str(tmp_path / "o"), "--cluster", "local:1", "--runs-per-gpu", "0"]) == 2
+    assert "needs K >= 1" in capsys.readouterr().err
+    assert main(["worker", "--scheduler", "tcp://127.0.0.1:1", "--runs", "0"]) == 2
+    assert "--runs 0" in capsys.readouterr().err
+    assert not (tmp_path / "o").exists()
+
+
+def test_worker_specs_share_each_gpu(monkeypatch):
+    """--runs-per-gpu K: K workers per GPU (GPU=1 each), then PoCL workers on the spare cores."""
+    from reings.backends.opencl import device
+    from reings.cluster import ClusterError, worker_specs
+
+    monkeypatch.setattr(device, "list_devices", lambda: [{"nv_ptx": True}, {"nv_ptx": True}, {"nv_ptx": False}])
+    monkeypatch.setattr(os, "cpu_count", lambda: 16)
+    specs = worker_specs(7, "cuda", runs_per_gpu=3)
+    assert [s["device"] for s in specs] == ["cuda:0"] * 3 + ["cuda:1"] * 3 + ["pocl"]
+    assert all(s["resources"] == {"RUN": 1, "GPU": 1} for s in specs[:6])
+    assert specs[6]["resources"] == {"RUN": 1} and specs[6]["env"]["POCL_MAX_PTHREAD_COUNT"] == "10"
+    assert [s["device"] for s in worker_specs(None, "cuda", runs_per_gpu=2)] == ["cuda:0", "cuda:0", "cuda:1", "cuda:1"]
+    assert [s["device"] for s in worker_specs(2, "cuda")] == ["cuda:0", "cuda:1"]
+    with pytest.raises(ClusterError, match="--runs-per-gpu"):
+        worker_specs(2, "cuda", runs_per_gpu=0)
