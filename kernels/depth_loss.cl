@@ -56,6 +56,11 @@
  *   DL_FP64  1: double statistics (needs cl_khr_fp64); 0 (default): float with the shift
  *   DL_WG    work-group size of the two reduce kernels, a power of two (host: 1 on CPU devices,
  *            256 on GPUs; 64 here by default)
+ * Per-pixel weights (has_wt = 1, `wt` [H, W] float32 in [0, 1]: the depth prior's confidence
+ * map, reference_loss.depth_norm_loss_fwd_bwd(weight=)): each selected element's squared error is
+ * weighted, term = sum(wt diff^2 over mask) / cnt (cnt still counts the selected elements), so
+ * g = mask ? 2 wt diff / cnt : 0 and every `mdiff` above becomes mask ? wt diff : 0. The
+ * statistics (patch means and stds) are unweighted. has_wt = 0 never reads `wt`: the unweighted loss.
  * Not handled: masks / invalid target pixels (a NaN target element is just never selected, but
  * it poisons that input's statistics, as in the reference).
  */
@@ -199,7 +204,9 @@ __kernel void dl_patch_terms(__global const float *depth,   // [H, W]
                              __global int *pcnt,            // [2, Bcap] #mask per patch
                              __global real *prec,           // [2, Bcap, REC] per-patch record (R_*)
                              const real margin,
-                             const int W, const int H, const int pl, const int pg, const int Bcap)
+                             const int W, const int H, const int pl, const int pg, const int Bcap,
+                             __global const float *wt,      // [H, W] per-pixel weights (read if has_wt)
+                             const int has_wt)
 {
     const int m = get_global_id(0), t = get_global_id(1);
     if (!(t < 2)) return;
@@ -224,10 +231,11 @@ __kernel void dl_patch_terms(__global const float *depth,   // [H, W]
             const real v = ((real)target[y * W + x] - kt) - mt;
             const real diff = u * rd - v * rt;  /* the same expression as dl_grad's: same mask */
             if (fabs(diff) > margin) {          /* NaN (a zero-std input) is never selected */
+                const real wd = has_wt ? (real)wt[y * W + x] * diff : diff;  /* the weighted mdiff */
                 cnt += 1;
-                sq += diff * diff;
-                sa += diff;
-                sb += diff * u;
+                sq += wd * diff;
+                sa += wd;
+                sb += wd * u;
             }
         }
     __global real *r = prec + REC * (t * Bcap + m);
@@ -299,14 +307,15 @@ __kernel void dl_reduce_terms(__global const real *sstats,  // [6, 2]
 }
 
 /* The gradient of term t at a pixel of patch m (xd, xt: the shifted depth and target there). */
-static real term_grad(const real xd, const real xt, __global const real *prec, __global const real *pcoef,
-                      __global const real *tstats, const real margin, const int t, const int m, const int Bcap)
+static real term_grad(const real xd, const real xt, const real wv, __global const real *prec,
+                      __global const real *pcoef, __global const real *tstats, const real margin, const int t,
+                      const int m, const int Bcap)
 {
     __global const real *r = prec + REC * (t * Bcap + m);
     __global const real *co = pcoef + 3 * (t * Bcap + m);
     const real u = xd - r[R_MD];
     const real diff = u * r[R_DD] - (xt - r[R_MT]) * r[R_DT];
-    const real md = fabs(diff) > margin ? diff : (real)0;
+    const real md = fabs(diff) > margin ? wv * diff : (real)0;  /* wv = 1 without weights: exact */
     return co[0] * md + co[1] * u + co[2] + tstats[4 * t + 2] * (xd - tstats[4 * t + 3]);
 }
 
@@ -337,7 +346,9 @@ __kernel void dl_grad(__global const float *depth,   // [H, W]
                       const int W, const int H, const int pl, const int pg, const int Bcap,
                       __global const float *swx,     // [H, W] smoothness x weights (read if s_scale != 0)
                       __global const float *swy,     // [H, W] smoothness y weights
-                      const real s_scale)            // w_smooth / (sum swx + sum swy); 0 = no smoothness
+                      const real s_scale,            // w_smooth / (sum swx + sum swy); 0 = no smoothness
+                      __global const float *wt,      // [H, W] per-pixel weights (read if has_wt)
+                      const int has_wt)
 {
 #if REINGS_CPU_SCHEDULE
     const int j = get_global_id(0);
@@ -358,8 +369,9 @@ __kernel void dl_grad(__global const float *depth,   // [H, W]
     divmod((uint)i0, (uint)pg, &c1, &r1);
     for (int i = i0; i < i1; ++i) {
         const real xd = (real)depth[j * W + i] - kd, xt = (real)target[j * W + i] - kt;
-        const real g0 = (in0 && c0 < pw0) ? term_grad(xd, xt, prec, pcoef, tstats, margin, 0, row0 + c0, Bcap) : (real)0;
-        const real g1 = (in1 && c1 < pw1) ? term_grad(xd, xt, prec, pcoef, tstats, margin, 1, row1 + c1, Bcap) : (real)0;
+        const real wv = has_wt ? (real)wt[j * W + i] : (real)1;
+        const real g0 = (in0 && c0 < pw0) ? term_grad(xd, xt, wv, prec, pcoef, tstats, margin, 0, row0 + c0, Bcap) : (real)0;
+        const real g1 = (in1 && c1 < pw1) ? term_grad(xd, xt, wv, prec, pcoef, tstats, margin, 1, row1 + c1, Bcap) : (real)0;
         const real gs = s_scale != (real)0 ? depth_smooth_grad(depth, swx, swy, i, j, W, H) : (real)0;
         v_depth[j * W + i] = (float)(w_local * g0 + w_global * g1 + s_scale * gs);
         if (++r0 == pl) { r0 = 0; ++c0; }

@@ -134,6 +134,9 @@ class LossConfig:
     depth_w_global: float = opt(1.0, "weight of the global (whole-image std) normalised depth term")
     depth_smooth_weight: float = opt(0.0, "edge-aware depth smoothness weight, in both depth passes (DNGaussian LLFF: 0.1)")
     depth_smooth_from: int = opt(3001, "first iteration of the smoothness term (DNGaussian: iteration > 3000)")
+    depth_confidence: float = opt(0.0, "how much the depth prior's confidence c weights each pixel of the depth "
+                                       "terms: w = 1 - a + a c (0 = unweighted, DNGaussian; priors without a "
+                                       "confidence are unweighted)")
     shape_pena: float = opt(0.0, "weight of mean(max scale / min scale)")
     scale_pena: float = opt(0.0, "weight of mean(max scale^2)")
     opa_pena: float = opt(0.0, "weight of 1 - mean(o^2 | o>0.2) + mean((1-o)^2 | o<0.2)")
@@ -541,6 +544,11 @@ class RunConfig:
                                             "recipe family's (0.995 for 'dtu', off for 'llff')",
                                       check=lambda v: None if v is None or 0 < v <= 1 else f"must lie in (0, 1], got {v}",
                                       metavar="FACTOR")
+    depth_confidence: float = opt(0.0, "every fit with depth terms: how much the stereo prior's confidence c "
+                                       "weights each pixel of the depth loss, w = 1 - a + a c (0 = unweighted, "
+                                       "DNGaussian; 1 = the confidence alone)",
+                                  check=lambda v: None if 0 <= v <= 1 else f"must lie in [0, 1], got {v}",
+                                  metavar="A")
     dtu_background: bool = opt(False, "every fit: DNGaussian's DTU background rules (dark-pixel mask of the training "
                                       "views, ground truth 0 there, the mean(alpha^2) pass, the black / white Gaussian "
                                       "rules; reings/background.py); not yet measured, so off")

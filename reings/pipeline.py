@@ -172,6 +172,8 @@ def run_settings(cfg: RunConfig, dataset_kind: str) -> dict:
         s["recipe"] = cfg.recipe
     if cfg.dtu_background:
         s["dtu_background"] = True
+    if cfg.depth_confidence:  # absent at 0, the value before the option existed
+        s["depth_confidence"] = cfg.depth_confidence
     if cfg.method == "reings":  # the baselines ignore both; keys absent when off (older folders resume)
         if cfg.view_warp:
             s["view_warp"], s["view_warp_disparity"] = cfg.view_warp, cfg.view_warp_disparity
@@ -247,6 +249,7 @@ class RunContext:
 
     def __init__(self, cfg: RunConfig, backend, train, test, priors, box, log, progress, family: str = "llff"):
         self.cfg, self.backend, self.train, self.test, self.priors, self.box = cfg, backend, train, test, priors, box
+        self.confidences = None  # the priors' per-view confidence maps, when the prior has them (_prepare)
         self.family = family  # the fits' recipe family (recipe_family)
         self.device = cfg.device
         self.log, self.progress = log, progress
@@ -272,6 +275,8 @@ class RunContext:
             recipe = replace(recipe, densify=replace(recipe.densify, max_gaussians=c.max_gaussians))
         if self.smooth_w is not None:
             recipe = replace(recipe, loss=replace(recipe.loss, depth_smooth_weight=self.smooth_w))
+        if c.depth_confidence:
+            recipe = replace(recipe, loss=replace(recipe.loss, depth_confidence=c.depth_confidence))
         if c.method == "reings":
             recipe = self.binocular(recipe)
         if c.dtu_background:
@@ -346,6 +351,7 @@ class RunContext:
         prof = {} if c.output.profile else None  # phase -> wall seconds (Trainer.phase)
         r = fit(self.train, recipe, device=self.device, init=init,
                 depth_targets=self.priors if use_priors else None, progress=self.progress,
+                depth_confidence=self.confidences if use_priors else None,
                 checkpoint=self.checkpoint(name), checkpoint_every=c.output.checkpoint_every,
                 eval_fn=self.probe if ee else None, eval_every=ee, desc=name, extent=self.extent, profile=prof)
         # history.eval: (iteration, seconds since this fit's start taken before the probe ran,
@@ -568,12 +574,17 @@ def _prepare(cfg: RunConfig, backend, prior, overwrite: bool, quiet: bool, scene
         log(f"[{cfg.label}] note: final_prune applies to reings only; ignored")
 
     t = time.perf_counter()
+    confidences = None  # per view [H, W] in [0, 1] (the stereo prior's) or None
     if cfg.depth_prior == "exact":
         priors = list(train.depths)
     else:
-        priors = prior.compute(train) if getattr(prior, "enabled", True) else None
+        priors, confidences = (prior.compute(train, return_confidence=True) if getattr(prior, "enabled", True)
+                               else (None, None))
         if priors is not None and all(p is None for p in priors):
-            priors = None
+            priors = confidences = None
+    if cfg.depth_confidence and (confidences is None or all(c is None for c in confidences)):
+        log(f"[{cfg.label}] note: --depth-confidence needs a prior with a confidence (stereo); "
+            f"the {cfg.depth_prior!r} prior has none, so the depth loss is unweighted")
     timings["depth_prior"] = time.perf_counter() - t
     t = time.perf_counter()
     box = frusta_only_extent(train) if cfg.extent == "frusta" else sfm_extent(train)
@@ -587,6 +598,7 @@ def _prepare(cfg: RunConfig, backend, prior, overwrite: bool, quiet: bool, scene
     ctx = RunContext(cfg, backend, train, test, priors, box, log, progress=progress_enabled(quiet),
                      family=recipe_family(cfg.recipe, scene.kind))
     ctx.timings.update(timings)
+    ctx.confidences = confidences
     ctx.in_memory = in_memory
     return ctx, settings, scene, tr_idx, te_idx
 

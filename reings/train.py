@@ -235,11 +235,24 @@ def _initial_state(init: Gaussians, cfg: TrainConfig, checkpoint: str | None):
     return state, rng, history
 
 
+def _depth_weights(targets, confidence, strength: float):
+    """Per view the depth loss's per-pixel weights (reference_loss.depth_confidence_weights), or
+    None: unweighted when the strength is 0 or no view has a confidence."""
+    if not strength or confidence is None or all(c is None for c in confidence):
+        return None
+    if len(confidence) != len(targets):
+        raise ValueError(f"fit: {len(confidence)} depth confidences for {len(targets)} depth targets")
+    from .backends.reference_loss import depth_confidence_weights
+
+    return [None if c is None or t is None else depth_confidence_weights(c, strength)
+            for t, c in zip(targets, confidence)]
+
+
 def fit(views, config: TrainConfig, device: str = "pocl", init: Gaussians | None = None,
         depth_targets=None, progress: bool = False, checkpoint: str | None = None,
         checkpoint_every: int = 250, eval_fn=None, eval_every: int = 0, log_every: int = 10,
         desc: str = "fit", extent: float | None = None, engine: str = "auto", adam: str = "auto",
-        profile: dict | None = None) -> FitResult:
+        profile: dict | None = None, depth_confidence=None) -> FitResult:
     """Optimise Gaussians on the training views.
 
     views: a `Scene` holding ONLY the training views (`scene.subset(train)`), or a list of
@@ -247,6 +260,8 @@ def fit(views, config: TrainConfig, device: str = "pocl", init: Gaussians | None
     config: a TrainConfig (`reings.config.preset("dngaussian")`, ...).
     init: initial Gaussians (required).
     depth_targets: per view [H,W] depth-like maps (a depth prior), or None (no depth terms).
+    depth_confidence: per view None / [H,W] confidence in [0, 1] of the depth targets (the stereo
+        prior's), or None; `LossConfig.depth_confidence` says how much it weights the depth loss.
     checkpoint: path of an .npz; if it exists the fit resumes from it (same seed, device and
         engine give the same result as an uninterrupted run); it is rewritten every
         `checkpoint_every` its.
@@ -296,7 +311,8 @@ def fit(views, config: TrainConfig, device: str = "pocl", init: Gaussians | None
         trainer.upload_bg_masks(bg_masks)
     if depth_targets is not None and (L.hard_depth or L.soft_depth):
         trainer.upload_depth_targets(depth_targets, [(c.height, c.width) for c in cameras],
-                                     smooth=L.depth_smooth_weight != 0)
+                                     smooth=L.depth_smooth_weight != 0,
+                                     weights=_depth_weights(depth_targets, depth_confidence, L.depth_confidence))
     book = _Bookkeeping(cfg, state, history, rng, t0, progress, desc, checkpoint, checkpoint_every,
                         eval_fn, eval_every, log_every,
                         sync=lambda params_only: trainer.download(state, params_only=params_only))

@@ -262,6 +262,98 @@ def test_kernel_gradient_fd(device, mode):
         fd = _fd(f, d, i)
         assert abs(fd - g[i]) <= 1e-5 * abs(fd) + 1e-6 * scale, (i, fd, g[i])
     assert not g[8:, :].any() and not g[:, 8:].any()
+
+
+# {{{ per-pixel weights (the stereo prior's confidence: LossConfig.depth_confidence)
+def _weight(h, w, rng):
+    """Confidence-like weights: zeros, ones and values between (the stereo prior's map is 0 where
+    it filled the depth and clip(NCC, 0, 1) times the agreeing fraction elsewhere)."""
+    c = rng.uniform(0, 1, (h, w))
+    c[rng.uniform(0, 1, (h, w)) < 0.3] = 0.0
+    c[rng.uniform(0, 1, (h, w)) < 0.2] = 1.0
+    return c.astype(np.float32)
+
+
+@pytest.mark.parametrize("h,w,pl,pg,kind", [CASES[0], CASES[2], CASES[4], (378, 504, 5, 17, "structured")])
+def test_weighted_matches_reference(device, h, w, pl, pg, kind):
+    """Weights on the selected elements' squared errors: kernel against the float64 twin, both
+    dl_grad schedules, and the weights really change the result."""
+    rng = np.random.default_rng([h, w, pl, pg, 5])
+    d, t = _inputs(kind, h, w, rng)
+    wt = _weight(h, w, rng)
+    with warnings.catch_warnings(), np.errstate(all="ignore"):
+        warnings.simplefilter("ignore", RuntimeWarning)
+        want = R.global_local_depth_loss(d, t, pl, pg, MARGIN, 0.1, 1.0, weight=wt)
+    got = _dl(device)(d, t, pl, pg, MARGIN, weight=wt)
+    _check(got, want, LOSS_RTOL64, GRAD_RTOL64)
+    other = _dl(device, cpu_schedule=not _dl(device).cpu_schedule)(d, t, pl, pg, MARGIN, weight=wt)
+    np.testing.assert_array_equal(other[1], got[1])
+    plain = _dl(device)(d, t, pl, pg, MARGIN)
+    assert plain[0] != got[0] and not np.array_equal(plain[1], got[1])
+    _check(_dl(device, fp64=False)(d, t, pl, pg, MARGIN, weight=wt), want, LOSS_RTOL32, GRAD_RTOL32,
+           elementwise=False)
+
+
+def test_unit_weights_are_the_unweighted_loss_bit_for_bit(device):
+    """w = 1 everywhere (strength 0) multiplies by exactly 1: the kernel's bits are the unweighted
+    kernel's, and the twin's value is the unweighted twin's."""
+    rng = np.random.default_rng(11)
+    d, t = _inputs("structured", 45, 70, rng)
+    ones = R.depth_confidence_weights(rng.uniform(0, 1, (45, 70)), 0.0)
+    assert (ones == 1).all()
+    a = _dl(device)(d, t, 5, 17, MARGIN, weight=ones)
+    b = _dl(device)(d, t, 5, 17, MARGIN)
+    assert a[0] == b[0]
+    np.testing.assert_array_equal(a[1], b[1])
+    ra = R.global_local_depth_loss(d, t, 5, 17, MARGIN, weight=ones)
+    rb = R.global_local_depth_loss(d, t, 5, 17, MARGIN)
+    assert ra[0] == rb[0]
+    np.testing.assert_array_equal(ra[1], rb[1])
+
+
+def test_zero_weights_silence_the_term(device):
+    """All-zero weights: loss 0 and no gradient (the count of selected elements is unchanged)."""
+    rng = np.random.default_rng(12)
+    d, t = _inputs("random", 30, 40, rng)
+    z = np.zeros((30, 40), np.float32)
+    lk, gk = _dl(device)(d, t, 5, 7, MARGIN, weight=z)
+    assert lk == 0 and not gk.any()
+    lr, gr = R.global_local_depth_loss(d, t, 5, 7, MARGIN, weight=z)
+    assert lr == 0 and not gr.any()
+
+
+@pytest.mark.parametrize("mode", ["local", "global"])
+def test_weighted_reference_gradient_fd(mode):
+    """The weighted twin's hand-derived gradient against central differences of its loss (margin
+    0 keeps the mask fixed; global: the detached image std held fixed)."""
+    rng = np.random.default_rng(13)
+    d = rng.uniform(1, 3, (9, 11))
+    t = rng.uniform(0, 1, (9, 11))
+    wt = _weight(9, 11, rng).astype(np.float64)
+    s0 = d.std(ddof=1)
+
+    def f(z):
+        return R.depth_norm_loss_fwd_bwd(z, t, 4, 0.0, mode, None if mode == "local" else s0, weight=wt)[0]
+
+    _, g = R.depth_norm_loss_fwd_bwd(d, t, 4, 0.0, mode, None if mode == "local" else s0, weight=wt)
+    scale = np.abs(g).max()
+    assert scale > 0
+    for i in np.ndindex(d.shape):
+        fd = _fd(f, d, i)
+        assert abs(fd - g[i]) <= 1e-6 * abs(fd) + 1e-7 * scale, (i, fd, g[i])
+
+
+def test_confidence_weights():
+    c = np.array([[0.0, 0.5], [1.0, 2.0]])
+    np.testing.assert_array_equal(R.depth_confidence_weights(c, 1.0), np.float32([[0, 0.5], [1, 1]]))
+    np.testing.assert_allclose(R.depth_confidence_weights(c, 0.5), [[0.5, 0.75], [1, 1]])
+    for bad in (-0.1, 1.5, float("nan")):
+        with pytest.raises(ValueError, match="strength"):
+            R.depth_confidence_weights(c, bad)
+    with pytest.raises(ValueError, match="non-finite"):
+        R.depth_confidence_weights(np.array([[np.nan]]), 1.0)
+    with pytest.raises(ValueError, match="weight must be"):
+        R.global_local_depth_loss(np.ones((8, 8)), np.ones((8, 8)), 2, 2, 0.0, weight=np.ones((4, 4)))
 # }}}
 
 
@@ -380,6 +472,11 @@ for fp64 in (True, False):
         lk, gk = dl(d, t, 3, 5, 0.00025, smooth=(sw, 0.1))
         assert abs(lk - (lr + 0.1 * ls)) <= tol * abs(lr + 0.1 * ls), (fp64, cs, lk, lr + 0.1 * ls)
         assert np.linalg.norm(gk - (gr + 0.1 * gs)) <= tol * np.linalg.norm(gr + 0.1 * gs), (fp64, cs)
+        wt = rng.uniform(0, 1, (13, 11)).astype(np.float32)  # per-pixel weights (the prior's confidence)
+        lr, gr = R.global_local_depth_loss(d, t, 3, 5, 0.00025, weight=wt)
+        lk, gk = dl(d, t, 3, 5, 0.00025, weight=wt)
+        assert abs(lk - lr) <= tol * abs(lr), (fp64, cs, lk, lr)
+        assert np.linalg.norm(gk - gr) <= tol * np.linalg.norm(gr), (fp64, cs)
 print("ok")
 """
 
@@ -466,6 +563,38 @@ def test_depth_smooth_takes_part_in_the_fit(device, small_case, engine):
     b2 = _fit_small(small_case, device, replace(off, iterations=2), engine=engine)
     for k in a2.state.params:
         np.testing.assert_array_equal(a2.state.params[k], b2.state.params[k], err_msg=k)
+
+
+@pytest.mark.parametrize("engine", ["host", "device"])
+def test_depth_confidence_takes_part_in_the_fit(device, small_case, engine):
+    """LossConfig.depth_confidence with a confidence per view changes the fit; strength 0 (or no
+    confidence) leaves it bit-identical to the unweighted fit."""
+    from dataclasses import replace
+
+    scene, init, cfg = small_case
+    rng = np.random.default_rng(3)
+    conf = [_weight(*np.shape(t), rng) for t in scene.depths]
+    on = replace(cfg, loss=replace(cfg.loss, depth_confidence=1.0))
+    base = _fit_small(small_case, device, cfg, engine=engine)
+    weighted = _fit_small(small_case, device, on, engine=engine, depth_confidence=conf)
+    assert not np.array_equal(base.state.params["means"], weighted.state.params["means"])
+    for same in (_fit_small(small_case, device, cfg, engine=engine, depth_confidence=conf),
+                 _fit_small(small_case, device, on, engine=engine)):
+        for k in base.state.params:
+            np.testing.assert_array_equal(same.state.params[k], base.state.params[k], err_msg=k)
+
+
+def test_depth_confidence_engines_agree(device, small_case):
+    """The weighted depth passes: device engine against host engine (bit for bit on PoCL)."""
+    from dataclasses import replace
+
+    scene, init, cfg = small_case
+    rng = np.random.default_rng(4)
+    conf = [_weight(*np.shape(t), rng) for t in scene.depths]
+    on = replace(cfg, loss=replace(cfg.loss, depth_confidence=0.7))
+    dev = _fit_small(small_case, device, on, engine="device", depth_confidence=conf)
+    host = _fit_small(small_case, device, on, engine="host", depth_confidence=conf)
+    assert_engines_agree(device, host.state, dev.state, "depth_confidence")
 
 
 def test_device_engine_checks_target_shapes(device, small_case):

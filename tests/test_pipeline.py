@@ -221,3 +221,44 @@ def test_new_inputs_come_from_the_training_views_only(tmp_path, monkeypatch):
     train_ims = {np.asarray(scene.images[i], np.float32).tobytes() for i in tr}
     assert seen_cams and all(c == train_cams for c in seen_cams)
     assert seen_ims and set(seen_ims) <= train_ims
+
+
+def test_depth_confidence_comes_from_the_training_views_only(tmp_path, monkeypatch):
+    """--depth-confidence: the confidence maps that weight the depth loss are the stereo prior's,
+    computed from the training views only, and reach every fit that has depth terms; the setting is
+    part of the run's settings (a resume with another value is refused) and of each fit's config."""
+    import reings.data.depth_prior as DP
+    import reings.train as T
+    from reings.data.splits import few_shot_split
+
+    seen_ims, got = [], []
+    compute = DP.DepthPrior.compute
+
+    def spy_compute(self, scene_train, return_confidence=False):
+        seen_ims.extend(np.asarray(im, np.float32).tobytes() for im in scene_train.images)
+        return compute(self, scene_train, return_confidence)
+
+    fit = T.fit
+
+    def spy_fit(*a, depth_confidence=None, **k):
+        got.append((k.get("depth_targets") is not None, depth_confidence, a[1].loss.depth_confidence))
+        return fit(*a, depth_confidence=depth_confidence, **k)
+
+    monkeypatch.setattr(DP.DepthPrior, "compute", spy_compute)
+    monkeypatch.setattr("reings.pipeline.fit", spy_fit)
+    monkeypatch.setenv("REINGS_CACHE_DIR", str(tmp_path / "cache"))
+    r = reings.run(method="reings", iterations=4, depth_prior="stereo", depth_confidence=0.5, quiet=True,
+                   with_lpips=False, eval_every=0, out=str(tmp_path / "c"))
+    scene = reings.make_procedural_scene()
+    tr, _ = few_shot_split(scene, 3)
+    assert seen_ims and set(seen_ims) <= {np.asarray(scene.images[i], np.float32).tobytes() for i in tr}
+    with_depth = [(c, a) for has, c, a in got if has]
+    assert with_depth and all(c is not None and len(c) == 3 and a == 0.5 for c, a in with_depth)
+    assert all(0 <= float(np.min(m)) and float(np.max(m)) <= 1 for c, _ in with_depth for m in c)
+    assert r.metrics["config"]["depth_confidence"] == 0.5
+    from reings.pipeline import run_settings
+
+    # the resume guard compares these settings: another strength is another run; 0 adds no key
+    # (older run folders stay resumable)
+    assert run_settings(RunConfig(depth_confidence=1.0).resolved(), "procedural")["depth_confidence"] == 1.0
+    assert "depth_confidence" not in run_settings(RunConfig().resolved(), "procedural")

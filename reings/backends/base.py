@@ -155,11 +155,12 @@ class Trainer(Protocol):
         Before densification, eval, checkpoints and the result. Host: nothing to copy."""
 
     def upload_depth_targets(self, targets: Sequence, shapes: Sequence[tuple[int, int]],
-                             smooth: bool = False) -> None:
+                             smooth: bool = False, weights: Sequence | None = None) -> None:
         """The training views' depth targets ([H,W] each, or None for a view without one), once
         per fit; `shapes` the views' (H, W), checked (ValueError). smooth: also prepare each view's
         depth_smooth weights (reference_loss.DepthSmoothWeights), which `depth_loss` needs for a
-        non-zero w_smooth."""
+        non-zero w_smooth. weights: None, or per view None / [H,W] per-pixel weights in [0, 1] of
+        the depth loss (reference_loss.depth_confidence_weights of the prior's confidence)."""
 
     def forward(self, cam: Camera, k: int, background: Sequence[float], near: float,
                 opacity_override: float | None = None) -> Frame:
@@ -321,9 +322,11 @@ class Backend(Protocol):
         """(w_l1 * L1 + w_ssim * (1 - SSIM), float32 dL/d rgb) of host [H,W,3] images."""
 
     def depth_loss(self, depth: np.ndarray, target: np.ndarray, p_local: int, p_global: int, margin: float,
-                   w_local: float = 0.1, w_global: float = 1.0, smooth=None) -> tuple[float, np.ndarray]:
+                   w_local: float = 0.1, w_global: float = 1.0, smooth=None,
+                   weight: np.ndarray | None = None) -> tuple[float, np.ndarray]:
         """(DNGaussian's depth loss, float32 dL/d depth) of a host [H,W] depth against its target;
-        smooth: None or (reference_loss.DepthSmoothWeights, w_smooth) for the depth_smooth term."""
+        smooth: None or (reference_loss.DepthSmoothWeights, w_smooth) for the depth_smooth term;
+        weight: None or [H,W] per-pixel weights (reference_loss.depth_norm_loss_fwd_bwd)."""
 
     def view_warp(self, virt: np.ndarray, depth: np.ndarray, gt: np.ndarray, fx: float, baseline: float,
                   weight: float, smooth_weight: float) -> tuple[dict, np.ndarray, np.ndarray]:

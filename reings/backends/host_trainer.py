@@ -94,14 +94,20 @@ class HostTrainer:
         if not params_only:
             state.stats.update({k: v.copy() for k, v in src.stats.items()})
 
-    def upload_depth_targets(self, targets, shapes, smooth: bool = False) -> None:
-        """Trainer.upload_depth_targets: the targets are used as given."""
-        self.targets, self.smooth = [], []
-        for i, (t, hw) in enumerate(zip(targets, shapes)):
+    def upload_depth_targets(self, targets, shapes, smooth: bool = False, weights=None) -> None:
+        """Trainer.upload_depth_targets: the targets (and weights, as float32) are used as given."""
+        self.targets, self.smooth, self.dweights = [], [], []
+        weights = [None] * len(targets) if weights is None else list(weights)
+        if len(weights) != len(targets):
+            raise ValueError(f"{len(weights)} depth weights for {len(targets)} depth targets")
+        for i, (t, hw, wt) in enumerate(zip(targets, shapes, weights)):
             if t is not None and np.shape(t) != tuple(hw):
                 raise ValueError(f"depth target {i} has shape {np.shape(t)}, its view is {tuple(hw)}")
+            if wt is not None and np.shape(wt) != tuple(hw):
+                raise ValueError(f"depth weight {i} has shape {np.shape(wt)}, its view is {tuple(hw)}")
             self.targets.append(t)
             self.smooth.append(DepthSmoothWeights(t) if smooth and t is not None else None)
+            self.dweights.append(None if wt is None or t is None else np.ascontiguousarray(wt, np.float32))
 
     def read_params(self, names) -> dict:
         """Trainer.read_params: the state's own arrays (read only)."""
@@ -141,7 +147,7 @@ class HostTrainer:
                 raise RuntimeError("depth smoothness needs upload_depth_targets(..., smooth=True)")
             smooth = (self.smooth[view], w_smooth)
         self._depth_loss, v = self.b.depth_loss(fr.out.depth, self.targets[view], p_local, p_global, margin,
-                                                w_local, w_global, smooth)
+                                                w_local, w_global, smooth, self.dweights[view])
         return v
 
     def read_depth_loss(self) -> float:

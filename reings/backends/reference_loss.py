@@ -166,7 +166,8 @@ def _normalize_bwd(g: np.ndarray, P: np.ndarray, cache, local: bool) -> np.ndarr
 
 
 def depth_norm_loss_fwd_bwd(depth: np.ndarray, target: np.ndarray, patch: int, margin: float,
-                            mode: str = "local", image_std: float | None = None) -> tuple[float, np.ndarray]:
+                            mode: str = "local", image_std: float | None = None,
+                            weight: np.ndarray | None = None) -> tuple[float, np.ndarray]:
     """One DNGaussian depth term and its gradient w.r.t. the rendered `depth` [H, W].
 
     mode "local":  patch_norm_mse_loss        (per-patch std)
@@ -179,6 +180,11 @@ def depth_norm_loss_fwd_bwd(depth: np.ndarray, target: np.ndarray, patch: int, m
     finite-difference tests, which must hold detached quantities fixed).  NOT detached: the patch means, the per-patch stds and the 0.01 * std of
     all patch values.  Deviations: an empty mask gives loss 0 (torch: NaN) and a zero per-patch std
     gives that term zero gradient (torch: NaN).
+
+    `weight` (proposal, not DNGaussian's): None, or [H, W] per-pixel weights w in [0, 1] (the
+    stereo prior's confidence, `depth_confidence_weights`) on each selected element's squared
+    error: loss = sum over the mask of w (x_hat - y_hat)^2 / cnt, cnt still the number of selected
+    elements; the normalisation statistics stay unweighted. All-ones weights give the unweighted loss.
     """
     if mode not in ("local", "global"):
         raise ValueError(f"mode must be 'local' or 'global', got {mode!r}")
@@ -186,6 +192,10 @@ def depth_norm_loss_fwd_bwd(depth: np.ndarray, target: np.ndarray, patch: int, m
     target = np.asarray(target, np.float64)
     if depth.ndim != 2 or depth.shape != target.shape:
         raise ValueError(f"depth and target must be [H, W] of one shape, got {depth.shape} and {target.shape}")
+    if weight is not None:
+        weight = np.asarray(weight, np.float64)
+        if weight.shape != depth.shape:
+            raise ValueError(f"weight must be [H, W] = {depth.shape}, got {weight.shape}")
     loc = mode == "local"
     P = patchify(depth, patch)
     if not loc and image_std is None:
@@ -197,17 +207,35 @@ def depth_norm_loss_fwd_bwd(depth: np.ndarray, target: np.ndarray, patch: int, m
     cnt = int(mask.sum())
     if cnt == 0:
         return 0.0, np.zeros_like(depth)
-    loss = float((diff[mask] ** 2).sum() / cnt)
-    g = np.where(mask, 2.0 * diff / cnt, 0.0)
+    wp = np.ones_like(diff) if weight is None else patchify(weight, patch)
+    loss = float((wp[mask] * diff[mask] ** 2).sum() / cnt)
+    g = np.where(mask, 2.0 * wp * diff / cnt, 0.0)
     return loss, unpatchify(_normalize_bwd(g, P, cache, loc), patch, depth.shape)
 
 
 def global_local_depth_loss(depth, target, patch_local: int, patch_global: int, margin: float,
-                            w_local: float = 0.1, w_global: float = 1.0) -> tuple[float, np.ndarray]:
-    """DNGaussian's depth loss: w_local * local(patch_local) + w_global * global(patch_global)."""
-    l1, g1 = depth_norm_loss_fwd_bwd(depth, target, patch_local, margin, "local")
-    l2, g2 = depth_norm_loss_fwd_bwd(depth, target, patch_global, margin, "global")
+                            w_local: float = 0.1, w_global: float = 1.0,
+                            weight: np.ndarray | None = None) -> tuple[float, np.ndarray]:
+    """DNGaussian's depth loss: w_local * local(patch_local) + w_global * global(patch_global),
+    each term with the per-pixel `weight` of `depth_norm_loss_fwd_bwd` (None: unweighted)."""
+    l1, g1 = depth_norm_loss_fwd_bwd(depth, target, patch_local, margin, "local", weight=weight)
+    l2, g2 = depth_norm_loss_fwd_bwd(depth, target, patch_global, margin, "global", weight=weight)
     return w_local * l1 + w_global * l2, w_local * g1 + w_global * g2
+
+
+def depth_confidence_weights(confidence: np.ndarray, strength: float) -> np.ndarray:
+    """Per-pixel weights of the depth loss from a prior's confidence c in [0, 1]:
+    w = (1 - strength) + strength * c, float32 [H, W] (what the kernels read). strength 0 gives
+    all ones (the unweighted loss), 1 the confidence itself (LossConfig.depth_confidence)."""
+    if not 0.0 <= strength <= 1.0:
+        raise ValueError(f"depth confidence strength must be in [0, 1], got {strength}")
+    c = np.asarray(confidence, np.float64)
+    if c.ndim != 2:
+        raise ValueError(f"confidence must be [H, W], got shape {c.shape}")
+    if not np.isfinite(c).all():
+        raise ValueError("confidence has non-finite values")
+    c = np.clip(c, 0.0, 1.0)
+    return np.ascontiguousarray((1.0 - strength) + strength * c, np.float32)
 # }}}
 
 # {{{ depth smoothness
@@ -278,11 +306,12 @@ class DepthSmoothWeights:
 
 
 def depth_loss(depth: np.ndarray, target: np.ndarray, p_local: int, p_global: int, margin: float,
-               w_local: float = 0.1, w_global: float = 1.0, smooth=None) -> tuple[float, np.ndarray]:
+               w_local: float = 0.1, w_global: float = 1.0, smooth=None,
+               weight: np.ndarray | None = None) -> tuple[float, np.ndarray]:
     """The reference backend's depth loss: (loss, float32 dL/d depth) of `global_local_depth_loss`
-    plus, with `smooth` = (DepthSmoothWeights, w_smooth) and w_smooth != 0, w_smooth times
-    `depth_smooth_fwd_bwd`."""
-    loss, v = global_local_depth_loss(depth, target, p_local, p_global, margin, w_local, w_global)
+    (per-pixel `weight` or None) plus, with `smooth` = (DepthSmoothWeights, w_smooth) and
+    w_smooth != 0, w_smooth times `depth_smooth_fwd_bwd`."""
+    loss, v = global_local_depth_loss(depth, target, p_local, p_global, margin, w_local, w_global, weight)
     if smooth is not None and smooth[1] != 0:
         sw, ws = smooth
         ls, vs = depth_smooth_fwd_bwd(depth, sw.wx, sw.wy)

@@ -458,9 +458,9 @@ class OpenCLBackend:
         return self.photometric_kernels(rgb, gt, w_l1, w_ssim)
 
     def depth_loss(self, depth: np.ndarray, target: np.ndarray, p_local: int, p_global: int, margin: float,
-                   w_local: float = 0.1, w_global: float = 1.0, smooth=None):
+                   w_local: float = 0.1, w_global: float = 1.0, smooth=None, weight=None):
         """Backend.depth_loss on this device (host arrays uploaded, dL/d depth read back)."""
-        return self.depth_loss_kernels(depth, target, p_local, p_global, margin, w_local, w_global, smooth)
+        return self.depth_loss_kernels(depth, target, p_local, p_global, margin, w_local, w_global, smooth, weight)
 
     # ------------------------------------------------------------------------------------------
     # fused paths

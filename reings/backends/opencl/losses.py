@@ -155,7 +155,7 @@ class DepthLossCL:
         self._t = np.empty(8, self.real)  # read_loss's host words
 
     def enqueue(self, depth_buf, target_buf, v_buf, h: int, w: int, p_local: int, p_global: int,
-                margin: float, w_local: float = 0.1, w_global: float = 1.0, smooth=None):
+                margin: float, w_local: float = 0.1, w_global: float = 1.0, smooth=None, weight_buf=None):
         """Device-resident form: depth (rendered) and target are [H,W] float32 buffers of this
         device's context; dL/d depth is WRITTEN (overwritten, not added) into the [H,W] float32
         buffer v_buf; nothing is read back. The two term losses stay on the device for `read_loss`
@@ -163,7 +163,9 @@ class DepthLossCL:
         clamps them). `smooth`: None, or (wx_buf, wy_buf, scale) to add scale * the edge-aware
         smoothness numerator's gradient (scale = w_smooth / sum of the weights; weights [H,W]
         float32 from `reference_loss.DepthSmoothWeights`), fused into the gradient kernel; its loss is
-        computed only if `read_loss` is called. Returns the last kernel's event."""
+        computed only if `read_loss` is called. `weight_buf`: None, or an [H,W] float32 buffer of
+        per-pixel weights in [0, 1] on each selected element's squared error (the depth prior's
+        confidence: reference_loss.depth_norm_loss_fwd_bwd(weight=)). Returns the last kernel's event."""
         h, w, pl, pg = int(h), int(w), int(p_local), int(p_global)
         for p in (pl, pg):
             if not 1 <= p <= min(h, w):
@@ -183,13 +185,14 @@ class DepthLossCL:
         self._call("dl_block_stats", q, (-(-bcap // lw) * lw, 6), (lw, 1), depth_buf, target_buf, bstats, *geo)
         self._call("dl_reduce_stats", q, (wg, 6), (wg, 1), bstats, sstats, *geo)
         mt = max(ml, mg)
+        wb, has_wt = (target_buf, i32(0)) if weight_buf is None else (weight_buf, i32(1))  # a dummy is never read
         self._call("dl_patch_terms", q, (-(-mt // lw) * lw, 2), (lw, 1), depth_buf, target_buf, bstats, sstats,
-                   pcnt, prec, r(margin), *geo)
+                   pcnt, prec, r(margin), *geo, wb, has_wt)
         self._call("dl_reduce_terms", q, (wg, 2), (wg, 1), sstats, pcnt, prec, pcoef, tstats, *geo)
         gg, gl = ((-(-h // lw) * lw,), (lw,)) if self.cpu_schedule else ((-(-w // lw) * lw, h), (lw, 1))
         swx, swy, ss = (target_buf, target_buf, 0.0) if smooth is None else smooth  # dummies are never read
         ev = self._call("dl_grad", q, gg, gl, depth_buf, target_buf, prec, pcoef, tstats, v_buf, r(margin),
-                        r(w_local), r(w_global), *geo, swx, swy, r(ss))
+                        r(w_local), r(w_global), *geo, swx, swy, r(ss), wb, has_wt)
         self._weights = (float(w_local), float(w_global))
         self._smooth = None if smooth is None or ss == 0 else (depth_buf, swx, swy, h, w, float(ss))
         return ev
@@ -227,9 +230,10 @@ class DepthLossCL:
         return self._t.reshape(2, 4).astype(np.float64)
 
     def __call__(self, depth: np.ndarray, target: np.ndarray, p_local: int, p_global: int, margin: float,
-                 w_local: float = 0.1, w_global: float = 1.0, smooth=None) -> tuple[float, np.ndarray]:
+                 w_local: float = 0.1, w_global: float = 1.0, smooth=None,
+                 weight: np.ndarray | None = None) -> tuple[float, np.ndarray]:
         """Host form: (loss, v_depth float32 [H, W]) of numpy [H, W] inputs (uploaded as float32);
-        `smooth`: None or (DepthSmoothWeights, w_smooth)."""
+        `smooth`: None or (DepthSmoothWeights, w_smooth); `weight`: None or [H, W] per-pixel weights."""
         cl, q = self.cl, self.handle.queue
         d = np.ascontiguousarray(depth, np.float32)
         t = np.ascontiguousarray(target, np.float32)
@@ -249,7 +253,14 @@ class DepthLossCL:
             cl.enqueue_copy(q, bx, sw.wx)
             cl.enqueue_copy(q, by, sw.wy)
             sm = (bx, by, ws * sw.inv_sum)
-        self.enqueue(db, tb, vb, h, w, p_local, p_global, margin, w_local, w_global, sm)
+        wb = None
+        if weight is not None:
+            wa = np.ascontiguousarray(weight, np.float32)
+            if wa.shape != (h, w):
+                raise ValueError(f"depth loss: weight must be [H, W] = {(h, w)}, got {wa.shape}")
+            wb = self.mem.get("pixel", "dl_weight", h * w, 4)
+            cl.enqueue_copy(q, wb, wa)
+        self.enqueue(db, tb, vb, h, w, p_local, p_global, margin, w_local, w_global, sm, wb)
         v = np.empty((h, w), np.float32)
         cl.enqueue_copy(q, v, vb)  # blocking
         return self.read_loss(), v

@@ -305,17 +305,24 @@ class DeviceTrainer:
         """The frame's depth image [H,W] (a blocking read; the training passes never call it)."""
         return self._read(fr.bufs["out_depth"], (fr.height, fr.width), _F32)
 
-    def upload_depth_targets(self, targets, shapes, smooth: bool = False) -> None:
+    def upload_depth_targets(self, targets, shapes, smooth: bool = False, weights=None) -> None:
         """Trainer.upload_depth_targets: the depth targets of the training views ([H,W] each, or
         None) -> float32 device buffers, once per fit; `shapes` the views' (H, W), checked. smooth:
         also the edge weights of the depth_smooth term (DepthSmoothWeights), two more [H,W]
-        buffers per view."""
+        buffers per view. weights: None or per view None / [H,W] per-pixel depth-loss weights, one
+        more buffer per weighted view."""
         self.dloss = self.b.depth_loss_kernels
         self.dt = []
         self.ds = []  # per view: (wx_buf, wy_buf, 1 / sum of weights) or None
-        for i, (t, hw) in enumerate(zip(targets, shapes)):
+        self.dw = []  # per view: the per-pixel weight buffer or None
+        weights = [None] * len(targets) if weights is None else list(weights)
+        if len(weights) != len(targets):
+            raise ValueError(f"{len(weights)} depth weights for {len(targets)} depth targets")
+        for i, (t, hw, wt) in enumerate(zip(targets, shapes, weights)):
             if t is None:
                 self.dt.append(None)
+                self.ds.append(None)
+                self.dw.append(None)
                 continue
             a = np.ascontiguousarray(t, _F32)
             if a.shape != tuple(hw):
@@ -323,6 +330,15 @@ class DeviceTrainer:
             buf = self.mem.get("pixel", f"dt{i}", a.shape[0] * a.shape[1], 4)
             self._write(buf, a)
             self.dt.append(buf)
+            if wt is None:
+                self.dw.append(None)
+            else:
+                wa = np.ascontiguousarray(wt, _F32)
+                if wa.shape != a.shape:
+                    raise ValueError(f"depth weight {i} has shape {wa.shape}, its view is {tuple(hw)}")
+                wbuf = self.mem.get("pixel", f"dw{i}", wa.size, 4)
+                self._write(wbuf, wa)
+                self.dw.append(wbuf)
             if smooth:
                 sw = DepthSmoothWeights(a)
                 bx = self.mem.get("pixel", f"dswx{i}", a.size, 4)
@@ -348,7 +364,7 @@ class DeviceTrainer:
             bx, by, inv = self.ds[view]
             sm = (bx, by, w_smooth * inv)
         ev = self.dloss.enqueue(fr.bufs["out_depth"], self.dt[view], v, fr.height, fr.width, p_local, p_global,
-                                margin, w_local, w_global, sm)
+                                margin, w_local, w_global, sm, self.dw[view])
         if self.profile is not None:
             self._events.append(("depth_loss", ev))  # last kernel only: a lower bound
         return v
