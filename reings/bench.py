@@ -330,19 +330,43 @@ def print_table(records: list[dict], file=sys.stdout):
                   f"{_fmt(r.get('speedup_vs_numpy'), 2):>8} {_fmt(r.get('pipeline_two_sorts_ms')):>13}", file=file)
 
 
+def _int_at_least(lo: int):
+    """argparse type: an integer >= lo (the error names the value; argparse names the option)."""
+    def parse(text: str) -> int:
+        try:
+            v = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+        if v < lo:
+            raise argparse.ArgumentTypeError(f"must be >= {lo}, got {v}")
+        return v
+    return parse
+
+
+def _sh_list(text: str) -> list[int]:
+    """argparse type of --sh: a comma list of SH degrees 0..3."""
+    try:
+        degs = [int(s) for s in text.split(",") if s.strip()]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a comma list of SH degrees 0..3, got {text!r}") from None
+    if not degs or any(not 0 <= d <= 3 for d in degs):
+        raise argparse.ArgumentTypeError(f"SH degrees must lie in 0..3, got {text!r}")
+    return degs
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="reings bench", description=__doc__.split("\n\n")[0])
     ap.add_argument("--device", default="pocl", help="pocl, cuda, oclgrind or opencl:P:D")
     ap.add_argument("--scenes", default="A,B,C", help="comma list of docs/perf_notes.md §1.7 scenes")
-    ap.add_argument("--sh", default="0,3", help="comma list of SH degrees")
-    ap.add_argument("--n", type=int, default=None, help="override the Gaussian count (smoke runs)")
-    ap.add_argument("--warmup", type=int, default=8)
-    ap.add_argument("--repeats", type=int, default=40)
+    ap.add_argument("--sh", default=[0, 3], type=_sh_list, help="comma list of SH degrees (0..3)")
+    ap.add_argument("--n", type=_int_at_least(1), default=None, help="override the Gaussian count (smoke runs)")
+    ap.add_argument("--warmup", type=_int_at_least(0), default=8)
+    ap.add_argument("--repeats", type=_int_at_least(1), default=40)
     ap.add_argument("--sort", choices=("all", "ours", "none"), default="all",
                     help="sort comparison: numpy + ours + pyopencl RadixSort, numpy + ours, or none")
-    ap.add_argument("--sort-n", type=int, default=1_000_000, help="synthetic key count (0: skip)")
+    ap.add_argument("--sort-n", type=_int_at_least(0), default=1_000_000, help="synthetic key count (0: skip)")
     ap.add_argument("--reference", choices=("crop", "none"), default="crop")
-    ap.add_argument("--crop", type=int, default=96, help="crop size for the reference comparison")
+    ap.add_argument("--crop", type=_int_at_least(1), default=96, help="crop size for the reference comparison")
     ap.add_argument("--pairs", choices=("reference", "estimate", "none"), default="reference")
     ap.add_argument("--step", action="store_true",
                     help="also time the device engine's training step (forward, L1, backward, Adam kernel: "
@@ -368,7 +392,7 @@ def main(argv=None) -> int:
 
     for scene in [s.strip() for s in args.scenes.split(",") if s.strip()]:
         pairs = None
-        for sh in [int(s) for s in args.sh.split(",") if s.strip()]:
+        for sh in args.sh:
             rec = bench_config(be, scene, sh, args)
             if args.pairs != "none" and pairs is None:
                 g, cam = perf_scene(scene, sh_degree=0, n=args.n)

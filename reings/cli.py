@@ -57,8 +57,10 @@ def _parse_size(text: str) -> tuple[int, int]:
         w, h = (int(v) for v in text.lower().split("x"))
     except ValueError:
         raise CLIError(f"--size {text!r}: expected WIDTHxHEIGHT, e.g. 504x378") from None
-    if w < 1 or h < 1 or w > 16384 or h > 16384:
-        raise CLIError(f"--size {text!r}: width and height must lie in 1..16384")
+    from .video import MAX_SIZE
+
+    if w < 1 or h < 1 or w > MAX_SIZE or h > MAX_SIZE:
+        raise CLIError(f"--size {text!r}: width and height must lie in 1..{MAX_SIZE}")
     return w, h
 
 
@@ -75,10 +77,11 @@ def _parse_background(text: str) -> tuple[float, float, float]:
 def _cmd_render(args) -> int:
     import os
 
-    from .video import render_path
+    from .paths import MAX_FRAMES
+    from .video import FOURCC, check_codec, render_path
 
-    if args.frames < 1:
-        raise CLIError(f"--frames must be >= 1, got {args.frames}")
+    if not 1 <= args.frames <= MAX_FRAMES:
+        raise CLIError(f"--frames must be >= 1 and <= {MAX_FRAMES} (every frame is held in memory), got {args.frames}")
     if not args.fps > 0:
         raise CLIError(f"--fps must be positive, got {args.fps}")
     size = _parse_size(args.size) if args.size else None
@@ -86,13 +89,19 @@ def _cmd_render(args) -> int:
     path = "cameras" if args.cameras else args.path
     if not args.out and not args.frames_dir:
         raise CLIError("nothing to write: pass --out VIDEO and/or --frames-dir DIR")
-    from .video import FOURCC
-
     for p in (args.out, args.depth_out):
         if p and os.path.splitext(p)[1].lower() not in FOURCC:
             raise CLIError(f"{p}: unknown video extension (use {', '.join(FOURCC)})")
         if p and os.path.exists(p) and not args.overwrite:
             raise CLIError(f"{p} exists; pass --overwrite to replace it")
+        if p and not os.path.isdir(os.path.dirname(os.path.abspath(p))):  # before rendering, not after
+            raise CLIError(f"{p}: folder {os.path.dirname(os.path.abspath(p))} does not exist")
+    if args.out and args.depth_out and os.path.abspath(args.out) == os.path.abspath(args.depth_out):
+        raise CLIError(f"--out and --depth-out name the same file {args.out}; give the depth video its own name")
+    _check_frames_dir(args.frames_dir, args.overwrite)
+    for p in (args.out, args.depth_out):  # no codec: say so before rendering, not after
+        if p:
+            check_codec(p)
     pf = render_path(args.run, path=path, frames=args.frames, size=size, cameras=args.cameras,
                      device=args.device, background=bg, depth=bool(args.depth_out))
     h, w = pf.frames[0].shape[:2]
@@ -108,6 +117,19 @@ def _cmd_render(args) -> int:
     return 0
 
 
+def _check_frames_dir(folder, overwrite: bool) -> None:
+    """--frames-dir: a folder (or nothing yet) without frames of an earlier render, unless --overwrite."""
+    import os
+
+    if not folder:
+        return
+    if os.path.exists(folder) and not os.path.isdir(folder):
+        raise CLIError(f"--frames-dir {folder}: exists and is not a folder")
+    if not overwrite and os.path.isdir(folder) and any(n.startswith("frame_") and n.endswith(".png")
+                                                       for n in os.listdir(folder)):
+        raise CLIError(f"--frames-dir {folder}: holds frames of an earlier render; pass --overwrite to replace them")
+
+
 def _cmd_process(args) -> int:
     from .data.process import main_process
 
@@ -115,7 +137,16 @@ def _cmd_process(args) -> int:
 
 
 def _cmd_view(args) -> int:
+    import socket
+
     from .viewer import main_view
+
+    if not 1 <= args.port <= 65535:
+        raise CLIError(f"--port must lie in 1..65535, got {args.port}")
+    try:
+        socket.getaddrinfo(args.host, args.port)
+    except (OSError, UnicodeError) as e:  # socket.gaierror is an OSError
+        raise CLIError(f"--host {args.host!r}: not an address this machine can listen on ({e})") from None
 
     try:
         return main_view(args)
@@ -338,7 +369,7 @@ def build_parser() -> argparse.ArgumentParser:
     v.add_argument("--out", metavar="VIDEO", help="video file (.mp4, .avi, ...)")
     v.add_argument("--depth-out", metavar="VIDEO", help="also a colour-mapped depth video")
     v.add_argument("--frames-dir", metavar="DIR", help="also one PNG per frame in DIR")
-    v.add_argument("--overwrite", action="store_true", help="replace existing video files")
+    v.add_argument("--overwrite", action="store_true", help="replace existing video files and --frames-dir frames")
     v.set_defaults(func=_cmd_render)
 
     w = sub.add_parser("view", help="an interactive viewer of a run or a .ply in the browser (extra: view)",

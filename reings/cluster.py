@@ -148,8 +148,9 @@ def run_grid(client, jobs, gpu_only: bool = False, quiet: bool = False, say=prin
     [(out, error)] of the failed runs."""
     distributed = _distributed()
     todo = [(ds, s, cfg) for ds, s, cfg in jobs if not os.path.exists(os.path.join(cfg.output.out, "metrics.json"))]
+    nworkers = len(client.scheduler_info().get("workers", {}))
     say(f"{len(jobs)} run(s), {len(jobs) - len(todo)} finished already; {len(todo)} to do on "
-        f"{len(client.scheduler_info().get('workers', {}))} worker(s); dashboard: {client.dashboard_link}")
+        f"{nworkers} worker(s); dashboard: {client.dashboard_link}")
     res = {"GPU": 1} if gpu_only else {"RUN": 1}
     futs = {}
     for ds, s, cfg in todo:
@@ -178,7 +179,9 @@ def run_grid(client, jobs, gpu_only: bool = False, quiet: bool = False, say=prin
         if bar is not None:
             el = time.perf_counter() - t0
             left = len(todo) - done - len(failed)
-            bar.set_postfix_str(f"done {done} failed {len(failed)} running {min(left, len(futs))} "
+            # at most one run per worker runs at a time (each task asks for the whole RUN/GPU resource)
+            running = min(left, len(client.scheduler_info().get("workers", {})) or nworkers)
+            bar.set_postfix_str(f"done {done} failed {len(failed)} running {running} "
                                 f"ETA {el / max(done + len(failed), 1) * left:.0f} s")
             bar.update(1)
     if bar is not None:
@@ -194,6 +197,8 @@ def main_worker(args) -> int:
     runs = int(getattr(args, "runs", 1))
     if runs < 1:
         raise ClusterError(f"--runs {runs}: needs K >= 1")
+    if args.pocl_threads < 0:
+        raise ClusterError(f"--pocl-threads {args.pocl_threads}: needs N >= 0 (0: all cores)")
     distributed = _distributed()
     from .backends import get_backend
 
@@ -208,8 +213,17 @@ def main_worker(args) -> int:
         nannies = [distributed.Nanny(args.scheduler, nthreads=1, resources=res, env=env,
                                      name=(f"{args.name}-{i}" if runs > 1 else args.name) if args.name else None)
                    for i in range(runs)]
-        for n in nannies:
-            await n
+        try:
+            for n in nannies:
+                await n
+        except (OSError, RuntimeError) as e:  # distributed: "Nanny failed to start." (no scheduler there, ...)
+            for n in nannies:
+                try:
+                    await n.close()
+                except Exception:  # noqa: BLE001 - best effort, the start already failed
+                    pass
+            raise ClusterError(f"--scheduler {args.scheduler}: the worker could not start ({e}); is a scheduler "
+                               "listening there?") from None
         print(f"reings worker on {args.device} ({', '.join(f'{k}={v}' for k, v in res.items())}"
               f"{f', {runs} runs at once' if runs > 1 else ''}) -> {args.scheduler}", flush=True)
         try:

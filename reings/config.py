@@ -416,11 +416,11 @@ class ReInGSConfig:
     """ReInGS re-initialisation (paper §3): EHPS, IVPS, CVPS, and the final prune."""
 
     gamma: float = opt(1.4, "EHPS: expansion of the SfM box about its centre", cli="--ehps-gamma",
-                       check=lambda v: None if v > 0 else f"must be > 0, got {v}")
+                       check=lambda v: None if 0 < v < math.inf else f"must be > 0 and finite, got {v}")
     beta1: float = opt(200.0, "EHPS: uniform grid points = beta1 * max side of the expanded box", cli="--ehps-beta1",
-                       check=at_least(0))
+                       check=finite_nonneg)
     beta2: float = opt(50.0, "EHPS: uniform random points = beta2 * max side of the expanded box", cli="--ehps-beta2",
-                       check=at_least(0))
+                       check=finite_nonneg)
     min_init_points: int = opt(2000, "EHPS: floor on the number of points (scenes in small units; keeps the 4:1 "
                                      "grid:random ratio)", cli="--ehps-min-points", check=at_least(1))
     delta: float = opt(0.03, "IVPS: weight of the depth-consistency score Omega_D in Omega_P (Eq. 6)",
@@ -622,6 +622,8 @@ def with_values(cfg, values: dict):
     kw = {}
     for head, sub in nested.items():
         cur = sub.pop("", getattr(cfg, head))
+        if sub and not is_dataclass(cur):  # e.g. run(output=5, out=...): name the section, not dataclasses
+            raise ValueError(f"{head} must be {type_name(_hints(type(cfg))[head])}, got {cur!r}")
         kw[head] = with_values(cur, sub) if sub else cur
     return replace(cfg, **kw)
 

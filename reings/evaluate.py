@@ -8,9 +8,11 @@ Each run is `reings.pipeline.run(RunConfig)` into its own folder
 `--seeds 0,1,2` every cell of the table is the mean over seeds, with its min-max). The run options
 (`reings run`'s, generated from `reings.config.RunConfig`, or `--config run.toml`) apply to every
 run; eval sets the method, views, seed, data and folder of each. A run whose folder holds
-`metrics.json` is finished and skipped; one holding checkpoints is resumed. A run being worked on holds an exclusive lock (`fcntl.flock`, on Windows `msvcrt.locking`, on `<run>/.lock`, freed
-when its process ends however it ends), so several `reings eval` processes with the same
-arguments and different `--device` values share the work: each skips the runs another holds.
+`metrics.json` is finished and skipped; one holding checkpoints is resumed. A run being worked on holds an exclusive lock (`fcntl.flock`, on Windows `msvcrt.locking`, on
+`<run>/.lock`, freed when its process ends however it ends; reings/io/lock.py): a guard, so that
+no run is ever trained twice at once (a Dask task retried while its first worker still runs, or a
+second `reings eval` started on the same OUT). To share a grid between devices or machines, use
+`--cluster` (reings/cluster.py, docs/cluster.md), not several processes.
 
 After the runs (or alone, with `--table-only`) the table is rebuilt from every `metrics.json`
 under OUT: `OUT/results.json` and `OUT/results.md` in the paper's layout (rows = methods,
@@ -433,6 +435,9 @@ def plan(args, base) -> tuple[list, dict]:
     if bad:
         raise EvalError(f"--views: every count must be >= 2, got {bad}")
     seeds = parse_list(args.seeds, "seeds", int) or [base.seed]
+    bad = [s for s in seeds if s < 0]
+    if bad:
+        raise EvalError(f"--seeds: every seed must be >= 0, got {bad}")
     methods = {}  # label -> config with that method (ablations on top of the base switches)
     for name in parse_list(args.methods, "methods") or [base.label]:
         c = run_config(base, method=name)

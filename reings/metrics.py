@@ -222,6 +222,14 @@ def find_lpips_model(model=None, net: str = "vgg") -> Path:
     )
 
 
+def load_lpips_model(model=None, net: str = "vgg") -> Path:
+    """Find the LPIPS model (`find_lpips_model`) and load it now: a file that is not an LPIPS ONNX
+    model is a ValueError naming it before any work, not after a run's training. Returns its path."""
+    p = find_lpips_model(model, net)
+    _lpips_session(p)
+    return p
+
+
 _SHA256: dict[tuple, str] = {}
 
 

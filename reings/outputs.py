@@ -2,7 +2,8 @@
 
     check_out(out, settings, overwrite)     refuse a finished run (unless overwrite), an
                                             interrupted run of other settings or unknown settings
-                                            (fail closed); writes nothing
+                                            (fail closed), a symlink at checkpoints/, renders/,
+                                            depths/ or .previous-run; writes nothing
     prepare_out(out, settings, overwrite)   the same, then claim: with overwrite the previous run
                                             moves to out/.previous-run (finish_out deletes it after
                                             the new run's metrics.json, restore_out puts it back
@@ -75,6 +76,10 @@ def check_out(out: str, settings: dict, overwrite: bool) -> None:
     or with an unreadable checkpoints/run.json (unless overwrite: fail closed)."""
     if os.path.exists(out) and not os.path.isdir(out):
         raise NotADirectoryError(f"--out {out} exists and is not a folder")
+    for name in ("checkpoints", PREVIOUS) + RUN_FOLDERS:  # a run writes into --out, never through a planted link
+        if os.path.islink(os.path.join(out, name)):
+            raise ValueError(f"{os.path.join(out, name)} is a symlink; reings does not write through links in --out "
+                             "(remove it, or use another --out)")
     if overwrite:
         return
     if os.path.exists(os.path.join(out, "metrics.json")):
@@ -154,7 +159,7 @@ def finish_out(out: str) -> None:
     import shutil
 
     prev = os.path.join(out, PREVIOUS)
-    if os.path.isdir(prev):
+    if os.path.isdir(prev) and not os.path.islink(prev):
         shutil.rmtree(prev)
 
 
@@ -164,7 +169,7 @@ def restore_out(out: str) -> bool:
     import shutil
 
     prev = os.path.join(out, PREVIOUS)
-    if not os.path.isdir(prev):
+    if os.path.islink(prev) or not os.path.isdir(prev):  # a planted link is not a run of ours: never moved in
         return False
     for name in _old_run_entries(out):  # the failed run's partial outputs
         p = os.path.join(out, name)
@@ -205,27 +210,19 @@ def write_test_renders(out: str, names, rgbs, depths) -> None:
 
 
 def write_png_atomic(path: str, a: np.ndarray) -> None:
-    """cv2.imwrite through a unique temporary file in the same folder, renamed over `path`;
-    OSError naming the file when OpenCV reports failure (it returns False, it does not raise)."""
-    import tempfile
-
+    """`a` encoded as a PNG by OpenCV in memory, then written whole through `atomic_write` (a unique
+    temporary file in the same folder, renamed over `path`). cv2.imwrite is not used: it reports a
+    write the OS refuses (a full disk, a file-size limit) as success and leaves a truncated file.
+    OSError naming the file when OpenCV cannot encode the array or the OS refuses the write."""
     import cv2
 
-    from .io.files import _umask
+    from .io.files import atomic_write
 
-    fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix=".png", dir=os.path.dirname(os.path.abspath(path)))
-    os.close(fd)
-    try:
-        if not cv2.imwrite(tmp, np.ascontiguousarray(a)):
-            raise OSError(f"{path}: could not write the PNG (cv2.imwrite failed)")
-        os.chmod(tmp, 0o666 & ~_umask())
-        os.replace(tmp, path)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except OSError:
-            pass
-        raise
+    ok, buf = cv2.imencode(".png", np.ascontiguousarray(a))
+    if not ok:
+        raise OSError(f"{path}: could not write the PNG (cv2.imencode failed)")
+    with atomic_write(path, binary=True) as f:
+        f.write(buf.tobytes())
 
 
 def write_run_outputs(out: str, gaussians, metrics: dict, series: list, bounds: list, title: str) -> None:

@@ -230,6 +230,9 @@ def resize(cam: Camera, width: int, height: int) -> Camera:
     return Camera(K, cam.viewmat, int(width), int(height))
 
 
+MAX_FRAMES = 100_000  # a path's frames are rendered into memory before they are written
+
+
 def camera_path(kind: str, cams, frames: int, points=None, weights=None,
                 size: tuple[int, int] | None = None) -> list[Camera]:
     """`frames` cameras along path `kind` ('spiral', 'ellipse', 'interpolate') built from `cams`
@@ -237,8 +240,9 @@ def camera_path(kind: str, cams, frames: int, points=None, weights=None,
     Gaussian centres and opacities); `size` = (width, height), default the first camera's."""
     if kind not in PATHS:
         raise ValueError(f"camera path: unknown path {kind!r} (one of {', '.join(PATHS)})")
-    if int(frames) != frames or frames < 1:
-        raise ValueError(f"camera path: frames must be a positive integer, got {frames!r}")
+    if int(frames) != frames or not 1 <= frames <= MAX_FRAMES:
+        raise ValueError(f"camera path: frames must be a positive integer <= {MAX_FRAMES} (about an hour at 30 "
+                         f"frames/s; every frame is held in memory), got {frames!r}")
     cams = list(cams)
     if not cams:
         raise ValueError("camera path: no cameras to build it from")

@@ -524,14 +524,19 @@ def _check_extras(cfg: RunConfig) -> None:
         if cfg.output.out:
             raise MissingExtraError(f"writing the test renders into --out needs OpenCV: {EXTRAS_HINT} "
                                     "(or run without --out)")
-    if cfg.output.lpips and not have("onnxruntime"):
-        from .metrics import LPIPSModelNotFound, find_lpips_model
+    if not cfg.output.lpips:
+        return
+    from .metrics import LPIPSModelNotFound, find_lpips_model, load_lpips_model
 
-        try:
-            find_lpips_model()
-        except LPIPSModelNotFound:
-            return
+    try:
+        path = find_lpips_model()
+    except LPIPSModelNotFound:
+        if os.environ.get("REINGS_LPIPS_MODEL"):
+            raise  # a model named explicitly must be there (the message names it)
+        return  # no model on this machine: LPIPS is skipped and reported as such
+    if not have("onnxruntime"):
         raise MissingExtraError(f"LPIPS needs onnxruntime: {EXTRAS_HINT}, or pass --no-lpips")
+    load_lpips_model(path)  # a model that does not load is an error now, not after the training
 
 
 def _prepare(cfg: RunConfig, backend, prior, overwrite: bool, quiet: bool, scene=None):
@@ -575,6 +580,11 @@ def _prepare(cfg: RunConfig, backend, prior, overwrite: bool, quiet: bool, scene
 
     t = time.perf_counter()
     confidences = None  # per view [H, W] in [0, 1] (the stereo prior's) or None
+    # in-memory views with no output folder (reings.reconstruct): nothing is read from or written
+    # to the disk caches either
+    use_cache = not (in_memory and not cfg.output.out)
+    if not use_cache and getattr(prior, "cache", False):
+        prior.cache = False
     if cfg.depth_prior == "exact":
         priors = list(train.depths)
     else:
@@ -587,7 +597,7 @@ def _prepare(cfg: RunConfig, backend, prior, overwrite: bool, quiet: bool, scene
             f"the {cfg.depth_prior!r} prior has none, so the depth loss is unweighted")
     timings["depth_prior"] = time.perf_counter() - t
     t = time.perf_counter()
-    box = frusta_only_extent(train) if cfg.extent == "frusta" else sfm_extent(train)
+    box = frusta_only_extent(train) if cfg.extent == "frusta" else sfm_extent(train, cache=use_cache)
     timings["sfm"] = time.perf_counter() - t
     if cfg.output.out:  # nothing is written before every input has been read and checked
         prepare_out(cfg.output.out, settings, overwrite)

@@ -93,14 +93,45 @@ class TrainState:
 
     @classmethod
     def from_arrays(cls, d) -> "TrainState":
+        """The state `to_arrays` flattened; ValueError saying what is wrong with a damaged one (a
+        parameter missing, a shape or a row count that does not fit, a non-float array)."""
         names = [k.split("/", 1)[1] for k in d if k.startswith("param/")]
+        if sorted(names) != sorted(PARAM_NAMES):
+            raise ValueError(f"parameters {sorted(names)}, expected {sorted(PARAM_NAMES)}")
         params = {k: np.array(d[f"param/{k}"]) for k in names}
         adam = AdamState({k: np.array(d[f"exp_avg/{k}"]) for k in names},
                          {k: np.array(d[f"exp_avg_sq/{k}"]) for k in names},
                          {k: int(d[f"step/{k}"]) for k in names})
         stats = {k.split("/", 1)[1]: np.array(d[k]) for k in d if k.startswith("stat/")}
+        _check_arrays(params, adam, stats)
         return cls(params, adam, stats, int(d["iteration"]))
     # }}}
+
+
+# the shape of each parameter after its row count N (sh_rest: (K-1, 3) with K in SH_COUNTS)
+_TAILS = {"means": (3,), "quats": (4,), "log_scales": (3,), "opacity_logits": (), "sh_dc": (1, 3)}
+
+
+def _check_arrays(params: dict, adam: AdamState, stats: dict) -> None:
+    """Every array of a state read back from a file: float32-compatible, one row count N, each
+    parameter's shape, moments shaped like their parameter, statistics of N rows."""
+    n = params["means"].shape[0] if params["means"].ndim else -1
+    for k, a in params.items():
+        tail = _TAILS.get(k)
+        if tail is None:  # sh_rest
+            fits = a.ndim == 3 and a.shape[2] == 3 and 1 + a.shape[1] in SH_COUNTS
+        else:
+            fits = a.shape[1:] == tail
+        ok = a.dtype.kind == "f" and a.ndim >= 1 and a.shape[0] == n and fits
+        if not ok:
+            raise ValueError(f"parameter {k!r} has shape {a.shape} and dtype {a.dtype}, expected {n} rows of "
+                             f"{tail if tail is not None else '(K-1, 3)'} floats")
+        for what, m in (("exp_avg", adam.exp_avg[k]), ("exp_avg_sq", adam.exp_avg_sq[k])):
+            if m.shape != a.shape or m.dtype.kind != "f":
+                raise ValueError(f"{what} of {k!r} has shape {m.shape}, its parameter {a.shape}")
+    for k, a in stats.items():
+        if a.ndim < 1 or a.shape[0] != n:
+            raise ValueError(f"statistic {k!r} has shape {a.shape}, expected {n} rows")
 
 
 def _as_index(sel, n: int, what: str) -> np.ndarray:

@@ -34,8 +34,15 @@ ACCUM, COUNT, RADII = "grad2d_accum", "grad2d_count", "max_radii2d"
 STAT_DTYPES = {ACCUM: np.float32, COUNT: np.int32, RADII: np.float32}
 
 
+def _as_f32(name: str, a) -> np.ndarray:
+    try:
+        return np.ascontiguousarray(np.asarray(a, dtype=np.float32))
+    except (TypeError, ValueError) as e:  # strings, objects, ragged lists
+        raise ValueError(f"Gaussians.{name}: expected an array of numbers ({e})") from None
+
+
 def _f32(name: str, a, shape_tail: tuple, lead: int | None = None) -> np.ndarray:
-    a = np.ascontiguousarray(np.asarray(a, dtype=np.float32))
+    a = _as_f32(name, a)
     want = len(shape_tail) + 1
     if a.ndim != want or tuple(a.shape[1:]) != shape_tail or (lead is not None and a.shape[0] != lead):
         exp = ("N" if lead is None else str(lead),) + tuple(str(s) for s in shape_tail)
@@ -59,11 +66,11 @@ class Gaussians:
         object.__setattr__(self, "means", means)
         object.__setattr__(self, "quats", _f32("quats", self.quats, (4,), n))
         object.__setattr__(self, "log_scales", _f32("log_scales", self.log_scales, (3,), n))
-        op = np.ascontiguousarray(np.asarray(self.opacity_logits, dtype=np.float32))
+        op = _as_f32("opacity_logits", self.opacity_logits)
         if op.shape != (n,):
             raise ValueError(f"Gaussians.opacity_logits: expected shape ({n},), got {op.shape}")
         object.__setattr__(self, "opacity_logits", op)
-        sh = np.ascontiguousarray(np.asarray(self.sh, dtype=np.float32))
+        sh = _as_f32("sh", self.sh)
         if sh.ndim != 3 or sh.shape[0] != n or sh.shape[2] != 3 or sh.shape[1] not in SH_COUNTS:
             raise ValueError(f"Gaussians.sh: expected shape ({n}, K, 3) with K in {SH_COUNTS}, got {sh.shape}")
         object.__setattr__(self, "sh", sh)

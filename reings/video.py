@@ -78,6 +78,9 @@ def load_run(run_dir):
     return read_ply(ply), train
 
 
+MAX_SIZE = 16384  # the largest frame side `render_path` draws (and `reings render --size` takes)
+
+
 def _to_uint8(rgb: np.ndarray) -> np.ndarray:
     return np.clip(np.rint(rgb * 255.0), 0, 255).astype(np.uint8)
 
@@ -121,6 +124,12 @@ def render_path(model, path: str = "spiral", frames: int = 120, size: tuple[int,
     else:
         op = 1.0 / (1.0 + np.exp(-g.opacity_logits.astype(np.float64)))
         todo = camera_path(path, cams, frames, points=g.means, weights=op * (op > 0.1), size=size)
+    big = next((i for i, c in enumerate(todo) if max(c.width, c.height) > MAX_SIZE), None)
+    if big is not None:  # e.g. a cameras.json entry of 10^6 pixels: say so before any buffer is sized
+        src = (os.fspath(cameras) if isinstance(cameras, (str, os.PathLike)) else
+               os.path.join(os.fspath(model), "cameras.json") if recs is not None and cameras is None else "cameras=")
+        raise ValueError(f"render_path: frame {big} would be {todo[big].width}x{todo[big].height} (from {src}); "
+                         f"frames are at most {MAX_SIZE} pixels a side: pass size= (--size WxH)")
     backend = get_backend(device)
     bg = tuple(float(x) for x in np.asarray(background, np.float32).reshape(3))  # as reings.render takes it
     t = time.perf_counter()
@@ -155,6 +164,28 @@ def depth_colormap(depths) -> list:
 FOURCC = {".mp4": "mp4v", ".m4v": "mp4v", ".mov": "mp4v", ".avi": "MJPG", ".mkv": "MJPG"}
 
 
+def check_codec(path) -> None:
+    """Raise OSError, before any frame is rendered, when OpenCV's VideoWriter cannot encode `path`'s
+    extension on this machine (a 16x16 probe written to a temporary file beside `path`, then removed)."""
+    import cv2
+
+    path = os.fspath(path)
+    ext = os.path.splitext(path)[1].lower()
+    if ext not in FOURCC:
+        raise ValueError(f"{path}: unknown video extension {ext or '(none)'!r} (use {', '.join(FOURCC)})")
+    probe = os.path.join(os.path.dirname(os.path.abspath(path)), f".tmp-{os.getpid()}-probe{ext}")
+    vw = cv2.VideoWriter(probe, cv2.VideoWriter_fourcc(*FOURCC[ext]), 30.0, (16, 16))
+    try:
+        if not vw.isOpened():
+            raise OSError(f"{path}: OpenCV's VideoWriter cannot encode {ext} ({FOURCC[ext]}) here "
+                          f"(OpenCV {cv2.__version__} without that codec); try another extension, or "
+                          "--frames-dir for PNG frames")
+    finally:
+        vw.release()
+        if os.path.exists(probe):
+            os.unlink(probe)
+
+
 def write_video(path, frames, fps: float = 30.0) -> str:
     """Encode 8-bit RGB `frames` (all one size) with OpenCV's VideoWriter; the file appears whole
     (a temporary name in the same folder, then a rename) or not at all."""
@@ -186,6 +217,10 @@ def write_video(path, frames, fps: float = 30.0) -> str:
         vw.release()
         if not os.path.isfile(tmp) or os.path.getsize(tmp) == 0:
             raise OSError(f"{path}: OpenCV wrote no video data")
+        got = _count_frames(tmp)  # VideoWriter does not report a write the OS refused (a full disk)
+        if got != len(frames):
+            raise OSError(f"{path}: the video was not written whole ({got} of {len(frames)} frames read back; "
+                          "is the disk full?)")
         os.replace(tmp, path)
     except BaseException:
         vw.release()
@@ -193,6 +228,20 @@ def write_video(path, frames, fps: float = 30.0) -> str:
             os.unlink(tmp)
         raise
     return path
+
+
+def _count_frames(path: str) -> int:
+    """The frames OpenCV can read back from a video file (demuxed, not decoded)."""
+    import cv2
+
+    cap = cv2.VideoCapture(path)
+    n = 0
+    try:
+        while cap.isOpened() and cap.grab():
+            n += 1
+    finally:
+        cap.release()
+    return n
 
 
 def read_video(path) -> list:

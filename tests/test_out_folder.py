@@ -169,10 +169,11 @@ def test_unreadable_checkpoint_is_named(tmp_path):
 
 
 def test_failed_png_write_is_an_error(tmp_path, monkeypatch):
-    """Issue 14 item 8: cv2.imwrite returning False was ignored (exit 0, no renders)."""
+    """Issue 14 item 8: cv2.imwrite returning False was ignored (exit 0, no renders). PNGs are now
+    encoded in memory (cv2.imencode) and written through atomic_write: OpenCV's failure is an error."""
     import cv2
 
-    monkeypatch.setattr(cv2, "imwrite", lambda *a, **k: False)
+    monkeypatch.setattr(cv2, "imencode", lambda *a, **k: (False, None))
     out = tmp_path / "run"
     with pytest.raises(OSError, match=r"renders/.*\.png: could not write the PNG"):
         reings.run(out=str(out), **KW)
@@ -185,7 +186,7 @@ def test_cli_reports_a_failed_write_in_one_line(tmp_path, monkeypatch, capsys):
 
     from reings.cli import main
 
-    monkeypatch.setattr(cv2, "imwrite", lambda *a, **k: False)
+    monkeypatch.setattr(cv2, "imencode", lambda *a, **k: (False, None))
     rc = main(["run", "--method", "3dgs", "--iterations", "3", "--depth-prior", "none", "--no-lpips", "--eval-every", "0",
                "--quiet", "--out", str(tmp_path / "run")])
     err = capsys.readouterr().err

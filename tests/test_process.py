@@ -123,11 +123,20 @@ def test_process_refusals_lose_nothing(photos, tmp_path, capsys):
 
 
 def test_reconstruct_in_memory_writes_nothing(tmp_path, monkeypatch):
-    monkeypatch.chdir(tmp_path)
+    """No file anywhere: not in the working directory, not in the SfM or depth-prior caches (the
+    default stereo prior and the SfM box run; the cache folders must stay empty)."""
+    work, cache = tmp_path / "work", tmp_path / "cache"
+    work.mkdir()
+    cache.mkdir()
+    monkeypatch.chdir(work)
+    monkeypatch.setenv("REINGS_CACHE_DIR", str(cache))
     scene = reings.make_procedural_scene(n_views=3, width=48, height=36, supersample=1)
-    g = reings.reconstruct(scene.images, scene.cameras, bounds=scene.bounds, iterations=10, depth_prior="none")
+    g = reings.reconstruct(scene.images, scene.cameras, bounds=scene.bounds, iterations=10)
     assert isinstance(g, reings.Gaussians) and len(g) > 0
-    assert os.listdir(tmp_path) == []
+    assert os.listdir(work) == []
+    assert [str(p) for p in cache.rglob("*")] == []
+    g = reings.reconstruct(scene.images, scene.cameras, bounds=scene.bounds, iterations=10, depth_prior="none")
+    assert os.listdir(work) == [] and [str(p) for p in cache.rglob("*")] == []
     with pytest.raises(ValueError, match="3 images but 2 cameras"):
         reings.reconstruct(scene.images, scene.cameras[:2])
     with pytest.raises(ValueError, match="outside \\[0, 1\\]"):
@@ -147,3 +156,24 @@ def test_two_photos_make_a_scene(photos, tmp_path, capsys):
     assert len(sc) == 2
     d_est = np.linalg.norm(sc.cameras[0].center - sc.cameras[1].center)
     assert d_est > 0  # two distinct poses (the scale of a two-view model is arbitrary)
+
+
+def test_a_photo_that_does_not_register_is_named(photos, tmp_path, capsys):
+    """Four scene photos and one of noise (nothing to match): the error names the noise photo and
+    says why, exit 2, no scene written; --partial makes the scene from the four and lists the one
+    left out in process.json."""
+    root, scene = photos
+    mixed = tmp_path / "mixed"
+    _write_photos(mixed, scene, VIEWS)
+    noise = np.random.default_rng(0).integers(0, 256, (240, 320, 3), dtype=np.uint8)
+    cv2.imwrite(str(mixed / "zz_noise.png"), noise)
+    out = tmp_path / "s"
+    assert main(["process", str(mixed), "--out", str(out), "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert "zz_noise.png" in err and "did not register" in err and "--partial" in err, err
+    assert not out.exists()
+    assert main(["process", str(mixed), "--out", str(out), "--partial", "--quiet"]) == 0
+    info = json.loads((out / "process.json").read_text())
+    assert info["registered"] == [f"photo_{i:02d}.png" for i in VIEWS]
+    assert list(info["left_out"]) == ["zz_noise.png"] and info["left_out"]["zz_noise.png"]
+    assert len(reings.load_scene(str(out), dataset="colmap", factor=1)) == 4

@@ -184,3 +184,33 @@ def test_reings_export_ply_and_inria(tiny_run, tmp_path):
     assert len(cams) == 4 and set(cams[0]) >= {"id", "img_name", "width", "height", "position", "rotation", "fx", "fy"}
     assert (tmp_path / "i" / "cfg_args").read_text().startswith("Namespace(") and "sh_degree=3" in \
         (tmp_path / "i" / "cfg_args").read_text()
+
+
+def test_no_codec_is_said_before_rendering(tiny_run, tmp_path, capsys, monkeypatch):
+    """A machine whose OpenCV cannot encode the extension: one line naming the file and the codec,
+    exit 1, before any frame is rendered (render_path is never called), no file or temp left."""
+    import cv2
+
+    import reings.video as V
+
+    class Closed:  # a VideoWriter that could not open the codec
+        def __init__(self, *a, **k):
+            pass
+
+        def isOpened(self):
+            return False
+
+        def release(self):
+            pass
+
+    def no_render(*a, **k):
+        raise AssertionError("rendered before the codec was checked")
+
+    monkeypatch.setattr(cv2, "VideoWriter", Closed)
+    monkeypatch.setattr(V, "render_path", no_render)
+    out, _, _ = tiny_run
+    v = tmp_path / "fly.mp4"
+    assert main(["render", str(out), "--frames", "4", "--out", str(v)]) == 1
+    err = capsys.readouterr().err
+    assert "fly.mp4" in err and "cannot encode .mp4 (mp4v)" in err and "--frames-dir" in err, err
+    assert "Traceback" not in err and os.listdir(tmp_path) == []

@@ -95,7 +95,10 @@ def _intrinsics(meta, fr, w, h, where):
     if "fl_x" in meta or "fl_x" in fr:
         src = {**meta, **{k: v for k, v in fr.items() if k in ("fl_x", "fl_y", "cx", "cy", "w", "h") + DISTORTION}}
         try:
-            sw, sh = w / float(src.get("w", w)), h / float(src.get("h", h))
+            W0, H0 = float(src.get("w", w)), float(src.get("h", h))
+            if not (W0 > 0 and H0 > 0):
+                raise ValueError(f"w = {src.get('w')!r}, h = {src.get('h')!r}: the image size must be positive")
+            sw, sh = w / W0, h / H0
             fx, fy = float(src["fl_x"]) * sw, float(src.get("fl_y", src["fl_x"])) * sh
             cx = float(src["cx"]) * sw if "cx" in src else w / 2.0
             cy = float(src["cy"]) * sh if "cy" in src else h / 2.0
@@ -106,7 +109,13 @@ def _intrinsics(meta, fr, w, h, where):
             raise SceneError(f"{where}: k4 = {d[5]} (a fisheye or RADIAL k4 model) is not supported")
         dist = np.array(d[:5]) if any(d) else None
     elif "camera_angle_x" in meta:
-        fx = fy = 0.5 * w / np.tan(0.5 * float(meta["camera_angle_x"]))
+        try:
+            angle = float(meta["camera_angle_x"])
+        except (TypeError, ValueError):
+            raise SceneError(f"{where}: camera_angle_x must be a number, got {meta['camera_angle_x']!r}") from None
+        if not 0.0 < angle < np.pi:
+            raise SceneError(f"{where}: camera_angle_x must lie in (0, pi) radians, got {angle}")
+        fx = fy = 0.5 * w / np.tan(0.5 * angle)
         cx, cy, dist = w / 2.0, h / 2.0, None
     else:
         raise SceneError(f"{where}: no camera_angle_x or fl_x")
@@ -124,6 +133,10 @@ def _frame_view(path, meta, fr, where, white_background, downscale):
         raise SceneError(f"{where}: transform_matrix has shape {M.shape}, expected (4, 4)")
     if not np.all(np.isfinite(M)):
         raise SceneError(f"{where}: non-finite (NaN/inf) value in transform_matrix")
+    sv = np.linalg.svd(M[:3, :3], compute_uv=False)  # a rotation, up to the small uniform scale exports carry
+    if not sv[-1] > 0.0 or sv[0] / sv[-1] > 1.05:
+        raise SceneError(f"{where}: transform_matrix's 3x3 part is not a rotation (singular values "
+                         f"{', '.join(f'{v:.4g}' for v in sv)})")
     ipath = os.path.normpath(os.path.join(path, fp))
     if not os.path.splitext(ipath)[1]:
         ipath += ".png"

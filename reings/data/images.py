@@ -29,7 +29,8 @@ def list_images(folder: str) -> list[str]:
     """Image file names (not paths) in `folder`, sorted by name. Hidden files are skipped."""
     if not os.path.isdir(folder):
         raise SceneError(f"{folder}: image folder not found")
-    names = sorted(f for f in os.listdir(folder) if f.lower().endswith(IMAGE_EXTS) and not f.startswith("."))
+    names = sorted(f for f in os.listdir(folder) if f.lower().endswith(IMAGE_EXTS) and not f.startswith(".")
+                   and os.path.isfile(os.path.join(folder, f)))  # a folder named like an image is not one
     if not names:
         raise SceneError(f"{folder}: no image files ({', '.join(IMAGE_EXTS)})")
     return names
@@ -79,7 +80,10 @@ def read_image_raw(path: str) -> np.ndarray:
         raise SceneError(f"{path}: empty image file")
     _check_complete(path, data)
     buf = np.frombuffer(data, dtype=np.uint8)
-    img = cv2.imdecode(buf, cv2.IMREAD_UNCHANGED)
+    try:
+        img = cv2.imdecode(buf, cv2.IMREAD_UNCHANGED)
+    except cv2.error as e:  # e.g. a header claiming more pixels than OpenCV's limit (CV_IO_MAX_IMAGE_PIXELS)
+        raise SceneError(f"{path}: cannot decode image ({str(e).strip().splitlines()[-1]})") from None
     if img is None:
         raise SceneError(f"{path}: cannot decode image (corrupt or unsupported format)")
     if img.dtype == np.uint8:

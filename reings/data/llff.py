@@ -64,6 +64,13 @@ def _check_real(path: str, a: np.ndarray) -> None:
         raise SceneError(f"{path}: expected real numbers, got an array of dtype {a.dtype}")
 
 
+def _check_bounds(where: str, near_far) -> None:
+    """A row's (near, far) depth bounds: 0 < near < far (the scene box falls back to them)."""
+    near, far = (float(v) for v in near_far)
+    if not 0.0 < near < far:
+        raise SceneError(f"{where}: bad near/far bounds ({near:g}, {far:g}); need 0 < near < far")
+
+
 def _read_views(folder: str, names: list[str], scale: float):
     out = []
     for n in names:
@@ -100,6 +107,7 @@ def load_llff(path: str, factor: int = 8, load_points: bool = True) -> Scene:
         where = f"{pb_path} row {i} ({n})"
         if not np.all(np.isfinite(pb[i])):
             raise SceneError(f"{where}: non-finite (NaN/inf) value in the pose or bounds")
+        _check_bounds(where, pb[i, 15:17])
         H0, W0, f0 = P[:, 4]
         h, w = im.shape[:2]
         if H0 <= 0 or W0 <= 0 or f0 <= 0:
@@ -151,6 +159,7 @@ def load_llff_nex(path: str, factor: int = 8, load_points: bool = True) -> Scene
         where = f"{pb_path} row {i} ({n})"
         if not np.all(np.isfinite(row)):
             raise SceneError(f"{where}: non-finite (NaN/inf) value in the pose or bounds")
+        _check_bounds(where, row[12:14])
         h, w = im.shape[:2]
         sx, sy = w / W0, h / H0
         K = np.array([[fx * sx, 0, cx * sx], [0, fy * sy, cy * sy], [0, 0, 1]])

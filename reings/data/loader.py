@@ -80,6 +80,8 @@ def load_scene(path=None, dataset: str | None = None, factor: int | None = 8, **
         return make_procedural_scene(**kwargs)
     if path is None:
         raise SceneError("load_scene: path is required for dataset " + repr(dataset))
+    if not isinstance(path, (str, os.PathLike)):
+        raise TypeError(f"load_scene: path must be a folder path (str or os.PathLike), got {path!r}")
     path = os.fspath(path)
     kind = dataset or detect_format(path)
     if not os.path.isdir(path):

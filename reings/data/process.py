@@ -40,6 +40,10 @@ def process_photos(photos_dir, out_dir, overwrite: bool = False, partial: bool =
     photos_dir, out_dir = os.fspath(photos_dir), os.fspath(out_dir)
     if not out_dir:
         raise ValueError("--out must name a folder")
+    real_out, real_photos = os.path.realpath(out_dir), os.path.realpath(photos_dir)
+    if os.path.commonpath([real_out, real_photos]) == real_out:  # the scene would replace the photos
+        raise ValueError(f"--out {out_dir}: is or holds the photos folder {photos_dir}, which the scene would "
+                         "replace; write the scene to another folder")
     names = list_images(photos_dir)
     if len(names) < 2:
         raise SceneError(f"{photos_dir}: {len(names)} photo; structure from motion needs at least 2")

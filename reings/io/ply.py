@@ -97,6 +97,8 @@ def _parse_header(f, path):
             if len(words) == 5 and words[1] == "list":
                 elements[-1][2].append(("list", words[2], words[3], words[4]))
             elif len(words) == 3 and words[1] in _TYPES:
+                if any(prop[0] == words[2] for prop in elements[-1][2]):
+                    raise PlyError(f"{path}: property {words[2]!r} appears twice in element {elements[-1][0]!r}")
                 elements[-1][2].append((words[2], _TYPES[words[1]]))
             else:
                 raise PlyError(f"{path}: unsupported property line {line!r}")
@@ -129,6 +131,8 @@ def read_ply(path) -> Gaussians:
         for name, count, props in elements:
             if any(p[0] == "list" for p in props):
                 raise PlyError(f"{path}: element {name!r} has list properties; it must come after 'vertex'")
+            if name == "vertex" and not props:
+                raise PlyError(f"{path}: the 'vertex' element has no properties (missing vertex properties)")
             dt = np.dtype([(p[0], endian + p[1]) for p in props])
             need = dt.itemsize * count
             if need > left:  # checked before reading: a header's count cannot make us allocate more than the file
