@@ -143,12 +143,22 @@ def run_task(cfg) -> dict:
         lock.release()
 
 
+def _n_workers(client) -> int:
+    """The scheduler's worker count (distributed >= 2025.4 lists only 5 workers in scheduler_info()
+    unless asked for all: n_workers=-1; older versions take no argument)."""
+    try:
+        info = client.scheduler_info(n_workers=-1)
+    except TypeError:
+        info = client.scheduler_info()
+    return len(info.get("workers", {}))
+
+
 def run_grid(client, jobs, gpu_only: bool = False, quiet: bool = False, say=print) -> list:
     """Submit every job (ds, scene, cfg) not finished yet; wait with a progress line; returns
     [(out, error)] of the failed runs."""
     distributed = _distributed()
     todo = [(ds, s, cfg) for ds, s, cfg in jobs if not os.path.exists(os.path.join(cfg.output.out, "metrics.json"))]
-    nworkers = len(client.scheduler_info().get("workers", {}))
+    nworkers = _n_workers(client)
     say(f"{len(jobs)} run(s), {len(jobs) - len(todo)} finished already; {len(todo)} to do on "
         f"{nworkers} worker(s); dashboard: {client.dashboard_link}")
     res = {"GPU": 1} if gpu_only else {"RUN": 1}
@@ -180,7 +190,7 @@ def run_grid(client, jobs, gpu_only: bool = False, quiet: bool = False, say=prin
             el = time.perf_counter() - t0
             left = len(todo) - done - len(failed)
             # at most one run per worker runs at a time (each task asks for the whole RUN/GPU resource)
-            running = min(left, len(client.scheduler_info().get("workers", {})) or nworkers)
+            running = min(left, _n_workers(client) or nworkers)
             bar.set_postfix_str(f"done {done} failed {len(failed)} running {running} "
                                 f"ETA {el / max(done + len(failed), 1) * left:.0f} s")
             bar.update(1)

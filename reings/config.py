@@ -136,7 +136,8 @@ class LossConfig:
     depth_smooth_from: int = opt(3001, "first iteration of the smoothness term (DNGaussian: iteration > 3000)")
     depth_confidence: float = opt(0.0, "how much the depth prior's confidence c weights each pixel of the depth "
                                        "terms: w = 1 - a + a c (0 = unweighted, DNGaussian; priors without a "
-                                       "confidence are unweighted)")
+                                       "confidence are unweighted)",
+                                  check=lambda v: None if 0 <= v <= 1 else f"must lie in [0, 1], got {v}")
     shape_pena: float = opt(0.0, "weight of mean(max scale / min scale)")
     scale_pena: float = opt(0.0, "weight of mean(max scale^2)")
     opa_pena: float = opt(0.0, "weight of 1 - mean(o^2 | o>0.2) + mean((1-o)^2 | o<0.2)")

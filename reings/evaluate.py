@@ -11,8 +11,11 @@ run; eval sets the method, views, seed, data and folder of each. A run whose fol
 `metrics.json` is finished and skipped; one holding checkpoints is resumed. A run being worked on holds an exclusive lock (`fcntl.flock`, on Windows `msvcrt.locking`, on
 `<run>/.lock`, freed when its process ends however it ends; reings/io/lock.py): a guard, so that
 no run is ever trained twice at once (a Dask task retried while its first worker still runs, or a
-second `reings eval` started on the same OUT). To share a grid between devices or machines, use
-`--cluster` (reings/cluster.py, docs/cluster.md), not several processes.
+second `reings eval` started on the same OUT): several `reings eval` processes with the same
+arguments share the work (each skips the runs another holds; docs/pipeline.md), but `--cluster`
+(reings/cluster.py, docs/cluster.md) is the way to share a grid between devices or machines: a
+scheduler, retries of dead workers, one progress view, and no reliance on `flock` over a network
+filesystem.
 
 After the runs (or alone, with `--table-only`) the table is rebuilt from every `metrics.json`
 under OUT: `OUT/results.json` and `OUT/results.md` in the paper's layout (rows = methods,

@@ -60,7 +60,7 @@ def draw_depth_patches(rng: np.random.Generator, patch_range: tuple[int, int], h
 def depth_loss(depth: np.ndarray, target: np.ndarray, rng: np.random.Generator,
                patch_range: tuple[int, int] = (5, 17), margin: float = 0.00025,
                w_local: float = 0.1, w_global: float = 1.0, device: str | None = None,
-               smooth: tuple | None = None) -> tuple[float, np.ndarray]:
+               smooth: tuple | None = None, weight: np.ndarray | None = None) -> tuple[float, np.ndarray]:
     """DNGaussian's depth loss on a rendered depth [H, W] against the (constant) mono target:
     w_local * local + w_global * global, each term with its own patch size drawn uniformly from
     [lo, hi] inclusive (local first, as DNGaussian draws them; clamped to the image size).
@@ -69,14 +69,16 @@ def depth_loss(depth: np.ndarray, target: np.ndarray, rng: np.random.Generator,
 
     `smooth`: None, or (DepthSmoothWeights of this target, w_smooth) to add w_smooth times the
     depth_smooth term, DNGaussian's edge-aware smoothness (`reference_loss.depth_smooth_fwd_bwd`;
-    LLFF after iteration 3000).
+    LLFF after iteration 3000). `weight`: None, or [H, W] per-pixel weights in [0, 1] on each
+    selected element's squared error (`reference_loss.depth_confidence_weights` of a prior's
+    confidence; LossConfig.depth_confidence).
 
     device None: the float64 numpy reference (device "reference"); else that device's
     Backend.depth_loss (OpenCL: kernels/depth_loss.cl, host arrays uploaded, v_depth read back)."""
     h, w = np.shape(depth)[:2]
     p_local, p_global = draw_depth_patches(rng, patch_range, h, w)
     backend = get_backend("reference" if device is None else device)
-    return backend.depth_loss(depth, target, p_local, p_global, margin, w_local, w_global, smooth)
+    return backend.depth_loss(depth, target, p_local, p_global, margin, w_local, w_global, smooth, weight)
 
 
 def regularizers(params: dict, shape_pena: float = 0.0, scale_pena: float = 0.0,

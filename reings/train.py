@@ -238,6 +238,8 @@ def _initial_state(init: Gaussians, cfg: TrainConfig, checkpoint: str | None):
 def _depth_weights(targets, confidence, strength: float):
     """Per view the depth loss's per-pixel weights (reference_loss.depth_confidence_weights), or
     None: unweighted when the strength is 0 or no view has a confidence."""
+    if not 0.0 <= strength <= 1.0:  # also NaN
+        raise ValueError(f"fit: LossConfig.depth_confidence must lie in [0, 1], got {strength}")
     if not strength or confidence is None or all(c is None for c in confidence):
         return None
     if len(confidence) != len(targets):

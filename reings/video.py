@@ -173,7 +173,10 @@ def check_codec(path) -> None:
     ext = os.path.splitext(path)[1].lower()
     if ext not in FOURCC:
         raise ValueError(f"{path}: unknown video extension {ext or '(none)'!r} (use {', '.join(FOURCC)})")
-    probe = os.path.join(os.path.dirname(os.path.abspath(path)), f".tmp-{os.getpid()}-probe{ext}")
+    folder = os.path.dirname(os.path.abspath(path))
+    if not os.access(folder, os.W_OK):
+        raise OSError(f"{path}: cannot write into the folder {folder}")
+    probe = os.path.join(folder, f".tmp-{os.getpid()}-probe{ext}")
     vw = cv2.VideoWriter(probe, cv2.VideoWriter_fourcc(*FOURCC[ext]), 30.0, (16, 16))
     try:
         if not vw.isOpened():
@@ -218,6 +221,9 @@ def write_video(path, frames, fps: float = 30.0) -> str:
         if not os.path.isfile(tmp) or os.path.getsize(tmp) == 0:
             raise OSError(f"{path}: OpenCV wrote no video data")
         got = _count_frames(tmp)  # VideoWriter does not report a write the OS refused (a full disk)
+        if got is None:  # unreadable: truncated by the OS, or a build whose reader lacks this container
+            raise OSError(f"{path}: OpenCV cannot read back the video it wrote (is the disk full? else this "
+                          f"OpenCV build reads no {ext}: try another extension, or --frames-dir)")
         if got != len(frames):
             raise OSError(f"{path}: the video was not written whole ({got} of {len(frames)} frames read back; "
                           "is the disk full?)")
@@ -231,10 +237,14 @@ def write_video(path, frames, fps: float = 30.0) -> str:
 
 
 def _count_frames(path: str) -> int:
-    """The frames OpenCV can read back from a video file (demuxed, not decoded)."""
+    """The frames OpenCV can read back from a video file (demuxed, not decoded), or None when this
+    OpenCV build cannot open the container it wrote (its reader and writer backends differ)."""
     import cv2
 
     cap = cv2.VideoCapture(path)
+    if not cap.isOpened():
+        cap.release()
+        return None
     n = 0
     try:
         while cap.isOpened() and cap.grab():

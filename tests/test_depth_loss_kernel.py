@@ -294,6 +294,18 @@ def test_weighted_matches_reference(device, h, w, pl, pg, kind):
            elementwise=False)
 
 
+def test_public_depth_loss_takes_weights(device):
+    """reings.losses.depth_loss(weight=): the reference and the device give the weighted loss."""
+    rng = np.random.default_rng(14)
+    d, t = _inputs("structured", 40, 50, rng)
+    wt = _weight(40, 50, rng)
+    ref = losses.depth_loss(d, t, np.random.default_rng(1), (5, 9), MARGIN, weight=wt)
+    dev = losses.depth_loss(d, t, np.random.default_rng(1), (5, 9), MARGIN, device=device, weight=wt)
+    plain = losses.depth_loss(d, t, np.random.default_rng(1), (5, 9), MARGIN)
+    _check(dev, ref, LOSS_RTOL64, GRAD_RTOL64)
+    assert ref[0] != plain[0]
+
+
 def test_unit_weights_are_the_unweighted_loss_bit_for_bit(device):
     """w = 1 everywhere (strength 0) multiplies by exactly 1: the kernel's bits are the unweighted
     kernel's, and the twin's value is the unweighted twin's."""
@@ -582,6 +594,15 @@ def test_depth_confidence_takes_part_in_the_fit(device, small_case, engine):
                  _fit_small(small_case, device, on, engine=engine)):
         for k in base.state.params:
             np.testing.assert_array_equal(same.state.params[k], base.state.params[k], err_msg=k)
+
+
+def test_depth_confidence_strength_is_checked(device, small_case):
+    from dataclasses import replace
+
+    scene, init, cfg = small_case
+    for bad in (-0.5, 1.5, float("nan")):
+        with pytest.raises(ValueError, match="depth_confidence"):
+            _fit_small(small_case, device, replace(cfg, loss=replace(cfg.loss, depth_confidence=bad)))
 
 
 def test_depth_confidence_engines_agree(device, small_case):
