@@ -74,9 +74,10 @@ def _pair(img, ref) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _as_mask(mask, shape, name: str = "mask") -> np.ndarray:
-    """(H, W) or (H, W, 1) mask -> float64 (H, W) in {0, 1}. Foreground = value > 0.5 (bool masks
-    as they are). DNGaussian counts as foreground only pixels whose resized mask stays exactly 1;
-    binarise upstream if you need that rule."""
+    """(H, W) or (H, W, 1) mask -> float64 (H, W) in [0, 1] (bool masks as 0 / 1), the soft mask
+    the DTU protocol composites with (img * m + 1 - m); its foreground (masked PSNR) is where it is
+    exactly 1 (`_foreground`), DNGaussian / CoR-GS `metrics_dtu.py` (`mask == 1.` of the mask
+    resized by Pillow: reings.data.images.eval_mask)."""
     m = np.asarray(mask)
     if m.ndim == 3 and m.shape[2] == 1:
         m = m[..., 0]
@@ -86,8 +87,14 @@ def _as_mask(mask, shape, name: str = "mask") -> np.ndarray:
         m = m.astype(np.float64)
         if not np.all(np.isfinite(m)):
             raise ValueError(f"{name}: non-finite values in the mask")
-        m = m > 0.5
+        if m.min() < 0 or m.max() > 1:
+            raise ValueError(f"{name}: values outside [0, 1] (min {m.min():g}, max {m.max():g})")
     return m.astype(np.float64)
+
+
+def _foreground(mask, shape) -> np.ndarray:
+    """The masked-PSNR pixels: those whose mask is exactly 1 (DNGaussian's `mask == 1.`)."""
+    return _as_mask(mask, shape) >= 1.0
 
 
 def _composite_white(a: np.ndarray, m: np.ndarray) -> np.ndarray:
@@ -99,14 +106,15 @@ def _composite_white(a: np.ndarray, m: np.ndarray) -> np.ndarray:
 
 
 def psnr(img, ref, mask=None) -> float:
-    """PSNR in dB of `img` against `ref`, -10 log10(MSE). `mask` (H, W): MSE over the foreground
-    pixels only (DTU protocol). Identical images give +inf."""
+    """PSNR in dB of `img` against `ref`, -10 log10(MSE). `mask` (H, W) in [0, 1]: MSE over the
+    foreground pixels only, those where the mask is exactly 1 (DTU protocol). Identical images give
+    +inf."""
     a, b = _pair(img, ref)
     d2 = (a - b) ** 2
     if mask is None:
         mse = float(d2.mean())
     else:
-        m = _as_mask(mask, a.shape).astype(bool)
+        m = _foreground(mask, a.shape)
         if not m.any():
             raise ValueError("mask: no foreground pixel, PSNR is undefined")
         mse = float(d2[m].mean())

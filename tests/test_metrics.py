@@ -268,3 +268,24 @@ def test_lpips_model_only_from_explicit_places(tmp_path, monkeypatch):
     assert M.find_lpips_model() == real
     info = M.lpips_model_info()
     assert info["path"] == str(real.resolve()) and info["sha256"] == hashlib.sha256(b"the user's model").hexdigest()
+
+
+def test_dtu_soft_mask_rules(rng):
+    """DNGaussian / CoR-GS metrics_dtu.py: PSNR over the pixels whose (Pillow-resized) mask is
+    exactly 1; SSIM and LPIPS on img * m + (1 - m) with the soft mask itself. Checked against the
+    direct float64 formulas."""
+    a = rng.uniform(0, 1, (16, 20, 3))
+    b = rng.uniform(0, 1, (16, 20, 3))
+    m = np.zeros((16, 20))
+    m[3:13, 4:16] = 1.0
+    m[3:13, 4] = 0.8  # a soft edge column: composited, but not in the masked PSNR
+    m[3:13, 15] = 254 / 255
+    fg = m == 1.0
+    want = -10 * np.log10(((a - b) ** 2)[fg].mean())
+    assert M.psnr(a, b, mask=m) == pytest.approx(want, rel=1e-12)
+    assert M.psnr(a, b, mask=m) != pytest.approx(M.psnr(a, b, mask=m > 0.5), rel=1e-6)
+    ca, cb = a * m[..., None] + (1 - m[..., None]), b * m[..., None] + (1 - m[..., None])
+    assert M.ssim(a, b, mask=m) == pytest.approx(M.ssim(ca, cb), abs=1e-12)
+    for bad in (m * 2, m - 0.5):
+        with pytest.raises(ValueError, match="outside"):
+            M.psnr(a, b, mask=bad)

@@ -16,8 +16,10 @@ RegNeRF itself recentres and rescales these poses; this loader keeps the calibra
 
 Images: view i is the i-th image by sorted name. `factor` counts from 1600x1200 (4 -> 400x300,
 the few-shot protocol). Masks (IDR/NeuS `mask/`, `masks/`, or `../masks/<scan>/` /
-`../idrmasks/<scan>/[mask/]`) are area-resized to the image size and kept as float32 in [0, 1]
-(`mask == 1` is DNGaussian's rule, `mask > 0.5` a threshold; the metrics decide).
+`../idrmasks/<scan>/[mask/]`) are evaluation data only (never seen by training): resized to the
+image size as DNGaussian's `metrics_dtu.py` does (Pillow's default BICUBIC filter per colour
+channel, exactly: `images.eval_mask`), kept as float32 k/255 in [0, 1]; the metrics count as
+foreground the pixels that are exactly 1 and composite over white with the soft mask.
 """
 from __future__ import annotations
 
@@ -227,11 +229,11 @@ def load_dtu(path: str, factor: int | None = 4, normalize: bool = True, light: i
         masks = []
         for mn, im in zip(mnames, ims):
             mp = os.path.join(mdir, mn)
-            m = imgs.read_mask(mp)
+            m = imgs.read_image_raw(mp)[:, :, :3]
             mh, mw = m.shape[:2]
             if abs((mw / mh) / (W0 / H0) - 1) > 0.02:  # the images' rule: a mask is never stretched
                 raise SceneError(f"{mp}: {mw}x{mh} does not have DTU's {W0}x{H0} aspect")
-            masks.append(imgs.resize(m[:, :, None], im.shape[1], im.shape[0])[:, :, 0])
+            masks.append(imgs.eval_mask(m, im.shape[1], im.shape[0]))
     meta = {"factor": factor, "normalized": bool(normalize)}
     if centres_scale is not None:
         meta["scale"] = float(centres_scale[1])

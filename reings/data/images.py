@@ -128,6 +128,22 @@ def read_mask(path: str) -> np.ndarray:
     return np.ascontiguousarray(img[:, :, :3].max(axis=2))
 
 
+def eval_mask(mask_rgb: np.ndarray, width: int, height: int) -> np.ndarray:
+    """The DTU evaluation mask of DNGaussian / CoR-GS `metrics_dtu.py`: each colour channel of the
+    8-bit mask resized by Pillow's default filter (`resize_u8_pil`), then the minimum over the
+    channels, float32 [height, width] in [0, 1] (k / 255). A pixel is foreground where it is
+    exactly 1 (all three channels stayed 255); outside, the images are composited over white with
+    this soft mask (reings.metrics). `mask_rgb`: [H, W, 3] (or [H, W]) float in [0, 1] from an
+    8-bit file, or uint8."""
+    a = np.asarray(mask_rgb)
+    if a.dtype != np.uint8:
+        a = np.clip(np.rint(np.asarray(a, np.float64) * 255.0), 0, 255).astype(np.uint8)
+    if a.ndim == 2:
+        a = a[:, :, None]
+    chans = [resize_u8_pil(np.ascontiguousarray(a[:, :, c]), width, height) for c in range(min(a.shape[2], 3))]
+    return np.ascontiguousarray(np.min(np.stack(chans), axis=0).astype(np.float32) / 255.0)
+
+
 def resize(img: np.ndarray, width: int, height: int) -> np.ndarray:
     """Area resize to (height, width) (cv2.INTER_AREA; exact box filter for integer factors).
 
@@ -141,6 +157,69 @@ def resize(img: np.ndarray, width: int, height: int) -> np.ndarray:
     if img.ndim == 3 and out.ndim == 2:
         out = out[:, :, None]
     return np.ascontiguousarray(out.astype(np.float32))
+
+
+# {{{ PIL's default resize of an 8-bit image (BICUBIC), exactly: the DTU evaluation masks
+# DNGaussian / CoR-GS `metrics_dtu.py` resize each mask with PIL's `Image.resize(gt.size)`, whose
+# default filter for 8-bit images is BICUBIC, and count as foreground only the pixels that stay
+# exactly 255. This is Pillow's `Resample.c` (precompute_coeffs, normalize_coeffs_8bpc,
+# ImagingResampleHorizontal/Vertical_8bpc) in numpy: double coefficients of the a = -0.5 cubic
+# with its support widened by the scale, rounded to 22-bit fixed point, a horizontal pass to an
+# 8-bit image, then a vertical one, each rounded and clipped to [0, 255].
+_PIL_PRECISION_BITS = 32 - 8 - 2
+
+
+def _pil_bicubic(x: np.ndarray) -> np.ndarray:
+    a = -0.5
+    x = np.abs(x)
+    return np.where(x < 1.0, ((a + 2.0) * x - (a + 3.0)) * x * x + 1.0,
+                    np.where(x < 2.0, (((x - 5.0) * x + 8.0) * x - 4.0) * a, 0.0))
+
+
+def _pil_coeffs(in_size: int, out_size: int) -> tuple[np.ndarray, np.ndarray]:
+    """(first input index [out], fixed-point weights [out, taps]) of one axis."""
+    scale = in_size / out_size
+    fscale = max(scale, 1.0)
+    support = 2.0 * fscale
+    taps = int(np.ceil(support)) * 2 + 1
+    first = np.zeros(out_size, np.int64)
+    k = np.zeros((out_size, taps), np.float64)
+    for xx in range(out_size):
+        center = (xx + 0.5) * scale
+        xmin = max(int(center - support + 0.5), 0)
+        xmax = min(int(center + support + 0.5), in_size) - xmin
+        w = _pil_bicubic((np.arange(xmax) + xmin - center + 0.5) / fscale)
+        ww = w.sum()
+        first[xx] = xmin
+        k[xx, :xmax] = w / ww if ww != 0.0 else w
+    kk = np.where(k < 0, np.trunc(k * (1 << _PIL_PRECISION_BITS) - 0.5),
+                  np.trunc(k * (1 << _PIL_PRECISION_BITS) + 0.5)).astype(np.int64)
+    return first, kk
+
+
+def _pil_pass(img: np.ndarray, out_size: int) -> np.ndarray:
+    """One 8-bit pass along axis 1 of [rows, cols] uint8."""
+    first, kk = _pil_coeffs(img.shape[1], out_size)
+    src = np.pad(img.astype(np.int64), ((0, 0), (0, kk.shape[1])))
+    acc = np.full((img.shape[0], out_size), 1 << (_PIL_PRECISION_BITS - 1), np.int64)
+    for t in range(kk.shape[1]):
+        acc += src[:, first + t] * kk[:, t]
+    return np.clip(acc >> _PIL_PRECISION_BITS, 0, 255).astype(np.uint8)
+
+
+def resize_u8_pil(img: np.ndarray, width: int, height: int) -> np.ndarray:
+    """[H, W] uint8 -> [height, width] uint8, bit for bit what Pillow's `Image.resize((width,
+    height))` gives for an 8-bit image (filter BICUBIC, its default): tests/test_data_loaders.py
+    checks it against Pillow."""
+    a = np.asarray(img)
+    if a.dtype != np.uint8 or a.ndim != 2:
+        raise ValueError(f"resize_u8_pil: expected an [H, W] uint8 image, got {a.dtype} {a.shape}")
+    if a.shape[1] != width:
+        a = _pil_pass(a, int(width))
+    if a.shape[0] != height:
+        a = _pil_pass(a.T, int(height)).T
+    return np.ascontiguousarray(a)
+# }}}
 
 
 def write_png(path: str, img: np.ndarray) -> None:
