@@ -479,9 +479,16 @@ def stages_of(method: str) -> list:
 
 # {{{ run
 
-def _check_before_writing(cfg: RunConfig, overwrite: bool):
+def _uses_caches(cfg: RunConfig, in_memory: bool) -> bool:
+    """Whether the SfM and depth-prior disk caches are read and written: not for in-memory views
+    with no output folder (reings.reconstruct: nothing on disk)."""
+    return not in_memory or bool(cfg.output.out)
+
+
+def _check_before_writing(cfg: RunConfig, overwrite: bool, cache: bool = True):
     """Everything a user can get wrong that needs no scene: the data folder, a finished --out, the
-    device, the depth prior. Returns (backend, depth prior or None for 'exact')."""
+    device, the depth prior (`cache`: its disk cache on or off). Returns (backend, depth prior or
+    None for 'exact')."""
     from .backends import get_backend
     from .data.depth_prior import get_depth_prior
 
@@ -495,7 +502,7 @@ def _check_before_writing(cfg: RunConfig, overwrite: bool):
         raise FileExistsError(f"{out} already holds a finished run (metrics.json); pass --overwrite to redo it")
     _check_extras(cfg)
     backend = get_backend(cfg.device)  # unknown device -> DeviceNotFound, before anything is written
-    prior = None if cfg.depth_prior == "exact" else get_depth_prior(cfg.depth_prior)
+    prior = None if cfg.depth_prior == "exact" else get_depth_prior(cfg.depth_prior, cache=cache)
     return backend, prior
 
 
@@ -580,11 +587,6 @@ def _prepare(cfg: RunConfig, backend, prior, overwrite: bool, quiet: bool, scene
 
     t = time.perf_counter()
     confidences = None  # per view [H, W] in [0, 1] (the stereo prior's) or None
-    # in-memory views with no output folder (reings.reconstruct): nothing is read from or written
-    # to the disk caches either
-    use_cache = not (in_memory and not cfg.output.out)
-    if not use_cache and getattr(prior, "cache", False):
-        prior.cache = False
     if cfg.depth_prior == "exact":
         priors = list(train.depths)
     else:
@@ -597,7 +599,7 @@ def _prepare(cfg: RunConfig, backend, prior, overwrite: bool, quiet: bool, scene
             f"the {cfg.depth_prior!r} prior has none, so the depth loss is unweighted")
     timings["depth_prior"] = time.perf_counter() - t
     t = time.perf_counter()
-    box = frusta_only_extent(train) if cfg.extent == "frusta" else sfm_extent(train, cache=use_cache)
+    box = frusta_only_extent(train) if cfg.extent == "frusta" else sfm_extent(train, cache=_uses_caches(cfg, in_memory))
     timings["sfm"] = time.perf_counter() - t
     if cfg.output.out:  # nothing is written before every input has been read and checked
         prepare_out(cfg.output.out, settings, overwrite)
@@ -686,7 +688,7 @@ def run(config: RunConfig | None = None, /, *, scene=None, overwrite: bool = Fal
             raise TypeError(f"run(scene=...): expected a reings.Scene, got {type(scene).__name__}")
         if cfg.data is not None:
             raise ValueError(f"run: pass either data ({cfg.data!r}) or scene, not both")
-    backend, prior = _check_before_writing(cfg, overwrite)
+    backend, prior = _check_before_writing(cfg, overwrite, cache=_uses_caches(cfg, scene is not None))
     out = cfg.output.out
     try:
         result = _run_prepared(cfg, backend, prior, overwrite, quiet, scene)

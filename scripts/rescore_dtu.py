@@ -56,11 +56,12 @@ def rescore(run_dir: str, data_root: str | None, write: bool) -> dict | None:
     idx, names = m["test_indices"], m["test_names"]
     preds = [_png(os.path.join(run_dir, "renders", n)) for n in names]
     refs = [scene.images[i] for i in idx]
+    old_masks = _area_masks(scene, idx)
     new = metrics.evaluate_images(preds, refs, [scene.masks[i] for i in idx], with_lpips=False)
-    old = metrics.evaluate_images(preds, refs, _area_masks(scene, idx), with_lpips=False)
+    old = metrics.evaluate_images(preds, refs, old_masks, with_lpips=False)
     row = {"run": run_dir, "recorded": m["mean"].get("psnr"), "psnr_before_rule": old["psnr"],
            "psnr": new["psnr"], "ssim_before_rule": old["ssim"], "ssim": new["ssim"],
-           "foreground_px_before": int(sum(mk.sum() for mk in _area_masks(scene, idx))),
+           "foreground_px_before": int(sum(mk.sum() for mk in old_masks)),
            "foreground_px": int(sum((scene.masks[i] >= 1).sum() for i in idx))}
     if write:
         m["mean_before_mask_rule"] = dict(m["mean"])

@@ -8,6 +8,7 @@ loaders; `resize` only reports the scale factors they need.
 """
 from __future__ import annotations
 
+import functools
 import os
 
 import numpy as np
@@ -197,14 +198,26 @@ def _pil_coeffs(in_size: int, out_size: int) -> tuple[np.ndarray, np.ndarray]:
     return first, kk
 
 
+@functools.lru_cache(maxsize=16)
+def _pil_matrix(in_size: int, out_size: int):
+    """The pass of one axis as a sparse [in, out] matrix of the fixed-point weights (integers held
+    in float64: every sum of a pass, at most 255 * 2^22 * taps, is an exact float64 integer)."""
+    from scipy.sparse import csr_matrix
+
+    first, kk = _pil_coeffs(in_size, out_size)
+    cols = np.repeat(np.arange(out_size), kk.shape[1])
+    rows = (first[:, None] + np.arange(kk.shape[1])[None, :]).ravel()
+    w = kk.ravel().astype(np.float64)
+    keep = (w != 0) & (rows < in_size)
+    return csr_matrix((w[keep], (rows[keep], cols[keep])), shape=(in_size, out_size))
+
+
 def _pil_pass(img: np.ndarray, out_size: int) -> np.ndarray:
-    """One 8-bit pass along axis 1 of [rows, cols] uint8."""
-    first, kk = _pil_coeffs(img.shape[1], out_size)
-    src = np.pad(img.astype(np.int64), ((0, 0), (0, kk.shape[1])))
-    acc = np.full((img.shape[0], out_size), 1 << (_PIL_PRECISION_BITS - 1), np.int64)
-    for t in range(kk.shape[1]):
-        acc += src[:, first + t] * kk[:, t]
-    return np.clip(acc >> _PIL_PRECISION_BITS, 0, 255).astype(np.uint8)
+    """One 8-bit pass along axis 1 of [rows, cols] uint8: the fixed-point sums, + 2^21, >> 22
+    (floor), clipped to [0, 255], as Pillow's clip8."""
+    acc = (_pil_matrix(img.shape[1], out_size).T @ img.astype(np.float64).T).T
+    return np.clip(np.floor((acc + (1 << (_PIL_PRECISION_BITS - 1))) / (1 << _PIL_PRECISION_BITS)),
+                   0, 255).astype(np.uint8)
 
 
 def resize_u8_pil(img: np.ndarray, width: int, height: int) -> np.ndarray:

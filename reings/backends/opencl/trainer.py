@@ -9,6 +9,7 @@ Kept on the device for the whole fit (buffers of a private `Scratch`, grown geom
                                    COUNT, RADII)
     gt<i>                          the training images [H,W,3]
     dt<i>                          the training views' depth targets [H,W] (upload_depth_targets, once per fit)
+    dw<i>                          their per-pixel depth-loss weights [H,W] (--depth-confidence; only when given)
     v_rgb, v_depth                 the cotangent images of the current pass
     sh_packed                      [N,k,3] SH at the active degree (kernels/sh_pack.cl, redone only
                                    after the SH groups were stepped or the degree changed)
