@@ -86,6 +86,17 @@ def worker_specs(n: int | None, device: str, runs_per_gpu: int = 1) -> list[dict
     return specs
 
 
+def _worker_environ():
+    """Dask config for making reings workers' nannies: without Dask's MALLOC_TRIM_THRESHOLD_=65536.
+    Setting any glibc malloc threshold turns off glibc's dynamic mmap threshold, so every large
+    numpy temporary is mmap'd and page-faulted afresh: on an H100 machine the host side of a run
+    (metrics, probes, densification) took 1.6-1.8x as long in a worker as in a serial `reings eval`
+    (docs/results.md §15); Dask's thread limits (OMP/MKL/OPENBLAS = 1) stay."""
+    import dask
+
+    return dask.config.set({"distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None})
+
+
 def start_local(n: int | None, device: str, runs_per_gpu: int = 1):
     """A local Dask cluster of one worker process per spec (`worker_specs`), each under a nanny
     (which restarts a worker that dies); returns the connected Client."""
@@ -98,7 +109,8 @@ def start_local(n: int | None, device: str, runs_per_gpu: int = 1):
         "options": {"nthreads": 1, "resources": s["resources"], "env": s["env"], "silence_logs": 40}}
         for i, s in enumerate(specs)}
     scheduler = {"cls": distributed.Scheduler, "options": {"dashboard_address": ":0"}}
-    cluster = SpecCluster(workers=workers, scheduler=scheduler, asynchronous=False, silence_logs=40)
+    with _worker_environ():
+        cluster = SpecCluster(workers=workers, scheduler=scheduler, asynchronous=False, silence_logs=40)
     return distributed.Client(cluster)
 
 
@@ -450,9 +462,10 @@ def main_worker(args) -> int:
 
 
     async def serve():
-        nannies = [distributed.Nanny(args.scheduler, nthreads=1, resources=res, env=env,
-                                     name=(f"{args.name}-{i}" if runs > 1 else args.name) if args.name else None)
-                   for i in range(runs)]
+        with _worker_environ():
+            nannies = [distributed.Nanny(args.scheduler, nthreads=1, resources=res, env=env,
+                                         name=(f"{args.name}-{i}" if runs > 1 else args.name) if args.name else None)
+                       for i in range(runs)]
         try:
             for n in nannies:
                 await n

@@ -63,6 +63,9 @@ def test_killed_worker_and_the_serial_table(tmp_path, monkeypatch):
         assert not t.is_alive()
         assert result["failed"] == []
         assert victim not in client.run(os.getpid).values()  # the nanny started a new process
+        # workers (restarted ones too) run without Dask's malloc trim threshold (cluster._worker_environ)
+        envs = client.run(lambda: (os.environ.get("MALLOC_TRIM_THRESHOLD_"), os.environ.get("OMP_NUM_THREADS")))
+        assert all(v == (os.environ.get("MALLOC_TRIM_THRESHOLD_"), "1") for v in envs.values()), envs
         # the killed worker's run was retried and went on from its own checkpoints
         assert any(": resumed" in ln for ln in lines), lines
     finally:
@@ -110,3 +113,19 @@ def test_worker_specs_share_each_gpu(monkeypatch):
     assert [s["device"] for s in worker_specs(2, "cuda")] == ["cuda:0", "cuda:1"]
     with pytest.raises(ClusterError, match="--runs-per-gpu"):
         worker_specs(2, "cuda", runs_per_gpu=0)
+
+
+def test_worker_environ_drops_the_malloc_trim_threshold(monkeypatch):
+    """Dask's nannies set MALLOC_TRIM_THRESHOLD_=65536, which makes large numpy temporaries 2.6-5x
+    slower (docs/results.md §15); reings' nannies are made without it, keeping the thread limits."""
+    pytest.importorskip("distributed")
+    from distributed.nanny import _get_env_variables
+
+    from reings.cluster import _worker_environ
+
+    monkeypatch.delenv("MALLOC_TRIM_THRESHOLD_", raising=False)
+    assert _get_env_variables("distributed.nanny.pre-spawn-environ")["MALLOC_TRIM_THRESHOLD_"] == "65536"
+    with _worker_environ():
+        env = _get_env_variables("distributed.nanny.pre-spawn-environ")
+    assert "MALLOC_TRIM_THRESHOLD_" not in env and env["OMP_NUM_THREADS"] == "1"
+    assert _get_env_variables("distributed.nanny.pre-spawn-environ")["MALLOC_TRIM_THRESHOLD_"] == "65536"
