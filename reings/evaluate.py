@@ -483,7 +483,7 @@ def _prepare(jobs) -> None:
     from .data.depth_prior import get_depth_prior
     from .data.sfm import sfm_extent
     from .data.splits import few_shot_split
-    from .pipeline import load_run_scene
+    from .pipeline import load_run_scene, prior_for_family, recipe_family
 
     seen, priors = set(), {}
     for ds, s, cfg in jobs:
@@ -499,7 +499,7 @@ def _prepare(jobs) -> None:
         tr, _ = few_shot_split(scene, cfg.views)
         train = scene.subset(tr)
         if prior is not None and getattr(prior, "enabled", True):
-            prior.compute(train)
+            prior_for_family(prior, recipe_family(cfg.recipe, scene.kind)).compute(train)
         ext = sfm_extent(train)
         print(f"prepared {ds}/{s} {cfg.views} views: sfm {ext.method} ({ext.num_sfm_points} points"
               f"{', cached' if ext.cached else ''}), {time.perf_counter() - t:.1f} s", flush=True)

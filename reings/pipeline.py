@@ -200,6 +200,19 @@ def recipe_family(recipe: str, dataset_kind: str) -> str:
 
 
 OPACITY_DECAY_BY_FAMILY = {"llff": 1.0, "dtu": 0.995}  # RunConfig.opacity_decay = none (docs/results.md §9)
+# the stereo prior's settings per recipe family (docs/results.md §15): DTU's training views are
+# ~35 degrees apart, where the plane sweep's matches are ambiguous (brick, windows) and only a much
+# stronger SGM smoothness and each view's own near/far hold; LLFF keeps the settings it was measured with
+STEREO_BY_FAMILY = {"llff": {}, "dtu": {"sgm_p1": 0.2, "sgm_p2": 9.6, "use_bounds": True}}
+
+
+def prior_for_family(prior, family: str):
+    """`prior` with its family's settings (STEREO_BY_FAMILY) when it is the stereo prior and the
+    user gave it none of its own."""
+    opts = STEREO_BY_FAMILY.get(family, {})
+    if getattr(prior, "kind", None) == "stereo" and opts and not prior.options:
+        return prior.with_options(**opts)
+    return prior
 
 
 def opacity_decay_of(decay: float | None, family: str) -> float:
@@ -590,6 +603,7 @@ def _prepare(cfg: RunConfig, backend, prior, overwrite: bool, quiet: bool, scene
     if cfg.depth_prior == "exact":
         priors = list(train.depths)
     else:
+        prior = prior_for_family(prior, recipe_family(cfg.recipe, scene.kind))
         priors, confidences = (prior.compute(train, return_confidence=True) if getattr(prior, "enabled", True)
                                else (None, None))
         if priors is not None and all(p is None for p in priors):
@@ -609,6 +623,7 @@ def _prepare(cfg: RunConfig, backend, prior, overwrite: bool, quiet: bool, scene
                            + ([("test", test.names, test.cameras)] if te_idx else []))
     ctx = RunContext(cfg, backend, train, test, priors, box, log, progress=progress_enabled(quiet),
                      family=recipe_family(cfg.recipe, scene.kind))
+    ctx.prior_settings = getattr(prior, "options", None) if cfg.depth_prior == "stereo" else None
     ctx.timings.update(timings)
     ctx.confidences = confidences
     ctx.in_memory = in_memory
@@ -631,7 +646,8 @@ def _metrics(ctx: RunContext, m: dict, settings: dict, scene, tr_idx, te_idx, cu
         "device_name": getattr(backend, "device_name", cfg.device),
         "data": "in-memory" if ctx.in_memory else cfg.data or "procedural", "train_indices": list(map(int, tr_idx)),
         "test_indices": list(map(int, te_idx if cfg.holdout == "protocol" else tr_idx)), "train_names": list(ctx.train.names),
-        "test_names": list(ctx.test.names), "depth_prior": cfg.depth_prior, "seed": cfg.seed,
+        "test_names": list(ctx.test.names), "depth_prior": cfg.depth_prior,
+        **({"depth_prior_options": ctx.prior_settings} if getattr(ctx, "prior_settings", None) else {}), "seed": cfg.seed,
         "sh_degree": cfg.sh_degree, "recipe": ctx.family,
         "mean": {k: m[k] for k in ("psnr", "ssim", "lpips", "avge") if k in m and m[k] is not None},
         "per_image": m.get("per_image"), "seconds": ctx.timings, "gaussians": ctx.counts,

@@ -353,3 +353,118 @@ def test_onnx_degenerate_outputs_are_refused(tmp_path):
     with pytest.raises(DP.DepthPriorError, match="constant map"):
         pr.postprocess(np.full((1, 60, 80), 3.0, np.float32), 60, 80)
     assert pr.postprocess(np.arange(60 * 80, dtype=np.float32).reshape(1, 60, 80), 60, 80).shape == (60, 80)
+
+
+def _slanted_plane_pair(yaw_deg=50.0, z0=5.0, W=160, H=120, f=150.0, seed=3):
+    """Two views of one textured plane through (0, 0, z0) of view 0's frame, its normal turned by
+    yaw_deg about y (stereo._plane_normal); view 1 is 1.2 to the right, toed in by 10 degrees.
+    Ray-traced by numpy; returns images, cameras and view 0's exact z-depth."""
+    from reings.data.stereo import _plane_normal
+
+    rng = np.random.default_rng(seed)
+    tex = _texture(rng)
+    n = _plane_normal(yaw_deg, 0.0)
+    d = n[2] * z0
+    u_axis = np.cross([0.0, 1.0, 0.0], n)
+    u_axis /= np.linalg.norm(u_axis)
+    imgs, cams, dep0 = [], [], None
+    for C, yaw in ((np.zeros(3), 0.0), (np.array([1.2, 0.0, 0.0]), np.radians(-10.0))):
+        R = np.array([[np.cos(yaw), 0, np.sin(yaw)], [0, 1, 0], [-np.sin(yaw), 0, np.cos(yaw)]])
+        V = np.eye(4)
+        V[:3, :3] = R.T
+        V[:3, 3] = -R.T @ C
+        K = np.array([[f, 0, W / 2], [0, f, H / 2], [0, 0, 1]])
+        xs, ys = np.meshgrid(np.arange(W) + 0.5, np.arange(H) + 0.5)
+        d_w = np.stack([(xs - K[0, 2]) / f, (ys - K[1, 2]) / f, np.ones_like(xs)], -1) @ R.T
+        s = (d - n @ C) / (d_w @ n)
+        P = C + s[..., None] * d_w
+        imgs.append(_sample(tex, P @ u_axis + 5, P[..., 1] + 5, 26).astype(np.float32))
+        cams.append(Camera(K, V, W, H))
+        if dep0 is None:
+            dep0 = (s * d_w[..., 2]).astype(np.float32)
+    return imgs, cams, dep0
+
+
+def test_stereo_slanted_sweep_homography():
+    """Planes of the plane's own normal align the two views exactly: the best-scoring plane at each
+    pixel has the true inverse depth (within one plane step); fronto-parallel planes do worse there."""
+    import cv2
+
+    from reings.data.stereo import _gray, _plane_normal, _sweep
+
+    imgs, cams, dep = _slanted_plane_pair()
+    grays = [_gray(i) for i in imgs]
+    invd = np.linspace(1 / 12.0, 1 / 2.5, 160)
+    step = invd[1] - invd[0]
+    inner = np.zeros(dep.shape, bool)
+    inner[15:-15, 30:-30] = True
+    errs = {}
+    for tag, normal in (("slanted", _plane_normal(50.0, 0.0)), ("fronto", None)):
+        vol, _, rho = _sweep(cv2, 0, grays, cams, invd, 9, 0.004, normal)
+        q = invd[np.argmax(vol, axis=0)] * rho
+        ok = inner & (vol.max(0) > -1)
+        errs[tag] = np.abs(q - 1.0 / dep)[ok] / step
+    assert np.median(errs["slanted"]) <= 1.0 and np.mean(errs["slanted"] <= 1.5) > 0.9
+    assert np.mean(errs["slanted"] <= 1.5) > np.mean(errs["fronto"] <= 1.5)
+
+
+def test_stereo_slants_and_bounds():
+    """`slants` adds plane orientations (a 50-degree plane is recovered better with them); `bounds`
+    sets each view's depth range, checked before any work."""
+    from reings.data.stereo import stereo_depths
+
+    imgs, cams, dep = _slanted_plane_pair()
+    m = np.zeros(dep.shape, bool)
+    m[15:-15, 30:-30] = True
+    b = np.array([[2.5, 12.0], [2.5, 12.0]])
+    plain = stereo_depths(imgs, cams, bounds=b)[0]
+    slanted = stereo_depths(imgs, cams, bounds=b, slants=((50.0, 0.0),))[0]
+    assert (plain.near, plain.far) == (2.5, 12.0)
+    e_plain = np.abs(plain.raw_depth - dep)[m] / dep[m]
+    e_slant = np.abs(slanted.raw_depth - dep)[m] / dep[m]
+    assert np.median(e_slant) < 0.01 and np.mean(e_slant < 0.02) >= np.mean(e_plain < 0.02)
+    for bad in ([[2.5, 12.0]], [[0.0, 12.0], [2.5, 12.0]], [[5.0, 4.0], [2.5, 12.0]], [[np.nan, 12.0], [2.5, 12.0]]):
+        with pytest.raises(ValueError, match="bounds"):
+            stereo_depths(imgs, cams, bounds=bad)
+
+
+class _BoundedViews(_Views):
+    def __init__(self, images, cameras, bounds):
+        super().__init__(images, cameras)
+        self.bounds = bounds
+
+
+def test_stereo_prior_settings_and_bounds_key(tmp_path):
+    """The cache key holds every setting with the defaults resolved (a changed default cannot hit an
+    old file); use_bounds passes the views' bounds and keys them; with_options keeps the cache."""
+    import inspect
+
+    from reings.data.stereo import stereo_depths
+
+    pr = DP.get_depth_prior("stereo", cache_dir=tmp_path / "c")
+    opts = pr._settings()["options"]
+    assert opts["sgm_p1"] == inspect.signature(stereo_depths).parameters["sgm_p1"].default
+    assert opts["use_bounds"] is False and "bounds" not in opts
+    wide = pr.with_options(sgm_p1=0.2, use_bounds=True)
+    assert wide.cache_dir == pr.cache_dir and wide._settings() != pr._settings()
+    with pytest.raises(DP.DepthPriorError, match="unknown option"):
+        pr.with_options(bounds=[[1, 2]])
+    imgs, cams, _ = plane_views(n_views=2, W=64, H=48, f=60.0)
+    geo_b = (None, np.array([[3.0, 10.0], [3.0, 10.0]]))
+    assert pr._keys(imgs, cams, geo_b) == pr._keys(imgs, cams, (None, None))  # bounds unused: same key
+    assert wide._keys(imgs, cams, geo_b) != wide._keys(imgs, cams, (None, None))
+    d, _ = wide.with_options(num_depths=32).compute(_BoundedViews(imgs, cams, geo_b[1]), return_confidence=True)
+    assert all(np.all((x >= 3.0 - 1e-4) & (x <= 10.0 + 1e-3)) for x in d)
+
+
+def test_stereo_settings_per_recipe_family():
+    from reings.pipeline import STEREO_BY_FAMILY, prior_for_family
+
+    pr = DP.get_depth_prior("stereo", cache=False)
+    assert prior_for_family(pr, "llff") is pr
+    dtu = prior_for_family(pr, "dtu")
+    assert dtu.options == STEREO_BY_FAMILY["dtu"] and dtu.options["use_bounds"] is True
+    mine = pr.with_options(sgm_p1=0.05)
+    assert prior_for_family(mine, "dtu") is mine  # a user's own settings are kept
+    none = DP.get_depth_prior("none")
+    assert prior_for_family(none, "dtu") is none

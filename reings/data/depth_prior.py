@@ -58,7 +58,7 @@ __all__ = [
     "midas_input_size",
 ]
 
-CACHE_VERSION = 2  # 2: machine-independent keys (reings/data/cachekey.py)
+CACHE_VERSION = 3  # 2: machine-independent keys (reings/data/cachekey.py); 3: stereo keys hold every setting
 IMAGENET_MEAN = (0.485, 0.456, 0.406)
 IMAGENET_STD = (0.229, 0.224, 0.225)
 
@@ -85,8 +85,9 @@ def _views(scene, need_cameras: bool):
         points = getattr(scene, "points", None)
         if getattr(scene, "points_from_all_views", False):
             points = None  # full-view points would leak non-training views into the prior
+        bounds = getattr(scene, "bounds", None)  # each training view's own near/far
     elif isinstance(scene, (list, tuple)):
-        images, cameras, names, points = list(scene), [], [str(i) for i in range(len(scene))], None
+        images, cameras, names, points, bounds = list(scene), [], [str(i) for i in range(len(scene))], None, None
     else:
         raise DepthPriorError(f"depth prior: expected a Scene or a list of images, got {type(scene).__name__}")
     if not images:
@@ -102,7 +103,7 @@ def _views(scene, need_cameras: bool):
         out.append(a)
     if need_cameras and len(cameras) != len(out):
         raise DepthPriorError(f"depth prior: {len(out)} images but {len(cameras)} cameras (a posed Scene is required)")
-    return out, cameras, names, points
+    return out, cameras, names, (points, bounds)
 
 
 def _file_sha256(path: Path, _memo: dict = {}) -> str:  # noqa: B006 - deliberate memo
@@ -139,10 +140,10 @@ class DepthPrior:
     def _settings(self) -> dict:
         raise NotImplementedError
 
-    def _keys(self, images, cameras, points) -> list[str]:
+    def _keys(self, images, cameras, geometry) -> list[str]:
         raise NotImplementedError
 
-    def _compute_views(self, images, cameras, points, todo: list[int]) -> dict:
+    def _compute_views(self, images, cameras, geometry, todo: list[int]) -> dict:
         raise NotImplementedError
 
     # -- cache
@@ -180,8 +181,8 @@ class DepthPrior:
         Returns a list of (H, W) float32 maps; with return_confidence=True, (maps, confidences)
         where a confidence is (H, W) float32 in [0, 1] or None when the prior has none.
         """
-        images, cameras, names, points = _views(scene_train, need_cameras=self.kind == "stereo")
-        keys = self._keys(images, cameras, points)
+        images, cameras, names, geometry = _views(scene_train, need_cameras=self.kind == "stereo")
+        keys = self._keys(images, cameras, geometry)
         results: dict[int, tuple] = {}
         if self.cache:
             for i, k in enumerate(keys):
@@ -192,7 +193,7 @@ class DepthPrior:
         self.stats["hits"] += len(images) - len(todo)
         self.stats["misses"] += len(todo)
         if todo:
-            new = self._compute_views(images, cameras, points, todo)
+            new = self._compute_views(images, cameras, geometry, todo)
             for i in todo:
                 d, c = new[i]
                 d = np.ascontiguousarray(d, dtype=np.float32)
@@ -356,7 +357,7 @@ class OnnxDepthPrior(DepthPrior):
             "version": CACHE_VERSION,
         }
 
-    def _keys(self, images, cameras, points) -> list[str]:
+    def _keys(self, images, cameras, geometry) -> list[str]:
         base = json.dumps(self._settings(), sort_keys=True).encode()
         keys = []
         for im in images:
@@ -428,7 +429,7 @@ class OnnxDepthPrior(DepthPrior):
             raise DepthPriorError(f"{self.path}: inference failed: {str(e).strip().splitlines()[0]}") from None
         return self.postprocess(out, h, w)
 
-    def _compute_views(self, images, cameras, points, todo):
+    def _compute_views(self, images, cameras, geometry, todo):
         return {i: (self.predict(images[i]), None) for i in todo}
 
 
@@ -447,31 +448,50 @@ class StereoDepthPrior(DepthPrior):
 
         from .stereo import stereo_depths
 
-        allowed = set(inspect.signature(stereo_depths).parameters) - {"images", "cameras", "points", "progress"}
-        bad = set(options) - allowed
+        params = inspect.signature(stereo_depths).parameters
+        # use_bounds: each training view's own near/far (Scene.bounds) as its depth range, instead
+        # of the range from the sparse points or the baselines (stereo.depth_range)
+        self.defaults = {k: p.default for k, p in params.items()
+                         if k not in ("images", "cameras", "points", "bounds", "progress")}
+        self.defaults["use_bounds"] = False
+        bad = set(options) - set(self.defaults)
         if bad:
-            raise DepthPriorError(f"stereo prior: unknown option(s) {sorted(bad)}; known: {sorted(allowed)}")
+            raise DepthPriorError(f"stereo prior: unknown option(s) {sorted(bad)}; known: {sorted(self.defaults)}")
         self.options = dict(options)
 
-    def _settings(self) -> dict:
-        return {"kind": "stereo", "options": {k: self.options[k] for k in sorted(self.options)}, "version": CACHE_VERSION}
+    def with_options(self, **options) -> "StereoDepthPrior":
+        """The same prior (cache directory and switch) with these options added."""
+        return StereoDepthPrior(cache_dir=self.cache_dir, cache=self.cache, **{**self.options, **options})
 
-    def _keys(self, images, cameras, points) -> list[str]:
+    def _settings(self) -> dict:
+        # every setting, defaults resolved: a changed default makes new cache keys
+        opts = {**self.defaults, **self.options}
+        return {"kind": "stereo", "options": {k: opts[k] for k in sorted(opts)}, "version": CACHE_VERSION}
+
+    def _keys(self, images, cameras, geometry) -> list[str]:
         h = hashlib.sha256(json.dumps(self._settings(), sort_keys=True, default=str).encode())
         for im, cam in zip(images, cameras):  # machine-independent forms (reings/data/cachekey.py)
             hash_image(h, im)
             hash_rounded(h, cam.K, 4)
             hash_rounded(h, cam.viewmat, 6)
+        points, bounds = geometry
         if points is not None:
             hash_rounded(h, points, 6)
+        if bounds is not None and self.options.get("use_bounds", False):
+            h.update(b"bounds")
+            hash_rounded(h, bounds, 6)
         group = h.hexdigest()
         return [hashlib.sha256(f"{group}:{i}".encode()).hexdigest() for i in range(len(images))]
 
-    def _compute_views(self, images, cameras, points, todo):
+    def _compute_views(self, images, cameras, geometry, todo):
         from .stereo import stereo_depths
 
         try:
-            res = stereo_depths(images, cameras, points, **self.options)
+            points, bounds = geometry
+            opts = dict(self.options)
+            if opts.pop("use_bounds", False) and bounds is not None:
+                opts["bounds"] = bounds
+            res = stereo_depths(images, cameras, points, **opts)
         except ValueError as e:
             raise DepthPriorError(str(e)) from None
         return {i: (res[i].depth, res[i].confidence) for i in todo}

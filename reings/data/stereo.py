@@ -7,7 +7,11 @@ optionally sparse points built from those same views.
 Per reference view r:
 
 1. Depth hypotheses: D fronto-parallel planes z = d in r's camera, uniform in inverse depth
-   between `near` and `far`. near/far come from the arguments, else from sparse points (1st / 99th
+   between `near` and `far` (with `slants`, the same D planes again for each extra orientation
+   (yaw, pitch) in degrees: planes turned about r's y and x axes, scored per pixel by the inverse
+   depth they give along its ray; each orientation is aggregated on its own and the best
+   aggregated score wins). near/far come from the arguments, else from `bounds` (each view's own
+   near/far), else from sparse points (1st / 99th
    percentile of their depths in r, widened by 0.8 / 1.25), else from the camera baselines: the
    nearest plane gives `max_disparity_frac` x width of disparity towards the farthest other view,
    the farthest plane `min_disparity_px` towards the nearest other view. D is chosen so that one
@@ -23,6 +27,8 @@ Per reference view r:
    P2 lowered across intensity edges): repeated textures and weak texture get the depth their
    neighbours support. Then winner-take-all over planes and a parabola through the neighbouring
    aggregated costs for a sub-plane inverse depth.
+   Wide baselines need far stronger penalties (DTU's recipe: 0.2 / 9.6 with each view's
+   bounds, `reings.pipeline.STEREO_BY_FAMILY`; docs/results.md §15).
 5. Confidence in [0, 1] = clip(NCC, 0, 1) x (fraction of the other views whose own depth map
    agrees within `consistency` relative depth after reprojection: the multi-view left-right
    check), set to 0 where r has no texture (window std < `min_texture`) or the peak NCC is below
@@ -163,8 +169,22 @@ def _guided(cv2, I, p, r, eps):
     return _box(cv2, a, k) * I + _box(cv2, b, k)
 
 
-def _sweep(cv2, r, grays, cameras, invd, window, min_texture):
-    """Aggregated NCC volume (D, H, W) for reference r."""
+def _plane_normal(yaw_deg: float, pitch_deg: float) -> np.ndarray:
+    """Unit normal, in the reference camera's frame (x right, y down, z forward), of a plane
+    turned by `yaw_deg` about the camera's y axis and `pitch_deg` about its x axis from the
+    fronto-parallel plane (normal (0, 0, 1))."""
+    n = np.array([math.tan(math.radians(yaw_deg)), math.tan(math.radians(pitch_deg)), 1.0])
+    return n / np.linalg.norm(n)
+
+
+def _sweep(cv2, r, grays, cameras, invd, window, min_texture, normal=None):
+    """Aggregated NCC volume (D, H, W) for reference r, and the per-pixel factor rho (H, W).
+
+    Plane k is {X : n . X = n_z / invd[k]} in r's camera frame (n = `normal`, default (0, 0, 1):
+    fronto-parallel, z = 1 / invd[k]); invd[k] is the plane's inverse depth on r's principal ray
+    and the inverse depth at pixel p is invd[k] * rho(p), rho = (n . K^-1 p) / n_z. A pixel whose
+    inverse depth on the plane leaves [invd[0], invd[-1]] (or whose ray misses the plane) scores
+    NCC = -1 there."""
     H, W = grays[r].shape
     g = grays[r]
     mu_r = _box(cv2, g, window)
@@ -174,6 +194,9 @@ def _sweep(cv2, r, grays, cameras, invd, window, min_texture):
     Vr_inv = np.linalg.inv(cameras[r].viewmat)
     xs, ys = np.meshgrid(np.arange(W, dtype=np.float64), np.arange(H, dtype=np.float64))
     rays = np.stack([xs, ys, np.ones_like(xs)], -1).reshape(-1, 3) @ Kr_inv.T  # z = 1 rays
+    n = np.array([0.0, 0.0, 1.0]) if normal is None else np.asarray(normal, dtype=np.float64)
+    rho = rays @ n / n[2]  # (HW,)
+    lo, hi = float(invd[0]) * (1 - 1e-9), float(invd[-1]) * (1 + 1e-9)
     others = [s for s in range(len(grays)) if s != r]
     S = len(others)
     kbest = max(1, math.ceil(S / 2))
@@ -185,14 +208,14 @@ def _sweep(cv2, r, grays, cameras, invd, window, min_texture):
         T = cameras[s].viewmat @ Vr_inv
         Ks = _kcv(cameras[s].K)
         R, t = T[:3, :3], T[:3, 3]
-        A = rays @ (Ks @ R).T  # (HW, 3), homogeneous src coords at invd = 0 ... + invd * B
+        A = rays @ (Ks @ R).T  # (HW, 3), homogeneous src coords at invd = 0 ... + invd * rho * B
         B = Ks @ t  # (3,)
         rel.append((Ks, R, t, A, B))
     eps = 1e-12
     for k, q in enumerate(invd):
         for si, s in enumerate(others):
             Ks, R, t, A, B = rel[si]
-            Hm = Ks @ (R + np.outer(t, [0.0, 0.0, q])) @ Kr_inv
+            Hm = Ks @ (R + np.outer(t, n * (q / n[2]))) @ Kr_inv
             w = cv2.warpPerspective(
                 grays[s], Hm, (W, H), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP, borderMode=cv2.BORDER_REPLICATE
             )
@@ -201,13 +224,16 @@ def _sweep(cv2, r, grays, cameras, invd, window, min_texture):
             cov = _box(cv2, g * w, window) - mu_r * mu_w
             ncc = cov / np.sqrt(var_r * var_w + eps)
             # validity: the plane point lies in front of s and inside its image
-            hz = A[:, 2] + q * B[2]
-            hx = A[:, 0] + q * B[0]
-            hy = A[:, 1] + q * B[1]
+            qp = q * rho  # inverse depth of the plane along each pixel's ray
+            hz = A[:, 2] + qp * B[2]
+            hx = A[:, 0] + qp * B[0]
+            hy = A[:, 1] + qp * B[1]
             with np.errstate(divide="ignore", invalid="ignore"):
                 u = hx / hz
                 v = hy / hz
             ok = (hz > 1e-9) & (u >= -0.5) & (u <= cameras[s].width - 0.5) & (v >= -0.5) & (v <= cameras[s].height - 0.5)
+            if normal is not None:
+                ok &= (qp >= lo) & (qp <= hi)
             ncc = np.where(ok.reshape(H, W), ncc, -1.0)
             ncc_s[si] = np.clip(ncc, -1.0, 1.0)
         if S == 1:
@@ -217,7 +243,7 @@ def _sweep(cv2, r, grays, cameras, invd, window, min_texture):
         else:
             part = -np.partition(-ncc_s, kbest - 1, axis=0)[:kbest]
             vol[k] = part.mean(0)
-    return vol, std_r
+    return vol, std_r, rho.reshape(H, W)
 
 
 def _sgm(cost: np.ndarray, gray: np.ndarray, P1: float, P2: float) -> np.ndarray:
@@ -318,6 +344,8 @@ def stereo_depths(
     sgm: bool = True,
     sgm_p1: float = 0.03,
     sgm_p2: float = 0.6,
+    slants: tuple = (),
+    bounds=None,
     progress=None,
 ) -> list[StereoResult]:
     """Plane-sweep stereo depth for every view in `images` against the others (2 to ~8 views).
@@ -332,6 +360,11 @@ def stereo_depths(
         raise ValueError(f"stereo prior: needs at least 2 posed views, got {n}")
     if len(cameras) != n:
         raise ValueError(f"stereo prior: {n} images but {len(cameras)} cameras")
+    if bounds is not None:
+        bounds = np.asarray(bounds, dtype=np.float64)
+        if bounds.shape != (n, 2) or not np.all(np.isfinite(bounds)) or np.any(bounds[:, 0] <= 0) \
+                or np.any(bounds[:, 1] <= bounds[:, 0]):
+            raise ValueError(f"stereo prior: bounds must be ({n}, 2) finite with 0 < near < far, got {bounds.tolist()}")
     if window < 3 or window % 2 == 0:
         raise ValueError(f"stereo prior: window must be odd and >= 3, got {window}")
     grays = []
@@ -344,7 +377,10 @@ def stereo_depths(
         grays.append(_gray(a))
     raw, nccs, ranges, stds = [], [], [], []
     for r in range(n):
-        nr, fr = depth_range(cameras, r, points, near, far, max_disparity_frac, min_disparity_px)
+        if bounds is not None and near is None and far is None:
+            nr, fr = float(bounds[r][0]), float(bounds[r][1])
+        else:
+            nr, fr = depth_range(cameras, r, points, near, far, max_disparity_frac, min_disparity_px)
         if num_depths is None:
             c = cameras[r].center
             bmax = max(np.linalg.norm(cameras[s].center - c) for s in range(n) if s != r)
@@ -352,16 +388,26 @@ def stereo_depths(
         else:
             D = int(num_depths)
         invd = np.linspace(1.0 / fr, 1.0 / nr, D)
-        vol, std_r = _sweep(cv2, r, grays, cameras, invd, window, min_texture)
-        if sgm:
-            score = -_sgm(1.0 - vol, grays[r], sgm_p1, sgm_p2)
-            q, _ = _wta(score, invd)
-            del score
-            k = np.clip(np.rint((q - invd[0]) / max(invd[1] - invd[0], 1e-30)), 0, D - 1).astype(np.int64)
-            c0 = np.take_along_axis(vol, k[None], 0)[0]
-        else:
-            q, c0 = _wta(vol, invd)
-        del vol
+        best = None  # (score, inverse depth, NCC at the winner) over the plane orientations
+        for normal in [None] + [_plane_normal(*a) for a in slants]:
+            vol, std_r, rho = _sweep(cv2, r, grays, cameras, invd, window, min_texture, normal)
+            if sgm:
+                score = -_sgm(1.0 - vol, grays[r], sgm_p1, sgm_p2)
+                q, sc = _wta(score, invd)
+                del score
+                k = np.clip(np.rint((q - invd[0]) / max(invd[1] - invd[0], 1e-30)), 0, D - 1).astype(np.int64)
+                c0 = np.take_along_axis(vol, k[None], 0)[0]
+            else:
+                q, c0 = _wta(vol, invd)
+                sc = c0
+            del vol
+            qp = q * rho
+            if best is None:
+                best = (sc, qp, c0)
+            else:
+                take = sc > best[0]
+                best = (np.where(take, sc, best[0]), np.where(take, qp, best[1]), np.where(take, c0, best[2]))
+        _, q, c0 = best
         raw.append((1.0 / np.maximum(q, 1e-12)).astype(np.float32))
         nccs.append(c0.astype(np.float32))
         ranges.append((nr, fr, D))
