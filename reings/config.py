@@ -504,7 +504,8 @@ class RunConfig:
         None, "iterations of the fitting stages: N for every stage, or A,B,C for reings' coarse, fine, final "
               "(the baselines take the last); none: the preset's", parse=parse_iterations, check=positive_all,
         metavar="N|A,B,C")
-    depth_prior: str = opt("stereo", "stereo | onnx:PATH | none | exact (the procedural scene's true depths)")
+    depth_prior: str = opt("stereo", "stereo | stereo:k=v,... (its options, e.g. stereo:sgm_p1=0.2,sgm_p2=9.6,"
+                               "use_bounds=True) | onnx:PATH | none | exact (the procedural scene's true depths)")
     extent: str = opt("sfm", "scene box for EHPS and the random inits: 'sfm' (SfM of the training views, their "
                              "frusta as fallback) or 'frusta' (the training frusta directly)", choices=("sfm", "frusta"))
     init_points: int = opt(5000, "random initial points of dngaussian/3dgs and of reings without EHPS",

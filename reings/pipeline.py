@@ -40,6 +40,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from .config import ReInGSConfig, RunConfig, run_config  # noqa: F401 (ReInGSConfig: re-exported)
+from .data.depth_prior import prior_kind
 from .reinit import cvps_select, ehps_init, gaussian_importance, ivps_points, prune_keep_indices
 from .train import fit, gaussians_from_points, random_points_in_box, scene_extent, with_iterations
 
@@ -272,7 +273,7 @@ class RunContext:
         # the smoothness weight of every fit: as given, else the recipe's, except with the stereo
         # prior (no measured benefit: RunConfig.depth_smooth)
         self.smooth_w = (cfg.depth_smooth if cfg.depth_smooth is not None
-                         else 0.0 if cfg.depth_prior == "stereo" else None)  # None: the recipe's
+                         else 0.0 if prior_kind(cfg.depth_prior) == "stereo" else None)  # None: the recipe's
         self.g = self.unpruned = None
         self.timings, self.counts, self.model_bytes = {}, {}, {}
         self.stages, self.series, self.bounds = [], [], []
@@ -623,7 +624,7 @@ def _prepare(cfg: RunConfig, backend, prior, overwrite: bool, quiet: bool, scene
                            + ([("test", test.names, test.cameras)] if te_idx else []))
     ctx = RunContext(cfg, backend, train, test, priors, box, log, progress=progress_enabled(quiet),
                      family=recipe_family(cfg.recipe, scene.kind))
-    ctx.prior_settings = getattr(prior, "options", None) if cfg.depth_prior == "stereo" else None
+    ctx.prior_settings = getattr(prior, "options", None) if prior_kind(cfg.depth_prior) == "stereo" else None
     ctx.timings.update(timings)
     ctx.confidences = confidences
     ctx.in_memory = in_memory

@@ -468,3 +468,15 @@ def test_stereo_settings_per_recipe_family():
     assert prior_for_family(mine, "dtu") is mine  # a user's own settings are kept
     none = DP.get_depth_prior("none")
     assert prior_for_family(none, "dtu") is none
+
+
+def test_stereo_spec_options():
+    """'stereo:k=v,...' sets the stereo prior's options (numbers, True/False), named errors otherwise."""
+    pr = DP.get_depth_prior("stereo:sgm_p1=0.03, sgm_p2=0.6,use_bounds=False", cache=False)
+    assert pr.kind == "stereo" and pr.options == {"sgm_p1": 0.03, "sgm_p2": 0.6, "use_bounds": False}
+    assert DP.prior_kind("stereo:sgm_p1=1") == DP.prior_kind(" Stereo ") == "stereo"
+    assert DP.prior_kind("onnx:/x/y.onnx") == "onnx" and DP.prior_kind("none") == "none"
+    for bad, msg in (("stereo:sgm_p1=abc", "sgm_p1"), ("stereo:sgm_p1=nan", "finite"), ("stereo:window", "k=v"),
+                     ("stereo:sgm_p3=1", "unknown option"), ("stereo:slants=((35,0),)", "slants")):
+        with pytest.raises(DP.DepthPriorError, match=msg):
+            DP.get_depth_prior(bad, cache=False)

@@ -38,6 +38,7 @@ file is recomputed.
 from __future__ import annotations
 
 import hashlib
+import math
 import json
 import os
 from pathlib import Path
@@ -53,6 +54,7 @@ __all__ = [
     "OnnxDepthPrior",
     "StereoDepthPrior",
     "get_depth_prior",
+    "prior_kind",
     "default_cache_dir",
     "da_input_size",
     "midas_input_size",
@@ -500,21 +502,54 @@ class StereoDepthPrior(DepthPrior):
 # --------------------------------------------------------------------------------------------
 
 
+def prior_kind(spec: str) -> str:
+    """The kind of a --depth-prior spec: "stereo" for "stereo" and "stereo:k=v,...", else the spec
+    lower-cased up to its first ':' ("onnx", "none", "exact", ...)."""
+    return str(spec).strip().lower().split(":", 1)[0]
+
+
+def _stereo_spec_options(text: str) -> dict:
+    """"k=v,k=v" of a 'stereo:k=v,...' spec: numbers and True/False only, each name checked by
+    StereoDepthPrior."""
+    import ast
+    import re
+
+    out = {}
+    for kv in filter(None, re.split(r",(?=\s*\w+\s*=)", text)):
+        if "=" not in kv:
+            raise DepthPriorError(f"depth prior 'stereo:{text}': expected k=v pairs separated by ',', got {kv!r}")
+        k, v = (x.strip() for x in kv.split("=", 1))
+        try:
+            val = ast.literal_eval(v)
+        except (ValueError, SyntaxError):
+            val = None
+        if isinstance(val, bool) or (isinstance(val, (int, float)) and math.isfinite(val)):
+            out[k] = val
+        else:
+            raise DepthPriorError(f"depth prior 'stereo:{text}': {k}={v!r} is not a finite number or True/False")
+    return out
+
+
 def get_depth_prior(kind: str, cache_dir=None, cache: bool = True, **options) -> DepthPrior:
-    """A depth prior from its spec string: "onnx:PATH", "stereo" or "none".
+    """A depth prior from its spec string: "onnx:PATH", "stereo", "stereo:k=v,..." or "none".
+
+    "stereo:sgm_p1=0.03,sgm_p2=0.6,use_bounds=False" sets the stereo prior's options (numbers and
+    True/False; the names of `reings.data.stereo.stereo_depths`, and use_bounds); a run whose spec
+    sets options keeps them over its recipe's (`reings.pipeline.STEREO_BY_FAMILY`).
 
     Options go to the prior: OnnxDepthPrior(preprocess="auto"|"depth_anything"|"midas",
     conversion="neg_disparity"|"inverse", eps) or stereo (see `reings.data.stereo.stereo_depths`).
     The ONNX path may also come from $REINGS_DEPTH_MODEL with kind "onnx".
     """
     if not isinstance(kind, str) or not kind:
-        raise DepthPriorError(f"depth prior: expected 'onnx:PATH', 'stereo' or 'none', got {kind!r}")
+        raise DepthPriorError(f"depth prior: expected 'onnx:PATH', 'stereo[:k=v,...]' or 'none', got {kind!r}")
     k = kind.strip()
     low = k.lower()
     if low in ("none", "off", "no"):
         return NoDepthPrior()
-    if low == "stereo":
-        return StereoDepthPrior(cache_dir=cache_dir, cache=cache, **options)
+    if low == "stereo" or low.startswith("stereo:"):
+        spec = _stereo_spec_options(k[7:]) if low.startswith("stereo:") else {}
+        return StereoDepthPrior(cache_dir=cache_dir, cache=cache, **{**spec, **options})
     if low == "onnx" or low.startswith("onnx:"):
         path = k[5:] if low.startswith("onnx:") else os.environ.get("REINGS_DEPTH_MODEL", "")
         if not path:
@@ -523,4 +558,4 @@ def get_depth_prior(kind: str, cache_dir=None, cache: bool = True, **options) ->
         if bad:
             raise DepthPriorError(f"onnx prior: unknown option(s) {sorted(bad)}; known: conversion, eps, preprocess, providers")
         return OnnxDepthPrior(path, cache_dir=cache_dir, cache=cache, **options)
-    raise DepthPriorError(f"depth prior: unknown kind {kind!r}; use 'onnx:PATH', 'stereo' or 'none'")
+    raise DepthPriorError(f"depth prior: unknown kind {kind!r}; use 'onnx:PATH', 'stereo[:k=v,...]' or 'none'")
