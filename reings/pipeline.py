@@ -260,6 +260,7 @@ class RunContext:
 
     bg, near = (0.0, 0.0, 0.0), 0.01
     in_memory = False  # the scene came from reings.run(scene=...), not from a folder
+    prior_options = None  # the stereo prior's options, where the spec or the recipe set some
 
     def __init__(self, cfg: RunConfig, backend, train, test, priors, box, log, progress, family: str = "llff"):
         self.cfg, self.backend, self.train, self.test, self.priors, self.box = cfg, backend, train, test, priors, box
@@ -587,6 +588,7 @@ def _prepare(cfg: RunConfig, backend, prior, overwrite: bool, quiet: bool, scene
     if cfg.depth_prior == "exact" and train.depths is None:
         raise ValueError("--depth-prior exact needs a scene with exact depths (the procedural scene)")
     settings = run_settings(cfg, scene.kind)
+    family = recipe_family(cfg.recipe, scene.kind)
     if in_memory:  # a resume must find the same images and cameras
         from .data.cachekey import scene_digest
 
@@ -604,7 +606,7 @@ def _prepare(cfg: RunConfig, backend, prior, overwrite: bool, quiet: bool, scene
     if cfg.depth_prior == "exact":
         priors = list(train.depths)
     else:
-        prior = prior_for_family(prior, recipe_family(cfg.recipe, scene.kind))
+        prior = prior_for_family(prior, family)
         priors, confidences = (prior.compute(train, return_confidence=True) if getattr(prior, "enabled", True)
                                else (None, None))
         if priors is not None and all(p is None for p in priors):
@@ -622,9 +624,8 @@ def _prepare(cfg: RunConfig, backend, prior, overwrite: bool, quiet: bool, scene
         write_cameras_json(os.path.join(cfg.output.out, "cameras.json"),
                            [("train", train.names, train.cameras)]
                            + ([("test", test.names, test.cameras)] if te_idx else []))
-    ctx = RunContext(cfg, backend, train, test, priors, box, log, progress=progress_enabled(quiet),
-                     family=recipe_family(cfg.recipe, scene.kind))
-    ctx.prior_settings = getattr(prior, "options", None) if prior_kind(cfg.depth_prior) == "stereo" else None
+    ctx = RunContext(cfg, backend, train, test, priors, box, log, progress=progress_enabled(quiet), family=family)
+    ctx.prior_options = (prior.options or None) if prior_kind(cfg.depth_prior) == "stereo" else None
     ctx.timings.update(timings)
     ctx.confidences = confidences
     ctx.in_memory = in_memory
@@ -648,7 +649,7 @@ def _metrics(ctx: RunContext, m: dict, settings: dict, scene, tr_idx, te_idx, cu
         "data": "in-memory" if ctx.in_memory else cfg.data or "procedural", "train_indices": list(map(int, tr_idx)),
         "test_indices": list(map(int, te_idx if cfg.holdout == "protocol" else tr_idx)), "train_names": list(ctx.train.names),
         "test_names": list(ctx.test.names), "depth_prior": cfg.depth_prior,
-        **({"depth_prior_options": ctx.prior_settings} if getattr(ctx, "prior_settings", None) else {}), "seed": cfg.seed,
+        **({"depth_prior_options": ctx.prior_options} if ctx.prior_options else {}), "seed": cfg.seed,
         "sh_degree": cfg.sh_degree, "recipe": ctx.family,
         "mean": {k: m[k] for k in ("psnr", "ssim", "lpips", "avge") if k in m and m[k] is not None},
         "per_image": m.get("per_image"), "seconds": ctx.timings, "gaussians": ctx.counts,

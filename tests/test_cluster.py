@@ -116,7 +116,7 @@ def test_worker_specs_share_each_gpu(monkeypatch):
 
 
 def test_worker_environ_drops_the_malloc_trim_threshold(monkeypatch):
-    """Dask's nannies set MALLOC_TRIM_THRESHOLD_=65536, which makes large numpy temporaries 2.6-5x
+    """Dask's nannies set MALLOC_TRIM_THRESHOLD_=65536, which makes large numpy temporaries 3-17x
     slower (docs/results.md §15); reings' nannies are made without it, keeping the thread limits."""
     pytest.importorskip("distributed")
     from distributed.nanny import _get_env_variables

@@ -450,11 +450,11 @@ def test_stereo_prior_settings_and_bounds_key(tmp_path):
     with pytest.raises(DP.DepthPriorError, match="unknown option"):
         pr.with_options(bounds=[[1, 2]])
     imgs, cams, _ = plane_views(n_views=2, W=64, H=48, f=60.0)
-    geo_b = (None, np.array([[3.0, 10.0], [3.0, 10.0]]))
+    geo_b = (None, np.array([[3.0, 3.5], [3.0, 3.5]]))  # nearer than the scene (4 and ~8): only the bounds put it there
     assert pr._keys(imgs, cams, geo_b) == pr._keys(imgs, cams, (None, None))  # bounds unused: same key
     assert wide._keys(imgs, cams, geo_b) != wide._keys(imgs, cams, (None, None))
     d, _ = wide.with_options(num_depths=32).compute(_BoundedViews(imgs, cams, geo_b[1]), return_confidence=True)
-    assert all(np.all((x >= 3.0 - 1e-4) & (x <= 10.0 + 1e-3)) for x in d)
+    assert all(np.all((x >= 3.0 - 1e-4) & (x <= 3.5 + 1e-4)) for x in d)
 
 
 def test_stereo_settings_per_recipe_family():

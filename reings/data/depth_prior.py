@@ -38,8 +38,8 @@ file is recomputed.
 from __future__ import annotations
 
 import hashlib
-import math
 import json
+import math
 import os
 from pathlib import Path
 
@@ -465,9 +465,13 @@ class StereoDepthPrior(DepthPrior):
         """The same prior (cache directory and switch) with these options added."""
         return StereoDepthPrior(cache_dir=self.cache_dir, cache=self.cache, **{**self.options, **options})
 
+    def _resolved(self) -> dict:
+        """Every setting, the defaults filled in."""
+        return {**self.defaults, **self.options}
+
     def _settings(self) -> dict:
         # every setting, defaults resolved: a changed default makes new cache keys
-        opts = {**self.defaults, **self.options}
+        opts = self._resolved()
         return {"kind": "stereo", "options": {k: opts[k] for k in sorted(opts)}, "version": CACHE_VERSION}
 
     def _keys(self, images, cameras, geometry) -> list[str]:
@@ -479,7 +483,7 @@ class StereoDepthPrior(DepthPrior):
         points, bounds = geometry
         if points is not None:
             hash_rounded(h, points, 6)
-        if bounds is not None and self.options.get("use_bounds", False):
+        if bounds is not None and self._resolved()["use_bounds"]:
             h.update(b"bounds")
             hash_rounded(h, bounds, 6)
         group = h.hexdigest()
@@ -491,7 +495,8 @@ class StereoDepthPrior(DepthPrior):
         try:
             points, bounds = geometry
             opts = dict(self.options)
-            if opts.pop("use_bounds", False) and bounds is not None:
+            opts.pop("use_bounds", None)
+            if self._resolved()["use_bounds"]:
                 opts["bounds"] = bounds
             res = stereo_depths(images, cameras, points, **opts)
         except ValueError as e:

@@ -103,13 +103,17 @@ def _convergence_depth(cameras, r: int, min_angle_deg: float = 3.0):
     return best
 
 
-def depth_range(cameras, r: int, points=None, near=None, far=None, max_disparity_frac=0.25, min_disparity_px=0.5):
-    """(near, far) for reference view r (see the module docstring)."""
+def depth_range(cameras, r: int, points=None, near=None, far=None, max_disparity_frac=0.25, min_disparity_px=0.5,
+                bounds=None):
+    """(near, far) for reference view r (see the module docstring); `bounds`: (n, 2) each view's own
+    near/far, used before the points and the baselines."""
     cam = cameras[r]
     if near is not None and far is not None:
         return float(near), float(far)
     pn = pf = None
-    if points is not None and len(points) >= 8:
+    if bounds is not None:
+        pn, pf = float(bounds[r][0]), float(bounds[r][1])
+    elif points is not None and len(points) >= 8:
         P = np.asarray(points, dtype=np.float64).reshape(-1, 3)
         z = P @ cam.viewmat[:3, :3].T[:, 2] + cam.viewmat[2, 3]
         z = z[np.isfinite(z) & (z > 0)]
@@ -377,10 +381,7 @@ def stereo_depths(
         grays.append(_gray(a))
     raw, nccs, ranges, stds = [], [], [], []
     for r in range(n):
-        if bounds is not None and near is None and far is None:
-            nr, fr = float(bounds[r][0]), float(bounds[r][1])
-        else:
-            nr, fr = depth_range(cameras, r, points, near, far, max_disparity_frac, min_disparity_px)
+        nr, fr = depth_range(cameras, r, points, near, far, max_disparity_frac, min_disparity_px, bounds)
         if num_depths is None:
             c = cameras[r].center
             bmax = max(np.linalg.norm(cameras[s].center - c) for s in range(n) if s != r)
