@@ -424,6 +424,17 @@ class ReInGSConfig:
                        check=finite_nonneg)
     min_init_points: int = opt(2000, "EHPS: floor on the number of points (scenes in small units; keeps the 4:1 "
                                      "grid:random ratio)", cli="--ehps-min-points", check=at_least(1))
+    stereo_seeds: float | None = opt(None, "EHPS, not in the paper: also seed points where the stereo prior is "
+                                           "confident: up to this fraction of each training view's pixels (confidence "
+                                           ">= stereo_seed_conf, drawn with p ~ confidence), back-projected with the "
+                                           "prior's depth and coloured with the pixel; 0 = off; none: 0.1 at 2 training "
+                                           "views or when the scene box comes from the stereo prior (SfM found too few "
+                                           "points), else off",
+                                     check=lambda v: None if v is None or 0 <= v <= 1 else f"must lie in [0, 1], got {v}",
+                                     metavar="FRACTION")
+    stereo_seed_conf: float = opt(0.5, "EHPS: the least stereo confidence of a seeded pixel (and of a point of the "
+                                       "stereo box)",
+                                  check=lambda v: None if 0 <= v <= 1 else f"must lie in [0, 1], got {v}")
     delta: float = opt(0.03, "IVPS: weight of the depth-consistency score Omega_D in Omega_P (Eq. 6)",
                        cli="--ivps-delta", check=lambda v: None if 0 <= v <= 1 else f"must be in [0, 1], got {v}")
     ivps_fraction: float = opt(0.10, "IVPS: fraction of the pixels of each training view drawn as new points",
@@ -506,8 +517,9 @@ class RunConfig:
         metavar="N|A,B,C")
     depth_prior: str = opt("stereo", "stereo | stereo:k=v,... (its options, e.g. stereo:sgm_p1=0.2,sgm_p2=9.6,"
                                "use_bounds=True) | onnx:PATH | none | exact (the procedural scene's true depths)")
-    extent: str = opt("sfm", "scene box for EHPS and the random inits: 'sfm' (SfM of the training views, their "
-                             "frusta as fallback) or 'frusta' (the training frusta directly)", choices=("sfm", "frusta"))
+    extent: str = opt("sfm", "scene box for EHPS and the random inits: 'sfm' (SfM of the training views; when too "
+                             "few points triangulate, the stereo prior's confident pixels, else the training frusta) "
+                             "or 'frusta' (the training frusta directly)", choices=("sfm", "frusta"))
     init_points: int = opt(5000, "random initial points of dngaussian/3dgs and of reings without EHPS",
                            check=at_least(1))
     sh_degree: int | None = opt(None, "maximum SH degree; none: the preset's", choices=(0, 1, 2, 3))

@@ -41,7 +41,8 @@ import numpy as np
 
 from .config import ReInGSConfig, RunConfig, run_config  # noqa: F401 (ReInGSConfig: re-exported)
 from .data.depth_prior import prior_kind
-from .reinit import cvps_select, ehps_init, gaussian_importance, ivps_points, prune_keep_indices
+from .reinit import (cvps_select, ehps_init, gaussian_importance, ivps_points, prune_keep_indices,
+                     stereo_box, stereo_seed_points)
 from .train import fit, gaussians_from_points, random_points_in_box, scene_extent, with_iterations
 
 PRUNE_CURVE_KEEP = (1.0, 0.9, 0.8, 0.7, 0.6, 0.5, 0.4)
@@ -407,14 +408,34 @@ def stage_init(ctx: RunContext, name: str):
     return ctx.record(name, g, time.perf_counter() - t, on_clock=False)
 
 
+# measured (docs/results.md §16, H100, full schedule, seeds 0-2): at 2 views LLFF fern 18.87 -> 20.12 dB,
+# flower 19.32 -> 19.47, DTU scan24 (no SfM points: the stereo box) 10.22 -> 15.31; at 3 views DTU
+# scan24 16.89 -> 16.67 (inside the seed spread) and LLFF not yet measured: so on at 2 views and
+# wherever SfM failed, off otherwise
+STEREO_SEEDS_AUTO = 0.1
+
+
+def stereo_seeds_of(rc: ReInGSConfig, box, n_views: int) -> float:
+    """The fraction of seeded pixels: as set, else STEREO_SEEDS_AUTO at 2 training views or when
+    the box is the stereo prior's (SfM found too few points), else 0."""
+    if rc.stereo_seeds is not None:
+        return rc.stereo_seeds
+    return STEREO_SEEDS_AUTO if n_views <= 2 or getattr(box, "method", None) == "stereo" else 0.0
+
+
 def stage_ehps(ctx: RunContext, name: str):
     """EHPS initial points (paper §3.1), or random ones with EHPS off (initialisation: not on the
     method clock)."""
     rc = ctx.cfg.reings
     t = time.perf_counter()
-    g = ehps_init(ctx.box.lo, ctx.box.hi, rc, ctx.cfg.sh_degree, ctx.rng) if rc.ehps else ctx.random_init()
+    seeds, frac = None, stereo_seeds_of(rc, ctx.box, len(ctx.train))
+    if rc.ehps and frac and ctx.priors is not None and ctx.confidences is not None:
+        seeds = stereo_seed_points(ctx.train, ctx.priors, ctx.confidences, frac, rc.stereo_seed_conf, ctx.rng)
+    g = ehps_init(ctx.box.lo, ctx.box.hi, rc, ctx.cfg.sh_degree, ctx.rng, seeds) if rc.ehps else ctx.random_init()
     ctx.counts["init"], ctx.model_bytes["init"] = len(g), gaussians_nbytes(g)
-    return ctx.record(name, g, time.perf_counter() - t, on_clock=False, enabled=rc.ehps)
+    return ctx.record(name, g, time.perf_counter() - t, on_clock=False, enabled=rc.ehps,
+                      stereo_seeds=0 if seeds is None else len(seeds[0]),
+                      stereo_seed_fraction=frac if seeds is not None else 0.0)
 
 
 def stage_baseline_fit(ctx: RunContext, name: str):
@@ -617,6 +638,12 @@ def _prepare(cfg: RunConfig, backend, prior, overwrite: bool, quiet: bool, scene
     timings["depth_prior"] = time.perf_counter() - t
     t = time.perf_counter()
     box = frusta_only_extent(train) if cfg.extent == "frusta" else sfm_extent(train, cache=_uses_caches(cfg, in_memory))
+    if box.method == "frusta" and cfg.extent == "sfm" and confidences is not None:  # SfM failed: the prior's box
+        sbox = stereo_box(train, priors, confidences, cfg.reings.stereo_seed_conf)
+        if sbox is not None:
+            log(f"[{cfg.label}] scene box: {box.num_sfm_points} SfM points, so the stereo prior's "
+                f"{sbox.n_points} confident points")
+            box = dataclasses.replace(sbox, num_sfm_points=box.num_sfm_points, num_matched_pairs=box.num_matched_pairs)
     timings["sfm"] = time.perf_counter() - t
     if cfg.output.out:  # nothing is written before every input has been read and checked
         prepare_out(cfg.output.out, settings, overwrite)

@@ -1,6 +1,8 @@
 """ReInGS re-initialisation (paper §3, Eq. 3-8): the point sets the pipeline's stages build.
 
     ehps_init         EHPS: a grid plus random points in the expanded SfM box
+    stereo_seed_points  EHPS's optional extra: confident pixels of the stereo prior, back-projected
+    stereo_box        the scene box from those pixels, when SfM triangulates too few points
     ivps_view_scores  IVPS, one view: the pixel score Omega_P and the depth to back-project with
     ivps_points       IVPS: pixels drawn with p ~ Omega_P, back-projected (backproject_pixels)
     gaussian_importance  Omega_G (Eq. 7): alpha*T per Gaussian summed over views and pixels
@@ -16,12 +18,14 @@ from __future__ import annotations
 import numpy as np
 
 from .config import ReInGSConfig
-from .train import gaussians_from_points, random_points_in_box
+from .train import gaussians_from_points, knn_log_scales, random_points_in_box
+from .types import Gaussians
 
 
-def ehps_init(extent_lo, extent_hi, rc: ReInGSConfig, sh_degree: int, rng) -> object:
+def ehps_init(extent_lo, extent_hi, rc: ReInGSConfig, sh_degree: int, rng, seeds=None) -> object:
     """EHPS: expand the SfM box by gamma about its centre; a uniform grid of ~beta1*max side points
-    at cell centres plus beta2*max side uniform random points (paper §3)."""
+    at cell centres plus beta2*max side uniform random points (paper §3). `seeds` = (points,
+    colours) adds coloured points (`stereo_seed_points`); the 3-NN scales are then taken over all."""
     lo, hi = np.asarray(extent_lo, np.float64), np.asarray(extent_hi, np.float64)
     c, half = (lo + hi) / 2, (hi - lo) / 2 * rc.gamma
     lo2, hi2 = c - half, c + half
@@ -36,7 +40,61 @@ def ehps_init(extent_lo, extent_hi, rc: ReInGSConfig, sh_degree: int, rng) -> ob
     axes = [lo2[a] + (np.arange(counts[a]) + 0.5) * side[a] / counts[a] for a in range(3)]
     grid = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
     pts = np.concatenate([grid, random_points_in_box(lo2, hi2, n_rand, rng)]).astype(np.float32)
-    return gaussians_from_points(pts, None, sh_degree, rng)
+    g = gaussians_from_points(pts, None, sh_degree, rng)
+    if seeds is None or not len(seeds[0]):
+        return g
+    s = gaussians_from_points(seeds[0], seeds[1], sh_degree, rng)
+    means = np.concatenate([g.means, s.means])
+    return Gaussians(means, np.concatenate([g.quats, s.quats]), knn_log_scales(means),
+                     np.concatenate([g.opacity_logits, s.opacity_logits]), np.concatenate([g.sh, s.sh]))
+
+
+def stereo_box(train, priors, confidences, min_conf: float, quantile: float = 0.01):
+    """The scene box from the stereo prior when SfM triangulates too few points: every training
+    pixel with confidence >= min_conf, back-projected with the prior's depth; the box spans their
+    [quantile, 1 - quantile] range per axis. None when fewer than 1000 pixels qualify. The points
+    (float64) go with it, as SfM's do (the scene's typical depth is taken from them)."""
+    from .data.sfm import SfmExtent
+
+    pts, cols = [], []
+    for img, cam, depth, conf in zip(train.images, train.cameras, priors, confidences):
+        if depth is None or conf is None:
+            continue
+        z = np.asarray(depth, np.float64).ravel()
+        idx = np.flatnonzero((np.asarray(conf).ravel() >= min_conf) & np.isfinite(z) & (z > 0))
+        pts.append(backproject_pixels(cam, idx, z[idx]))
+        cols.append(np.asarray(img, np.float32).reshape(-1, 3)[idx])
+    if not pts or sum(map(len, pts)) < 1000:
+        return None
+    pts, cols = np.concatenate(pts), np.concatenate(cols)
+    lo, hi = np.quantile(pts, quantile, axis=0), np.quantile(pts, 1 - quantile, axis=0)
+    return SfmExtent(lo, hi, "stereo", pts, cols)
+
+
+def stereo_seed_points(train, priors, confidences, fraction: float, min_conf: float, rng):
+    """Points where the stereo prior is sure of its depth (not in the paper; `ReInGSConfig.stereo_seeds`).
+
+    Per training view, up to round(fraction * H * W) pixels with confidence >= min_conf are drawn
+    without replacement with p ~ confidence, back-projected with the prior's metric z-depth and
+    coloured with the training pixel. Only the training views' images and prior enter. Returns
+    (points [n, 3] float32, colours [n, 3] float32); empty arrays when no pixel qualifies."""
+    pts, cols = [], []
+    for img, cam, depth, conf in zip(train.images, train.cameras, priors, confidences):
+        if depth is None or conf is None:
+            continue
+        c = np.asarray(conf, np.float64).ravel()
+        z = np.asarray(depth, np.float64).ravel()
+        ok = (c >= min_conf) & np.isfinite(z) & (z > 0)
+        n = min(int(round(fraction * cam.width * cam.height)), int(ok.sum()))
+        if n == 0:
+            continue
+        p = np.where(ok, c, 0.0)
+        idx = rng.choice(c.size, size=n, replace=False, p=p / p.sum())
+        pts.append(backproject_pixels(cam, idx, z[idx]))
+        cols.append(np.asarray(img).reshape(-1, 3)[idx])
+    if not pts:
+        return np.zeros((0, 3), np.float32), np.zeros((0, 3), np.float32)
+    return np.concatenate(pts).astype(np.float32), np.concatenate(cols).astype(np.float32)
 
 
 def _zscore(x, m):

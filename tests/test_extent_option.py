@@ -25,3 +25,69 @@ def test_run_records_the_extent_choice(device):
     assert r.metrics["config"]["extent"] == "frusta"
     with pytest.raises(ValueError, match="extent"):
         reings.run(method="dngaussian", iterations=3, device=device, extent="box", quiet=True)
+
+
+def test_stereo_box_spans_the_confident_points_of_the_exact_depths():
+    """stereo_box with the exact depths and a confidence of 1 on the left half of each view: its
+    points are those pixels back-projected, its box their 1-99 % range."""
+    from reings.reinit import backproject_pixels, stereo_box
+
+    scene = reings.make_procedural_scene(n_views=3, width=64, height=48, supersample=1)
+    conf = np.zeros((48, 64), np.float32)
+    conf[:, :32] = 1.0
+    box = stereo_box(scene, scene.depths, [conf] * 3, 0.5)
+    idx = np.flatnonzero(conf.ravel() >= 0.5)
+    want = np.concatenate([backproject_pixels(c, idx, d.ravel()[idx].astype(np.float64))
+                           for c, d in zip(scene.cameras, scene.depths)])
+    assert box.method == "stereo"
+    np.testing.assert_allclose(box.points, want, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(box.lo, np.quantile(want, 0.01, axis=0))
+    np.testing.assert_allclose(box.hi, np.quantile(want, 0.99, axis=0))
+    assert stereo_box(scene, scene.depths, [conf * 0.4] * 3, 0.5) is None  # nothing confident enough
+    assert stereo_box(scene, [None] * 3, [None] * 3, 0.5) is None  # a prior without depth or confidence
+
+
+def test_sfm_failure_falls_back_to_the_stereo_box_and_seeds_ehps(device, monkeypatch):
+    """When SfM triangulates too few points, a run with the stereo prior takes its box from the
+    prior's confident pixels and seeds EHPS from them (stereo_seeds none = auto); with
+    stereo_seeds 0 EHPS has its own points only; --extent frusta keeps the frusta."""
+    import reings.data.sfm as sfm
+
+    def failed(train, **kw):
+        lo, hi, _ = frusta_extent(train.cameras, train.bounds)
+        return sfm.SfmExtent(lo, hi, "frusta", np.zeros((0, 3)), np.zeros((0, 3), np.float32), num_sfm_points=7)
+
+    monkeypatch.setattr(sfm, "sfm_extent", failed)
+    scene = reings.make_procedural_scene(n_views=8, width=64, height=48, supersample=1)
+    kw = dict(scene=scene, method="reings", iterations=(2, 2, 2), device=device, with_lpips=False, eval_every=0,
+              quiet=True, views=3)
+    r = reings.run(**kw)
+    assert r.metrics["sfm"]["method"] == "stereo" and r.metrics["sfm"]["points"] == 7
+    ehps = next(s for s in r.metrics["stages"] if s["stage"] == "ehps")
+    assert ehps["stereo_seeds"] > 0
+    assert ehps["gaussians"] > ehps["stereo_seeds"]  # EHPS's own points stay
+    r0 = reings.run(**kw, stereo_seeds=0.0)
+    assert r0.metrics["sfm"]["method"] == "stereo"
+    e0 = next(s for s in r0.metrics["stages"] if s["stage"] == "ehps")
+    assert e0["stereo_seeds"] == 0 and e0["gaussians"] == ehps["gaussians"] - ehps["stereo_seeds"]
+    rf = reings.run(**kw, extent="frusta")
+    assert rf.metrics["sfm"]["method"] == "frusta"
+    assert next(s for s in rf.metrics["stages"] if s["stage"] == "ehps")["stereo_seeds"] == 0
+
+
+def test_stereo_seeds_auto_rule():
+    from types import SimpleNamespace
+
+    from reings.config import ReInGSConfig
+    from reings.pipeline import STEREO_SEEDS_AUTO, stereo_seeds_of
+
+    sfm, stereo = SimpleNamespace(method="sfm"), SimpleNamespace(method="stereo")
+    auto = ReInGSConfig()
+    assert auto.stereo_seeds is None
+    assert stereo_seeds_of(auto, sfm, 3) == 0.0
+    assert stereo_seeds_of(auto, sfm, 2) == STEREO_SEEDS_AUTO
+    assert stereo_seeds_of(auto, stereo, 4) == STEREO_SEEDS_AUTO
+    assert stereo_seeds_of(ReInGSConfig(stereo_seeds=0.0), stereo, 2) == 0.0
+    assert stereo_seeds_of(ReInGSConfig(stereo_seeds=0.3), sfm, 3) == 0.3
+    with pytest.raises(ValueError, match="stereo_seeds"):
+        ReInGSConfig(stereo_seeds=1.5)

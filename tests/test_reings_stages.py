@@ -10,7 +10,7 @@ from reings import render
 from reings.data import make_procedural_scene
 from reings.data.procedural import _layout, _Noise, _trace
 from reings.config import ReInGSConfig
-from reings.reinit import backproject_pixels, ivps_points, ivps_view_scores
+from reings.reinit import backproject_pixels, ehps_init, ivps_points, ivps_view_scores, stereo_seed_points
 from reings.train import SH_C0, gaussians_from_points
 from reings.types import Gaussians
 
@@ -166,3 +166,58 @@ def test_faint_floaters_capture_the_hard_depth_not_the_expected_depth(scene, dev
     assert err["hard"] > 0.4 and err["expected"] < 0.1, err
     with pytest.raises(ValueError, match="ivps_depth"):
         ReInGSConfig(ivps_depth="median")
+
+
+def test_stereo_seed_points_lie_on_the_surface_and_respect_the_confidence(scene):
+    """stereo_seed_points with the exact depths as the prior: every point is on the traced surface,
+    carries its pixel's colour, and comes from a pixel whose confidence is at least the threshold;
+    at most fraction * H * W per view, and all qualifying pixels when fewer qualify."""
+    rng = np.random.default_rng(3)
+    confs = []
+    for k in range(len(scene)):  # confidence 0 on the left half, a ramp on the right
+        c = np.zeros((H, W), np.float32)
+        c[:, W // 2:] = np.linspace(0.2, 1.0, W - W // 2)[None]
+        confs.append(c if k != 1 else np.zeros_like(c))  # view 1: nothing confident
+    pts, cols = stereo_seed_points(scene, scene.depths, confs, 0.4, 0.5, rng)
+    n = int(round(0.4 * W * H))
+    ok = int((confs[0] >= 0.5).sum())
+    assert ok < n  # the threshold, not the fraction, limits this case
+    assert pts.shape == (2 * ok, 3) and cols.shape == (2 * ok, 3)
+    for k, cam in ((0, scene.cameras[0]), (1, scene.cameras[2])):
+        P = pts[k * ok:(k + 1) * ok].astype(np.float64)
+        pz, tz = _trace_depth(cam, P)
+        np.testing.assert_allclose(pz, tz, rtol=1e-5)
+        R, t = cam.viewmat[:3, :3], cam.viewmat[:3, 3]
+        Xc = P @ R.T + t
+        u = np.floor(Xc[:, 0] / Xc[:, 2] * cam.fx + cam.cx).astype(int)
+        v = np.floor(Xc[:, 1] / Xc[:, 2] * cam.fy + cam.cy).astype(int)
+        assert (confs[0][v, u] >= 0.5).all()
+        np.testing.assert_allclose(cols[k * ok:(k + 1) * ok], scene.images[2 * k][v, u], atol=1e-6)
+    few, _ = stereo_seed_points(scene, scene.depths, confs, 0.01, 0.5, np.random.default_rng(0))
+    assert len(few) == 2 * int(round(0.01 * W * H))
+    # drawn with p ~ confidence: the confident right end wins over the left end of the ramp
+    P = few[: len(few) // 2].astype(np.float64)
+    R, t = scene.cameras[0].viewmat[:3, :3], scene.cameras[0].viewmat[:3, 3]
+    Xc = P @ R.T + t
+    u = np.floor(Xc[:, 0] / Xc[:, 2] * scene.cameras[0].fx + scene.cameras[0].cx).astype(int)
+    assert u.min() >= W // 2
+    none, _ = stereo_seed_points(scene, scene.depths, [np.zeros((H, W), np.float32)] * 3, 0.5, 0.5, rng)
+    assert none.shape == (0, 3)
+
+
+def test_ehps_with_seeds_keeps_its_points_and_adds_the_coloured_seeds():
+    rc = ReInGSConfig(min_init_points=100)
+    lo, hi = np.zeros(3), np.ones(3)
+    g0 = ehps_init(lo, hi, rc, 1, np.random.default_rng(5))
+    seeds = (np.array([[0.47, 0.52, 0.51], [0.2, 0.3, 0.4]], np.float32), np.array([[1, 0, 0], [0, 0.5, 1]], np.float32))
+    g1 = ehps_init(lo, hi, rc, 1, np.random.default_rng(5), seeds)
+    assert len(g1) == len(g0) + 2
+    np.testing.assert_array_equal(g1.means[:len(g0)], g0.means)
+    np.testing.assert_array_equal(g1.sh[:len(g0)], g0.sh)
+    np.testing.assert_allclose(g1.sh[len(g0):, 0] * SH_C0 + 0.5, seeds[1], atol=1e-6)
+    np.testing.assert_array_equal(g1.means[len(g0):], seeds[0])
+    # the 3-NN scales see every point: a seed inside the grid gets a scale from its grid neighbours
+    others = np.delete(g1.means, len(g0), axis=0).astype(np.float64)
+    d = np.sort(np.linalg.norm(others - seeds[0][0], axis=1))[:3]
+    assert d[0] > 0
+    np.testing.assert_allclose(np.exp(g1.log_scales[len(g0)]), np.sqrt(np.mean(d ** 2)), rtol=1e-4)
