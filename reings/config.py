@@ -127,6 +127,10 @@ class LossConfig:
     hard_depth_opacity: float = opt(0.95, "the fixed opacity of the hard-depth render (ReInGS: 0.99)")
     soft_depth: bool = opt(False, "DNGaussian soft depth term: real opacities, gradient to opacities only")
     soft_depth_from: int = opt(1001, "first iteration of the soft depth term")
+    soft_depth_shared: bool = opt(False, "speed, changes the optimizer's steps: the soft depth term reuses the "
+                                         "photometric pass's render (one render fewer per iteration) and its "
+                                         "opacity gradient joins the photometric step (one Adam step of the "
+                                         "opacities instead of two)")
     soft_depth_ema_gate: float | None = opt(None, "DTU: soft depth only while EMA(0.9) of the hard loss < this")
     depth_patch_range: tuple[int, int] = opt((5, 17), "patch size drawn uniformly in [lo, hi], anew per term")
     depth_margin: float = opt(0.00025, 'margin L2: errors with |diff| <= margin are ignored ("error_tolerance")')
@@ -563,6 +567,9 @@ class RunConfig:
                                        "DNGaussian; 1 = the confidence alone)",
                                   check=lambda v: None if 0 <= v <= 1 else f"must lie in [0, 1], got {v}",
                                   metavar="A")
+    soft_depth_shared: bool = opt(False, "every fit with the soft depth term: share the photometric pass's render "
+                                         "with it, and step the opacities once with both gradients (speed, issue 15; "
+                                         "off until its accuracy is measured on the full schedule)")
     dtu_background: bool = opt(False, "every fit: DNGaussian's DTU background rules (dark-pixel mask of the training "
                                       "views, ground truth 0 there, the mean(alpha^2) pass, the black / white Gaussian "
                                       "rules; reings/background.py); not yet measured, so off")

@@ -293,6 +293,8 @@ class RunContext:
             recipe = replace(recipe, loss=replace(recipe.loss, depth_smooth_weight=self.smooth_w))
         if c.depth_confidence:
             recipe = replace(recipe, loss=replace(recipe.loss, depth_confidence=c.depth_confidence))
+        if c.soft_depth_shared:
+            recipe = replace(recipe, loss=replace(recipe.loss, soft_depth_shared=True))
         if c.method == "reings":
             recipe = self.binocular(recipe)
         if c.dtu_background:

@@ -5,6 +5,9 @@ One iteration, in DNGaussian's order (docs/method.md §2.4): an optional hard-de
 gradient to the means only, its own Adam step), an optional soft-depth pass (gradient to the
 opacities only, its own step), then the photometric pass (+ regularisers) stepping every group,
 the densification statistics and the densify/prune schedule. Adam keeps a step count per group.
+With `LossConfig.soft_depth_shared` (speed; off by default) the soft-depth term is taken on the
+photometric pass's render instead: its opacity gradient is added into the photometric gradients
+after the densification statistics, and one Adam step takes both.
 
 The loop (`_Iteration`) calls only the Trainer contract (reings/backends/base.py); the backend makes
 the trainer (`backend.trainer(images, engine=...)`):
@@ -372,11 +375,12 @@ class _Iteration:
                 self.hard_ema = lh if self.hard_ema is None else 0.9 * self.hard_ema + 0.1 * lh
         # soft depth: real opacities, gradient to the opacities only (render_for_opa)
         gate = L.soft_depth_ema_gate is None or (self.hard_ema is not None and self.hard_ema < L.soft_depth_ema_gate)
-        if L.soft_depth and has_target and it >= L.soft_depth_from and gate:
+        soft = L.soft_depth and has_target and it >= L.soft_depth_from and gate
+        if soft and not L.soft_depth_shared:
             self.depth_pass(it, cam, vi, "soft", None, ("opacity_logits",), False)
         if L.dark_background:
             self.bg_pass(cam, vi)
-        loss, rgb = self.photometric_pass(it, cam, vi, self.book.logs(it))
+        loss, rgb = self.photometric_pass(it, cam, vi, self.book.logs(it), soft=soft and L.soft_depth_shared)
         st.iteration = it
         self.densify(it)
         self.book.end(it, deg, loss, rgb, self.images[vi])
@@ -384,24 +388,28 @@ class _Iteration:
     def depth_pass(self, it: int, cam, vi: int, name: str, opacity, groups: tuple, read: bool):
         """One depth pass (forward, depth loss, backward of `groups`, Adam step of `groups`: here
         each group is the render field of the same name). Returns the depth loss if `read`."""
-        from .losses import draw_depth_patches
-        from .optim import depth_smooth_weight_at
-
-        tr, L, ph = self.tr, self.L, self.tr.phase
-        loss = None
+        tr, ph = self.tr, self.tr.phase
         with ph(f"{name}_render"):
             fr = tr.forward(cam, self.k, self.bg, self.near, opacity)
-        with ph("depth_loss"):
-            pl, pg = draw_depth_patches(self.rng, L.depth_patch_range, fr.height, fr.width)
-            vd = tr.depth_loss(fr, vi, pl, pg, L.depth_margin, L.depth_w_local, L.depth_w_global,
-                               depth_smooth_weight_at(L, it))
-            if read:
-                loss = tr.read_depth_loss()
+        vd, loss = self.depth_cotangent(it, fr, vi, read)
         with ph(f"{name}_backward"):
             gr = tr.backward(fr, None, vd, opacity, groups)
         with ph("adam"):
             tr.adam_step(self.opt, gr, groups)
         return loss
+
+    def depth_cotangent(self, it: int, fr, vi: int, read: bool):
+        """DNGaussian's depth loss of frame `fr` against view `vi`'s prior, patch sizes drawn from
+        the fit's rng: (dL/d depth handle, the loss if `read` else None)."""
+        from .losses import draw_depth_patches
+        from .optim import depth_smooth_weight_at
+
+        tr, L = self.tr, self.L
+        with tr.phase("depth_loss"):
+            pl, pg = draw_depth_patches(self.rng, L.depth_patch_range, fr.height, fr.width)
+            vd = tr.depth_loss(fr, vi, pl, pg, L.depth_margin, L.depth_w_local, L.depth_w_global,
+                               depth_smooth_weight_at(L, it))
+            return vd, (tr.read_depth_loss() if read else None)
 
     def bg_pass(self, cam, vi: int) -> None:
         """DNGaussian's DTU background pass: real opacities, mean(alpha^2) over the view's
@@ -416,10 +424,14 @@ class _Iteration:
         with ph("adam"):
             tr.adam_step(self.opt, gr, ("opacity_logits",))
 
-    def photometric_pass(self, it: int, cam, vi: int, log: bool):
+    def photometric_pass(self, it: int, cam, vi: int, log: bool, soft: bool = False):
         """The photometric pass (+ regularisers, the view_warp term, densification statistics,
         the opacity decay), stepping every group. Returns (loss, rendered image) on logging
         iterations, else (None, None).
+
+        soft (`soft_depth_shared`): the soft depth term on this pass's render; after the
+        densification statistics are taken, its backward adds the opacities' gradient into the
+        held gradients, so one step takes both.
 
         With the view_warp term (docs/binocular.md §4.2): the virtual view (the training camera
         shifted by a drawn baseline along its x axis) is rendered first and its image kept; the
@@ -460,9 +472,14 @@ class _Iteration:
                 tr.regularize(gr, L.shape_pena, L.scale_pena, L.opa_pena)
         with ph("accumulate"):
             tr.accumulate(fr)
+        if soft or warp:
+            gr = tr.hold(gr)
+        if soft:  # the frame's depth is this render's; the statistics above came from the photometric backward
+            vd, _ = self.depth_cotangent(it, fr, vi, False)
+            with ph("soft_backward"):
+                tr.backward(fr, None, vd, None, ("opacity_logits",), into=gr)
         if warp:
             with ph("warp_backward"):
-                gr = tr.hold(gr)
                 tr.backward(tr.forward(vcam, self.k, self.bg, self.near), v_virt, into=gr)
         if D.opacity_decay is not None and it > D.opacity_decay_from:
             with ph("opacity_decay"):  # after the backward, before the step (Binocular3DGS)

@@ -94,3 +94,67 @@ def test_engine_choice(case):
         fit(scene, cfg, device="reference", init=init, engine="device", progress=False)
     with pytest.raises(ValueError, match="engine"):
         fit(scene, cfg, device="reference", init=init, engine="gpu", progress=False)
+
+
+def _shared(case):
+    from dataclasses import replace
+
+    scene, init, cfg = case
+    return scene, init, replace(cfg, loss=replace(cfg.loss, soft_depth_shared=True))
+
+
+def test_shared_soft_depth_device_matches_host_and_changes_the_fit(device, case):
+    """soft_depth_shared: the device engine against the host engine (bit-identical on PoCL), and
+    a different result from the two-pass iteration (the switch does something)."""
+    sc = _shared(case)
+    host = _fit(sc, device, engine="host")
+    dev = _fit(sc, device, engine="device")
+    assert host.history.n_gaussians == dev.history.n_gaussians
+    np.testing.assert_allclose(dev.history.loss, host.history.loss, rtol=1e-5)
+    exact = quirks.is_pocl(get_backend(device).handle.device)
+    _assert_same_state(host.state, dev.state, exact, "shared soft depth: device vs host")
+    two = _fit(case, device, engine="device")
+    soft_its = 23 - 3 + 1  # the soft term from iteration 3 of 23
+    steps = dict(dev.state.adam.step)
+    assert steps["opacity_logits"] == 23 and two.state.adam.step == {**steps, "opacity_logits": 23 + soft_its}
+    assert not np.array_equal(two.state.params["opacity_logits"][:50], dev.state.params["opacity_logits"][:50])
+
+
+@pytest.mark.parametrize("engine", ["host", "device"])
+def test_shared_soft_depth_steps_the_sum_of_both_gradients(device, case, engine):
+    """One iteration with only the soft depth term and the photometric loss, shared: Adam's first
+    moment after its first step is (1 - beta1) g, so g of the opacities must be the photometric
+    gradient plus the soft depth gradient, both at the initial parameters, and g of the means the
+    photometric gradient alone. Expected values from the backend's render / render_vjp and its
+    losses, called here directly (patch sizes drawn as the fit draws them)."""
+    from dataclasses import replace
+
+    from reings.losses import draw_depth_patches, photometric_weights
+    from reings.train import _view_of
+
+    scene, init, cfg = case
+    L = replace(cfg.loss, hard_depth=False, soft_depth=True, soft_depth_from=1, soft_depth_shared=True,
+                depth_smooth_weight=0.0, shape_pena=0.0, scale_pena=0.0, opa_pena=0.0)
+    cfg1 = replace(cfg, iterations=1, sh_degree=0, loss=L, densify=replace(cfg.densify, clean_views=False))
+    init0 = type(init)(init.means, init.quats, init.log_scales, init.opacity_logits, init.sh[:, :1])
+    r = fit(scene, cfg1, device=device, init=init0, depth_targets=list(scene.depths), progress=False,
+            engine=engine)
+    b = get_backend(device)
+    vi = _view_of(1, cfg1.seed, len(scene))
+    cam, gt, target = scene.cameras[vi], scene.images[vi], scene.depths[vi]
+    out = b.render(init0, cam, background=tuple(cfg1.background), near=cfg1.near)
+    w_l1, w_ssim = photometric_weights(L.lambda_dssim, L.photometric_form)
+    _, v_rgb = b.photometric_loss(out.rgb, gt, w_l1, w_ssim)
+    g_photo = b.render_vjp(init0, cam, v_rgb, background=tuple(cfg1.background), near=cfg1.near)
+    pl, pg = draw_depth_patches(np.random.default_rng(cfg1.seed), L.depth_patch_range, cam.height, cam.width)
+    _, v_depth = b.depth_loss(out.depth, target, pl, pg, L.depth_margin, L.depth_w_local, L.depth_w_global)
+    g_soft = b.render_vjp(init0, cam, np.zeros_like(v_rgb), v_depth, background=tuple(cfg1.background),
+                          near=cfg1.near, grad_fields=("opacity_logits",))
+    assert np.abs(g_soft.opacity_logits).max() > 0 and np.abs(g_photo.opacity_logits).max() > 0
+    m = r.state.adam.exp_avg
+    k = 1 - cfg1.optim.beta1
+    want = (g_photo.opacity_logits + g_soft.opacity_logits).astype(np.float32)
+    np.testing.assert_allclose(m["opacity_logits"] / k, want, rtol=2e-4, atol=1e-9 + 1e-4 * np.abs(want).max())
+    np.testing.assert_allclose(m["means"] / k, g_photo.means, rtol=2e-4, atol=1e-4 * np.abs(g_photo.means).max())
+    # the soft term's share is not negligible: without it the opacities' moment would be off
+    assert np.abs(g_soft.opacity_logits).max() > 1e-2 * np.abs(g_photo.opacity_logits).max()

@@ -229,6 +229,42 @@ def test_fit_device_matches_host(device, case):
     _same_state(host.state, dev.state, exact, "device vs host engine with view_warp and opacity decay")
 
 
+def test_fit_device_matches_host_with_shared_soft_depth(device, case):
+    """The soft depth term on the photometric render (soft_depth_shared) together with the
+    view_warp term: both add into the held gradients; the engines agree (bit for bit on PoCL)."""
+    scene, init, cfg = case
+    sc = (scene, init, replace(cfg, loss=replace(cfg.loss, soft_depth_shared=True)))
+    host = _fit(sc, device, engine="host")
+    dev = _fit(sc, device, engine="device")
+    assert [it for it, *_ in dev.history.view_warp] == [15, 20, 23]
+    exact = quirks.is_pocl(get_backend(device).handle.device)
+    _same_state(host.state, dev.state, exact, "device vs host engine with view_warp and the shared soft depth")
+    two = _fit(case, device, engine="device")
+    assert not np.array_equal(two.state.params["opacity_logits"], dev.state.params["opacity_logits"])
+
+
+def test_backward_into_adds_only_the_asked_fields(device, case):
+    """backward(grad_fields=("opacity_logits",), into=held) adds the opacities' gradient and
+    leaves every other held group as it was."""
+    scene, init, cfg = case
+    for engine in ("host", "device"):
+        tr = get_backend(device).trainer(scene.images, engine=engine)
+        tr.upload(TrainState.from_gaussians(init, 1))
+        fr = tr.forward(scene.cameras[0], 1, (0, 0, 0), 0.01)
+        held = tr.hold(tr.backward(fr, tr.photometric(fr, 0, 0.8, 0.2)))
+        before = {k: _read(tr, held, k) for k in ("means", "opacity_logits", "sh_dc")}
+        fr = tr.forward(scene.cameras[1], 1, (0, 0, 0), 0.01)
+        v = tr.photometric(fr, 1, 0.8, 0.2)
+        alone = {k: _read(tr, tr.backward(fr, v), k) for k in ("means", "opacity_logits", "sh_dc")}
+        both = tr.backward(fr, v, None, None, ("opacity_logits",), into=held)
+        want = before["opacity_logits"].copy()
+        grad_add(want, alone["opacity_logits"])
+        np.testing.assert_array_equal(_read(tr, both, "opacity_logits"), want, err_msg=engine)
+        for k in ("means", "sh_dc"):
+            assert np.abs(alone[k]).max() > 0
+            np.testing.assert_array_equal(_read(tr, both, k), before[k], err_msg=f"{engine} {k}")
+
+
 def test_fit_terms_change_the_result(device, case):
     """Each switch changes the fit (a wiring that dropped a term would leave the state as it is
     with the term off)."""

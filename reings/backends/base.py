@@ -196,9 +196,10 @@ class Trainer(Protocol):
         """The VJP of the frame's render for the cotangents v_rgb / v_depth (from the loss methods;
         None: zero) and the frame's `opacity_override`, restricted to `grad_fields` (None: every
         field). Returns the gradients per parameter group (handle for `regularize`, `adam_step`);
-        only the groups of `grad_fields` are present. into: gradients from `hold` (same fields and
-        SH count): this backward's gradients are added into them (reference_state.grad_add;
-        kernels/grad_add.cl) and `into` is returned. v_alpha: a cotangent of the alpha image
+        only the groups of `grad_fields` are present. into: gradients from `hold` (the same SH
+        count, holding at least the groups of `grad_fields`): this backward's gradients of those
+        groups are added into them (reference_state.grad_add; kernels/grad_add.cl) and `into` is
+        returned. v_alpha: a cotangent of the alpha image
         (from `bg_alpha`), or None."""
 
     def upload_bg_masks(self, masks: Sequence) -> None:

@@ -178,8 +178,8 @@ class HostTrainer:
         res = {k: out[k] for k in groups}
         if into is None:
             return res
-        if set(into) != set(res):
-            raise ValueError(f"backward into: held groups {sorted(into)} != {sorted(res)}")
+        if not set(res) <= set(into):
+            raise ValueError(f"backward into: held groups {sorted(into)} lack {sorted(set(res) - set(into))}")
         for k, g in res.items():
             grad_add(into[k], g)
         return into

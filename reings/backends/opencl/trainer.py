@@ -431,7 +431,7 @@ class DeviceTrainer:
         e.g. from `depth_loss`, or a host [H,W] array, uploaded). Returns the gradient buffers
         {field: buffer} of backend.backward_device plus "sh_k" (`adam_step` reads the SH groups
         as strided views of the "sh" buffer); with `into` (from `hold`), kernels/grad_add.cl adds
-        them into its buffers and returns it."""
+        the `grad_fields` ones (None: all) into its buffers and returns it."""
         vd = v_depth
         if isinstance(v_depth, np.ndarray):
             vd = self.mem.get("pixel", "v_depth", fr.width * fr.height, 4)
@@ -442,8 +442,8 @@ class DeviceTrainer:
             return g
         if into.get("sh_k") != fr.sh_k or set(into) != set(g):
             raise ValueError("backward into: the held gradients are of another SH count or field set")
-        for f, cols in self._grad_columns(fr.sh_k).items():
-            if self.n * cols:
+        for f, cols in self._grad_columns(fr.sh_k).items():  # only the fields asked for are added
+            if self.n * cols and (grad_fields is None or f in grad_fields):
                 self._launch("grad_add", self.k_grad_add, self.n * cols, _U32(self.n * cols), into[f], g[f])
         return into
 
