@@ -522,8 +522,9 @@ class RunConfig:
     depth_prior: str = opt("stereo", "stereo | stereo:k=v,... (its options, e.g. stereo:sgm_p1=0.2,sgm_p2=9.6,"
                                "use_bounds=True) | onnx:PATH | none | exact (the procedural scene's true depths)")
     extent: str = opt("sfm", "scene box for EHPS and the random inits: 'sfm' (SfM of the training views; when too "
-                             "few points triangulate, the stereo prior's confident pixels, else the training frusta) "
-                             "or 'frusta' (the training frusta directly)", choices=("sfm", "frusta"))
+                             "few points triangulate, the stereo prior's confident pixels, else the training frusta), "
+                             "'stereo' (the stereo prior's confident pixels, even where SfM works) or 'frusta' (the "
+                             "training frusta directly)", choices=("sfm", "stereo", "frusta"))
     init_points: int = opt(5000, "random initial points of dngaussian/3dgs and of reings without EHPS",
                            check=at_least(1))
     sh_degree: int | None = opt(None, "maximum SH degree; none: the preset's", choices=(0, 1, 2, 3))
@@ -585,6 +586,9 @@ class RunConfig:
             raise ValueError(f"dataset procedural is the built-in scene and takes no data folder, got data {self.data!r}")
         if self.views < 2:
             raise ValueError(f"views must be an integer >= 2 (the SfM box needs two training views), got {self.views}")
+        if self.extent == "stereo" and str(self.depth_prior).strip().lower().split(":", 1)[0] != "stereo":
+            raise ValueError(f"extent stereo takes the scene box from the stereo depth prior, but depth_prior is "
+                             f"{self.depth_prior!r}: use --depth-prior stereo or another --extent")
         if self.iterations is not None and len(self.iterations) not in (1, 3):
             raise ValueError(f"iterations must be one count or three (reings: coarse, fine, final), "
                              f"got {self.iterations}")

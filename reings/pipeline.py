@@ -639,7 +639,13 @@ def _prepare(cfg: RunConfig, backend, prior, overwrite: bool, quiet: bool, scene
             f"the {cfg.depth_prior!r} prior has none, so the depth loss is unweighted")
     timings["depth_prior"] = time.perf_counter() - t
     t = time.perf_counter()
-    box = frusta_only_extent(train) if cfg.extent == "frusta" else sfm_extent(train, cache=_uses_caches(cfg, in_memory))
+    if cfg.extent == "stereo":  # the prior's box, asked for
+        box = stereo_box(train, priors, confidences, cfg.reings.stereo_seed_conf) if confidences is not None else None
+        if box is None:
+            raise ValueError(f"{cfg.data or 'the scene'}: --extent stereo: the stereo prior is confident (>= "
+                             f"{cfg.reings.stereo_seed_conf}) at fewer than 1000 training pixels; use --extent sfm")
+    else:
+        box = frusta_only_extent(train) if cfg.extent == "frusta" else sfm_extent(train, cache=_uses_caches(cfg, in_memory))
     if box.method == "frusta" and cfg.extent == "sfm" and confidences is not None:  # SfM failed: the prior's box
         sbox = stereo_box(train, priors, confidences, cfg.reings.stereo_seed_conf)
         if sbox is not None:

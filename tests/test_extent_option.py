@@ -91,3 +91,21 @@ def test_stereo_seeds_auto_rule():
     assert stereo_seeds_of(ReInGSConfig(stereo_seeds=0.3), sfm, 3) == 0.3
     with pytest.raises(ValueError, match="stereo_seeds"):
         ReInGSConfig(stereo_seeds=1.5)
+
+
+def test_extent_stereo_takes_the_prior_box_even_where_sfm_works(device, monkeypatch):
+    import reings.data.sfm as sfm
+
+    def must_not_run(*a, **kw):
+        raise AssertionError("extent stereo must not run SfM")
+
+    monkeypatch.setattr(sfm, "sfm_extent", must_not_run)
+    scene = reings.make_procedural_scene(n_views=8, width=64, height=48, supersample=1)
+    r = reings.run(scene=scene, method="reings", iterations=(2, 2, 2), device=device, with_lpips=False,
+                   eval_every=0, quiet=True, views=3, extent="stereo")
+    assert r.metrics["sfm"]["method"] == "stereo"
+    ehps = next(s for s in r.metrics["stages"] if s["stage"] == "ehps")
+    assert ehps["stereo_seeds"] > 0  # the auto rule seeds wherever the box is the prior's
+    with pytest.raises(ValueError, match="extent stereo.*depth_prior"):
+        reings.run(scene=scene, method="reings", iterations=2, device=device, depth_prior="none", extent="stereo",
+                   quiet=True)
