@@ -164,6 +164,11 @@ def run_settings(cfg: RunConfig, dataset_kind: str) -> dict:
     rc = dataclasses.asdict(cfg.reings)
     if not rc.get("final_prune"):  # 0 = the value before the option existed
         rc.pop("final_prune", None)
+    if rc.get("stereo_seed_conf") == 0.5:  # the default since the option exists
+        rc.pop("stereo_seed_conf")
+    auto_seeds = rc.get("stereo_seeds", 0) is None
+    if auto_seeds:  # none (auto): absent where the auto rule adds nothing, as before the option existed
+        rc.pop("stereo_seeds")
     s = {"method": cfg.label, "data": None if cfg.data is None else os.path.abspath(cfg.data),
          "dataset": dataset_kind, "views": cfg.views, "preset": cfg.preset, "iterations": list(cfg.iterations),
          "seed": cfg.seed, "depth_prior": cfg.depth_prior, "factor": cfg.factor, "init_points": cfg.init_points,
@@ -183,6 +188,10 @@ def run_settings(cfg: RunConfig, dataset_kind: str) -> dict:
                 s["view_warp_start"] = cfg.view_warp_start
         if cfg.opacity_decay is not None:
             s["opacity_decay"] = cfg.opacity_decay
+    if auto_seeds and (cfg.extent == "stereo" or cfg.holdout != "protocol" or cfg.views <= 2):
+        s["stereo_seeds"] = "auto"  # seeds where runs before the option had none (stereo_seeds_of)
+    if cfg.soft_depth_shared:
+        s["soft_depth_shared"] = True
     if cfg.holdout != "protocol":
         s["holdout"], s["views"] = cfg.holdout, None  # every view given trains
     if cfg.seed:  # the seed reaches every fit too (before, only the initial points and IVPS/CVPS draws)

@@ -262,3 +262,21 @@ def test_depth_confidence_comes_from_the_training_views_only(tmp_path, monkeypat
     # (older run folders stay resumable)
     assert run_settings(RunConfig(depth_confidence=1.0).resolved(), "procedural")["depth_confidence"] == 1.0
     assert "depth_confidence" not in run_settings(RunConfig().resolved(), "procedural")
+
+
+def test_resume_settings_of_the_stereo_seeds_and_the_shared_soft_depth():
+    """The resume guard's settings: the seeds' options are absent where a run behaves as before the
+    options existed (3 views, the SfM box), present where the auto rule seeds (2 views, --extent
+    stereo) or a fraction is set; the shared soft depth only when on."""
+    from reings.config import ReInGSConfig
+    from reings.pipeline import run_settings
+
+    s3 = run_settings(RunConfig(views=3).resolved(), "llff")
+    assert "stereo_seeds" not in s3 and "stereo_seeds" not in s3["reings_config"]
+    assert "stereo_seed_conf" not in s3["reings_config"] and "soft_depth_shared" not in s3
+    assert run_settings(RunConfig(views=2).resolved(), "llff")["stereo_seeds"] == "auto"
+    assert run_settings(RunConfig(views=3, extent="stereo").resolved(), "llff")["stereo_seeds"] == "auto"
+    s = run_settings(RunConfig(views=3, reings=ReInGSConfig(stereo_seeds=0.2, stereo_seed_conf=0.7)).resolved(),
+                     "llff")
+    assert s["reings_config"]["stereo_seeds"] == 0.2 and s["reings_config"]["stereo_seed_conf"] == 0.7
+    assert run_settings(RunConfig(soft_depth_shared=True).resolved(), "llff")["soft_depth_shared"] is True
