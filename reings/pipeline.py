@@ -169,6 +169,7 @@ def run_settings(cfg: RunConfig, dataset_kind: str) -> dict:
     auto_seeds = rc.get("stereo_seeds", 0) is None
     if auto_seeds:  # none (auto): absent where the auto rule adds nothing, as before the option existed
         rc.pop("stereo_seeds")
+        auto_seeds = cfg.method == "reings" and cfg.reings.ehps  # the only fits it seeds
     s = {"method": cfg.label, "data": None if cfg.data is None else os.path.abspath(cfg.data),
          "dataset": dataset_kind, "views": cfg.views, "preset": cfg.preset, "iterations": list(cfg.iterations),
          "seed": cfg.seed, "depth_prior": cfg.depth_prior, "factor": cfg.factor, "init_points": cfg.init_points,
@@ -420,7 +421,7 @@ def stage_init(ctx: RunContext, name: str):
 
 
 # measured (docs/results.md §16, H100, full schedule, seeds 0-2): at 2 views LLFF fern 18.87 -> 20.12 dB,
-# flower 19.32 -> 19.47, DTU scan24 (no SfM points: the stereo box) 10.22 -> 15.31; at 3 views DTU
+# flower 19.26 -> 19.47, DTU scan24 (no SfM points: the stereo box) 10.22 -> 15.31; at 3 views DTU
 # scan24 16.89 -> 16.67 (inside the seed spread) and LLFF not yet measured: so on at 2 views and
 # wherever SfM failed, off otherwise
 STEREO_SEEDS_AUTO = 0.1
@@ -655,12 +656,19 @@ def _prepare(cfg: RunConfig, backend, prior, overwrite: bool, quiet: bool, scene
                              f"{cfg.reings.stereo_seed_conf}) at fewer than 1000 training pixels; use --extent sfm")
     else:
         box = frusta_only_extent(train) if cfg.extent == "frusta" else sfm_extent(train, cache=_uses_caches(cfg, in_memory))
-    if box.method == "frusta" and cfg.extent == "sfm" and confidences is not None:  # SfM failed: the prior's box
+    # SfM ran and found too few points (box.note empty; "no pycolmap" etc. keep the frusta): the prior's box
+    if box.method == "frusta" and cfg.extent == "sfm" and not box.note and confidences is not None:
         sbox = stereo_box(train, priors, confidences, cfg.reings.stereo_seed_conf)
         if sbox is not None:
             log(f"[{cfg.label}] scene box: {box.num_sfm_points} SfM points, so the stereo prior's "
                 f"{sbox.n_points} confident points")
             box = dataclasses.replace(sbox, num_sfm_points=box.num_sfm_points, num_matched_pairs=box.num_matched_pairs)
+    if box.method == "stereo":  # data-dependent: a resume must find the same box (absent otherwise, as before)
+        settings["box"] = "stereo"
+    if (cfg.reings.stereo_seeds and cfg.method == "reings" and cfg.reings.ehps
+            and (confidences is None or all(c is None for c in confidences))):
+        log(f"[{cfg.label}] note: --stereo-seeds needs a prior with a confidence (stereo); the "
+            f"{cfg.depth_prior!r} prior has none, so EHPS adds no seeds")
     timings["sfm"] = time.perf_counter() - t
     if cfg.output.out:  # nothing is written before every input has been read and checked
         prepare_out(cfg.output.out, settings, overwrite)
@@ -702,7 +710,8 @@ def _metrics(ctx: RunContext, m: dict, settings: dict, scene, tr_idx, te_idx, cu
                    "device_peak_bytes": dev_peak, "model_mb": {k: v / 2**20 for k, v in ctx.model_bytes.items()},
                    "note": "peaks are this process's high-water marks (several runs in one process share them)"},
         "sfm": {"method": box.method, "points": int(box.num_sfm_points), "lo": box.lo, "hi": box.hi,
-                "cached": bool(getattr(box, "cached", False)), "note": getattr(box, "note", "")},
+                "cached": bool(getattr(box, "cached", False)), "note": getattr(box, "note", ""),
+                **({"stereo_points": box.n_points} if box.method == "stereo" else {})},
         "psnr_vs_time": {"points": ctx.series, "stages": ctx.bounds,
                          "clock": "seconds = training + re-initialisation wall clock, test-PSNR probes excluded; "
                                   "wall_seconds = the same with the probes"},

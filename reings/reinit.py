@@ -18,7 +18,7 @@ from __future__ import annotations
 import numpy as np
 
 from .config import ReInGSConfig
-from .train import gaussians_from_points, knn_log_scales, random_points_in_box
+from .train import SH_C0, gaussians_from_points, random_points_in_box
 from .types import Gaussians
 
 
@@ -43,15 +43,17 @@ def ehps_init(extent_lo, extent_hi, rc: ReInGSConfig, sh_degree: int, rng, seeds
     g = gaussians_from_points(pts, None, sh_degree, rng)
     if seeds is None or not len(seeds[0]):
         return g
-    s = gaussians_from_points(seeds[0], seeds[1], sh_degree, rng)
-    means = np.concatenate([g.means, s.means])
-    return Gaussians(means, np.concatenate([g.quats, s.quats]), knn_log_scales(means),
-                     np.concatenate([g.opacity_logits, s.opacity_logits]), np.concatenate([g.sh, s.sh]))
+    means = np.concatenate([pts, np.asarray(seeds[0], np.float32).reshape(-1, 3)])
+    cols = np.concatenate([g.sh[:, 0] * SH_C0 + 0.5, np.asarray(seeds[1], np.float32).reshape(-1, 3)])
+    s = gaussians_from_points(means, cols, sh_degree, rng)  # the 3-NN scales over every point
+    sh = s.sh.copy()
+    sh[:len(g), 0] = g.sh[:, 0]  # EHPS's own colours exactly as drawn
+    return Gaussians(s.means, s.quats, s.log_scales, s.opacity_logits, sh)
 
 
 def stereo_box(train, priors, confidences, min_conf: float, quantile: float = 0.01):
     """The scene box from the stereo prior when SfM triangulates too few points: every training
-    pixel with confidence >= min_conf, back-projected with the prior's depth; the box spans their
+    pixel with confidence >= min_conf (and > 0), back-projected with the prior's depth; the box spans their
     [quantile, 1 - quantile] range per axis. None when fewer than 1000 pixels qualify. The points
     (float64) go with it, as SfM's do (the scene's typical depth is taken from them)."""
     from .data.sfm import SfmExtent
@@ -61,7 +63,8 @@ def stereo_box(train, priors, confidences, min_conf: float, quantile: float = 0.
         if depth is None or conf is None:
             continue
         z = np.asarray(depth, np.float64).ravel()
-        idx = np.flatnonzero((np.asarray(conf).ravel() >= min_conf) & np.isfinite(z) & (z > 0))
+        c = np.asarray(conf).ravel()
+        idx = np.flatnonzero((c >= min_conf) & (c > 0) & np.isfinite(z) & (z > 0))
         pts.append(backproject_pixels(cam, idx, z[idx]))
         cols.append(np.asarray(img, np.float32).reshape(-1, 3)[idx])
     if not pts or sum(map(len, pts)) < 1000:
@@ -74,7 +77,7 @@ def stereo_box(train, priors, confidences, min_conf: float, quantile: float = 0.
 def stereo_seed_points(train, priors, confidences, fraction: float, min_conf: float, rng):
     """Points where the stereo prior is sure of its depth (not in the paper; `ReInGSConfig.stereo_seeds`).
 
-    Per training view, up to round(fraction * H * W) pixels with confidence >= min_conf are drawn
+    Per training view, up to round(fraction * H * W) pixels with confidence >= min_conf (and > 0) are drawn
     without replacement with p ~ confidence, back-projected with the prior's metric z-depth and
     coloured with the training pixel. Only the training views' images and prior enter. Returns
     (points [n, 3] float32, colours [n, 3] float32); empty arrays when no pixel qualifies."""
@@ -84,7 +87,7 @@ def stereo_seed_points(train, priors, confidences, fraction: float, min_conf: fl
             continue
         c = np.asarray(conf, np.float64).ravel()
         z = np.asarray(depth, np.float64).ravel()
-        ok = (c >= min_conf) & np.isfinite(z) & (z > 0)
+        ok = (c >= min_conf) & (c > 0) & np.isfinite(z) & (z > 0)  # 0: a filled pixel, never drawn
         n = min(int(round(fraction * cam.width * cam.height)), int(ok.sum()))
         if n == 0:
             continue

@@ -473,7 +473,8 @@ class _Iteration:
         with ph("accumulate"):
             tr.accumulate(fr)
         if soft or warp:
-            gr = tr.hold(gr)
+            with ph("hold"):
+                gr = tr.hold(gr)
         if soft:  # the frame's depth is this render's; the statistics above came from the photometric backward
             vd, _ = self.depth_cotangent(it, fr, vi, False)
             with ph("soft_backward"):

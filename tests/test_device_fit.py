@@ -158,3 +158,10 @@ def test_shared_soft_depth_steps_the_sum_of_both_gradients(device, case, engine)
     np.testing.assert_allclose(m["means"] / k, g_photo.means, rtol=2e-4, atol=1e-4 * np.abs(g_photo.means).max())
     # the soft term's share is not negligible: without it the opacities' moment would be off
     assert np.abs(g_soft.opacity_logits).max() > 1e-2 * np.abs(g_photo.opacity_logits).max()
+    # the densification statistics come from the photometric backward alone: the same as a fit
+    # without the soft term (same parameters at the photometric pass)
+    r0 = fit(scene, replace(cfg1, loss=replace(L, soft_depth=False)), device=device, init=init0,
+             depth_targets=list(scene.depths), progress=False, engine=engine)
+    assert any(np.abs(v).max() > 0 for v in r.state.stats.values())
+    for k in r.state.stats:
+        np.testing.assert_array_equal(r.state.stats[k], r0.state.stats[k], err_msg=k)

@@ -109,3 +109,40 @@ def test_extent_stereo_takes_the_prior_box_even_where_sfm_works(device, monkeypa
     with pytest.raises(ValueError, match="extent stereo.*depth_prior"):
         reings.run(scene=scene, method="reings", iterations=2, device=device, depth_prior="none", extent="stereo",
                    quiet=True)
+
+
+def test_seeds_and_box_skip_filled_pixels_even_at_confidence_threshold_zero():
+    """Confidence 0 marks a filled pixel: never a seed or a box point, even with min_conf 0
+    (rng.choice would otherwise be asked for more non-zero draws than exist)."""
+    from reings.reinit import stereo_box, stereo_seed_points
+
+    scene = reings.make_procedural_scene(n_views=3, width=64, height=48, supersample=1)
+    conf = np.zeros((48, 64), np.float32)
+    conf[:, :20] = 0.3
+    pts, _ = stereo_seed_points(scene, scene.depths, [conf] * 3, 0.9, 0.0, np.random.default_rng(0))
+    assert len(pts) == 3 * 48 * 20
+    box = stereo_box(scene, scene.depths, [conf] * 3, 0.0)
+    assert box.n_points == 3 * 48 * 20
+
+
+def test_no_pycolmap_keeps_the_frusta_and_the_stereo_box_is_recorded(device, monkeypatch):
+    """A frusta box for want of pycolmap (note set) stays the frusta; a real SfM failure takes the
+    stereo box, recorded in metrics.json (`sfm.stereo_points`) and in the resume settings."""
+    import reings.data.sfm as sfm
+
+    def box(note):
+        def f(train, **kw):
+            lo, hi, _ = frusta_extent(train.cameras, train.bounds)
+            return sfm.SfmExtent(lo, hi, "frusta", np.zeros((0, 3)), np.zeros((0, 3), np.float32), note=note)
+        return f
+
+    scene = reings.make_procedural_scene(n_views=8, width=64, height=48, supersample=1)
+    kw = dict(scene=scene, method="reings", iterations=(2, 2, 2), device=device, with_lpips=False, eval_every=0,
+              quiet=True, views=3)
+    monkeypatch.setattr(sfm, "sfm_extent", box("no pycolmap"))
+    r = reings.run(**kw)
+    assert r.metrics["sfm"]["method"] == "frusta" and "box" not in r.metrics["config"]
+    monkeypatch.setattr(sfm, "sfm_extent", box(""))
+    r = reings.run(**kw)
+    assert r.metrics["sfm"]["method"] == "stereo" and r.metrics["sfm"]["stereo_points"] > 1000
+    assert r.metrics["config"]["box"] == "stereo"
