@@ -272,12 +272,20 @@ class RunPreset:
     help: str
     iterations: dict  # method -> iterations per fitting stage (FIT_STAGES order)
     sh_degree: dict  # method -> maximum SH degree
+    stereo_seeds: float | None = None  # ReInGSConfig.stereo_seeds where the run leaves it none (None: the auto rule)
 
 
 RUN_PRESETS = {
     "quick": RunPreset("3dgs/dngaussian 600 iterations, reings 200/200/600, SH degree 0",
                        {"3dgs": (600,), "dngaussian": (600,), "reings": (200, 200, 600)},
                        {"3dgs": 0, "dngaussian": 0, "reings": 0}),
+    # the quick schedule with EHPS seeded from the stereo prior at every view count: on 2 PoCL cores
+    # (docs/results.md §18) LLFF fern/flower at 2 views 20.09/19.34 dB (quick without seeds 16.93/15.01;
+    # the H100's full schedule 20.12/19.47), at 3 views fern 21.28 in 349 s (full schedule 21.09)
+    "fast": RunPreset("the CPU preset: quick's iterations and SH 0, with EHPS seeded from the stereo prior at every "
+                      "view count (--stereo-seeds 0.1)",
+                      {"3dgs": (600,), "dngaussian": (600,), "reings": (200, 200, 600)},
+                      {"3dgs": 0, "dngaussian": 0, "reings": 0}, stereo_seeds=0.1),
     # SH 1 for reings from the model-size study (docs/results.md): -61% parameters per Gaussian,
     # test PSNR -0.14..+0.37 dB (mean +0.07) against SH 3; the baselines keep their recipes' 3
     "paper": RunPreset("6000 iterations per stage (the paper's schedule); SH degree 1 for reings, 3 for the baselines",

@@ -157,6 +157,9 @@ def _setting_tag(m: dict) -> str:
         tag.append(f"warp {cfg['view_warp']:g}/{cfg.get('view_warp_disparity', 4.0):g}px")
     if cfg.get("opacity_decay") not in (None, 1):
         tag.append(f"decay {cfg['opacity_decay']:g}")
+    seeds = (cfg.get("reings_config") or {}).get("stereo_seeds")  # absent: none (the preset's or the auto rule)
+    if base == "reings" and seeds is not None:
+        tag.append(f"seeds {seeds:g}")
     fp = (cfg.get("reings_config") or {}).get("final_prune")  # absent: a run from before the option
     if base == "reings" and fp is not None and fp != ReInGSConfig.final_prune:
         tag.append(f"prune {fp:g}")

@@ -39,7 +39,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from .config import ReInGSConfig, RunConfig, run_config  # noqa: F401 (ReInGSConfig: re-exported)
+from .config import RUN_PRESETS, ReInGSConfig, RunConfig, run_config  # noqa: F401 (ReInGSConfig: re-exported)
 from .data.depth_prior import prior_kind
 from .reinit import (cvps_select, ehps_init, gaussian_importance, ivps_points, prune_keep_indices,
                      stereo_box, stereo_seed_points)
@@ -427,11 +427,14 @@ def stage_init(ctx: RunContext, name: str):
 STEREO_SEEDS_AUTO = 0.1
 
 
-def stereo_seeds_of(rc: ReInGSConfig, box, n_views: int) -> float:
-    """The fraction of seeded pixels: as set, else STEREO_SEEDS_AUTO at 2 training views or when
-    the box is the stereo prior's (SfM found too few points), else 0."""
+def stereo_seeds_of(rc: ReInGSConfig, box, n_views: int, preset: float | None = None) -> float:
+    """The fraction of seeded pixels: as set, else the run preset's (`preset`, RunPreset.stereo_seeds)
+    if it has one, else STEREO_SEEDS_AUTO at 2 training views or when the box is the stereo
+    prior's (SfM found too few points), else 0."""
     if rc.stereo_seeds is not None:
         return rc.stereo_seeds
+    if preset is not None:
+        return preset
     return STEREO_SEEDS_AUTO if n_views <= 2 or getattr(box, "method", None) == "stereo" else 0.0
 
 
@@ -440,7 +443,7 @@ def stage_ehps(ctx: RunContext, name: str):
     method clock)."""
     rc = ctx.cfg.reings
     t = time.perf_counter()
-    seeds, frac = None, stereo_seeds_of(rc, ctx.box, len(ctx.train))
+    seeds, frac = None, stereo_seeds_of(rc, ctx.box, len(ctx.train), RUN_PRESETS[ctx.cfg.preset].stereo_seeds)
     if rc.ehps and frac and ctx.priors is not None and ctx.confidences is not None:
         seeds = stereo_seed_points(ctx.train, ctx.priors, ctx.confidences, frac, rc.stereo_seed_conf, ctx.rng)
     g = ehps_init(ctx.box.lo, ctx.box.hi, rc, ctx.cfg.sh_degree, ctx.rng, seeds) if rc.ehps else ctx.random_init()

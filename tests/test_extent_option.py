@@ -146,3 +146,28 @@ def test_no_pycolmap_keeps_the_frusta_and_the_stereo_box_is_recorded(device, mon
     r = reings.run(**kw)
     assert r.metrics["sfm"]["method"] == "stereo" and r.metrics["sfm"]["stereo_points"] > 1000
     assert r.metrics["config"]["box"] == "stereo"
+
+
+def test_the_fast_preset_seeds_at_every_view_count():
+    from types import SimpleNamespace
+
+    from reings.config import RUN_PRESETS, ReInGSConfig
+    from reings.pipeline import stereo_seeds_of
+
+    sfm = SimpleNamespace(method="sfm")
+    fast = RUN_PRESETS["fast"]
+    assert fast.iterations == RUN_PRESETS["quick"].iterations and fast.sh_degree == RUN_PRESETS["quick"].sh_degree
+    assert RUN_PRESETS["quick"].stereo_seeds is None and RUN_PRESETS["paper"].stereo_seeds is None
+    assert stereo_seeds_of(ReInGSConfig(), sfm, 4, fast.stereo_seeds) == 0.1
+    assert stereo_seeds_of(ReInGSConfig(stereo_seeds=0.0), sfm, 4, fast.stereo_seeds) == 0.0  # the run's value wins
+    assert stereo_seeds_of(ReInGSConfig(), sfm, 4, None) == 0.0
+
+
+def test_a_fast_run_seeds_ehps_at_three_views(device):
+    scene = reings.make_procedural_scene(n_views=8, width=64, height=48, supersample=1)
+    kw = dict(scene=scene, method="reings", iterations=(2, 2, 2), device=device, with_lpips=False, eval_every=0,
+              quiet=True, views=3, extent="frusta")  # at 64x48 SfM fails, and the auto rule would seed
+    fast = next(s for s in reings.run(**kw, preset="fast").metrics["stages"] if s["stage"] == "ehps")
+    quick = next(s for s in reings.run(**kw, preset="quick").metrics["stages"] if s["stage"] == "ehps")
+    assert fast["stereo_seed_fraction"] == 0.1 and fast["stereo_seeds"] > 0
+    assert quick["stereo_seeds"] == 0 and quick["gaussians"] == fast["gaussians"] - fast["stereo_seeds"]
