@@ -281,7 +281,8 @@ RUN_PRESETS = {
                        {"3dgs": 0, "dngaussian": 0, "reings": 0}),
     # the quick schedule with EHPS seeded from the stereo prior at every view count: on 2 PoCL cores
     # (docs/results.md §18) LLFF fern/flower at 2 views 20.09/19.34 dB (quick without seeds 16.93/15.01;
-    # the H100's full schedule 20.12/19.47), at 3 views fern 21.28 in 349 s (full schedule 21.09)
+    # the H100's full schedule 20.12/19.47), at 3 views (seeds 0-2) 21.17/20.46 in 6-7 minutes (the
+    # full schedule 21.09/20.70)
     "fast": RunPreset("the CPU preset: quick's iterations and SH 0, with EHPS seeded from the stereo prior at every "
                       "view count (--stereo-seeds 0.1)",
                       {"3dgs": (600,), "dngaussian": (600,), "reings": (200, 200, 600)},
