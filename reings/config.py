@@ -595,7 +595,9 @@ class RunConfig:
             raise ValueError(f"dataset procedural is the built-in scene and takes no data folder, got data {self.data!r}")
         if self.views < 2:
             raise ValueError(f"views must be an integer >= 2 (the SfM box needs two training views), got {self.views}")
-        if self.extent == "stereo" and str(self.depth_prior).strip().lower().split(":", 1)[0] != "stereo":
+        from .data.depth_prior import prior_kind
+
+        if self.extent == "stereo" and prior_kind(self.depth_prior) != "stereo":
             raise ValueError(f"extent stereo takes the scene box from the stereo depth prior, but depth_prior is "
                              f"{self.depth_prior!r}: use --depth-prior stereo or another --extent")
         if self.iterations is not None and len(self.iterations) not in (1, 3):

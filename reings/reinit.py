@@ -51,6 +51,14 @@ def ehps_init(extent_lo, extent_hi, rc: ReInGSConfig, sh_degree: int, rng, seeds
     return Gaussians(s.means, s.quats, s.log_scales, s.opacity_logits, sh)
 
 
+def _confident(depth, conf, min_conf: float):
+    """(confidence, depth, qualifying mask) of one view's prior, flat float64: confidence >=
+    min_conf and > 0 (0 marks a filled pixel, never used), a finite positive depth."""
+    c = np.asarray(conf, np.float64).ravel()
+    z = np.asarray(depth, np.float64).ravel()
+    return c, z, (c >= min_conf) & (c > 0) & np.isfinite(z) & (z > 0)
+
+
 def stereo_box(train, priors, confidences, min_conf: float, quantile: float = 0.01):
     """The scene box from the stereo prior when SfM triangulates too few points: every training
     pixel with confidence >= min_conf (and > 0), back-projected with the prior's depth; the box spans their
@@ -62,9 +70,8 @@ def stereo_box(train, priors, confidences, min_conf: float, quantile: float = 0.
     for img, cam, depth, conf in zip(train.images, train.cameras, priors, confidences):
         if depth is None or conf is None:
             continue
-        z = np.asarray(depth, np.float64).ravel()
-        c = np.asarray(conf).ravel()
-        idx = np.flatnonzero((c >= min_conf) & (c > 0) & np.isfinite(z) & (z > 0))
+        _, z, ok = _confident(depth, conf, min_conf)
+        idx = np.flatnonzero(ok)
         pts.append(backproject_pixels(cam, idx, z[idx]))
         cols.append(np.asarray(img, np.float32).reshape(-1, 3)[idx])
     if not pts or sum(map(len, pts)) < 1000:
@@ -85,9 +92,7 @@ def stereo_seed_points(train, priors, confidences, fraction: float, min_conf: fl
     for img, cam, depth, conf in zip(train.images, train.cameras, priors, confidences):
         if depth is None or conf is None:
             continue
-        c = np.asarray(conf, np.float64).ravel()
-        z = np.asarray(depth, np.float64).ravel()
-        ok = (c >= min_conf) & (c > 0) & np.isfinite(z) & (z > 0)  # 0: a filled pixel, never drawn
+        c, z, ok = _confident(depth, conf, min_conf)
         n = min(int(round(fraction * cam.width * cam.height)), int(ok.sum()))
         if n == 0:
             continue
