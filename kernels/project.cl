@@ -11,6 +11,8 @@
      r = ceil(3 sqrt(lambda_max)),  lambda_max = mid + sqrt(max(0.1, mid^2 - det))
      tiles [floor((u - r)/16), ceil((u + r)/16)) (y likewise), clamped to the grid; cull if empty
      colour = max(0, SH(normalize(mu - campos)) + 0.5);  opacity = sigmoid(logit) or the override
+     DropGaussian (drop_threshold > 0; docs/method.md §9): cull unless DROP_HASH(gid, drop_key) >=
+     drop_threshold; a kept Gaussian's opacity is sigmoid(logit) * drop_scale (1 / (1 - rate))
 
    Kernels
      project_fwd   one work-item per Gaussian (gid); writes every output row (culled rows: zeros)
@@ -26,7 +28,9 @@
                    which PoCL 3.0 does not vectorize across work-items); 1 on GPUs. The code is
                    written once over the lane types vf / vi; culling is a lane mask, never a branch.
 
-   Culling (radii 0, zero row; matches the reference): any non-finite raw field; |q| < 1e-12;
+   Culling (radii 0, zero row; matches the reference): dropped by the DropGaussian mask (then no
+   tile intersections, zero gradients, no densification statistics, as any culled Gaussian); any
+   non-finite raw field; |q| < 1e-12;
    t_z <= near (or not finite); det(Sigma2d) <= 0; a projected value (t, u, v, Sigma2d, conic,
    lambda_max, colour) not finite in float32; an empty tile rect. det, conic and lambda_max are
    computed on Sigma2d / max(a, c) so that a huge but representable Sigma2d does not overflow.
@@ -71,6 +75,24 @@
 #define SH_C3_4 -0.4570457994644658f
 #define SH_C3_5 1.445305721320277f
 #define SH_C3_6 -0.5900435899266435f
+
+/* DROP_HASH(h, gid, key): DropGaussian's mask hash (docs/method.md §9): project_fwd keeps Gaussian
+   gid iff the hash >= drop_threshold. murmur3's 32-bit finaliser (fmix32) of
+   gid ^ (key * DROP_KEY_MUL), in uint arithmetic (wraps mod 2^32); h and gid are vu lanes (uint or
+   uint8), key a uint. The numpy twin is reings/backends/reference_drop.py drop_hash
+   (tests/test_drop.py checks them bit for bit). */
+#define DROP_KEY_MUL 0x9E3779B9u   /* 2^32 / golden ratio */
+#define DROP_FMIX_MUL1 0x85EBCA6Bu /* fmix32 */
+#define DROP_FMIX_MUL2 0xC2B2AE35u
+#define DROP_HASH(h, gid, key)                      \
+    do {                                            \
+        (h) = (gid) ^ ((uint)(key) * DROP_KEY_MUL); \
+        (h) ^= (h) >> 16;                           \
+        (h) *= DROP_FMIX_MUL1;                      \
+        (h) ^= (h) >> 13;                           \
+        (h) *= DROP_FMIX_MUL2;                      \
+        (h) ^= (h) >> 16;                           \
+    } while (0)
 
 /* ---------------------------------------------------------------------------------------------
    lane types: vf / vi hold PROJ_VW Gaussians. Comparisons give masks (scalar 0/1, vector 0/-1);
@@ -318,7 +340,9 @@ PROJ_INLINE vi project_one(vi gid, __global const float *means, __global const f
     const vi gid = min((vi)g0 + VLANES, (vi)((n) - 1));                 \
     const vi lane_ok = ((vi)g0 + VLANES) < (vi)(n)
 
-/* Forward projection, one work-item per PROJ_VW Gaussians. */
+/* Forward projection, one work-item per PROJ_VW Gaussians. DropGaussian: drop_threshold 0 keeps
+   every Gaussian (the host then passes drop_scale 1: the outputs are those without the option);
+   the host never combines a drop with opacity_override. */
 __kernel void project_fwd(const int n,
                           __global const float *means,          /* [N, 3] */
                           __global const float *quats,          /* [N, 4] (w, x, y, z) */
@@ -328,6 +352,9 @@ __kernel void project_fwd(const int n,
                           __constant const float *cam,          /* [CAM_RECORD] */
                           const int width, const int height,
                           const float opacity_override,         /* > 0: every opacity is this */
+                          const uint drop_key,                  /* DropGaussian mask key */
+                          const uint drop_threshold,            /* keep iff DROP_HASH >= this; 0: keep all */
+                          const float drop_scale,               /* kept opacities' factor, 1 / (1 - rate) */
                           __global float *means2d,              /* [N, 2] */
                           __global float *conics,               /* [N, 3] */
                           __global float *depths,               /* [N] */
@@ -339,7 +366,12 @@ __kernel void project_fwd(const int n,
                           __global uint *gid_vals) {            /* [N] sort values = gid */
     LANES(n);
     proj_t p;
-    const vi vis = project_one(gid, means, quats, log_scales, opacity_logits, sh, cam, width, height, &p) & lane_ok;
+    vi vis = project_one(gid, means, quats, log_scales, opacity_logits, sh, cam, width, height, &p) & lane_ok;
+    if (drop_threshold != 0u) { /* DropGaussian: a dropped Gaussian is culled */
+        vu h;
+        DROP_HASH(h, AS_U(gid), drop_key);
+        vis &= h >= (vu)drop_threshold;
+    }
     const vf zero = 0.0f;
     SCATTER_U(gid_vals, 1, 0, AS_U((vi)g0 + VLANES));
     SCATTER_F(means2d, 2, 0, select(zero, p.u, vis));
@@ -353,7 +385,8 @@ __kernel void project_fwd(const int n,
     SCATTER_I(radii, 1, 0, select((vi)0, rad, vis));
     for (int i = 0; i < 4; ++i) SCATTER_I(tile_rect, 4, i, select((vi)0, CVT_I(p.rect[i]), vis));
     for (int ch = 0; ch < 3; ++ch) SCATTER_F(colors, 3, ch, select(zero, fmax(p.raw[ch], 0.0f), vis));
-    const vf op = opacity_override > 0.0f ? (vf)opacity_override : 1.0f / (1.0f + exp(-GATHER(opacity_logits, gid)));
+    const vf op = opacity_override > 0.0f ? (vf)opacity_override
+                                          : (1.0f / (1.0f + exp(-GATHER(opacity_logits, gid)))) * drop_scale;
     SCATTER_F(opacities, 1, 0, select(zero, op, vis));
     /* t_z > near > 0: the float bits order like the floats */
     SCATTER_U(depth_keys, 1, 0, select((vu)DEPTH_KEY_CULLED, AS_U(p.t[2]), vis));
@@ -361,7 +394,8 @@ __kernel void project_fwd(const int n,
 
 /* Backward projection, one work-item per PROJ_VW Gaussians: raw-field gradients from the
    per-Gaussian cotangents. grad_mask bits: 1 means, 2 quats, 4 log_scales, 8 opacity_logits, 16 sh
-   (a field whose bit is clear gets zeros). Culled Gaussians (radii == 0) get zeros. */
+   (a field whose bit is clear gets zeros). Culled Gaussians (radii == 0, DropGaussian's dropped ones
+   included) get zeros. */
 __kernel void project_bwd(const int n,
                           __global const float *means,          /* [N, 3] */
                           __global const float *quats,          /* [N, 4] */
@@ -371,6 +405,7 @@ __kernel void project_bwd(const int n,
                           __constant const float *cam,          /* [CAM_RECORD] */
                           const int width, const int height,
                           const float opacity_override,         /* > 0: opacity grad is zero */
+                          const float drop_scale,               /* project_fwd's (dropped ones have radii 0) */
                           const int grad_mask,
                           __global const int *radii,            /* [N] from project_fwd */
                           __global const float *v_proj,         /* [N, V_PROJ] (rows of culled gids unread) */
@@ -426,7 +461,7 @@ __kernel void project_bwd(const int n,
     vf vlogit = 0.0f;
     if (!(opacity_override > 0.0f)) {
         vf op = 1.0f / (1.0f + exp(-GATHER(opacity_logits, gid)));
-        vlogit = v_op * op * (1.0f - op);
+        vlogit = v_op * op * (1.0f - op) * drop_scale; /* opacity = sigmoid(logit) * drop_scale */
     }
     const vi keep_op = vis & (vi)((grad_mask & 8) ? -1 : 0);
     SCATTER_F(v_opacity_logits, 1, 0, select(zero, vlogit * vscale, keep_op));

@@ -142,6 +142,11 @@ class LossConfig:
                                        "terms: w = 1 - a + a c (0 = unweighted, DNGaussian; priors without a "
                                        "confidence are unweighted)",
                                   check=lambda v: None if 0 <= v <= 1 else f"must lie in [0, 1], got {v}")
+    depth_metric: float = opt(0.0, "the metric depth term (docs/method.md §10): weight of the relative L1 between "
+                                   "the photometric pass's rendered depth and the prior's metric depth, per pixel "
+                                   "weighted by the prior's confidence (1 where it has none); 0 = off",
+                              check=lambda v: None if v >= 0 and v == v and v != float("inf")
+                              else f"must be >= 0 and finite, got {v}")
     shape_pena: float = opt(0.0, "weight of mean(max scale / min scale)")
     scale_pena: float = opt(0.0, "weight of mean(max scale^2)")
     opa_pena: float = opt(0.0, "weight of 1 - mean(o^2 | o>0.2) + mean((1-o)^2 | o<0.2)")
@@ -153,6 +158,11 @@ class LossConfig:
     view_warp_baseline: float = opt(0.4, "largest |baseline| of the virtual view, world units (drawn uniformly "
                                          "per iteration, random sign; authors: 0.4 in COLMAP units)")
     view_warp_from: int = opt(20_000, "first iteration of the view_warp term (authors: 2/3 of the schedule)")
+    drop_gamma: float = opt(0.0, "DropGaussian (Park et al. 2025, docs/method.md §9): the largest drop rate, "
+                                 "reached at the fit's last iteration; at iteration t of T each Gaussian is left "
+                                 "out of the photometric pass's renders with rate gamma t / T and the kept ones' "
+                                 "opacities are scaled by 1 / (1 - rate); 0 = off",
+                            check=lambda v: None if 0 <= v < 1 else f"must lie in [0, 1), got {v}")
     dark_background: bool = opt(False, "DTU (DNGaussian): training pixels darker than 30/255 whose 49 pixels above "
                                        "are dark too are background: ground truth 0 there, and a pass per iteration "
                                        "penalising mean(alpha^2) over them, stepping the opacities only")
@@ -580,6 +590,19 @@ class RunConfig:
     soft_depth_shared: bool = opt(False, "every fit with the soft depth term: share the photometric pass's render "
                                          "with it, and step the opacities once with both gradients (speed, issue 15; "
                                          "off until its accuracy is measured on the full schedule)")
+    drop_gamma: float | None = opt(None, "reings and dngaussian fits: DropGaussian (Park et al. 2025; docs/method.md "
+                                         "§9): each Gaussian is left out of the photometric pass's renders with a rate "
+                                         "rising linearly to this at each fit's last iteration, the kept ones' "
+                                         "opacities scaled by 1 / (1 - rate); 0 = off; none: the recipe family's "
+                                         "for reings (0.2 for 'dtu', off for 'llff'; docs/results.md §19), off for dngaussian",
+                                   check=lambda v: None if v is None or 0 <= v < 1 else f"must lie in [0, 1), got {v}",
+                                   metavar="GAMMA")
+    depth_metric: float | None = opt(None, "reings fits with a metric depth prior (stereo, exact): the metric depth "
+                                           "term's weight (docs/method.md §10): the photometric pass's rendered depth "
+                                           "against the prior's metric depth, relative L1 weighted by the prior's "
+                                           "confidence; 0 = off; none: the recipe family's (off for 'llff' and 'dtu')",
+                                     check=lambda v: None if v is None or (v >= 0 and v == v and v != float("inf"))
+                                     else f"must be >= 0 and finite, got {v}", metavar="WEIGHT")
     dtu_background: bool = opt(False, "every fit: DNGaussian's DTU background rules (dark-pixel mask of the training "
                                       "views, ground truth 0 there, the mean(alpha^2) pass, the black / white Gaussian "
                                       "rules; reings/background.py); not yet measured, so off")
@@ -597,6 +620,10 @@ class RunConfig:
             raise ValueError(f"views must be an integer >= 2 (the SfM box needs two training views), got {self.views}")
         from .data.depth_prior import prior_kind
 
+        if self.depth_metric and self.method == "reings" and prior_kind(self.depth_prior) not in METRIC_PRIORS:
+            raise ValueError(f"depth_metric compares the rendered depth with a metric depth prior "
+                             f"({', '.join(METRIC_PRIORS)}), but depth_prior is {self.depth_prior!r}: use "
+                             f"--depth-prior stereo or --depth-metric 0")
         if self.extent == "stereo" and prior_kind(self.depth_prior) != "stereo":
             raise ValueError(f"extent stereo takes the scene box from the stereo depth prior, but depth_prior is "
                              f"{self.depth_prior!r}: use --depth-prior stereo or another --extent")
@@ -635,6 +662,8 @@ def leaf_fields(cls=RunConfig, prefix: str = ""):
         else:
             yield prefix + f.name, f, tp
 
+
+METRIC_PRIORS = ("stereo", "exact")  # the depth priors whose depth is metric (RunConfig.depth_metric)
 
 LEGACY_KEYWORDS = {"reings_config": "reings", "with_lpips": "output.lpips"}
 

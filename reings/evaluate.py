@@ -157,6 +157,10 @@ def _setting_tag(m: dict) -> str:
         tag.append(f"warp {cfg['view_warp']:g}/{cfg.get('view_warp_disparity', 4.0):g}px")
     if cfg.get("opacity_decay") not in (None, 1):
         tag.append(f"decay {cfg['opacity_decay']:g}")
+    if cfg.get("drop_gamma"):  # DropGaussian (absent when off)
+        tag.append(f"drop {cfg['drop_gamma']:g}")
+    if cfg.get("depth_metric"):  # the metric depth term (absent when off)
+        tag.append(f"metric {cfg['depth_metric']:g}")
     seeds = (cfg.get("reings_config") or {}).get("stereo_seeds")  # absent: none (the preset's or the auto rule)
     if base == "reings" and seeds is not None:
         tag.append(f"seeds {seeds:g}")
@@ -508,17 +512,24 @@ def _prepare(jobs) -> None:
               f"{', cached' if ext.cached else ''}), {time.perf_counter() - t:.1f} s", flush=True)
 
 
-def _settings_differ(metrics_path: str, cfg) -> str:
+# settings recorded only when on (absent = off): a run that has one and a config that has not differ
+_ABSENT_WHEN_OFF = ("drop_gamma", "depth_metric")
+
+
+def _settings_differ(metrics_path: str, cfg, dataset_kind: str | None = None) -> str:
     """'' if the finished run at `metrics_path` has the settings `cfg` asks for (the keys both
-    record, except the data path and format: folders move between machines)."""
+    record, and those of _ABSENT_WHEN_OFF on either side, except the data path and format: folders
+    move between machines). dataset_kind: the grid's dataset ("dtu" resolves the DTU recipe
+    family's defaults)."""
     from .pipeline import run_settings
 
     try:
         with open(metrics_path) as f:
             have = json.load(f).get("config") or {}
-        want = json.loads(json.dumps(run_settings(cfg.resolved(), None)))
+        want = json.loads(json.dumps(run_settings(cfg.resolved(), dataset_kind)))
         keys = [k for k in want if k in have and k not in ("data", "dataset")]
-        return ", ".join(f"{k} {have[k]!r} != {want[k]!r}" for k in keys if have[k] != want[k])
+        keys += [k for k in _ABSENT_WHEN_OFF if (k in have) != (k in want)]
+        return ", ".join(f"{k} {have.get(k)!r} != {want.get(k)!r}" for k in keys if have.get(k) != want.get(k))
     except (OSError, ValueError, KeyError, AttributeError):
         return ""
 
@@ -532,7 +543,7 @@ def _run_one(i: int, n: int, ds: str, scene: str, cfg, args, say) -> str | None:
     seed = f" seed {cfg.seed}" if cfg.seed else ""
     head = f"[{i}/{n}] {ds} {scene} {cfg.views} views {cfg.label}{seed}"
     if os.path.exists(os.path.join(rd, "metrics.json")):
-        diff = _settings_differ(os.path.join(rd, "metrics.json"), cfg)
+        diff = _settings_differ(os.path.join(rd, "metrics.json"), cfg, ds)
         if diff:
             print(f"{head}: WARNING: finished earlier with other settings ({diff}); kept, not redone "
                   "(remove the folder or use another --out)", file=sys.stderr, flush=True)

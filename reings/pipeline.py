@@ -193,6 +193,12 @@ def run_settings(cfg: RunConfig, dataset_kind: str) -> dict:
         s["stereo_seeds"] = "auto"  # seeds where runs before the option had none (stereo_seeds_of)
     if cfg.soft_depth_shared:
         s["soft_depth_shared"] = True
+    drop = drop_gamma_of(cfg, recipe_family(cfg.recipe, dataset_kind))
+    if drop:  # the value the fits use; absent when off (older folders resume)
+        s["drop_gamma"] = drop
+    metric = depth_metric_of(cfg, recipe_family(cfg.recipe, dataset_kind))
+    if metric:  # as drop_gamma
+        s["depth_metric"] = metric
     if cfg.holdout != "protocol":
         s["holdout"], s["views"] = cfg.holdout, None  # every view given trains
     if cfg.seed:  # the seed reaches every fit too (before, only the initial points and IVPS/CVPS draws)
@@ -212,6 +218,12 @@ def recipe_family(recipe: str, dataset_kind: str) -> str:
 
 
 OPACITY_DECAY_BY_FAMILY = {"llff": 1.0, "dtu": 0.995}  # RunConfig.opacity_decay = none (docs/results.md §9)
+# RunConfig.drop_gamma = none, reings fits (docs/results.md §19): DTU scan24, full schedule, H100,
+# seeds 0-2: 3 views 16.89 -> 18.54 dB (gamma 0.3: 18.78, 0.4: 18.29, inside the seed spread of
+# 0.2's), 2 views 15.31 -> 17.31, 4 views 18.12 -> 19.80; LLFF: not measured on the full schedule
+DROP_GAMMA_BY_FAMILY = {"llff": 0.0, "dtu": 0.2}
+DROP_METHODS = ("reings", "dngaussian")  # the methods whose fits take RunConfig.drop_gamma
+DEPTH_METRIC_BY_FAMILY = {"llff": 0.0, "dtu": 0.0}  # RunConfig.depth_metric = none: off until measured
 # the stereo prior's settings per recipe family (docs/results.md §15): DTU's training views are
 # ~35 degrees apart, where the plane sweep's matches are ambiguous (brick, windows) and only a much
 # stronger SGM smoothness and each view's own near/far hold; LLFF keeps the settings it was measured with
@@ -231,6 +243,29 @@ def opacity_decay_of(decay: float | None, family: str) -> float:
     """The reings fits' opacity decay factor: RunConfig.opacity_decay, or for none the recipe
     family's (1 = off)."""
     return OPACITY_DECAY_BY_FAMILY[family] if decay is None else float(decay)
+
+
+def drop_gamma_of(cfg: RunConfig, family: str) -> float:
+    """The DropGaussian gamma of the run's fits (LossConfig.drop_gamma): RunConfig.drop_gamma, or for
+    none the recipe family's (DROP_GAMMA_BY_FAMILY) for reings and 0 for the dngaussian baseline (it
+    keeps DNGaussian's recipe unless asked); 0 for a method outside DROP_METHODS."""
+    if cfg.method not in DROP_METHODS:
+        return 0.0
+    if cfg.drop_gamma is None:
+        return DROP_GAMMA_BY_FAMILY[family] if cfg.method == "reings" else 0.0
+    return float(cfg.drop_gamma)
+
+
+def depth_metric_of(cfg: RunConfig, family: str) -> float:
+    """The metric depth term's weight in the run's reings fits (LossConfig.depth_metric):
+    RunConfig.depth_metric, or for none the recipe family's (DEPTH_METRIC_BY_FAMILY); 0 for other
+    methods and for priors whose depth is not metric (config.METRIC_PRIORS)."""
+    from .config import METRIC_PRIORS
+    from .data.depth_prior import prior_kind
+
+    if cfg.method != "reings" or prior_kind(cfg.depth_prior) not in METRIC_PRIORS:
+        return 0.0
+    return DEPTH_METRIC_BY_FAMILY[family] if cfg.depth_metric is None else float(cfg.depth_metric)
 
 
 def baseline_recipe(method: str, iters: int, sh_degree: int, family: str = "llff"):
@@ -294,7 +329,8 @@ class RunContext:
 
     def run_recipe(self, recipe):
         """A stage's recipe with the run's settings: its seed, the Gaussian cap, the smoothness
-        weight, the binocular terms (reings fits), the DTU background rules."""
+        weight, the binocular terms (reings fits), DropGaussian (reings and dngaussian fits), the
+        metric depth term (reings fits), the DTU background rules."""
         c = self.cfg
         recipe = replace(recipe, seed=c.seed)
         if c.max_gaussians:
@@ -305,6 +341,12 @@ class RunContext:
             recipe = replace(recipe, loss=replace(recipe.loss, depth_confidence=c.depth_confidence))
         if c.soft_depth_shared:
             recipe = replace(recipe, loss=replace(recipe.loss, soft_depth_shared=True))
+        drop = drop_gamma_of(c, self.family)
+        if drop:
+            recipe = replace(recipe, loss=replace(recipe.loss, drop_gamma=drop))
+        metric = depth_metric_of(c, self.family)
+        if metric:
+            recipe = replace(recipe, loss=replace(recipe.loss, depth_metric=metric))
         if c.method == "reings":
             recipe = self.binocular(recipe)
         if c.dtu_background:
@@ -636,6 +678,10 @@ def _prepare(cfg: RunConfig, backend, prior, overwrite: bool, quiet: bool, scene
     log = logger.info
     if cfg.reings.final_prune > 0 and cfg.method != "reings":
         log(f"[{cfg.label}] note: final_prune applies to reings only; ignored")
+    if cfg.drop_gamma and cfg.method not in DROP_METHODS:
+        log(f"[{cfg.label}] note: drop_gamma applies to the {' and '.join(DROP_METHODS)} fits only; ignored")
+    if cfg.depth_metric and cfg.method != "reings":
+        log(f"[{cfg.label}] note: depth_metric applies to the reings fits only; ignored")
 
     t = time.perf_counter()
     confidences = None  # per view [H, W] in [0, 1] (the stereo prior's) or None
@@ -705,7 +751,8 @@ def _metrics(ctx: RunContext, m: dict, settings: dict, scene, tr_idx, te_idx, cu
         "test_indices": list(map(int, te_idx if cfg.holdout == "protocol" else tr_idx)), "train_names": list(ctx.train.names),
         "test_names": list(ctx.test.names), "depth_prior": cfg.depth_prior,
         **({"depth_prior_options": ctx.prior_options} if ctx.prior_options else {}), "seed": cfg.seed,
-        "sh_degree": cfg.sh_degree, "recipe": ctx.family,
+        "sh_degree": cfg.sh_degree, "recipe": ctx.family, "drop_gamma": drop_gamma_of(cfg, ctx.family),
+        "depth_metric": depth_metric_of(cfg, ctx.family),
         "mean": {k: m[k] for k in ("psnr", "ssim", "lpips", "avge") if k in m and m[k] is not None},
         "per_image": m.get("per_image"), "seconds": ctx.timings, "gaussians": ctx.counts,
         "model_bytes": ctx.model_bytes, "peak_rss_mb": _peak_rss_mb(),

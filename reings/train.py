@@ -7,7 +7,9 @@ opacities only, its own step), then the photometric pass (+ regularisers) steppi
 the densification statistics and the densify/prune schedule. Adam keeps a step count per group.
 With `LossConfig.soft_depth_shared` (speed; off by default) the soft-depth term is taken on the
 photometric pass's render instead: its opacity gradient is added into the photometric gradients
-after the densification statistics, and one Adam step takes both.
+after the densification statistics, and one Adam step takes both. With `LossConfig.drop_gamma`
+(DropGaussian, docs/method.md §9) the photometric pass's renders leave out a random subset of
+the Gaussians (`drop_at`), the kept ones' opacities compensated.
 
 The loop (`_Iteration`) calls only the Trainer contract (reings/backends/base.py); the backend makes
 the trainer (`backend.trainer(images, engine=...)`):
@@ -31,6 +33,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from .backends.reference_drop import Drop
 from .backends.reference_view_warp import draw_baseline, virtual_camera
 from .config import TrainConfig
 from .types import Camera, Gaussians
@@ -100,6 +103,7 @@ class History:
     densify: list = field(default_factory=list)  # (iteration, counts) of each densification
     eval: list = field(default_factory=list)  # (iteration, seconds, metrics) from eval_fn
     view_warp: list = field(default_factory=list)  # (iteration, loss, valid fraction) of the view_warp term, when logged
+    depth_metric: list = field(default_factory=list)  # (iteration, loss) of the metric depth term, when logged
 
     def to_dict(self) -> dict:
         return {k: getattr(self, k) for k in self.__dataclass_fields__}
@@ -151,6 +155,17 @@ def warp_baseline(seed: int, it: int, max_baseline: float) -> float:
     (reference_view_warp.draw_baseline), from a generator of its own per iteration, so the term
     shifts no other draw and a resumed fit draws the same baselines."""
     return draw_baseline(np.random.default_rng([seed, 1, it]), max_baseline)
+
+
+def drop_at(gamma: float, seed: int, it: int, iterations: int) -> Drop | None:
+    """DropGaussian's mask of iteration `it` (1-based) of a fit of `iterations` (docs/method.md
+    §9): drop rate gamma * it / iterations, the key a uint32 of its own per iteration
+    (numpy.random.SeedSequence([seed, 2, it])), so the term shifts no other draw, and a resumed fit
+    drops the same Gaussians. None when gamma is 0 (off: every render as without the option)."""
+    if not gamma:
+        return None
+    key = int(np.random.SeedSequence([seed, 2, it]).generate_state(1, np.uint32)[0])
+    return Drop.at_rate(gamma * it / iterations, key)
 
 
 def _view_of(it: int, seed: int, n_views: int) -> int:
@@ -253,6 +268,16 @@ def _depth_weights(targets, confidence, strength: float):
             for t, c in zip(targets, confidence)]
 
 
+def _metric_weights(targets, confidence):
+    """Per view the metric depth term's weights: the prior's confidence, or 1 everywhere for a view
+    whose prior has none (the exact depths of the procedural scene); None without a target."""
+    conf = [None] * len(targets) if confidence is None else list(confidence)
+    if len(conf) != len(targets):
+        raise ValueError(f"fit: {len(conf)} depth confidences for {len(targets)} depth targets")
+    return [None if t is None else (np.ones(np.shape(t), np.float32) if c is None else np.asarray(c, np.float32))
+            for t, c in zip(targets, conf)]
+
+
 def fit(views, config: TrainConfig, device: str = "pocl", init: Gaussians | None = None,
         depth_targets=None, progress: bool = False, checkpoint: str | None = None,
         checkpoint_every: int = 250, eval_fn=None, eval_every: int = 0, log_every: int = 10,
@@ -295,6 +320,10 @@ def fit(views, config: TrainConfig, device: str = "pocl", init: Gaussians | None
     if depth_targets is not None and len(depth_targets) != len(images):
         raise ValueError(f"fit: {len(depth_targets)} depth targets for {len(images)} views")
     cfg, L = config, config.loss
+    if not 0.0 <= L.drop_gamma < 1.0:  # also NaN
+        raise ValueError(f"fit: LossConfig.drop_gamma must lie in [0, 1), got {L.drop_gamma}")
+    if not (L.depth_metric >= 0 and np.isfinite(L.depth_metric)):  # also NaN
+        raise ValueError(f"fit: LossConfig.depth_metric must be >= 0 and finite, got {L.depth_metric}")
     extent = scene_extent(cameras) if extent is None else extent
     backend = get_backend(device)
     bg_masks = None
@@ -314,10 +343,12 @@ def fit(views, config: TrainConfig, device: str = "pocl", init: Gaussians | None
     trainer.upload(state)
     if bg_masks is not None:
         trainer.upload_bg_masks(bg_masks)
-    if depth_targets is not None and (L.hard_depth or L.soft_depth):
+    if depth_targets is not None and (L.hard_depth or L.soft_depth or L.depth_metric):
         trainer.upload_depth_targets(depth_targets, [(c.height, c.width) for c in cameras],
                                      smooth=L.depth_smooth_weight != 0,
                                      weights=_depth_weights(depth_targets, depth_confidence, L.depth_confidence))
+    if depth_targets is not None and L.depth_metric:
+        trainer.upload_depth_metric(_metric_weights(depth_targets, depth_confidence))
     book = _Bookkeeping(cfg, state, history, rng, t0, progress, desc, checkpoint, checkpoint_every,
                         eval_fn, eval_every, log_every,
                         sync=lambda params_only: trainer.download(state, params_only=params_only))
@@ -338,7 +369,8 @@ class _Iteration:
 
     Random draws, in order, from the fit's rng: the depth patch sizes of the hard pass, then of the
     soft pass (`draw_depth_patches`), then densification's split samples; the view of iteration
-    `it` comes from its own generator (`_view_of`). Values cross from the trainer only when read:
+    `it` comes from its own generator (`_view_of`), as do the view_warp baseline
+    (`warp_baseline`) and DropGaussian's mask (`drop_at`). Values cross from the trainer only when read:
     the photometric loss and image on logging iterations, the hard depth loss when
     `soft_depth_ema_gate` needs it, the state when densification is due."""
 
@@ -433,23 +465,31 @@ class _Iteration:
         densification statistics are taken, its backward adds the opacities' gradient into the
         held gradients, so one step takes both.
 
+        The metric depth term (LossConfig.depth_metric, docs/method.md §10): its depth cotangent
+        joins the training render's backward (added into the view_warp term's when both run).
+
         With the view_warp term (docs/binocular.md §4.2): the virtual view (the training camera
         shifted by a drawn baseline along its x axis) is rendered first and its image kept; the
         term's depth cotangent joins the training render's backward (whose screen gradients feed
         the densification statistics, as the authors'); the virtual render is then redone (the
-        backend holds one frame) and backpropagated into the held gradients: one Adam step."""
+        backend holds one frame) and backpropagated into the held gradients: one Adam step.
+
+        DropGaussian (LossConfig.drop_gamma; docs/method.md §9): every render of this pass (the
+        training view's and the virtual view's) drops the same Gaussians (`drop_at`); the shared
+        soft depth term, taken on this pass's render, sees the dropped model too."""
         from .losses import regularizers
 
         tr, L, D, ph = self.tr, self.L, self.cfg.densify, self.tr.phase
         loss = rgb = None
+        drop = drop_at(L.drop_gamma, self.cfg.seed, it, self.cfg.iterations)
         warp = L.view_warp_weight > 0 and it >= L.view_warp_from
         if warp:
             b = warp_baseline(self.cfg.seed, it, L.view_warp_baseline)
             vcam = virtual_camera(cam, b)
             with ph("warp_render"):
-                virt = tr.keep_rgb(tr.forward(vcam, self.k, self.bg, self.near))
+                virt = tr.keep_rgb(tr.forward(vcam, self.k, self.bg, self.near, drop=drop))
         with ph("photo_render"):
-            fr = tr.forward(cam, self.k, self.bg, self.near)
+            fr = tr.forward(cam, self.k, self.bg, self.near, drop=drop)
         with ph("photo_loss"):
             v_rgb = tr.photometric(fr, vi, self.w_l1, self.w_ssim)
             if log:
@@ -462,6 +502,13 @@ class _Iteration:
                     w = tr.read_view_warp()
                     loss += w["loss"]
                     self.book.history.view_warp.append((it, w["loss"], w["valid_fraction"]))
+        if L.depth_metric and self.targets is not None and self.targets[vi] is not None:
+            with ph("depth_metric"):
+                v_depth = tr.depth_metric(fr, vi, L.depth_metric, into=v_depth)
+                if log:
+                    lm = tr.read_depth_metric()
+                    loss += lm
+                    self.book.history.depth_metric.append((it, lm))
         with ph("photo_backward"):
             gr = tr.backward(fr, v_rgb, v_depth)
         with ph("regularize"):
@@ -481,7 +528,7 @@ class _Iteration:
                 tr.backward(fr, None, vd, None, ("opacity_logits",), into=gr)
         if warp:
             with ph("warp_backward"):
-                tr.backward(tr.forward(vcam, self.k, self.bg, self.near), v_virt, into=gr)
+                tr.backward(tr.forward(vcam, self.k, self.bg, self.near, drop=drop), v_virt, into=gr)
         if D.opacity_decay is not None and it > D.opacity_decay_from:
             with ph("opacity_decay"):  # after the backward, before the step (Binocular3DGS)
                 tr.opacity_decay(D.opacity_decay)

@@ -323,6 +323,32 @@ def assert_engines_agree(device: str, host_state, dev_state, what: str = "") -> 
                                        err_msg=f"{what} {k}")
 
 
+def fit_case(case, device: str, **kw):
+    """`train.fit` of a (scene, init, config) case with the scene's exact depths as the targets,
+    logging every 5 iterations (the engine tests' fit)."""
+    from reings.train import fit
+
+    scene, init, cfg = case
+    return fit(scene, cfg, device=device, init=init, depth_targets=list(scene.depths), progress=False,
+               log_every=5, **kw)
+
+
+def assert_same_state(a, b, exact: bool, what: str, rtol: float = 1e-5, atol: float = 2e-5) -> None:
+    """Two TrainStates: sizes, step counts, parameters and both Adam moments, and (exact) the
+    densification statistics: bit for bit when `exact`, else within rtol / atol."""
+    assert len(a) == len(b) and a.adam.step == b.adam.step and a.iteration == b.iteration, what
+    for k in a.params:
+        for x, y, n in ((a.params[k], b.params[k], "param"), (a.adam.exp_avg[k], b.adam.exp_avg[k], "exp_avg"),
+                        (a.adam.exp_avg_sq[k], b.adam.exp_avg_sq[k], "exp_avg_sq")):
+            if exact:
+                np.testing.assert_array_equal(x, y, err_msg=f"{what} {n}/{k}")
+            else:
+                np.testing.assert_allclose(x, y, rtol=rtol, atol=atol, err_msg=f"{what} {n}/{k}")
+    for k in a.stats:
+        if exact:
+            np.testing.assert_array_equal(a.stats[k], b.stats[k], err_msg=f"{what} stat/{k}")
+
+
 def interrupt_and_resume(run, path: str, stop_at: int, every: int = 5):
     """run(**kw) -> FitResult is a `fit` call; run it with checkpoints every `every` iterations,
     interrupted by an exception at the eval of iteration `stop_at`, then again from the

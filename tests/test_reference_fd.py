@@ -128,10 +128,10 @@ def cotangents(seed=1):
     return rng.normal(size=(H, W, 3)), rng.normal(size=(H, W)), rng.normal(size=(H, W))
 
 
-def render_signature(cam, bg, near=0.01, override=None, alpha_min=0.0):
+def render_signature(cam, bg, near=0.01, override=None, alpha_min=0.0, drop=None):
     """What must not change inside one FD evaluation (see module docstring)."""
     def sig(p):
-        proj, aux = ref._project(p, cam, near, override)
+        proj, aux = ref._project(p, cam, near, override, drop)
         bins = ref.bin(proj, cam.width, cam.height)
         out = ref.rasterize_fwd(proj, bins, cam.width, cam.height, bg, True, alpha_min)
         return dict(radii=proj.radii, tile_rect=proj.tile_rect, last=out.last,
@@ -153,9 +153,9 @@ def _alpha_clamped(proj, bins, cam, alpha_min):
     return np.array(out)
 
 
-def render_loss(cam, vr, vd, va, bg, near=0.01, override=None, alpha_min=0.0):
+def render_loss(cam, vr, vd, va, bg, near=0.01, override=None, alpha_min=0.0, drop=None):
     def loss(p):
-        _, _, out, _ = ref.render64(p, cam, bg, near, override, False, alpha_min)
+        _, _, out, _ = ref.render64(p, cam, bg, near, override, False, alpha_min, drop)
         return np.sum(vr * out.rgb) + np.sum(vd * out.depth) + np.sum(va * out.alpha)
     return loss
 

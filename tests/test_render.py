@@ -22,7 +22,7 @@ from tolerances import MAX_FLIP_FRACTION, MAX_REL_L2, MIN_COSINE, RASTER_FWD_ATO
 import reings
 from reings.backends import get_backend
 from reings.backends import reference as ref
-from reings.backends.base import ALPHA_MIN, TILE_SIZE, tile_grid
+from reings.backends.base import ALPHA_MAX, ALPHA_MIN, TILE_SIZE, tile_grid
 from reings.types import FIELDS, Gaussians
 
 BG = (0.1, 0.2, 0.3)
@@ -37,10 +37,10 @@ def cotangents(cam, seed=0):
             rng.normal(size=(H, W)).astype(np.float32))
 
 
-def render_band(g, cam, background=BG, near=0.01, opacity_override=None) -> np.ndarray:
+def render_band(g, cam, background=BG, near=0.01, opacity_override=None, drop=None) -> np.ndarray:
     """[H, W] bool: pixels near a discontinuity of the forward (see the module docstring)."""
     W, H = cam.width, cam.height
-    proj = ref.project_fwd(g, cam, near, opacity_override)
+    proj = ref.project_fwd(g, cam, near, opacity_override, drop)
     bins = ref.bin(proj, W, H)
     lo = ref.rasterize_fwd(proj, bins, W, H, background, alpha_min=ALPHA_MIN * (1 - ALPHA_BAND_REL))
     hi = ref.rasterize_fwd(proj, bins, W, H, background, alpha_min=ALPHA_MIN * (1 + ALPHA_BAND_REL))
@@ -58,25 +58,29 @@ def render_band(g, cam, background=BG, near=0.01, opacity_override=None) -> np.n
     return band
 
 
-def check_render(device, g, cam, background=BG, near=0.01, opacity_override=None, name=""):
+def check_render(device, g, cam, background=BG, near=0.01, opacity_override=None, name="", drop=None):
     be = get_backend(device)
     out = be.render(g, cam, background=background, near=near, opacity_override=opacity_override,
-                    want_importance=True)
-    _, _, o64, stats = ref.render64(g, cam, background, near, opacity_override, want_importance=True)
+                    want_importance=True, drop=drop)
+    _, _, o64, stats = ref.render64(g, cam, background, near, opacity_override, want_importance=True, drop=drop)
     H, W = cam.height, cam.width
     shapes = dict(rgb=(H, W, 3), depth=(H, W), alpha=(H, W), final_T=(H, W), importance=(len(g),))
     for f, shp in shapes.items():
         a = getattr(out, f)
         assert a.dtype == np.float32 and a.shape == shp, f"{name}: {f} {a.dtype} {a.shape}"
         assert np.all(np.isfinite(a)), f"{name}: non-finite {f}"
-    band = render_band(g, cam, background, near, opacity_override)
+    band = render_band(g, cam, background, near, opacity_override, drop)
     budget = MAX_FLIP_FRACTION if band.mean() < 0.5 else 1.0
     for f in ("rgb", "alpha", "final_T"):
         b = band[..., None] if f == "rgb" else band
         assert_close_outside_band(getattr(out, f), getattr(o64, f), b, RASTER_FWD_ATOL, 1.0, name=f"{name}: {f}")
     zs = max(1.0, float(np.max(ref.project_fwd(g, cam, near).depths, initial=1.0)))
     assert_close_outside_band(out.depth, o64.depth, band, RASTER_FWD_ATOL * zs, 1.0, name=f"{name}: depth")
-    assert np.count_nonzero(np.abs(out.alpha - o64.alpha) > RASTER_FWD_ATOL) <= max(2, budget * W * H), \
+    # pixels behind two alpha-clamped Gaussians sit on the T_MIN tie: (1 - ALPHA_MAX)^2 is T_MIN in
+    # float64 (blended) and just below it in float32 (the stop comes first); common where
+    # opacities exceed 1 (DropGaussian's compensation, tests/test_drop.py), inside the band anyway
+    tie = (np.abs(o64.final_T - (1.0 - ALPHA_MAX) ** 2) <= 1e-12) if drop is not None else np.zeros((H, W), bool)
+    assert np.count_nonzero((np.abs(out.alpha - o64.alpha) > RASTER_FWD_ATOL) & ~tie) <= max(2, budget * W * H), \
         f"{name}: too many pixels differ"
     if o64.importance.any():
         assert_grad_close(out.importance, o64.importance, name=f"{name}: importance", min_cosine=MIN_COSINE,
@@ -88,15 +92,15 @@ def check_render(device, g, cam, background=BG, near=0.01, opacity_override=None
 
 
 def check_vjp(device, g, cam, background=BG, near=0.01, opacity_override=None, grad_fields=None,
-              which=("rgb", "depth", "alpha"), seed=0, name=""):
+              which=("rgb", "depth", "alpha"), seed=0, name="", drop=None):
     vr, vd, va = cotangents(cam, seed)
     vr = vr if "rgb" in which else np.zeros_like(vr)
     vd = vd if "depth" in which else None
     va = va if "alpha" in which else None
     be = get_backend(device)
     dev = be.render_vjp(g, cam, vr, vd, va, background=background, near=near,
-                        opacity_override=opacity_override, grad_fields=grad_fields)
-    exp = ref.render_vjp64(g, cam, vr, vd, va, background, near, opacity_override)
+                        opacity_override=opacity_override, grad_fields=grad_fields, drop=drop)
+    exp = ref.render_vjp64(g, cam, vr, vd, va, background, near, opacity_override, drop=drop)
     assert_grads_match(dev, exp, FIELDS if grad_fields is None else grad_fields, name)
     if opacity_override is not None:
         assert not dev.opacity_logits.any()

@@ -21,7 +21,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from cases import dngaussian_fit_case, interrupt_and_resume
+from cases import assert_same_state, dngaussian_fit_case, fit_case, interrupt_and_resume
 from reings.backends import get_backend
 from reings.backends.opencl import quirks
 from reings.backends.reference import render64
@@ -45,19 +45,11 @@ def case():
 
 
 def _fit(case, device, **kw):
-    scene, init, cfg = case
-    return fit(scene, cfg, device=device, init=init, depth_targets=list(scene.depths), progress=False,
-               log_every=5, **kw)
+    return fit_case(case, device, **kw)
 
 
 def _same_state(a, b, exact: bool, what: str):
-    assert len(a) == len(b) and a.adam.step == b.adam.step and a.iteration == b.iteration, what
-    for k in a.params:
-        for x, y, n in ((a.params[k], b.params[k], "param"), (a.adam.exp_avg[k], b.adam.exp_avg[k], "exp_avg")):
-            if exact:
-                np.testing.assert_array_equal(x, y, err_msg=f"{what} {n}/{k}")
-            else:
-                np.testing.assert_allclose(x, y, rtol=RTOL, atol=ATOL, err_msg=f"{what} {n}/{k}")
+    assert_same_state(a, b, exact, what, RTOL, ATOL)
 
 
 # {{{ the composed gradient against a central difference (reference backend, float64)

@@ -116,7 +116,9 @@ class Trainer(Protocol):
         regularize(g, ...); accumulate(fr)                 (photometric pass only)
         adam_step(opt, g, groups)
 
-    and, when densification is due, download -> host surgery (reings.densify) -> upload. Values are
+    and, when densification is due, download -> host surgery (reings.densify) -> upload. With
+    DropGaussian on (LossConfig.drop_gamma) the photometric pass's forwards (and the view_warp
+    term's virtual ones) take the iteration's mask, `forward(..., drop=)`. Values are
     read only when asked (`read_loss`, `read_rgb`, `read_depth_loss`, `read_params`), so a device
     implementation moves nothing over the bus in an iteration the loop does not log.
 
@@ -163,10 +165,14 @@ class Trainer(Protocol):
         the depth loss (reference_loss.depth_confidence_weights of the prior's confidence)."""
 
     def forward(self, cam: Camera, k: int, background: Sequence[float], near: float,
-                opacity_override: float | None = None) -> Frame:
+                opacity_override: float | None = None, drop: Any = None) -> Frame:
         """Render the held Gaussians with `k` active SH coefficients from `cam` (project / bin /
         rasterize). opacity_override: every Gaussian blends with this opacity (the hard-depth
-        pass). The frame stays valid until the next `forward`."""
+        pass). drop: None, or DropGaussian's mask of this render (a reings.backends.reference_drop
+        .Drop: the Gaussians it drops are culled by the projection, the kept ones' opacities are
+        sigmoid(logit) * drop.scale; docs/method.md §9); never with opacity_override (ValueError).
+        The frame keeps it: its `backward` is the VJP of that same masked render, the mask held
+        fixed. The frame stays valid until the next `forward`."""
 
     def photometric(self, frame: Frame, view: int, w_l1: float, w_ssim: float) -> Any:
         """w_l1 * L1 + w_ssim * (1 - SSIM) of the frame's image against training image `view`
@@ -193,10 +199,11 @@ class Trainer(Protocol):
     def backward(self, frame: Frame, v_rgb: Any = None, v_depth: Any = None,
                  opacity_override: float | None = None, grad_fields: Sequence[str] | None = None,
                  into: Any = None, v_alpha: Any = None) -> Any:
-        """The VJP of the frame's render for the cotangents v_rgb / v_depth (from the loss methods;
-        None: zero) and the frame's `opacity_override`, restricted to `grad_fields` (None: every
-        field). Returns the gradients per parameter group (handle for `regularize`, `adam_step`);
-        only the groups of `grad_fields` are present. into: gradients from `hold` (the same SH
+        """The VJP of the frame's render (with the DropGaussian mask its `forward` had, if any)
+        for the cotangents v_rgb / v_depth (from the loss methods; None: zero) and the frame's
+        `opacity_override`, restricted to `grad_fields` (None: every field). Returns the
+        gradients per parameter group (handle for `regularize`, `adam_step`); only the groups of
+        `grad_fields` are present. into: gradients from `hold` (the same SH
         count, holding at least the groups of `grad_fields`): this backward's gradients of those
         groups are added into them (reference_state.grad_add; kernels/grad_add.cl) and `into` is
         returned. v_alpha: a cotangent of the alpha image
@@ -210,6 +217,21 @@ class Trainer(Protocol):
         """dL/d alpha of DNGaussian's DTU background term mean(alpha^2) over view `view`'s
         background pixels (reference_loss.bg_alpha_fwd_bwd; kernels/bg_alpha.cl), for
         `backward(v_alpha=...)`."""
+
+    def upload_depth_metric(self, weights: Sequence) -> None:
+        """The metric depth term's per-pixel weights of the training views ([H,W] each, or None:
+        no term for that view), once per fit, after `upload_depth_targets` (the term reads the
+        targets)."""
+
+    def depth_metric(self, frame: Frame, view: int, weight: float, into: Any = None) -> Any:
+        """dL/d depth of the metric depth term weight / S * sum c |D - a t| / t of this frame's
+        depth D (alpha a held constant) against view `view`'s target t and weights c
+        (reference_loss.depth_metric_fwd_bwd; kernels/depth_metric.cl; docs/method.md §10), for
+        `backward(v_depth=...)`; added into `into` (another depth cotangent of the same frame, e.g.
+        view_warp's) and returned when given. The loss waits for `read_depth_metric`."""
+
+    def read_depth_metric(self) -> float:
+        """The loss of the last `depth_metric` (a read from the device)."""
 
     def hold(self, grads: Any) -> Any:
         """The gradients of the last `backward` as a handle that survives the next `backward` (to
@@ -296,13 +318,14 @@ class Backend(Protocol):
     #                            (culled rows zero) for the densification statistics; None after a restricted one
 
     def project_fwd(self, gaussians: Gaussians, camera: Camera, near: float = 0.01,
-                    opacity_override: float | None = None) -> Projected:
-        """The projection stage (fit's clean_views reads its radii)."""
+                    opacity_override: float | None = None, drop: Any = None) -> Projected:
+        """The projection stage (fit's clean_views reads its radii); drop as in `render`."""
 
     def render(self, gaussians: Gaussians, camera: Camera, background: Sequence[float] = (0, 0, 0),
                near: float = 0.01, opacity_override: float | None = None,
-               want_importance: bool = False) -> RenderOutput:
-        """project_fwd -> bin -> rasterize_fwd of host Gaussians (reings.render)."""
+               want_importance: bool = False, drop: Any = None) -> RenderOutput:
+        """project_fwd -> bin -> rasterize_fwd of host Gaussians (reings.render). drop: None or
+        DropGaussian's mask (`Trainer.forward`)."""
 
     def render_frames(self, gaussians: Gaussians, cameras: Sequence[Camera],
                       background: Sequence[float] = (0, 0, 0), near: float = 0.01,
@@ -314,9 +337,9 @@ class Backend(Protocol):
                    v_depth: np.ndarray | None = None, v_alpha: np.ndarray | None = None,
                    background: Sequence[float] = (0, 0, 0), near: float = 0.01,
                    opacity_override: float | None = None,
-                   grad_fields: Sequence[str] | None = None) -> Gaussians:
-        """dL/d(raw field) of the render for the cotangent images (reings.render_vjp); sets
-        `last_screen`."""
+                   grad_fields: Sequence[str] | None = None, drop: Any = None) -> Gaussians:
+        """dL/d(raw field) of the render (with DropGaussian's mask `drop`, held fixed) for the
+        cotangent images (reings.render_vjp); sets `last_screen`."""
 
     def photometric_loss(self, rgb: np.ndarray, gt: np.ndarray, w_l1: float,
                          w_ssim: float) -> tuple[float, np.ndarray]:

@@ -26,6 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..types import ACCUM, FIELDS, PARAM_NAMES, Camera, Gaussians, RenderOutput
+from .reference_drop import Drop
 from .reference_loss import DepthSmoothWeights, regularize_fwd_bwd
 from .reference_state import (adam_update, densify_accumulate, grad_add, ndc_grad_norm, opacity_decay_, sh_pack,
                               zero_stats)
@@ -56,6 +57,7 @@ class HostFrame:
     near: float
     width: int
     height: int
+    drop: Drop | None = None  # DropGaussian's mask of the render (reference_drop); its backward's too
 
 
 class HostTrainer:
@@ -71,6 +73,8 @@ class HostTrainer:
         self.targets: list = []  # per view: the depth target as given, or None
         self.smooth: list = []  # per view: DepthSmoothWeights or None
         self._loss = self._depth_loss = self._warp = None
+        self.dm: list = []  # per view: (weights, target, S) of the metric depth term, or None
+        self._dm = None  # the last depth_metric call's (row terms, scale), or None
         self._zeros: dict = {}  # (H, W) -> zero colour cotangent of the depth passes
         self._tmp = np.empty(0, _F32)  # Adam scratch, grown geometrically
 
@@ -97,6 +101,7 @@ class HostTrainer:
     def upload_depth_targets(self, targets, shapes, smooth: bool = False, weights=None) -> None:
         """Trainer.upload_depth_targets: the targets (and weights, as float32) are used as given."""
         self.targets, self.smooth, self.dweights = [], [], []
+        self.dm = []  # upload_depth_metric's, per view
         weights = [None] * len(targets) if weights is None else list(weights)
         if len(weights) != len(targets):
             raise ValueError(f"{len(weights)} depth weights for {len(targets)} depth targets")
@@ -115,8 +120,10 @@ class HostTrainer:
     # }}}
 
     # {{{ one pass
-    def forward(self, cam: Camera, k: int, background, near: float, opacity_override: float | None = None):
-        """Trainer.forward: backend.render of the state's Gaussians at k SH coefficients."""
+    def forward(self, cam: Camera, k: int, background, near: float, opacity_override: float | None = None,
+                drop: Drop | None = None):
+        """Trainer.forward: backend.render of the state's Gaussians at k SH coefficients (drop:
+        DropGaussian's mask, kept in the frame for its backward)."""
         p = self.state.params
         kmax = 1 + p["sh_rest"].shape[1]
         if not 1 <= k <= kmax:
@@ -124,8 +131,8 @@ class HostTrainer:
         sh = sh_pack(p["sh_dc"], p["sh_rest"], k)  # [N, k, 3]
         g = Gaussians(p["means"], p["quats"], p["log_scales"], p["opacity_logits"], sh)
         bg = tuple(float(x) for x in np.asarray(background, _F32).reshape(3))
-        out = self.b.render(g, cam, background=bg, near=float(near), opacity_override=opacity_override)
-        return HostFrame(cam, g, out, bg, float(near), cam.width, cam.height)
+        out = self.b.render(g, cam, background=bg, near=float(near), opacity_override=opacity_override, drop=drop)
+        return HostFrame(cam, g, out, bg, float(near), cam.width, cam.height, drop)
 
     def read_rgb(self, fr: HostFrame) -> np.ndarray:
         return fr.out.rgb
@@ -157,7 +164,8 @@ class HostTrainer:
                  grad_fields=None, into: dict | None = None, v_alpha=None) -> dict:
         """Trainer.backward: backend.render_vjp of the frame's Gaussians; returns {group: gradient}
         for the groups of `grad_fields` (SH gradients of inactive coefficients zero), or adds them
-        into `into` (reference_state.grad_add) and returns it."""
+        into `into` (reference_state.grad_add) and returns it. The frame's DropGaussian mask
+        applies."""
         if v_rgb is None:
             key = (fr.height, fr.width)
             if key not in self._zeros:
@@ -165,7 +173,7 @@ class HostTrainer:
             v_rgb = self._zeros[key]
         gf = None if grad_fields is None else tuple(grad_fields)
         vg = self.b.render_vjp(fr.gaussians, fr.cam, _f32(v_rgb), _f32(v_depth), _f32(v_alpha), background=fr.background,
-                               near=fr.near, opacity_override=opacity_override, grad_fields=gf)
+                               near=fr.near, opacity_override=opacity_override, grad_fields=gf, drop=fr.drop)
         n, kmax = len(self.state), 1 + self.state.params["sh_rest"].shape[1]
         if len(vg) != n:
             raise ValueError(f"gradient has {len(vg)} rows, state has {n}")
@@ -195,6 +203,59 @@ class HostTrainer:
         n = int(m.sum())
         scale = _F32(2.0 / n) if n else _F32(0)
         return np.where(m, scale * np.asarray(fr.out.alpha, _F32), _F32(0)).astype(_F32)
+
+    def upload_depth_metric(self, weights) -> None:
+        """Trainer.upload_depth_metric: per view None / float32 weights and S (float64), as the
+        device trainer keeps them."""
+        from .reference_loss import depth_metric_valid
+
+        if len(weights) != len(self.targets):
+            raise ValueError(f"{len(weights)} depth-metric weights for {len(self.targets)} depth targets")
+        self.dm = []
+        for i, (wt, t) in enumerate(zip(weights, self.targets)):
+            if wt is None or t is None:
+                self.dm.append(None)
+                continue
+            wa = np.ascontiguousarray(wt, _F32)
+            if wa.shape != np.shape(t):
+                raise ValueError(f"depth-metric weight {i} has shape {wa.shape}, its target {np.shape(t)}")
+            ta = np.ascontiguousarray(t, _F32)
+            self.dm.append((wa, ta, float(np.sum(wa.astype(np.float64)[depth_metric_valid(ta, wa)]))))
+
+    def depth_metric(self, fr: HostFrame, view: int, weight: float, into=None) -> np.ndarray:
+        """Trainer.depth_metric: kernels/depth_metric.cl's float32 operations in its order (so the
+        bits match the kernel's; reference_loss.depth_metric_fwd_bwd is the float64 form); returns
+        dL/d depth [H,W], or `into` with it added."""
+        rec = self.dm[view] if view < len(self.dm) else None
+        d = np.asarray(fr.out.depth, _F32)
+        if rec is None:
+            self._dm = None
+            return np.zeros_like(d) if into is None else into
+        wt, t, s = rec
+        scale = _F32(weight / s) if s > 0 else _F32(0)
+        a = np.asarray(fr.out.alpha, _F32)
+        with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+            ok = (wt > 0) & (t > 0) & np.isfinite(t)
+            r = d - a * t
+            sg = np.where(r > 0, _F32(1), np.where(r < 0, _F32(-1), _F32(0))).astype(_F32)
+            g = np.where(ok, scale * wt * sg / t, _F32(0)).astype(_F32)
+            rows = np.where(ok & np.isfinite(r), wt * np.abs(r) / t, _F32(0)).astype(_F32)
+        self._dm = (rows, scale)  # summed when read (the frame's arrays are fresh per forward)
+        if into is None:
+            return g
+        into += g
+        return into
+
+    def read_depth_metric(self) -> float:
+        """Trainer.read_depth_metric: the row sums left to right in float32, as depth_metric_rows,
+        then in float64; 0 when the last call had no weights."""
+        if self._dm is None:
+            return 0.0
+        rows, scale = self._dm
+        acc = np.zeros(rows.shape[0], _F32)
+        for x in range(rows.shape[1]):
+            acc += rows[:, x]
+        return float(scale) * float(np.sum(acc.astype(np.float64)))
 
     def hold(self, grads: dict) -> dict:
         """Trainer.hold: writable float32 copies (render_vjp's arrays are fresh, but `regularize`

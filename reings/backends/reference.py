@@ -21,6 +21,9 @@ Conventions decided here (the issue's §3 leaves them open):
   test before its (undefined) SH direction matters. The SH code still guards |μ - centre| == 0 by
   using direction (0, 0, 1), so no NaN can appear whatever `near` is.
 * Radii are int32: r = ceil(3 sqrt(λ_max)) saturated at 2**31 - 1 (the tile rect is clamped anyway).
+* DropGaussian (`drop=`, a reference_drop.Drop; docs/method.md §9): the Gaussians the mask drops are
+  culled like invisible ones; a kept one's opacity is sigmoid(logit) * drop.scale (may exceed 1;
+  the α clamp below bounds each pair), and its logit gradient carries the same factor.
 * tile_ranges for an empty tile t: [s, s) with s = number of intersections in tiles < t
   (numpy.searchsorted semantics, like gsplat's isect_offset_encode).
 * Alpha clamp: gradient flows iff opacity * exp(power) <= ALPHA_MAX (gsplat's `<=`); the clamped
@@ -46,6 +49,7 @@ from typing import Sequence
 import numpy as np
 
 from ..types import FIELDS, SH_COUNTS, Camera, Gaussians, RenderOutput
+from .reference_drop import Drop
 from .reference_loss import depth_loss as _depth_loss
 from .reference_loss import photometric_loss as _photometric_loss
 from .base import (ALPHA_MAX, ALPHA_MIN, CLAMP_GUARD, EPS2D, T_MIN, TILE_SIZE, Bins, Projected,
@@ -218,10 +222,13 @@ def _finite32(a: np.ndarray) -> np.ndarray:
     return np.all(np.isfinite(a) & (np.abs(a) <= FLT_MAX), axis=1)
 
 
-def _project(g, cam: Camera, near: float, opacity_override):
+def _project(g, cam: Camera, near: float, opacity_override, drop: Drop | None = None):
     """project_fwd plus the intermediates project_bwd needs (dict)."""
     p = Params64.of(g)
     n = len(p)
+    if drop is not None and opacity_override is not None:
+        raise ValueError("project: a DropGaussian mask is never combined with an opacity override")
+    scale = 1.0 if drop is None else float(drop.scale)
     W, H = cam.width, cam.height
     fx, fy, cx, cy = cam.fx, cam.fy, cam.cx, cam.cy
     Rc, tc = cam.viewmat[:3, :3], cam.viewmat[:3, 3]
@@ -229,6 +236,8 @@ def _project(g, cam: Camera, near: float, opacity_override):
     with np.errstate(all="ignore"):
         ok = (_finite32(p.means) & _finite32(p.quats) & _finite32(p.log_scales)
               & _finite32(p.opacity_logits[:, None]) & _finite32(p.sh))
+        if drop is not None:  # DropGaussian: a dropped Gaussian is culled (reference_drop)
+            ok &= drop.kept(n)
         # quaternion -> rotation
         qnorm = np.sqrt(np.sum(p.quats**2, axis=1))  # [N]
         ok &= qnorm >= QUAT_NORM_MIN
@@ -277,8 +286,9 @@ def _project(g, cam: Camera, near: float, opacity_override):
         basis = sh_basis(dirs, p.sh_degree)
         raw = np.einsum("nk,nkc->nc", basis, sh) + 0.5
         colors = np.maximum(raw, 0.0)
+        sig = 1.0 / (1.0 + np.exp(-p.opacity_logits))
         if opacity_override is None:
-            opac = 1.0 / (1.0 + np.exp(-p.opacity_logits))
+            opac = sig * scale  # DropGaussian's compensation 1 / (1 - rate) (1 without a drop)
         else:
             opac = np.full(n, float(opacity_override))
         ok &= (_finite32(means2d) & _finite32(conics) & _finite32(S2) & _finite32(lam[:, None])
@@ -305,24 +315,28 @@ def _project(g, cam: Camera, near: float, opacity_override):
     )
     aux = dict(p=p, ok=ok, qn=qn, qnorm=qnorm, R=R, s=s, M=M, t=t, tz=tz, xc=xc, yc=yc,
                mask_x=mask_x, mask_y=mask_y, J=J, Sc=Sc, S2=S2, dets=dets, dirs=dirs, dn=dn,
-               at_centre=at_centre, raw=raw, opac=opac)
+               at_centre=at_centre, raw=raw, opac=opac, sig=sig, scale=scale)
     return proj, aux
 
 
-def project_fwd(g, cam: Camera, near: float = 0.01, opacity_override: float | None = None) -> Projected:
+def project_fwd(g, cam: Camera, near: float = 0.01, opacity_override: float | None = None,
+                drop: Drop | None = None) -> Projected:
     """Project N Gaussians (float32 `Gaussians` or float64 `Params64`) to screen space.
 
+    drop: DropGaussian's mask (reference_drop.Drop; None: none): the Gaussians it drops are
+    culled, the kept ones' opacities are sigmoid(logit) * drop.scale. Never with an override.
     Returns `Projected` (float64 fields, int32 radii / tile_rect); culled rows are zero.
     """
-    return _project(g, cam, near, opacity_override)[0]
+    return _project(g, cam, near, opacity_override, drop)[0]
 
 
 def project_bwd(g, cam: Camera, proj: Projected, grads: RasterGrads, near: float = 0.01,
-                opacity_override: float | None = None) -> Params64:
+                opacity_override: float | None = None, drop: Drop | None = None) -> Params64:
     """VJP of `project_fwd`: cotangents of the projected fields -> dL/d(raw field), float64
     `Params64` (same field names as `Gaussians`). `proj` is accepted for the stage signature; the
-    intermediates are recomputed from `g`. Culled Gaussians get zero gradient."""
-    _, ax = _project(g, cam, near, opacity_override)
+    intermediates are recomputed from `g`. Culled Gaussians (dropped ones included) get zero
+    gradient; with a drop the opacity-logit gradient carries the factor drop.scale."""
+    _, ax = _project(g, cam, near, opacity_override, drop)
     p, ok = ax["p"], ax["ok"]
     n = len(p)
     fx, fy = cam.fx, cam.fy
@@ -387,8 +401,8 @@ def project_bwd(g, cam: Camera, proj: Projected, grads: RasterGrads, near: float
         v_means += v_d
         # opacity
         if opacity_override is None:
-            o = ax["opac"]
-            v_logits = v_opa * o * (1.0 - o)
+            o = ax["sig"]  # opacity = scale * sigmoid(logit)
+            v_logits = v_opa * o * (1.0 - o) * ax["scale"]
         else:
             v_logits = np.zeros(n)
 
@@ -574,9 +588,10 @@ def rasterize_bwd(proj: Projected, bins: Bins, raster_out: RasterOut, v_rgb, v_d
 # Whole render in float64
 # ----------------------------------------------------------------------------------------------
 def render64(g, cam: Camera, background=(0.0, 0.0, 0.0), near: float = 0.01, opacity_override=None,
-             want_importance: bool = False, alpha_min: float = ALPHA_MIN):
-    """float64 forward. Returns (Projected, Bins, RasterOut, stats dict)."""
-    proj = project_fwd(g, cam, near, opacity_override)
+             want_importance: bool = False, alpha_min: float = ALPHA_MIN, drop: Drop | None = None):
+    """float64 forward (drop: DropGaussian's mask, `project_fwd`). Returns (Projected, Bins,
+    RasterOut, stats dict)."""
+    proj = project_fwd(g, cam, near, opacity_override, drop)
     bins = bin(proj, cam.width, cam.height)
     out = rasterize_fwd(proj, bins, cam.width, cam.height, background, want_importance, alpha_min)
     stats = dict(visible=int(np.count_nonzero(proj.radii > 0)),
@@ -586,17 +601,20 @@ def render64(g, cam: Camera, background=(0.0, 0.0, 0.0), near: float = 0.01, opa
 
 
 def render_vjp64(g, cam: Camera, v_rgb, v_depth=None, v_alpha=None, background=(0.0, 0.0, 0.0),
-                 near: float = 0.01, opacity_override=None, alpha_min: float = ALPHA_MIN) -> Params64:
-    """float64 VJP of `render64` w.r.t. the raw fields: Params64 of gradients."""
-    return _vjp64(g, cam, v_rgb, v_depth, v_alpha, background, near, opacity_override, alpha_min)[0]
+                 near: float = 0.01, opacity_override=None, alpha_min: float = ALPHA_MIN,
+                 drop: Drop | None = None) -> Params64:
+    """float64 VJP of `render64` w.r.t. the raw fields (the mask `drop` held fixed): Params64 of
+    gradients."""
+    return _vjp64(g, cam, v_rgb, v_depth, v_alpha, background, near, opacity_override, alpha_min, drop)[0]
 
 
-def _vjp64(g, cam, v_rgb, v_depth, v_alpha, background, near, opacity_override, alpha_min=ALPHA_MIN):
+def _vjp64(g, cam, v_rgb, v_depth, v_alpha, background, near, opacity_override, alpha_min=ALPHA_MIN,
+           drop: Drop | None = None):
     """(Params64 gradients, Projected, RasterGrads) of one render."""
-    proj, bins, out, _ = render64(g, cam, background, near, opacity_override, False, alpha_min)
+    proj, bins, out, _ = render64(g, cam, background, near, opacity_override, False, alpha_min, drop)
     grads = rasterize_bwd(proj, bins, out, v_rgb, v_depth, v_alpha, cam.width, cam.height,
                           background, alpha_min)
-    return project_bwd(g, cam, proj, grads, near, opacity_override), proj, grads
+    return project_bwd(g, cam, proj, grads, near, opacity_override, drop), proj, grads
 
 
 class ReferenceBackend:
@@ -635,8 +653,9 @@ class ReferenceBackend:
 
     def render(self, gaussians: Gaussians, camera: Camera, background: Sequence[float] = (0, 0, 0),
                near: float = 0.01, opacity_override: float | None = None,
-               want_importance: bool = False) -> RenderOutput:
-        _, _, out, stats = render64(gaussians, camera, background, near, opacity_override, want_importance)
+               want_importance: bool = False, drop: Drop | None = None) -> RenderOutput:
+        _, _, out, stats = render64(gaussians, camera, background, near, opacity_override, want_importance,
+                                    drop=drop)
         f32 = lambda a: np.ascontiguousarray(a, dtype=np.float32)  # noqa: E731
         return RenderOutput(rgb=f32(out.rgb), depth=f32(out.depth), alpha=f32(out.alpha),
                             final_T=f32(out.final_T),
@@ -653,8 +672,9 @@ class ReferenceBackend:
                    v_depth: np.ndarray | None = None, v_alpha: np.ndarray | None = None,
                    background: Sequence[float] = (0, 0, 0), near: float = 0.01,
                    opacity_override: float | None = None,
-                   grad_fields: Sequence[str] | None = None) -> Gaussians:
-        gr, proj, rg = _vjp64(gaussians, camera, v_rgb, v_depth, v_alpha, background, near, opacity_override)
+                   grad_fields: Sequence[str] | None = None, drop: Drop | None = None) -> Gaussians:
+        gr, proj, rg = _vjp64(gaussians, camera, v_rgb, v_depth, v_alpha, background, near, opacity_override,
+                              drop=drop)
         # screen-space side channel for the densification statistics (Backend.last_screen)
         self.last_screen = (rg.v_means2d.astype(np.float32), np.asarray(proj.radii)) if grad_fields is None else None
         keep = FIELDS if grad_fields is None else tuple(grad_fields)

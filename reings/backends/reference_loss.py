@@ -13,10 +13,13 @@
                             (depth_smooth_weights, DepthSmoothWeights)
     regularize_fwd_bwd      the regularize stage: DNGaussian's shape / scale / opacity penalties
                             on the raw parameters (shape_reg, scale_reg, opacity_reg)
+    depth_metric_fwd_bwd    the depth_metric stage: relative L1 of the rendered depth against the
+                            prior's metric depth, weighted by its confidence (docs/method.md §10)
 
 `kernels/photometric.cl` and `kernels/l1.cl` must match the first three (tests/test_losses.py,
 tests/test_peer_step.py), `kernels/depth_loss.cl` the depth terms (tests/test_depth_loss_kernel.py),
-`kernels/regularize.cl` the penalties (tests/test_adam_kernel.py).
+`kernels/regularize.cl` the penalties (tests/test_adam_kernel.py), `kernels/depth_metric.cl` the
+metric depth term (tests/test_depth_metric.py).
 
 `photometric_loss` and `depth_loss` are the reference backend's host loss methods (the Backend
 protocol, reings/backends/base.py): on device "reference" they are the losses themselves.
@@ -412,4 +415,43 @@ def bg_alpha_fwd_bwd(alpha: np.ndarray, mask: np.ndarray) -> tuple[float, np.nda
     if n == 0:
         return 0.0, np.zeros_like(a)
     return float(np.mean(a[m] ** 2)), np.where(m, 2.0 * a / n, 0.0)
+# }}}
+
+
+# {{{ depth_metric: the rendered depth against the prior's metric depth (kernels/depth_metric.cl)
+def depth_metric_valid(target: np.ndarray, weight: np.ndarray) -> np.ndarray:
+    """The pixels the metric depth term sees: weight > 0 and a positive, finite target."""
+    t = np.asarray(target, np.float64)
+    c = np.asarray(weight, np.float64)
+    with np.errstate(invalid="ignore"):
+        return (c > 0) & (t > 0) & np.isfinite(t)
+
+
+def depth_metric_scale(target: np.ndarray, weight: np.ndarray, w: float) -> float:
+    """w / S, S the sum of the weights over the valid pixels (0 where there are none): the one
+    number per view that the kernel takes (as float32)."""
+    s = float(np.sum(np.asarray(weight, np.float64)[depth_metric_valid(target, weight)]))
+    return float(w) / s if s > 0 else 0.0
+
+
+def depth_metric_fwd_bwd(depth: np.ndarray, alpha: np.ndarray, target: np.ndarray, weight: np.ndarray,
+                         w: float) -> tuple[float, np.ndarray]:
+    """The metric depth term, float64 (docs/method.md §10):
+        L = w / S * sum_p c_p |D_p - a_p t_p| / t_p,  S = sum of c_p over the valid pixels
+    with the alpha a held constant. Returns (L, dL/dD): (w / S) c_p sign(D_p - a_p t_p) / t_p on the
+    valid pixels (0 at a tie and for a NaN depth), 0 elsewhere; a non-finite D - a t adds nothing to L."""
+    d = np.asarray(depth, np.float64)
+    a = np.asarray(alpha, np.float64)
+    t = np.asarray(target, np.float64)
+    c = np.asarray(weight, np.float64)
+    if not d.shape == a.shape == t.shape == c.shape:
+        raise ValueError(f"depth_metric: depth {d.shape}, alpha {a.shape}, target {t.shape}, weight {c.shape} differ")
+    ok = depth_metric_valid(t, c)
+    scale = depth_metric_scale(t, c, w)
+    ts = np.where(ok, t, 1.0)
+    with np.errstate(invalid="ignore"):
+        r = np.where(ok, d - a * ts, 0.0)
+    r = np.where(np.isnan(r), 0.0, r)
+    loss = scale * float(np.sum(np.where(ok & np.isfinite(r), c * np.abs(r) / ts, 0.0)))
+    return loss, np.where(ok, scale * c * np.sign(r) / ts, 0.0)
 # }}}

@@ -27,12 +27,13 @@ backend: `photometric_kernels`, `depth_loss_kernels`); `last_screen` is render_v
 densification side channel.
 
 Forward reuse in render_vjp (documented contract): on CPU devices (PoCL) render_vjp reuses the
-device state of the last forward of this backend when the camera, background, near and opacity
-override are equal AND every input array is byte-identical to what that forward uploaded (compared
-against the zero-copy mapped input buffers, ~1-3 ms for SH3 at 100k). A stage-method call or a
-render in between replaces that state; render_vjp itself leaves it intact. On GPUs the forward is
-always recomputed: the kernels are cheaper than reading the inputs back to verify them. Either way
-the result is the VJP at exactly the given inputs (an in-place edit of an input is detected).
+device state of the last forward of this backend when the camera, background, near, opacity
+override and DropGaussian mask are equal AND every input array is byte-identical to what that
+forward uploaded (compared against the zero-copy mapped input buffers, ~1-3 ms for SH3 at 100k).
+A stage-method call or a render in between replaces that state; render_vjp itself leaves it
+intact. On GPUs the forward is always recomputed: the kernels are cheaper than reading the inputs
+back to verify them. Either way the result is the VJP at exactly the given inputs (an in-place
+edit of an input is detected).
 
 Device time per stage: after each call, `last_profile` maps stage name -> milliseconds on the
 device timeline (profiling events of the in-order queue): a single-kernel stage's own duration, or
@@ -55,6 +56,7 @@ import numpy as np
 
 from ...types import FIELDS, Camera, Gaussians, RenderOutput
 from ..base import (CLAMP_GUARD, V_RECORD, Bins, Projected, RasterGrads, RasterOut, tile_grid)
+from ..reference_drop import Drop, drop_args
 from . import quirks
 from .device import open_device
 from .program import library_for, typed_invoker
@@ -92,10 +94,11 @@ def camera_record(cam: Camera, near: float) -> np.ndarray:
     return rec.astype(_F32)
 
 
-def _frame_key(cam: Camera, background, near: float, override) -> tuple:
+def _frame_key(cam: Camera, background, near: float, override, drop: Drop | None = None) -> tuple:
     """Everything besides the Gaussians that a forward depends on (forward reuse in render_vjp)."""
     return (cam.K.tobytes(), cam.viewmat.tobytes(), cam.width, cam.height,
-            tuple(float(x) for x in background), float(near), None if override is None else float(override))
+            tuple(float(x) for x in background), float(near), None if override is None else float(override),
+            drop)
 
 
 @dataclass
@@ -111,8 +114,9 @@ class _Frame:
     visible: int = 0
     isects: int = 0
     bufs: dict = field(default_factory=dict)
-    key: tuple | None = None  # (camera, background, near, override) for forward reuse
+    key: tuple | None = None  # (camera, background, near, override, drop) for forward reuse
     camera: Camera | None = None  # the camera rendered
+    drop: Drop | None = None  # DropGaussian's mask of the projection (its backward uses the same)
 
 
 class OpenCLBackend:
@@ -238,8 +242,12 @@ class OpenCLBackend:
     def _upload_gaussians(self, g: Gaussians) -> dict:
         return {f: self._upload("gauss", "in_" + f, getattr(g, f)) for f in FIELDS}
 
-    def _project_device(self, fr: _Frame, inp: dict, cam: Camera, near: float, override) -> None:
+    def _project_device(self, fr: _Frame, inp: dict, cam: Camera, near: float, override,
+                        drop: Drop | None = None) -> None:
+        if drop is not None and override is not None:
+            raise ValueError("project_fwd: a DropGaussian mask is never combined with an opacity override")
         n, s = fr.n, self.scratch
+        fr.drop = drop
         b = fr.bufs
         b["cam"] = self._camera_buffer(cam, near)
         b["means2d"] = s.get("gauss", "means2d", n, 8)
@@ -255,8 +263,8 @@ class OpenCLBackend:
         ov = _F32(override if override is not None else 0.0)
         ev = self.launch(k, -(-n // self.proj_vw), _I32(n), inp["means"], inp["quats"], inp["log_scales"],
                           inp["opacity_logits"], inp["sh"], b["cam"], _I32(fr.width), _I32(fr.height), ov,
-                          b["means2d"], b["conics"], b["depths"], b["radii"], b["tile_rect"], b["colors"],
-                          b["opacities"], b["depth_keys"], b["gid_vals"], wg=self.proj_wg)
+                          *drop_args(drop), b["means2d"], b["conics"], b["depths"], b["radii"], b["tile_rect"],
+                          b["colors"], b["opacities"], b["depth_keys"], b["gid_vals"], wg=self.proj_wg)
         self._mark("project_fwd", ev)
 
     def _camera_buffer(self, cam: Camera, near: float):
@@ -323,13 +331,13 @@ class OpenCLBackend:
         return _Frame(n=n, width=width, height=height, tiles_x=tiles_x, n_tiles=tiles_x * tiles_y, sh_k=sh_k)
 
     def _forward(self, g: Gaussians, cam: Camera, background, near: float, override,
-                 want_importance: bool) -> _Frame:
+                 want_importance: bool, drop: Drop | None = None) -> _Frame:
         fr = self._new_frame(len(g), cam.width, cam.height, g.sh.shape[1])
         fr.bufs["in"] = self._upload_gaussians(g)
-        self._project_device(fr, fr.bufs["in"], cam, near, override)
+        self._project_device(fr, fr.bufs["in"], cam, near, override, drop)
         self._bin_device(fr)
         self._raster_fwd(fr, background, want_importance)
-        fr.key = _frame_key(cam, background, near, override)
+        fr.key = _frame_key(cam, background, near, override, drop)
         return fr
 
     # ------------------------------------------------------------------------------------------
@@ -375,17 +383,20 @@ class OpenCLBackend:
     # device-resident entry points (the training engine, reings/backends/opencl/trainer.py)
     # ------------------------------------------------------------------------------------------
     def forward_device(self, inp: dict, n: int, sh_k: int, camera: Camera, background=(0.0, 0.0, 0.0),
-                       near: float = 0.01, opacity_override: float | None = None) -> _Frame:
+                       near: float = 0.01, opacity_override: float | None = None,
+                       drop: Drop | None = None) -> _Frame:
         """`render`'s forward on Gaussians that already live on the device: `inp` maps each field of
         FIELDS to a buffer ([N,3] means, [N,4] quats, [N,3] log_scales, [N] opacity_logits,
         [N,sh_k,3] sh). Nothing is uploaded (the camera record buffer is cached per camera) and
         nothing is read back but the bin stage's (V, K) control words. The returned frame's buffers (fr.bufs["out_rgb"],
         "out_depth", "out_alpha", "out_T", "radii", ...) stay valid until the next call on this
-        backend; the caller must keep `inp` unchanged until `backward_device` has run."""
+        backend; the caller must keep `inp` unchanged until `backward_device` has run. drop:
+        DropGaussian's mask (reference_drop.Drop, None: none); `backward_device` of the frame uses
+        the same."""
         fr = self._new_frame(int(n), camera.width, camera.height, int(sh_k))
         fr.camera = camera
         fr.bufs["in"] = dict(inp)
-        self._project_device(fr, fr.bufs["in"], camera, near, opacity_override)
+        self._project_device(fr, fr.bufs["in"], camera, near, opacity_override, drop)
         self._bin_device(fr)
         self._raster_fwd(fr, background, False)
         self.last_stats = dict(visible=fr.visible, intersections=fr.isects)
@@ -397,7 +408,8 @@ class OpenCLBackend:
         device buffers ([H,W,3], [H,W], [H,W]; None = zero). Returns the gradient buffers
         {field: buffer} ([N,3], [N,4], [N,3], [N], [N,sh_k,3]; fields outside `grad_fields` are
         zeros), valid until the next backward on this backend. fr.bufs["v_proj"] [N, V_RECORD]
-        (rows of culled gids unwritten) and fr.bufs["radii"] feed the densification statistics."""
+        (rows of culled gids unwritten) and fr.bufs["radii"] feed the densification statistics.
+        The frame's DropGaussian mask (fr.drop, from forward_device) applies."""
         self._raster_bwd_buffers(fr, v_rgb, v_depth, v_alpha)
         return self._project_bwd_device(fr, opacity_override, grad_fields)
 
@@ -467,8 +479,8 @@ class OpenCLBackend:
     # ------------------------------------------------------------------------------------------
     def render(self, gaussians: Gaussians, camera: Camera, background: Sequence[float] = (0, 0, 0),
                near: float = 0.01, opacity_override: float | None = None,
-               want_importance: bool = False) -> RenderOutput:
-        fr = self._forward(gaussians, camera, background, near, opacity_override, want_importance)
+               want_importance: bool = False, drop: Drop | None = None) -> RenderOutput:
+        fr = self._forward(gaussians, camera, background, near, opacity_override, want_importance, drop)
         b = fr.bufs
         H, W = camera.height, camera.width
         rgb = self._read(b["out_rgb"], (H, W, 3), _F32)
@@ -516,12 +528,12 @@ class OpenCLBackend:
                    v_depth: np.ndarray | None = None, v_alpha: np.ndarray | None = None,
                    background: Sequence[float] = (0, 0, 0), near: float = 0.01,
                    opacity_override: float | None = None,
-                   grad_fields: Sequence[str] | None = None) -> Gaussians:
+                   grad_fields: Sequence[str] | None = None, drop: Drop | None = None) -> Gaussians:
         g = gaussians
-        fr = self._reusable(g, _frame_key(camera, background, near, opacity_override))
+        fr = self._reusable(g, _frame_key(camera, background, near, opacity_override, drop))
         self._events = []
         if fr is None:
-            fr = self._forward(g, camera, background, near, opacity_override, False)
+            fr = self._forward(g, camera, background, near, opacity_override, False, drop)
         self._frame = fr  # the backward leaves the forward's buffers intact: a second VJP may reuse it
         self._raster_bwd(fr, v_rgb, v_depth, v_alpha)
         out = self._project_bwd_device(fr, opacity_override, grad_fields)
@@ -555,7 +567,8 @@ class OpenCLBackend:
         k = self.kernel("project.cl", "project_bwd", SH_K=fr.sh_k, PROJ_VW=self.proj_vw)
         ov = _F32(override if override is not None else 0.0)
         ev = self.launch(k, -(-n // self.proj_vw), _I32(n), inp["means"], inp["quats"], inp["log_scales"], inp["opacity_logits"],
-                          inp["sh"], b["cam"], _I32(fr.width), _I32(fr.height), ov, _I32(mask), b["radii"],
+                          inp["sh"], b["cam"], _I32(fr.width), _I32(fr.height), ov, drop_args(fr.drop)[2],
+                          _I32(mask), b["radii"],
                           b["v_proj"], out["means"], out["quats"], out["log_scales"], out["opacity_logits"],
                           out["sh"], wg=self.proj_wg)
         self._mark("project_bwd", ev)
@@ -565,10 +578,10 @@ class OpenCLBackend:
     # stage methods (host numpy in / out, same names and meaning as the reference)
     # ------------------------------------------------------------------------------------------
     def project_fwd(self, g: Gaussians, cam: Camera, near: float = 0.01,
-                    opacity_override: float | None = None) -> Projected:
+                    opacity_override: float | None = None, drop: Drop | None = None) -> Projected:
         fr = self._new_frame(len(g), cam.width, cam.height, g.sh.shape[1])
         fr.bufs["in"] = self._upload_gaussians(g)
-        self._project_device(fr, fr.bufs["in"], cam, near, opacity_override)
+        self._project_device(fr, fr.bufs["in"], cam, near, opacity_override, drop)
         out = self._read_projected(fr)
         self._finish()
         return out
@@ -655,13 +668,15 @@ class OpenCLBackend:
                            v_depths=v[:, 9])
 
     def project_bwd(self, g: Gaussians, cam: Camera, proj: Projected, grads: RasterGrads, near: float = 0.01,
-                    opacity_override: float | None = None, grad_fields: Sequence[str] | None = None) -> Gaussians:
+                    opacity_override: float | None = None, grad_fields: Sequence[str] | None = None,
+                    drop: Drop | None = None) -> Gaussians:
         """VJP of project_fwd: float32 `Gaussians` of dL/d(raw field). The device recomputes the
-        projection from `g` (its own radii decide culling); `proj` is accepted for the signature."""
+        projection from `g` (its own radii decide culling, `drop` included); `proj` is accepted for
+        the signature."""
         n = len(g)
         fr = self._new_frame(n, cam.width, cam.height, g.sh.shape[1])
         fr.bufs["in"] = self._upload_gaussians(g)
-        self._project_device(fr, fr.bufs["in"], cam, near, opacity_override)
+        self._project_device(fr, fr.bufs["in"], cam, near, opacity_override, drop)
         with np.errstate(over="ignore"):  # float64 cotangents beyond FLT_MAX become +-inf (kernel saturates)
             vp = np.concatenate([np.asarray(grads.v_means2d, _F32).reshape(n, 2),
                                  np.asarray(grads.v_conics, _F32).reshape(n, 3),

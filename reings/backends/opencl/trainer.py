@@ -124,6 +124,10 @@ class DeviceTrainer:
         self.k_decay = backend.kernel("regularize.cl", "opacity_decay", REGULARIZE_FP64=int(self.fp64))
         self.k_grad_add = backend.kernel("grad_add.cl", "grad_add")
         self.k_bg_alpha = backend.kernel("bg_alpha.cl", "bg_alpha_grad")
+        self.k_dm_grad = backend.kernel("depth_metric.cl", "depth_metric_grad")
+        self.k_dm_rows = backend.kernel("depth_metric.cl", "depth_metric_rows")
+        self.dm: list = []  # per view: (weight buffer, S = sum of its valid weights) or None (upload_depth_metric)
+        self._dm_last = None  # (frame, view, scale) of the last depth_metric call, for read_depth_metric
         self.bg: list = []  # per view: (mask buffer, float32 2 / count) or None (upload_bg_masks)
         self.real = _F64 if self.fp64 else _F32
         self.l1_wg = 1 if backend.cpu else 64  # L1-only loss work-group (kernels/l1.cl)
@@ -144,6 +148,7 @@ class DeviceTrainer:
         self._scalar = np.empty(1, _F32)  # read_loss's host word (no allocation per step)
         self.dloss = None  # the backend's DepthLossCL, set by upload_depth_targets
         self.dt: list = []  # depth target buffers per view (None: no target)
+        self.dt_host: list = []  # their float32 host copies (upload_depth_metric)
         self._events: list = []  # (stage, event) of this trainer's own kernels (profile only)
 
     # {{{ plumbing
@@ -289,15 +294,17 @@ class DeviceTrainer:
             self._sh_k = k
         return out
 
-    def forward(self, cam, k: int, background, near: float, opacity_override: float | None = None):
+    def forward(self, cam, k: int, background, near: float, opacity_override: float | None = None,
+                drop=None):
         """Trainer.forward: project / bin / sort / rasterize the device parameters (k active SH
-        coefficients); the frame is the backend's (valid until its next forward)."""
+        coefficients; drop: DropGaussian's mask, kept by the frame for its backward); the frame is
+        the backend's (valid until its next forward)."""
         if not 1 <= k <= self.kmax:
             raise ValueError(f"active SH coefficients {k} outside [1, {self.kmax}]")
         inp = {"means": self.buf("p", "means"), "quats": self.buf("p", "quats"),
                "log_scales": self.buf("p", "log_scales"), "opacity_logits": self.buf("p", "opacity_logits"),
                "sh": self.sh_input(k)}
-        fr = self.b.forward_device(inp, self.n, k, cam, background, near, opacity_override)
+        fr = self.b.forward_device(inp, self.n, k, cam, background, near, opacity_override, drop)
         if self.flush_after_forward:
             self.queue.flush()  # submit the rasterizer now; the host goes on enqueuing loss / backward / Adam
         return fr
@@ -314,6 +321,7 @@ class DeviceTrainer:
         more buffer per weighted view."""
         self.dloss = self.b.depth_loss_kernels
         self.dt = []
+        self.dt_host = []  # per view: the float32 target as uploaded (upload_depth_metric's S), or None
         self.ds = []  # per view: (wx_buf, wy_buf, 1 / sum of weights) or None
         self.dw = []  # per view: the per-pixel weight buffer or None
         weights = [None] * len(targets) if weights is None else list(weights)
@@ -322,10 +330,12 @@ class DeviceTrainer:
         for i, (t, hw, wt) in enumerate(zip(targets, shapes, weights)):
             if t is None:
                 self.dt.append(None)
+                self.dt_host.append(None)
                 self.ds.append(None)
                 self.dw.append(None)
                 continue
             a = np.ascontiguousarray(t, _F32)
+            self.dt_host.append(a)
             if a.shape != tuple(hw):
                 raise ValueError(f"depth target {i} has shape {a.shape}, its view is {tuple(hw)}")
             buf = self.mem.get("pixel", f"dt{i}", a.shape[0] * a.shape[1], 4)
@@ -431,7 +441,8 @@ class DeviceTrainer:
         e.g. from `depth_loss`, or a host [H,W] array, uploaded). Returns the gradient buffers
         {field: buffer} of backend.backward_device plus "sh_k" (`adam_step` reads the SH groups
         as strided views of the "sh" buffer); with `into` (from `hold`), kernels/grad_add.cl adds
-        the `grad_fields` ones (None: all) into its buffers and returns it."""
+        the `grad_fields` ones (None: all) into its buffers and returns it. The frame's
+        DropGaussian mask (from `forward`) applies."""
         vd = v_depth
         if isinstance(v_depth, np.ndarray):
             vd = self.mem.get("pixel", "v_depth", fr.width * fr.height, 4)
@@ -471,6 +482,56 @@ class DeviceTrainer:
         v = self.mem.get("pixel", "v_alpha", n, 4)
         self._launch("bg_alpha", self.k_bg_alpha, n, _I32(n), scale, fr.bufs["out_alpha"], buf, v)
         return v
+
+    def upload_depth_metric(self, weights) -> None:
+        """Trainer.upload_depth_metric: per view None / [H,W] weights of the metric depth term (after
+        upload_depth_targets: a view needs its target); S per view in float64 on the host."""
+        from ..reference_loss import depth_metric_valid
+
+        self.dm = []
+        if len(weights) != len(self.dt):
+            raise ValueError(f"{len(weights)} depth-metric weights for {len(self.dt)} depth targets")
+        for i, (wt, t) in enumerate(zip(weights, self.dt_host)):
+            if wt is None or t is None:
+                self.dm.append(None)
+                continue
+            wa = np.ascontiguousarray(wt, _F32)
+            if wa.shape != t.shape:
+                raise ValueError(f"depth-metric weight {i} has shape {wa.shape}, its target {t.shape}")
+            buf = self.mem.get("pixel", f"dmw{i}", wa.size, 4)
+            self._write(buf, wa)
+            self.dm.append((buf, float(np.sum(wa.astype(_F64)[depth_metric_valid(t, wa)]))))
+
+    def depth_metric(self, fr, view: int, weight: float, into=None):
+        """Trainer.depth_metric: kernels/depth_metric.cl's gradient of the frame's depth against the
+        resident target of `view` into the trainer's v_depth buffer (returned), or added into the
+        device buffer `into` (returned); the loss's row sums are taken now, from this frame (the
+        next forward reuses its buffers), and stay on the device (`read_depth_metric`)."""
+        npx = fr.width * fr.height
+        rec = self.dm[view] if view < len(self.dm) else None
+        scale = _F32(weight / rec[1]) if rec is not None and rec[1] > 0 else _F32(0)
+        v = into if into is not None else self.mem.get("pixel", "dm_v_depth", npx, 4)
+        wbuf = rec[0] if rec is not None else None
+        if wbuf is None:  # no weights: the term is zero
+            if into is None:
+                self.cl.enqueue_fill_buffer(self.queue, v, _F32(0), 0, 4 * npx)
+            self._dm_last = None
+            return v
+        rows = self.mem.get("small", "dm_rows", fr.height, 4)
+        self._launch("depth_metric_rows", self.k_dm_rows, fr.height, _I32(fr.width), _I32(fr.height),
+                     fr.bufs["out_depth"], fr.bufs["out_alpha"], self.dt[view], wbuf, rows)
+        self._launch("depth_metric", self.k_dm_grad, npx, _I32(npx), scale, _I32(into is not None),
+                     fr.bufs["out_depth"], fr.bufs["out_alpha"], self.dt[view], wbuf, v)
+        self._dm_last = (rows, fr.height, scale)
+        return v
+
+    def read_depth_metric(self) -> float:
+        """Trainer.read_depth_metric: the last depth_metric call's loss (a blocking read of its H
+        row sums, summed in float64); 0 when it had no weights."""
+        if self._dm_last is None:
+            return 0.0
+        rows, h, scale = self._dm_last
+        return float(scale) * float(np.sum(self._read(rows, (h,), _F32).astype(_F64)))
 
     def hold(self, grads: dict) -> dict:
         """Trainer.hold: device copies of the gradient buffers (trainer-owned, so the next
