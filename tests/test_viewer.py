@@ -78,15 +78,21 @@ def test_the_browser_shows_the_scene(tmp_path, colour, channel):
     cam = look_at(np.zeros(3), np.array([0, 0, 4.5]), np.array([0, -1.0, 0]), K, 400, 300)
     port = _free_port()
     server = serve(_block(colour), port=port, cameras=[cam])
+    others = [c for c in range(3) if c != channel]
     try:
-        shot = str(tmp_path / "shot.png")
-        _screenshot(f"http://127.0.0.1:{port}/", shot, tmp_path / "chrome")
+        # up to 3 fresh browsers: on a loaded 2-core machine the page can be captured before the
+        # splats arrive over the websocket (seen once in CI, at the end of the suite); a viewer
+        # that shows nothing fails all three
+        for attempt in range(3):
+            shot = str(tmp_path / f"shot{attempt}.png")
+            _screenshot(f"http://127.0.0.1:{port}/", shot, tmp_path / f"chrome{attempt}")
+            im = cv2.imread(shot)[..., ::-1].astype(int)
+            centre = im[200:400, 250:450]  # the middle of the 800x600 window: the block, seen from the camera
+            hit = (centre[..., channel] > 150) & np.all(centre[..., others] < 90, axis=-1)
+            if hit.mean() > 0.5:
+                break
     finally:
         server.stop()
-    im = cv2.imread(shot)[..., ::-1].astype(int)
-    centre = im[200:400, 250:450]  # the middle of the 800x600 window: the block, seen from the camera
-    others = [c for c in range(3) if c != channel]
-    hit = (centre[..., channel] > 150) & np.all(centre[..., others] < 90, axis=-1)
-    assert hit.mean() > 0.5, f"{hit.mean():.2f} of the centre shows the model's colour"
+    assert hit.mean() > 0.5, f"{hit.mean():.2f} of the centre shows the model's colour (3 attempts)"
     anywhere = (im[..., others[0]] > 150) & (im[..., channel] < 90) & (im[..., others[1]] < 90)
     assert anywhere.mean() < 0.01  # and not the other model's colour
