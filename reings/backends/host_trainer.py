@@ -73,7 +73,7 @@ class HostTrainer:
         self.targets: list = []  # per view: the depth target as given, or None
         self.smooth: list = []  # per view: DepthSmoothWeights or None
         self._loss = self._depth_loss = self._warp = None
-        self.dm: list = []  # per view: (weights, target, S) of the metric depth term, or None
+        self.dm: list = []  # per view: (weights, target, S, valid pixels) of the metric depth term, or None
         self._dm = None  # the last depth_metric call's (row terms, scale), or None
         self._zeros: dict = {}  # (H, W) -> zero colour cotangent of the depth passes
         self._tmp = np.empty(0, _F32)  # Adam scratch, grown geometrically
@@ -220,7 +220,8 @@ class HostTrainer:
             if wa.shape != np.shape(t):
                 raise ValueError(f"depth-metric weight {i} has shape {wa.shape}, its target {np.shape(t)}")
             ta = np.ascontiguousarray(t, _F32)
-            self.dm.append((wa, ta, float(np.sum(wa.astype(np.float64)[depth_metric_valid(ta, wa)]))))
+            ok = depth_metric_valid(ta, wa)
+            self.dm.append((wa, ta, float(np.sum(wa.astype(np.float64)[ok])), ok))
 
     def depth_metric(self, fr: HostFrame, view: int, weight: float, into=None) -> np.ndarray:
         """Trainer.depth_metric: kernels/depth_metric.cl's float32 operations in its order (so the
@@ -231,11 +232,10 @@ class HostTrainer:
         if rec is None:
             self._dm = None
             return np.zeros_like(d) if into is None else into
-        wt, t, s = rec
+        wt, t, s, ok = rec
         scale = _F32(weight / s) if s > 0 else _F32(0)
         a = np.asarray(fr.out.alpha, _F32)
         with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
-            ok = (wt > 0) & (t > 0) & np.isfinite(t)
             r = d - a * t
             sg = np.where(r > 0, _F32(1), np.where(r < 0, _F32(-1), _F32(0))).astype(_F32)
             g = np.where(ok, scale * wt * sg / t, _F32(0)).astype(_F32)

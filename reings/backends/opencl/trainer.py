@@ -127,7 +127,7 @@ class DeviceTrainer:
         self.k_dm_grad = backend.kernel("depth_metric.cl", "depth_metric_grad")
         self.k_dm_rows = backend.kernel("depth_metric.cl", "depth_metric_rows")
         self.dm: list = []  # per view: (weight buffer, S = sum of its valid weights) or None (upload_depth_metric)
-        self._dm_last = None  # (frame, view, scale) of the last depth_metric call, for read_depth_metric
+        self._dm_last = None  # (row-sum buffer, H, scale) of the last depth_metric call, for read_depth_metric
         self.bg: list = []  # per view: (mask buffer, float32 2 / count) or None (upload_bg_masks)
         self.real = _F64 if self.fp64 else _F32
         self.l1_wg = 1 if backend.cpu else 64  # L1-only loss work-group (kernels/l1.cl)
