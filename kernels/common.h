@@ -31,6 +31,18 @@
 #define CLAMP_GUARD 0.3f          /* Jacobian guard band, fraction of tan(fov/2) (gsplat) */
 #define V_RECORD 10               /* floats per intersection gradient record (rasterize_bwd) */
 
+/* The alpha box of a splat: the pixels outside it have alpha = o exp(power) < ALPHA_MIN, so they
+ * are never blended. rasterize_prep skips the (pixel, Gaussian) pairs outside it; project_fwd cuts
+ * the tile rect to the tiles it overlaps (a little wider: PROJ_BOX_SLACK in project.cl). With
+ * lo = ALPHA_BOX_LO(o) = o / ALPHA_MIN >= 1 and a positive definite conic (A, B, C),
+ * det = A C - B^2: power >= -ln(lo) needs dx^2 <= 2 ln(lo) C / det (q = C), and dy^2 likewise with
+ * q = A; the half-width gets `rel` (ALPHA_BOX_REL: 1%) and ALPHA_BOX_PAD (0.5 px) of room for float
+ * rounding. lo < 1: alpha < ALPHA_MIN everywhere. Arguments may be float or floatN. */
+#define ALPHA_BOX_REL 1.01f
+#define ALPHA_BOX_PAD 0.5f
+#define ALPHA_BOX_LO(o) ((o) * 255.0f)
+#define ALPHA_BOX_HALF(lo, q, det, rel) (sqrt(2.0f * log(lo) * (q) / (det)) * (rel) + ALPHA_BOX_PAD)
+
 /* atomic_add_f32(p, v): *p += v, atomically, by the best means the device has.
  * NVIDIA: fire-and-forget PTX `red` (never a CAS loop there, docs/perf_notes.md §4.4). Native
  * cl_ext_float_atomics where the compiler exposes it. Otherwise a compare-and-swap loop (last

@@ -13,6 +13,9 @@
      colour = max(0, SH(normalize(mu - campos)) + 0.5);  opacity = sigmoid(logit) or the override
      DropGaussian (drop_threshold > 0; docs/method.md §9): cull unless DROP_HASH(gid, drop_key) >=
      drop_threshold; a kept Gaussian's opacity is sigmoid(logit) * drop_scale (1 / (1 - rate))
+     tile rect (opacity-aware, `alpha_rect`): the tiles above, cut to the tiles that the alpha box
+     of the opacity o (common.h, rasterize_prep's box with PROJ_BOX_SLACK more room) overlaps;
+     o < 1/255: empty rect (all zeros), the Gaussian stays visible (radii unchanged)
 
    Kernels
      project_fwd   one work-item per Gaussian (gid); writes every output row (culled rows: zeros)
@@ -32,7 +35,8 @@
    tile intersections, zero gradients, no densification statistics, as any culled Gaussian); any
    non-finite raw field; |q| < 1e-12;
    t_z <= near (or not finite); det(Sigma2d) <= 0; a projected value (t, u, v, Sigma2d, conic,
-   lambda_max, colour) not finite in float32; an empty tile rect. det, conic and lambda_max are
+   lambda_max, colour) not finite in float32; an empty 3-sigma tile rect (the opacity-aware cut
+   never culls: `alpha_rect`). det, conic and lambda_max are
    computed on Sigma2d / max(a, c) so that a huge but representable Sigma2d does not overflow.
    The backward scales huge cotangents by a power of two (it is linear in them) so that overflow
    gives +-inf, never NaN.
@@ -49,6 +53,9 @@
 #define PROJ_EPS2D EPS2D           /* low-pass dilation on the 2D covariance diagonal (common.h) */
 #define PROJ_LAMBDA_FLOOR 0.1f     /* floor of the eigenvalue spread term (3DGS radius rule) */
 #define PROJ_SIGMAS 3.0f           /* radius = ceil(3 sqrt(lambda_max)) */
+#define PROJ_BOX_SLACK (1.0f + 0x1p-12f) /* alpha_rect's box: half-widths this much wider than rasterize_prep's */
+#define PROJ_BOX_COND 0x1p-8f      /* alpha_rect: the box only where det >= this * A C ... */
+#define PROJ_BOX_AC_MIN 0x1p-100f  /* ... and A C >= this (det computed on normal floats) */
 #define PROJ_QUAT_NORM_MIN 1e-12f  /* below this |q| the rotation is undefined: cull (reference QUAT_NORM_MIN) */
 #define DEPTH_KEY_CULLED 0xFFFFFFFFu /* sorts after every positive float's bits */
 /* LLVM declines to inline the big helpers on its own (cost above its threshold): force it, one
@@ -332,6 +339,51 @@ PROJ_INLINE vi project_one(vi gid, __global const float *means, __global const f
     return ok;
 }
 
+/* The opacity-aware tile rect: p->rect (the 3-sigma tiles) cut to the tiles that the alpha box of
+   opacity o overlaps (common.h: outside it alpha = o exp(power) < ALPHA_MIN); empty (all zeros)
+   where o < 1/255. The rasterizer blends a (pixel, Gaussian) pair only inside rasterize_prep's box
+   and where alpha >= ALPHA_MIN, so every intersection this removes blended nothing: it added exact
+   zeros to its per-intersection records (gradients, importance) and nothing to any pixel, and
+   `last` counts positions in the tile's list in the forward and the backward alike. The images,
+   depths, alphas and every gradient are therefore those of the 3-sigma rect (up to the sign of a
+   zero sum), and no switch is needed. Pixels are tested against rasterize_prep's box computed from
+   the same stored floats (u, v, A, B, C, o), so the cut must contain that box:
+     - same formula (ALPHA_BOX_HALF) with the half-widths PROJ_BOX_SLACK (2^-12) wider, which
+       absorbs the rounding differences between the two kernels (FMA contraction of det, vector
+       and scalar log / sqrt: < 2^-15 relative where det >= 2^-8 A C);
+     - the box only where it is well conditioned: lo = 255 o finite, A, C > 0, det > 0 finite,
+       det >= PROJ_BOX_COND A C and A C >= PROJ_BOX_AC_MIN; elsewhere (nearly degenerate conics,
+       where float rounding of det is large, and the non positive definite case, where
+       rasterize_prep has no box) the 3-sigma rect stays;
+     - lo < 1 (computed from the same float o as rasterize_prep): rasterize_prep's box is empty,
+       the Gaussian is never blended: empty rect. It stays visible (radii > 0: the densification
+       statistics count it as before); with no intersection its gradients are zero, as before.
+   Pixel columns [ceil(u - ex - 0.5), floor(u + ex - 0.5)] (rasterize_prep's expressions), tile
+   columns [floor(first / 16), floor(last / 16) + 1); rows likewise with v, ey. gsplat cuts its
+   per-axis extents the same way (ProjectionEWA3DGSFused.cu: extend = min(3.33, sqrt(2 ln(o /
+   ALPHA_THRESHOLD))), culling o < ALPHA_THRESHOLD; docs/method.md §5.3). */
+PROJ_INLINE void alpha_rect(proj_t *p, vf o) {
+    const vf A = p->A, B = p->B, C = p->C;
+    const vf lo = ALPHA_BOX_LO(o);
+    const vf ac = A * C;
+    const vf det = ac - B * B;
+    const vi box = (lo >= 1.0f) & FINITE(lo) & (A > 0.0f) & (C > 0.0f) & (det > 0.0f) & FINITE(det) &
+                   (det >= PROJ_BOX_COND * ac) & (ac >= PROJ_BOX_AC_MIN);
+    const vf ex = ALPHA_BOX_HALF(lo, C, det, ALPHA_BOX_REL * PROJ_BOX_SLACK);
+    const vf ey = ALPHA_BOX_HALF(lo, A, det, ALPHA_BOX_REL * PROJ_BOX_SLACK);
+    const float inv_tile = 1.0f / (float)TILE_SIZE;
+    const vf bx0 = floor(ceil(p->u - ex - 0.5f) * inv_tile), bx1 = floor(floor(p->u + ex - 0.5f) * inv_tile) + 1.0f;
+    const vf by0 = floor(ceil(p->v - ey - 0.5f) * inv_tile), by1 = floor(floor(p->v + ey - 0.5f) * inv_tile) + 1.0f;
+    vf r[4];
+    r[0] = select(p->rect[0], fmax(p->rect[0], bx0), box);
+    r[1] = select(p->rect[1], fmax(p->rect[1], by0), box);
+    r[2] = select(p->rect[2], fmin(p->rect[2], bx1), box);
+    r[3] = select(p->rect[3], fmin(p->rect[3], by1), box);
+    /* empty: o < 1/255, or the box misses the 3-sigma tiles (lo NaN or inf: no box, rect kept) */
+    const vi empty = (lo < 1.0f) | !((r[2] > r[0]) & (r[3] > r[1]));
+    for (int i = 0; i < 4; ++i) p->rect[i] = select(r[i], (vf)0.0f, empty);
+}
+
 /* Lanes of work-item `wi`: g0 = first gid, nl = how many are real, gid = clamped lane gids */
 #define LANES(n)                                                        \
     const int g0 = (int)get_global_id(0) * PROJ_VW;                     \
@@ -373,6 +425,9 @@ __kernel void project_fwd(const int n,
         vis &= h >= (vu)drop_threshold;
     }
     const vf zero = 0.0f;
+    const vf op = opacity_override > 0.0f ? (vf)opacity_override
+                                          : (1.0f / (1.0f + exp(-GATHER(opacity_logits, gid)))) * drop_scale;
+    alpha_rect(&p, op); /* the opacity the rasterizer blends with */
     SCATTER_U(gid_vals, 1, 0, AS_U((vi)g0 + VLANES));
     SCATTER_F(means2d, 2, 0, select(zero, p.u, vis));
     SCATTER_F(means2d, 2, 1, select(zero, p.v, vis));
@@ -385,8 +440,6 @@ __kernel void project_fwd(const int n,
     SCATTER_I(radii, 1, 0, select((vi)0, rad, vis));
     for (int i = 0; i < 4; ++i) SCATTER_I(tile_rect, 4, i, select((vi)0, CVT_I(p.rect[i]), vis));
     for (int ch = 0; ch < 3; ++ch) SCATTER_F(colors, 3, ch, select(zero, fmax(p.raw[ch], 0.0f), vis));
-    const vf op = opacity_override > 0.0f ? (vf)opacity_override
-                                          : (1.0f / (1.0f + exp(-GATHER(opacity_logits, gid)))) * drop_scale;
     SCATTER_F(opacities, 1, 0, select(zero, op, vis));
     /* t_z > near > 0: the float bits order like the floats */
     SCATTER_U(depth_keys, 1, 0, select((vu)DEPTH_KEY_CULLED, AS_U(p.t[2]), vis));

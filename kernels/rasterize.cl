@@ -83,16 +83,15 @@ __kernel void rasterize_prep(__global const float *means2d,   // [N, 2]
     const float A = conics[3 * g], B = conics[3 * g + 1], C = conics[3 * g + 2];
     const float o = opacities[g];
     float xlo = 1.0f, xhi = 0.0f, ylo = 1.0f, yhi = 0.0f; /* empty box */
-    const float lo = o * 255.0f;
+    const float lo = ALPHA_BOX_LO(o);
     /* o < 1/255 (or NaN): alpha < ALPHA_MIN everywhere -> never blended */
     if (lo >= 1.0f && isfinite(u) && isfinite(v) && isfinite(lo)) {
         const float det = A * C - B * B;
-        /* power >= -ln(255 o) needs dy^2 <= 2 ln(255 o) A / det (and dx^2 likewise with C) */
-        const float thr = 2.0f * log(lo);
+        /* the alpha box (common.h): project_fwd cuts the tile rect to it (a little wider) */
         float ex = 1e7f, ey = 1e7f; /* not positive definite: no box, the pixel test decides */
         if (det > 0.0f && A > 0.0f && C > 0.0f && isfinite(det)) {
-            ex = fmin(sqrt(thr * C / det) * 1.01f + 0.5f, 1e7f);
-            ey = fmin(sqrt(thr * A / det) * 1.01f + 0.5f, 1e7f);
+            ex = fmin(ALPHA_BOX_HALF(lo, C, det, ALPHA_BOX_REL), 1e7f);
+            ey = fmin(ALPHA_BOX_HALF(lo, A, det, ALPHA_BOX_REL), 1e7f);
         }
         /* pixel i (centre i + 0.5) is inside when |u - (i + 0.5)| <= ex */
         xlo = clamp(ceil(u - ex - 0.5f), -2.0f, 1e7f);

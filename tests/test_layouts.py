@@ -56,7 +56,8 @@ def c_defines(name: str) -> dict[str, list[str]]:
     return out
 
 
-_LITERAL = re.compile(r"\b(0[xX][0-9A-Fa-f]+|(?:\d+\.\d*|\.\d+|\d+)(?:[eE][-+]?\d+)?)([fFuUlL]*)\b|"
+_LITERAL = re.compile(r"\b(0[xX][0-9A-Fa-f]*\.?[0-9A-Fa-f]*[pP][-+]?\d+|0[xX][0-9A-Fa-f]+|"
+                      r"(?:\d+\.\d*|\.\d+|\d+)(?:[eE][-+]?\d+)?)([fFuUlL]*)\b|"
                       r"(?<![\w.])(\.\d+(?:[eE][-+]?\d+)?)([fF]?)")
 _CAST = re.compile(r"\(\s*(?:real|float|double|int|uint|unsigned int|unsigned)\s*\)")
 
@@ -71,7 +72,9 @@ def c_eval(expr: str, file: str, _depth: int = 0):
 
     def lit(m):
         text, suffix = (m.group(1), m.group(2)) if m.group(1) else (m.group(3), m.group(4))
-        if text.lower().startswith("0x"):
+        if text.lower().startswith("0x") and "p" in text.lower():  # hexadecimal float
+            val = np.float32(float.fromhex(text)) if "f" in suffix.lower() else float.fromhex(text)
+        elif text.lower().startswith("0x"):
             val = int(text, 16)
         elif re.fullmatch(r"\d+", text) and "f" not in suffix.lower():
             val = int(text)
@@ -203,6 +206,11 @@ CONSTANTS = [
     ("bin.cl", "DEPTH_KEY_CULLED", "DEPTH_KEY_CULLED", None, "sort key of a culled Gaussian"),
     ("project.cl", "PROJ_LAMBDA_FLOOR", "LAMBDA_FLOOR", None, "eigenvalue spread floor"),
     ("project.cl", "PROJ_QUAT_NORM_MIN", "QUAT_NORM_MIN", None, "quaternion norm cull"),
+    ("common.h", "ALPHA_BOX_REL", "ALPHA_BOX_REL", None, "alpha box: relative room"),
+    ("common.h", "ALPHA_BOX_PAD", "ALPHA_BOX_PAD", None, "alpha box: room in pixels"),
+    ("project.cl", "PROJ_BOX_SLACK", "BOX_SLACK", None, "opacity-aware rect: extra room"),
+    ("project.cl", "PROJ_BOX_COND", "BOX_COND", None, "opacity-aware rect: conditioning limit"),
+    ("project.cl", "PROJ_BOX_AC_MIN", "BOX_AC_MIN", None, "opacity-aware rect: smallest A C"),
     ("project.cl", "DROP_KEY_MUL", "DROP_KEY_MUL", None, "DropGaussian mask hash: key multiplier"),
     ("project.cl", "DROP_FMIX_MUL1", "DROP_FMIX_MUL1", None, "DropGaussian mask hash: fmix32 constant"),
     ("project.cl", "DROP_FMIX_MUL2", "DROP_FMIX_MUL2", None, "DropGaussian mask hash: fmix32 constant"),

@@ -2,7 +2,9 @@
 
 Forward: the culling decision and the integer outputs (radii, tile_rect) must equal the reference's
 except where the reference itself sits on a rounding edge (`_edge_rows`: ceil(3 sqrt(lambda)) or a
-tile bound (u -+ r)/16 within EDGE_REL of an integer, where float32 may round the other way); the
+tile bound (u -+ r)/16 within EDGE_REL of an integer, where float32 may round the other way, and
+the same for the alpha box of the opacity-aware rect: a pixel bound u -+ ex - 0.5 at a tile edge,
+255 o near 1, det / AC near the box's conditioning limit); the
 float outputs agree to PROJECT_FWD_RTOL / PROJECT_FWD_ATOL (scaled per row). Backward: random
 per-Gaussian cotangents, every raw-field gradient with MIN_COSINE / MAX_REL_L2 (tests/tolerances.py).
 The kernels also run under Oclgrind at a small size (subprocess, every check on).
@@ -53,6 +55,32 @@ def _edge_rows(proj: ref.Projected, g, cam, near=0.01) -> np.ndarray:
             edge |= near_int(x, np.abs(u) + np.abs(v) + r)
         edge |= np.abs(t[:, 2] - near) <= 1e-6 * np.maximum(1.0, np.abs(t[:, 2]))
         edge |= ~(det > 1e-6 * (a * c))  # nearly singular: float32 det may differ in sign
+        edge |= _alpha_box_edge(proj.means2d, proj.conics, proj.opacities)  # override and drop included
+    return np.nan_to_num(edge, nan=True).astype(bool)
+
+
+def _alpha_box_edge(means2d, conics, opacities) -> np.ndarray:
+    """Rows whose opacity-aware cut (reference.alpha_box_rect) float32 may decide otherwise: 255 o
+    near 1, det / AC near the box's conditioning limit, or a pixel bound u -+ ex - 0.5 (v -+ ey - 0.5)
+    near the integer where its tile changes. float32 conics carry ~1e-6 relative error, amplified
+    by AC / det in det."""
+    with np.errstate(all="ignore"):
+        A, B, C = conics[:, 0], conics[:, 1], conics[:, 2]
+        lo = opacities * 255.0
+        ac = A * C
+        det = ac - B * B
+        kappa = np.maximum(1.0, ac / np.abs(det))
+        edge = np.abs(lo - 1.0) <= 1e-5
+        edge |= np.abs(det - ref.BOX_COND * ac) <= 1e-3 * ref.BOX_COND * ac
+        thr = 2.0 * np.log(np.maximum(lo, 1.0))
+        rel = ref.ALPHA_BOX_REL * ref.BOX_SLACK
+        for m, q in ((means2d[:, 0], C), (means2d[:, 1], A)):
+            e = np.sqrt(thr * q / det) * rel + ref.ALPHA_BOX_PAD
+            tol = EDGE_REL * (np.abs(m) + e * kappa + 1.0)
+            lo_b, hi_b = m - e - 0.5, m + e - 0.5  # ceil(lo_b) and floor(hi_b) are the pixel bounds
+            k_lo, k_hi = np.round(lo_b), np.round(hi_b)
+            edge |= (np.abs(lo_b - k_lo) <= tol) & (np.mod(k_lo, TILE_SIZE) == TILE_SIZE - 1)
+            edge |= (np.abs(hi_b - k_hi) <= tol) & (np.mod(k_hi, TILE_SIZE) == 0)
     return np.nan_to_num(edge, nan=True).astype(bool)
 
 

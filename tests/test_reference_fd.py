@@ -131,7 +131,7 @@ def cotangents(seed=1):
 def render_signature(cam, bg, near=0.01, override=None, alpha_min=0.0, drop=None):
     """What must not change inside one FD evaluation (see module docstring)."""
     def sig(p):
-        proj, aux = ref._project(p, cam, near, override, drop)
+        proj, aux = ref._project(p, cam, near, override, drop, alpha_min)  # the rect render_loss bins
         bins = ref.bin(proj, cam.width, cam.height)
         out = ref.rasterize_fwd(proj, bins, cam.width, cam.height, bg, True, alpha_min)
         return dict(radii=proj.radii, tile_rect=proj.tile_rect, last=out.last,

@@ -46,13 +46,16 @@ def tile_grid(width: int, height: int) -> tuple[int, int]:
 @dataclass
 class Projected:
     """Output of `project_fwd`, one row per Gaussian (gid). Culled rows have radii == 0 and an
-    empty tile_rect (all four zeros); their other fields are zero."""
+    empty tile_rect (all four zeros); their other fields are zero. The tile_rect is opacity-aware
+    (reference.alpha_box_rect): a visible row whose opacity is below ALPHA_MIN also has an empty
+    tile_rect (all four zeros) and no intersection, but keeps its radius and other fields."""
 
     means2d: np.ndarray  # [N, 2] (u, v) pixel coordinates
     conics: np.ndarray  # [N, 3] (A, B, C): power = -0.5*(A dx^2 + C dy^2) - B dx dy
     depths: np.ndarray  # [N] camera-space t_z
     radii: np.ndarray  # [N] int32, 0 = culled
-    tile_rect: np.ndarray  # [N, 4] int32 (tx0, ty0, tx1, ty1), half-open, clamped to the grid
+    tile_rect: np.ndarray  # [N, 4] int32 (tx0, ty0, tx1, ty1), half-open, clamped to the grid; the
+    #                        3-sigma square's tiles cut to the alpha box's (reference.alpha_box_rect)
     colors: np.ndarray  # [N, 3] SH colour + 0.5, clamped at 0
     opacities: np.ndarray  # [N] effective opacity: sigmoid(logit), or the override constant
 

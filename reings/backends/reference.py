@@ -21,6 +21,15 @@ Conventions decided here (the issue's §3 leaves them open):
   test before its (undefined) SH direction matters. The SH code still guards |μ - centre| == 0 by
   using direction (0, 0, 1), so no NaN can appear whatever `near` is.
 * Radii are int32: r = ceil(3 sqrt(λ_max)) saturated at 2**31 - 1 (the tile rect is clamped anyway).
+* Tile rect (opacity-aware; `alpha_box_rect`, kernels/project.cl `alpha_rect`): the tiles of the
+  square (u ± r, v ± r), clamped to the grid, cut to the tiles overlapped by the alpha box of the
+  opacity o (the rasterizer's box outside of which o·exp(power) < 1/255, half-widths
+  sqrt(2 ln(255 o) C / det)·1.01·(1 + 2⁻¹²) + 0.5 px along x, A for y, det = AC − B² of the conic);
+  the 3-sigma tiles stay where that box is ill-conditioned (det < 2⁻⁸ AC, AC < 2⁻¹⁰⁰, not positive
+  definite, 255 o not finite). o < 1/255 gives an empty rect (all zeros) but no culling: radii and
+  the other fields are kept. The cut removes only pairs that blend nothing, so images and gradients
+  are those of the 3-sigma rect. `alpha_min` on project_fwd is the rasterizer's test-only knob (the
+  box is that of alpha_min; alpha_min <= 0: no cut, the 3-sigma rect).
 * DropGaussian (`drop=`, a reference_drop.Drop; docs/method.md §9): the Gaussians the mask drops are
   culled like invisible ones; a kept one's opacity is sigmoid(logit) * drop.scale (may exceed 1;
   the α clamp below bounds each pair), and its logit gradient carries the same factor.
@@ -38,8 +47,8 @@ Conventions decided here (the issue's §3 leaves them open):
 * stats["evaluated_pairs"]: per pixel, the list entries examined up to and including the one that
   triggered the early stop (all entries if none did), summed over pixels.
 
-`alpha_min` on the rasterize stages is a TEST-ONLY knob (default ALPHA_MIN): the FD tests pass 0 to
-remove the 1/255 skip discontinuity.
+`alpha_min` on the rasterize stages, project_fwd (its opacity-aware tile rect) and render64 is a
+TEST-ONLY knob (default ALPHA_MIN): the FD tests pass 0 to remove the 1/255 skip discontinuity.
 """
 from __future__ import annotations
 
@@ -59,6 +68,9 @@ QUAT_NORM_MIN = 1e-12  # quaternion norm below this: rotation undefined, cull
 FLT_MAX = float(np.finfo(np.float32).max)
 INT32_MAX = 2**31 - 1
 LAMBDA_FLOOR = 0.1  # λ_max = mid + sqrt(max(0.1, mid² - det)) (3DGS)
+ALPHA_BOX_REL, ALPHA_BOX_PAD = 1.01, 0.5  # the alpha box's room (kernels/common.h)
+BOX_SLACK = 1.0 + 2.0**-12  # project_fwd's box is this much wider (kernels/project.cl PROJ_BOX_SLACK)
+BOX_COND, BOX_AC_MIN = 2.0**-8, 2.0**-100  # the box only where det >= BOX_COND AC, AC >= BOX_AC_MIN
 
 
 # ----------------------------------------------------------------------------------------------
@@ -222,7 +234,37 @@ def _finite32(a: np.ndarray) -> np.ndarray:
     return np.all(np.isfinite(a) & (np.abs(a) <= FLT_MAX), axis=1)
 
 
-def _project(g, cam: Camera, near: float, opacity_override, drop: Drop | None = None):
+def alpha_box_rect(rect: np.ndarray, means2d: np.ndarray, conics: np.ndarray, opacities: np.ndarray,
+                   alpha_min: float = ALPHA_MIN) -> np.ndarray:
+    """The opacity-aware tile rect (module docstring): `rect` [N, 4] (the 3-sigma tiles, clamped to
+    the grid) cut to the tiles overlapped by the alpha box of each row's (u, v), conic and opacity;
+    rows with opacity < alpha_min get all zeros. alpha_min <= 0: `rect` unchanged."""
+    rect = np.array(rect, dtype=np.float64, copy=True)
+    if not alpha_min > 0:
+        return rect
+    with np.errstate(all="ignore"):
+        A, B, C = conics[:, 0], conics[:, 1], conics[:, 2]
+        lo = opacities / alpha_min
+        ac = A * C
+        det = ac - B * B
+        box = ((lo >= 1.0) & (lo <= FLT_MAX) & (A > 0) & (C > 0) & (det > 0) & (det <= FLT_MAX)
+               & (det >= BOX_COND * ac) & (ac >= BOX_AC_MIN))
+        thr = 2.0 * np.log(np.where(box, lo, 1.0))
+        dets = np.where(box, det, 1.0)
+        ex = np.sqrt(thr * C / dets) * (ALPHA_BOX_REL * BOX_SLACK) + ALPHA_BOX_PAD
+        ey = np.sqrt(thr * A / dets) * (ALPHA_BOX_REL * BOX_SLACK) + ALPHA_BOX_PAD
+        u, v = means2d[:, 0], means2d[:, 1]
+        cut = np.stack([np.floor(np.ceil(u - ex - 0.5) / TILE_SIZE), np.floor(np.ceil(v - ey - 0.5) / TILE_SIZE),
+                        np.floor(np.floor(u + ex - 0.5) / TILE_SIZE) + 1,
+                        np.floor(np.floor(v + ey - 0.5) / TILE_SIZE) + 1], axis=1)
+        out = np.concatenate([np.maximum(rect[:, :2], cut[:, :2]), np.minimum(rect[:, 2:], cut[:, 2:])], axis=1)
+        out = np.where(box[:, None], out, rect)
+        empty = (lo < 1.0) | ~((out[:, 2] > out[:, 0]) & (out[:, 3] > out[:, 1]))
+    return np.where(empty[:, None], 0.0, out)
+
+
+def _project(g, cam: Camera, near: float, opacity_override, drop: Drop | None = None,
+             alpha_min: float = ALPHA_MIN):
     """project_fwd plus the intermediates project_bwd needs (dict)."""
     p = Params64.of(g)
     n = len(p)
@@ -301,9 +343,10 @@ def _project(g, cam: Camera, near: float, opacity_override, drop: Drop | None = 
         ty0 = np.clip(np.floor((vs - rs) / TILE_SIZE), 0, tiles_y)
         ty1 = np.clip(np.ceil((vs + rs) / TILE_SIZE), 0, tiles_y)
         ok &= (tx1 > tx0) & (ty1 > ty0)
+    # the opacity-aware cut: never culls (radii kept)
+    rect = alpha_box_rect(np.stack([tx0, ty0, tx1, ty1], axis=1), means2d, conics, opac, alpha_min)
 
     z = lambda arr: np.where(ok.reshape((-1,) + (1,) * (arr.ndim - 1)), arr, 0.0)  # noqa: E731
-    rect = np.stack([tx0, ty0, tx1, ty1], axis=1)
     proj = Projected(
         means2d=z(means2d),
         conics=z(conics),
@@ -320,14 +363,16 @@ def _project(g, cam: Camera, near: float, opacity_override, drop: Drop | None = 
 
 
 def project_fwd(g, cam: Camera, near: float = 0.01, opacity_override: float | None = None,
-                drop: Drop | None = None) -> Projected:
+                drop: Drop | None = None, alpha_min: float = ALPHA_MIN) -> Projected:
     """Project N Gaussians (float32 `Gaussians` or float64 `Params64`) to screen space.
 
     drop: DropGaussian's mask (reference_drop.Drop; None: none): the Gaussians it drops are
     culled, the kept ones' opacities are sigmoid(logit) * drop.scale. Never with an override.
-    Returns `Projected` (float64 fields, int32 radii / tile_rect); culled rows are zero.
+    alpha_min: the test-only knob of the rasterizer (its alpha box cuts the tile rect; <= 0: the
+    3-sigma rect). Returns `Projected` (float64 fields, int32 radii / tile_rect); culled rows are
+    zero; a visible row with opacity < alpha_min has an empty (all-zero) tile_rect.
     """
-    return _project(g, cam, near, opacity_override, drop)[0]
+    return _project(g, cam, near, opacity_override, drop, alpha_min)[0]
 
 
 def project_bwd(g, cam: Camera, proj: Projected, grads: RasterGrads, near: float = 0.01,
@@ -591,7 +636,7 @@ def render64(g, cam: Camera, background=(0.0, 0.0, 0.0), near: float = 0.01, opa
              want_importance: bool = False, alpha_min: float = ALPHA_MIN, drop: Drop | None = None):
     """float64 forward (drop: DropGaussian's mask, `project_fwd`). Returns (Projected, Bins,
     RasterOut, stats dict)."""
-    proj = project_fwd(g, cam, near, opacity_override, drop)
+    proj = project_fwd(g, cam, near, opacity_override, drop, alpha_min)
     bins = bin(proj, cam.width, cam.height)
     out = rasterize_fwd(proj, bins, cam.width, cam.height, background, want_importance, alpha_min)
     stats = dict(visible=int(np.count_nonzero(proj.radii > 0)),
