@@ -184,6 +184,14 @@ def option_name(path: str, f) -> str:
     return f.metadata.get("cli") or "--" + path.rsplit(".", 1)[-1].replace("_", "-")
 
 
+def _optional_bool(text: str):
+    """The value of an optional switch given with one: none, true or false."""
+    t = text.strip().lower()
+    if t in ("none", "true", "false"):
+        return {"none": None, "true": True, "false": False}[t]
+    raise argparse.ArgumentTypeError(f"expected none, true or false, got {text!r}")
+
+
 def _option_type(f, tp):
     """argparse `type=` of a field: the text parsed as the annotation says ("none" for an optional
     field), then the field's choices and check; an error says what was expected."""
@@ -233,7 +241,7 @@ def add_config_options(parser: argparse.ArgumentParser, exclude=()) -> None:
     holds only what was given (`config_from_args` lays it over --config or the defaults)."""
     from dataclasses import MISSING, fields
 
-    from .config import RunConfig, leaf_fields
+    from .config import RunConfig, leaf_fields, optional_of
 
     groups = {"": parser.add_argument_group("run options (reings.config.RunConfig)")}
     for f in fields(RunConfig):
@@ -251,6 +259,12 @@ def add_config_options(parser: argparse.ArgumentParser, exclude=()) -> None:
         if tp is bool:
             group.add_argument(option_name(path, f), action=argparse.BooleanOptionalAction, **kw)
             continue
+        if optional_of(tp) is bool:  # --x (true), --no-x (false), --x none|true|false
+            name = option_name(path, f)
+            group.add_argument(name, nargs="?", const=True, type=_optional_bool, metavar="none", **kw)
+            group.add_argument("--no-" + name[2:], action="store_const", const=False, dest=kw["dest"],
+                               default=argparse.SUPPRESS, help=argparse.SUPPRESS)
+            continue
         choices = f.metadata.get("choices")
         metavar = (f.metadata.get("metavar") or ("{" + ",".join(map(str, choices)) + "}" if choices else None)
                    or path.rsplit(".", 1)[-1].upper())
@@ -262,12 +276,12 @@ def options_markdown() -> str:
     equal to it): `python -c "from reings.cli import options_markdown as m; print(m())"`."""
     from dataclasses import MISSING
 
-    from .config import leaf_fields
+    from .config import leaf_fields, optional_of
 
     rows = ["| option | RunConfig field | default | meaning |", "|---|---|---|---|"]
     for path, f, tp in leaf_fields():
         name = option_name(path, f)
-        if tp is bool:
+        if tp is bool or optional_of(tp) is bool:
             name += f"`, `--no-{name[2:]}"
         default = f.default if f.default is not MISSING else f.default_factory()
         text = " ".join(f.metadata.get("help", "").split()).replace("|", "\\|")

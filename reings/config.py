@@ -187,6 +187,9 @@ class DensifyConfig:
     max_world_size: float | None = opt(0.1, "prune if max scale exceeds this * extent (with size_prune_from)")
     max_gaussians: int | None = opt(None, "optional cap on the Gaussian count (highest-gradient candidates win)")
     clean_views: bool = opt(False, "drop Gaussians no training view sees, at the first iteration (DNGaussian)")
+    prune_unseen: bool = opt(False, "at each densification also drop the Gaussians that no pixel of any training "
+                                    "view blends (alpha*T summed over the training views = 0): nothing in the "
+                                    "training data constrains them (docs/method.md §11)")
     opacity_decay: float | None = opt(None, "multiply every opacity by this factor after each photometric "
                                             "backward, before its Adam step (Binocular3DGS: 0.995); None = off")
     opacity_decay_from: int = opt(500, "the opacity decay runs at iterations > this (authors: densify_from)")
@@ -594,7 +597,7 @@ class RunConfig:
                                          "§9): each Gaussian is left out of the photometric pass's renders with a rate "
                                          "rising linearly to this at each fit's last iteration, the kept ones' "
                                          "opacities scaled by 1 / (1 - rate); 0 = off; none: the recipe family's "
-                                         "for reings (0.2 for 'dtu', off for 'llff'; docs/results.md §19), off for dngaussian",
+                                         "for reings (0.2 for 'dtu' and 'llff'; docs/results.md §19, §20), off for dngaussian",
                                    check=lambda v: None if v is None or 0 <= v < 1 else f"must lie in [0, 1), got {v}",
                                    metavar="GAMMA")
     depth_metric: float | None = opt(None, "reings fits with a metric depth prior (stereo, exact): the metric depth "
@@ -603,6 +606,10 @@ class RunConfig:
                                            "confidence; 0 = off; none: the recipe family's (off for 'llff' and 'dtu')",
                                      check=lambda v: None if v is None or (v >= 0 and v == v and v != float("inf"))
                                      else f"must be >= 0 and finite, got {v}", metavar="WEIGHT")
+    prune_unseen: bool | None = opt(None, "reings fits: at each densification also drop the Gaussians that no "
+                                          "pixel of any training view blends (docs/method.md §11); none: the "
+                                          "recipe family's (on for 'llff', off for 'dtu' until measured there; "
+                                          "docs/results.md §20)")
     dtu_background: bool = opt(False, "every fit: DNGaussian's DTU background rules (dark-pixel mask of the training "
                                       "views, ground truth 0 there, the mean(alpha^2) pass, the black / white Gaussian "
                                       "rules; reings/background.py); not yet measured, so off")

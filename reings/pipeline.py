@@ -189,6 +189,8 @@ def run_settings(cfg: RunConfig, dataset_kind: str) -> dict:
                 s["view_warp_start"] = cfg.view_warp_start
         if cfg.opacity_decay is not None:
             s["opacity_decay"] = cfg.opacity_decay
+        if prune_unseen_of(cfg, recipe_family(cfg.recipe, dataset_kind)):  # absent when off (older folders resume)
+            s["prune_unseen"] = True
     if auto_seeds and (cfg.extent == "stereo" or cfg.holdout != "protocol" or cfg.views <= 2):
         s["stereo_seeds"] = "auto"  # seeds where runs before the option had none (stereo_seeds_of)
     if cfg.soft_depth_shared:
@@ -220,8 +222,13 @@ def recipe_family(recipe: str, dataset_kind: str) -> str:
 OPACITY_DECAY_BY_FAMILY = {"llff": 1.0, "dtu": 0.995}  # RunConfig.opacity_decay = none (docs/results.md §9)
 # RunConfig.drop_gamma = none, reings fits (docs/results.md §19): DTU scan24, full schedule, H100,
 # seeds 0-2: 3 views 16.89 -> 18.54 dB (gamma 0.3: 18.78, 0.4: 18.29, inside the seed spread of
-# 0.2's), 2 views 15.31 -> 17.31, 4 views 18.12 -> 19.80; LLFF: not measured on the full schedule
-DROP_GAMMA_BY_FAMILY = {"llff": 0.0, "dtu": 0.2}
+# 0.2's), 2 views 15.31 -> 17.31, 4 views 18.12 -> 19.80. LLFF (§20, with prune_unseen, fern +
+# flower, seeds 0-2): 2 views 19.79 -> 20.74, 3 views 20.96 -> 21.68, 4 views 22.39 -> 23.09; without
+# prune_unseen 2 of 6 flower runs at 3 views collapsed in the final stage (17.3 / 17.6 dB)
+DROP_GAMMA_BY_FAMILY = {"llff": 0.2, "dtu": 0.2}
+# RunConfig.prune_unseen = none, reings fits (§20): on for LLFF (no collapse in 18 runs with the
+# drop; alone at 3 views: fern +0.00, flower +0.04 dB, seed 0); not measured on DTU, so off there
+PRUNE_UNSEEN_BY_FAMILY = {"llff": True, "dtu": False}
 DROP_METHODS = ("reings", "dngaussian")  # the methods whose fits take RunConfig.drop_gamma
 DEPTH_METRIC_BY_FAMILY = {"llff": 0.0, "dtu": 0.0}  # RunConfig.depth_metric = none: off until measured
 # the stereo prior's settings per recipe family (docs/results.md §15): DTU's training views are
@@ -254,6 +261,15 @@ def drop_gamma_of(cfg: RunConfig, family: str) -> float:
     if cfg.drop_gamma is None:
         return DROP_GAMMA_BY_FAMILY[family] if cfg.method == "reings" else 0.0
     return float(cfg.drop_gamma)
+
+
+def prune_unseen_of(cfg: RunConfig, family: str) -> bool:
+    """Whether the run's reings fits drop the Gaussians no training pixel blends at each
+    densification (DensifyConfig.prune_unseen): RunConfig.prune_unseen, or for none the recipe
+    family's (PRUNE_UNSEEN_BY_FAMILY); never for the baselines."""
+    if cfg.method != "reings":
+        return False
+    return PRUNE_UNSEEN_BY_FAMILY[family] if cfg.prune_unseen is None else bool(cfg.prune_unseen)
 
 
 def depth_metric_of(cfg: RunConfig, family: str) -> float:
@@ -349,6 +365,8 @@ class RunContext:
             recipe = replace(recipe, loss=replace(recipe.loss, depth_metric=metric))
         if c.method == "reings":
             recipe = self.binocular(recipe)
+            if prune_unseen_of(c, self.family):
+                recipe = replace(recipe, densify=replace(recipe.densify, prune_unseen=True))
         if c.dtu_background:
             recipe = replace(recipe, loss=replace(recipe.loss, dark_background=True),
                              densify=replace(recipe.densify, dark_white_rules=True))

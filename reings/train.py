@@ -353,6 +353,8 @@ def fit(views, config: TrainConfig, device: str = "pocl", init: Gaussians | None
                         eval_fn, eval_every, log_every,
                         sync=lambda params_only: trainer.download(state, params_only=params_only))
     iteration = _Iteration(trainer, cfg, state, opt, rng, extent, images, cameras, depth_targets, book)
+    if cfg.densify.prune_unseen:  # what each training view's pixels blend, for densify (D.prune_unseen)
+        iteration.seen = lambda g: D.seen_by(g, cameras, backend, cfg.background, cfg.near)
     try:
         for it in range(state.iteration + 1, cfg.iterations + 1):
             iteration(it)
@@ -388,6 +390,7 @@ class _Iteration:
         self.groups = [k for k in PARAM_NAMES if k in opt.lr]
         self.hard_ema = None
         self.k = 1  # active SH coefficients of the current iteration
+        self.seen = None  # Gaussians -> [N] bool, blended by a training view's pixel (DensifyConfig.prune_unseen)
 
     def __call__(self, it: int) -> None:
         from .optim import sh_degree_at
@@ -546,6 +549,9 @@ class _Iteration:
         with self.tr.phase("densify"):
             self.tr.download(self.state)
             dens = D.maybe_densify(self.state, self.cfg.densify, it, self.extent, self.rng)
+            if self.cfg.densify.prune_unseen and D.schedule(self.cfg.densify, it)[0]:
+                # after the surgery: its clones and split children are judged at once
+                dens = dict(dens or {}, unseen=D.prune_unseen(self.state, self.seen(self.state.gaussians(0))))
             self.tr.upload(self.state)
         if dens:
             self.book.history.densify.append((it, dens))

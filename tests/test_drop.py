@@ -411,16 +411,16 @@ def test_fit_refuses_a_gamma_of_one(case):
 
 
 @pytest.mark.parametrize("method, family, kw, want", [
-    ("reings", "llff", {}, 0.0), ("reings", "dtu", {}, 0.2),  # the family defaults (reings only)
-    ("dngaussian", "dtu", {}, 0.0), ("reings", "dtu", {"drop_gamma": 0.0}, 0.0),
-    ("reings", "llff", {"drop_gamma": 0.2}, 0.2), ("dngaussian", "dtu", {"drop_gamma": 0.3}, 0.3),
+    ("reings", "llff", {}, 0.2), ("reings", "dtu", {}, 0.2),  # the family defaults (reings only)
+    ("dngaussian", "dtu", {}, 0.0), ("dngaussian", "llff", {}, 0.0), ("reings", "dtu", {"drop_gamma": 0.0}, 0.0),
+    ("reings", "llff", {"drop_gamma": 0.0}, 0.0), ("dngaussian", "dtu", {"drop_gamma": 0.3}, 0.3),
     ("3dgs", "llff", {"drop_gamma": 0.3}, 0.0)])
 def test_gamma_reaches_the_fits_of_reings_and_dngaussian(method, family, kw, want):
     from test_recipe_family import _ctx
 
     from reings.pipeline import DROP_GAMMA_BY_FAMILY, baseline_recipe, drop_gamma_of, run_settings
 
-    assert DROP_GAMMA_BY_FAMILY == {"llff": 0.0, "dtu": 0.2}
+    assert DROP_GAMMA_BY_FAMILY == {"llff": 0.2, "dtu": 0.2}
     ctx, _ = _ctx(family, method=method, **kw)
     r = ctx.run_recipe(baseline_recipe("dngaussian", 600, 0, family))
     assert r.loss.drop_gamma == want == drop_gamma_of(ctx.cfg, family)
@@ -443,9 +443,10 @@ def test_metrics_record_the_gamma_used(tmp_path):
 # }}}
 
 
-def test_eval_notices_the_dtu_default(tmp_path):
-    """A DTU reings run finished without DropGaussian is flagged by `reings eval` now that the DTU
-    family drops by default; one finished with the default is not; an LLFF one is not either."""
+def test_eval_notices_the_family_defaults(tmp_path):
+    """A reings run finished without DropGaussian is flagged by `reings eval` now that both
+    families drop by default (and LLFF prunes the unseen Gaussians); one finished with the
+    defaults is not."""
     import json
 
     from reings.config import RunConfig
@@ -453,12 +454,13 @@ def test_eval_notices_the_dtu_default(tmp_path):
     from reings.pipeline import run_settings
 
     cfg = RunConfig()
-    now = json.loads(json.dumps(run_settings(cfg.resolved(), "dtu")))
-    old = {k: v for k, v in now.items() if k != "drop_gamma"}
-    for name, config in (("old", old), ("now", now)):
-        (tmp_path / name).mkdir()
-        (tmp_path / name / "metrics.json").write_text(json.dumps({"config": config}))
-    assert "drop_gamma" in _settings_differ(str(tmp_path / "old" / "metrics.json"), cfg, "dtu")
-    assert _settings_differ(str(tmp_path / "now" / "metrics.json"), cfg, "dtu") == ""
-    assert _settings_differ(str(tmp_path / "old" / "metrics.json"), cfg, "llff") == ""
-    assert "drop_gamma" in _settings_differ(str(tmp_path / "now" / "metrics.json"), cfg, "llff")
+    for kind in ("dtu", "llff"):
+        now = json.loads(json.dumps(run_settings(cfg.resolved(), kind)))
+        old = {k: v for k, v in now.items() if k not in ("drop_gamma", "prune_unseen")}
+        for name, config in (("old", old), ("now", now)):
+            (tmp_path / kind / name).mkdir(parents=True)
+            (tmp_path / kind / name / "metrics.json").write_text(json.dumps({"config": config}))
+        assert "drop_gamma" in _settings_differ(str(tmp_path / kind / "old" / "metrics.json"), cfg, kind)
+        assert _settings_differ(str(tmp_path / kind / "now" / "metrics.json"), cfg, kind) == ""
+    # the DTU defaults (no prune_unseen) are not the LLFF ones
+    assert "prune_unseen" in _settings_differ(str(tmp_path / "dtu" / "now" / "metrics.json"), cfg, "llff")

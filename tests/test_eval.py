@@ -251,4 +251,4 @@ def test_eval_warns_about_a_finished_run_of_other_settings(tmp_path, monkeypatch
     (d / "metrics.json").write_text(json.dumps({"mean": {"psnr": 1.0}, "config": {"preset": "paper", "seed": 0}}))
     assert main(["eval", "--dataset", "procedural", "--views", "2", "--quiet", "--out", str(out)]) == 0
     err = capsys.readouterr().err
-    assert "finished earlier with other settings (preset 'paper' != 'quick')" in err, err
+    assert "finished earlier with other settings (preset 'paper' != 'quick'" in err, err
