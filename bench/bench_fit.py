@@ -4,6 +4,7 @@
     python bench/bench_fit.py --device pocl --gaussians 20000 --sh-degree 0 --iterations 100
     python bench/bench_fit.py --device cuda --adam-only           # Adam kernel vs numpy, per step
     python bench/bench_fit.py --device pocl ... --soft-depth-shared  # the soft depth term on the photometric render
+    python bench/bench_fit.py --device pocl ... --view-warp-from 1   # the view_warp term from the first iteration
 
 Case: the built-in procedural scene (`reings.make_procedural_scene`, default 200x150, or
 --width/--height), 3 training views with their exact depths as the depth prior, the dngaussian
@@ -109,6 +110,9 @@ def main(argv=None):
     ap.add_argument("--adam-reps", type=int, default=20)
     ap.add_argument("--soft-depth-shared", action="store_true",
                     help="LossConfig.soft_depth_shared: the soft depth term on the photometric pass's render")
+    ap.add_argument("--view-warp-from", type=int, default=None,
+                    help="the view_warp term (weight 1, docs/binocular.md) from this iteration of the timed fit; "
+                         "default off, as in the dngaussian preset")
     ap.add_argument("--json", default=None, help="append one JSON line per engine to this file")
     args = ap.parse_args(argv)
 
@@ -130,9 +134,12 @@ def main(argv=None):
     # SH degree steps at 1/6 of the run (3DGS: every 1000 of 6000) so the degree is the full one most
     # of the time, as in a long run
     cfg = replace(cfg, sh_degree=args.sh_degree, loss=replace(cfg.loss, soft_depth_shared=args.soft_depth_shared))
+    if args.view_warp_from is not None:
+        cfg = replace(cfg, loss=replace(cfg.loss, view_warp_weight=1.0, view_warp_from=args.view_warp_from))
     dev_name = get_backend(args.device).device_name
     print(f"# {dev_name}; {args.views} views {args.width}x{args.height}; {len(init)} initial Gaussians SH{args.sh_degree}; "
-          f"dngaussian squeezed to {args.iterations} its", flush=True)
+          f"dngaussian squeezed to {args.iterations} its"
+          + ("" if args.view_warp_from is None else f"; view_warp from iteration {args.view_warp_from}"), flush=True)
 
     def run(engine, its, profile=None):
         c = with_iterations(cfg, its) if its != args.iterations else cfg
@@ -148,7 +155,7 @@ def main(argv=None):
         r, sec = run(engine, args.iterations)
         ms = sec / args.iterations * 1e3
         rec = {"device": dev_name, "engine": engine, "adam": args.adam if engine == "device" else "numpy",
-               "soft_depth_shared": args.soft_depth_shared,
+               "soft_depth_shared": args.soft_depth_shared, "view_warp_from": args.view_warp_from,
                "iterations": args.iterations, "gaussians_init": len(init), "gaussians_final": len(r.gaussians),
                "sh_degree": args.sh_degree, "width": args.width, "height": args.height, "views": args.views,
                "ms_per_iteration": ms, "final_loss": r.history.loss[-1], "final_psnr": r.history.train_psnr[-1]}

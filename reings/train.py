@@ -9,7 +9,9 @@ With `LossConfig.soft_depth_shared` (speed; off by default) the soft-depth term 
 photometric pass's render instead: its opacity gradient is added into the photometric gradients
 after the densification statistics, and one Adam step takes both. With `LossConfig.drop_gamma`
 (DropGaussian, docs/method.md §9) the photometric pass's renders leave out a random subset of
-the Gaussians (`drop_at`), the kept ones' opacities compensated.
+the Gaussians (`drop_at`), the kept ones' opacities compensated. With the view_warp term
+(`LossConfig.view_warp_weight`, docs/binocular.md §4) the photometric pass renders a virtual view
+once, as a kept frame (`Trainer.forward(keep=True)`), and backpropagates it into the same step.
 
 The loop (`_Iteration`) calls only the Trainer contract (reings/backends/base.py); the backend makes
 the trainer (`backend.trainer(images, engine=...)`):
@@ -472,10 +474,13 @@ class _Iteration:
         joins the training render's backward (added into the view_warp term's when both run).
 
         With the view_warp term (docs/binocular.md §4.2): the virtual view (the training camera
-        shifted by a drawn baseline along its x axis) is rendered first and its image kept; the
-        term's depth cotangent joins the training render's backward (whose screen gradients feed
-        the densification statistics, as the authors'); the virtual render is then redone (the
-        backend holds one frame) and backpropagated into the held gradients: one Adam step.
+        shifted by a drawn baseline along its x axis) is rendered first, as a kept frame
+        (`forward(keep=True)`: it survives the training view's forward and backward); the term
+        reads its image and the training render's depth; its depth cotangent joins the training
+        render's backward (whose screen gradients feed the densification statistics, as the
+        authors'); then the kept frame is backpropagated into the held gradients: one Adam step.
+        The virtual view is rendered once (until 2026-11-25 it was rendered again before its
+        backward: the same bits, one forward more).
 
         DropGaussian (LossConfig.drop_gamma; docs/method.md §9): every render of this pass (the
         training view's and the virtual view's) drops the same Gaussians (`drop_at`); the shared
@@ -488,9 +493,8 @@ class _Iteration:
         warp = L.view_warp_weight > 0 and it >= L.view_warp_from
         if warp:
             b = warp_baseline(self.cfg.seed, it, L.view_warp_baseline)
-            vcam = virtual_camera(cam, b)
             with ph("warp_render"):
-                virt = tr.keep_rgb(tr.forward(vcam, self.k, self.bg, self.near, drop=drop))
+                virt = tr.forward(virtual_camera(cam, b), self.k, self.bg, self.near, drop=drop, keep=True)
         with ph("photo_render"):
             fr = tr.forward(cam, self.k, self.bg, self.near, drop=drop)
         with ph("photo_loss"):
@@ -531,7 +535,7 @@ class _Iteration:
                 tr.backward(fr, None, vd, None, ("opacity_logits",), into=gr)
         if warp:
             with ph("warp_backward"):
-                tr.backward(tr.forward(vcam, self.k, self.bg, self.near, drop=drop), v_virt, into=gr)
+                tr.backward(virt, v_virt, into=gr)
         if D.opacity_decay is not None and it > D.opacity_decay_from:
             with ph("opacity_decay"):  # after the backward, before the step (Binocular3DGS)
                 tr.opacity_decay(D.opacity_decay)

@@ -1,6 +1,6 @@
 """The view_warp term and the opacity decay inside the training loop (`reings.train.fit`,
-`_Iteration.photometric_pass`; docs/binocular.md §4): the Trainer contract's `keep_rgb`,
-`view_warp`, `hold`, `backward(into=)` and `opacity_decay` on both engines.
+`_Iteration.photometric_pass`; docs/binocular.md §4): the Trainer contract's kept frame
+(`forward(keep=True)`), `view_warp`, `hold`, `backward(into=)` and `opacity_decay` on both engines.
 
 Checked against independent references:
   - the composed gradient (training render's depth cotangent + the virtual render's colour
@@ -11,7 +11,10 @@ Checked against independent references:
     directly (moderate logits) and on poisoned logits;
   - `backward(into=)` against the sum of the two separate backwards;
   - a short fit with both on: the device engine against the host engine (bit-identical on PoCL,
-    as tests/test_device_fit.py), and a resumed fit against the uninterrupted one.
+    as tests/test_device_fit.py), and a resumed fit against the uninterrupted one;
+  - the kept virtual frame against the schedule it replaced, which rendered the virtual view
+    again just before its backward: the same bits (with DropGaussian and the shared soft depth
+    term too), one forward fewer per iteration.
 """
 from __future__ import annotations
 
@@ -88,12 +91,12 @@ def test_composed_gradient_matches_central_difference():
     tr = be.trainer([gt], engine="host")
     st = TrainState.from_gaussians(g, 0)
     tr.upload(st)
-    virt = tr.keep_rgb(tr.forward(vcam, 1, (0, 0, 0), 0.01))
+    virt = tr.forward(vcam, 1, (0, 0, 0), 0.01, keep=True)
     fr = tr.forward(cam, 1, (0, 0, 0), 0.01)
     v_virt, v_depth = tr.view_warp(virt, fr, 0, b, 1.0, 0.05)
     assert tr.read_view_warp()["valid_fraction"] > 0.2
     gr = tr.hold(tr.backward(fr, None, v_depth))
-    gr = tr.backward(tr.forward(vcam, 1, (0, 0, 0), 0.01), v_virt, into=gr)
+    gr = tr.backward(virt, v_virt, into=gr)
     rng = np.random.default_rng(0)
     base = {k: np.asarray(getattr(g, f), np.float64) for k, f in
             (("means", "means"), ("log_scales", "log_scales"), ("opacity_logits", "opacity_logits"))}
@@ -276,6 +279,69 @@ def test_fit_resume_is_bit_identical(device, case, tmp_path):
                                os.path.join(tmp_path, "ck.npz"), stop_at=17)
     _same_state(ref.state, res.state, True, "resumed vs uninterrupted")
     assert [tuple(x) for x in res.history.view_warp] == [tuple(x) for x in ref.history.view_warp]
+
+
+def test_kept_frame_survives_ordinary_forwards_and_backwards(device, case):
+    """The virtual view as a kept frame (`forward(keep=True)`), read and backpropagated after the
+    training view's forward and backward: its image and gradients are those of the same render
+    done again just before its backward (the schedule before the kept frame), bit for bit."""
+    scene, init, cfg = case
+    cam, vcam = scene.cameras[0], virtual_camera(scene.cameras[0], 0.3)
+    for engine in ("host", "device"):
+        got, want = [], []
+        for again in (False, True):
+            tr = get_backend(device).trainer(scene.images, engine=engine)
+            tr.upload(TrainState.from_gaussians(init, 1))
+            virt = tr.forward(vcam, 1, (0, 0, 0), 0.01, keep=True)
+            rgb = tr.read_rgb(virt).copy()
+            fr = tr.forward(cam, 1, (0, 0, 0), 0.01)
+            v_virt, v_depth = tr.view_warp(virt, fr, 0, 0.3, 1.0, 0.05)
+            held = tr.hold(tr.backward(fr, tr.photometric(fr, 0, 0.8, 0.2), v_depth))
+            tr.accumulate(fr)
+            if again:
+                virt = tr.forward(vcam, 1, (0, 0, 0), 0.01)
+            out = want if again else got
+            out.append(tr.read_rgb(virt).copy())
+            np.testing.assert_array_equal(out[-1], rgb, err_msg=engine)
+            both = tr.backward(virt, v_virt, into=held)
+            out.extend(_read(tr, both, k) for k in ("means", "quats", "log_scales", "opacity_logits", "sh_dc"))
+        for a, b in zip(got, want):
+            np.testing.assert_array_equal(a, b, err_msg=engine)
+        assert np.abs(got[1]).max() > 0
+
+
+def test_fit_with_the_kept_frame_matches_rendering_it_again(device, case, monkeypatch):
+    """The fit with the virtual view rendered once (a kept frame) against the schedule it replaced,
+    where the virtual view was rendered again, into the ordinary frame slot, just before its
+    backward: the same bits, with DropGaussian and the shared soft depth term too."""
+    from reings.backends.opencl.trainer import DeviceTrainer
+
+    scene, init, cfg = case
+    variants = (case, (scene, init, replace(cfg, loss=replace(cfg.loss, drop_gamma=0.2, soft_depth_shared=True))))
+    kept = [_fit(c, device, engine="device") for c in variants]
+    forward, backward = DeviceTrainer.forward, DeviceTrainer.backward
+    redone = []
+
+    def noting_forward(self, *a, keep=False, **kw):
+        fr = forward(self, *a, keep=keep, **kw)
+        if keep:
+            self.redo = (fr, a, kw)
+        return fr
+
+    def backward_of_a_fresh_render(self, fr, *a, **kw):
+        if getattr(self, "redo", (None,))[0] is fr:
+            _, fa, fkw = self.redo
+            fr = forward(self, *fa, **fkw)
+            redone.append(fr)
+        return backward(self, fr, *a, **kw)
+
+    monkeypatch.setattr(DeviceTrainer, "forward", noting_forward)
+    monkeypatch.setattr(DeviceTrainer, "backward", backward_of_a_fresh_render)
+    again = [_fit(c, device, engine="device") for c in variants]
+    assert len(redone) == 2 * (cfg.iterations - cfg.loss.view_warp_from + 1)
+    for k, a, what in zip(kept, again, ("view_warp", "view_warp, drop, shared soft depth")):
+        _same_state(k.state, a.state, True, f"kept frame vs rendered again ({what})")
+        assert k.history.loss == a.history.loss and k.history.view_warp == a.history.view_warp
 
 
 def test_baselines_are_per_iteration_and_bounded():

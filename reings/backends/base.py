@@ -101,7 +101,8 @@ ENGINES = ("auto", "host", "device")
 
 class Frame(Protocol):
     """One forward pass of a trainer (`Trainer.forward`): an opaque handle on its images and
-    intermediates, valid until the trainer's next `forward`. The loop reads only its size."""
+    intermediates, valid until the trainer's next `forward` (a kept frame, `forward(keep=True)`:
+    until the next `forward(keep=True)`). The loop reads only its size."""
 
     width: int
     height: int
@@ -121,14 +122,18 @@ class Trainer(Protocol):
 
     and, when densification is due, download -> host surgery (reings.densify) -> upload. With
     DropGaussian on (LossConfig.drop_gamma) the photometric pass's forwards (and the view_warp
-    term's virtual ones) take the iteration's mask, `forward(..., drop=)`. Values are
+    term's virtual ones) take the iteration's mask, `forward(..., drop=)`. The view_warp term
+    renders its virtual view once, as a kept frame (`forward(..., keep=True)`), which survives
+    the training view's forward and backward: `view_warp` reads it, and its own `backward` adds
+    into the held gradients (`hold`, `backward(into=)`). Values are
     read only when asked (`read_loss`, `read_rgb`, `read_depth_loss`, `read_params`), so a device
     implementation moves nothing over the bus in an iteration the loop does not log.
 
     Handles: `forward` returns a `Frame`; the loss methods return the cotangent image (a device
     buffer or a host array) that only `backward` consumes; `backward` returns the gradients per
     parameter group, which `regularize` adds into and `adam_step` consumes. A handle is valid until
-    the next call of the method that made it.
+    the next call of the method that made it (a kept frame, `forward(keep=True)`, until the next
+    such call; held gradients, `hold`, until the next `hold`).
 
     Names: `k` is the number of active SH coefficients (types.SH_COUNTS[degree]); `grad_fields` are
     render fields (types.FIELDS; None = all); `groups` are parameter groups (types.PARAM_NAMES);
@@ -168,14 +173,18 @@ class Trainer(Protocol):
         the depth loss (reference_loss.depth_confidence_weights of the prior's confidence)."""
 
     def forward(self, cam: Camera, k: int, background: Sequence[float], near: float,
-                opacity_override: float | None = None, drop: Any = None) -> Frame:
+                opacity_override: float | None = None, drop: Any = None, keep: bool = False) -> Frame:
         """Render the held Gaussians with `k` active SH coefficients from `cam` (project / bin /
         rasterize). opacity_override: every Gaussian blends with this opacity (the hard-depth
         pass). drop: None, or DropGaussian's mask of this render (a reings.backends.reference_drop
         .Drop: the Gaussians it drops are culled by the projection, the kept ones' opacities are
         sigmoid(logit) * drop.scale; docs/method.md §9); never with opacity_override (ValueError).
         The frame keeps it: its `backward` is the VJP of that same masked render, the mask held
-        fixed. The frame stays valid until the next `forward`."""
+        fixed. The frame stays valid until the next `forward`; with keep=True (a kept frame: the
+        view_warp term's virtual view) until the next `forward` with keep=True, surviving the
+        ordinary forwards and backwards in between (the device trainer renders it into the
+        backend's second frame slot). Either way a frame's `backward` reads the held parameters
+        again: it comes before the next `adam_step`, `opacity_decay` or `upload`."""
 
     def photometric(self, frame: Frame, view: int, w_l1: float, w_ssim: float) -> Any:
         """w_l1 * L1 + w_ssim * (1 - SSIM) of the frame's image against training image `view`
@@ -241,17 +250,13 @@ class Trainer(Protocol):
         be passed as its `into`): the photometric pass with view_warp backpropagates two renders
         and steps once."""
 
-    def keep_rgb(self, frame: Frame) -> Any:
-        """The frame's rendered image as a handle that survives the next `forward` (the virtual
-        view's image that `view_warp` reads after the training view's forward)."""
-
-    def view_warp(self, virt: Any, frame: Frame, view: int, baseline: float, weight: float,
+    def view_warp(self, virt: Frame, frame: Frame, view: int, baseline: float, weight: float,
                   smooth_weight: float) -> tuple[Any, Any]:
-        """The binocular view-consistency term (Han et al. 2024; docs/binocular.md): the virtual
-        image `virt` (from `keep_rgb` of a forward from reference_view_warp.virtual_camera(cam,
+        """The binocular view-consistency term (Han et al. 2024; docs/binocular.md): the image of
+        the kept frame `virt` (`forward(..., keep=True)` from reference_view_warp.virtual_camera(cam,
         baseline)) warped into training view `view` by this frame's rendered depth, against
         training image `view`; weight * (L1 + smooth_weight * disparity smoothness)
-        (reference_view_warp.view_warp_fwd_bwd; kernels/view_warp.cl). Returns (dL/d virt for the
+        (reference_view_warp.view_warp_fwd_bwd; kernels/view_warp.cl). Returns (dL/d rgb for the
         virtual frame's `backward`, dL/d depth for this frame's); the loss and the valid fraction
         wait for `read_view_warp`."""
 

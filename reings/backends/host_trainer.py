@@ -121,9 +121,11 @@ class HostTrainer:
 
     # {{{ one pass
     def forward(self, cam: Camera, k: int, background, near: float, opacity_override: float | None = None,
-                drop: Drop | None = None):
+                drop: Drop | None = None, keep: bool = False):
         """Trainer.forward: backend.render of the state's Gaussians at k SH coefficients (drop:
-        DropGaussian's mask, kept in the frame for its backward)."""
+        DropGaussian's mask, kept in the frame for its backward). keep: nothing to do, every frame
+        holds its own arrays (its backward, render_vjp, renders again where the backend does not
+        reuse its last forward)."""
         p = self.state.params
         kmax = 1 + p["sh_rest"].shape[1]
         if not 1 <= k <= kmax:
@@ -262,14 +264,11 @@ class HostTrainer:
         may have rebound them)."""
         return {k: np.array(v, dtype=_F32) for k, v in grads.items()}
 
-    def keep_rgb(self, fr: HostFrame) -> np.ndarray:
-        """Trainer.keep_rgb: the frame's image (a fresh array per forward)."""
-        return fr.out.rgb
-
-    def view_warp(self, virt, fr: HostFrame, view: int, baseline: float, weight: float, smooth_weight: float):
+    def view_warp(self, virt: HostFrame, fr: HostFrame, view: int, baseline: float, weight: float,
+                  smooth_weight: float):
         """Trainer.view_warp: backend.view_warp on the host arrays; returns (dL/d virt, dL/d depth)."""
-        self._warp, v_virt, v_depth = self.b.view_warp(virt, fr.out.depth, self.images[view], fr.cam.fx, baseline,
-                                                        weight, smooth_weight)
+        self._warp, v_virt, v_depth = self.b.view_warp(virt.out.rgb, fr.out.depth, self.images[view], fr.cam.fx,
+                                                        baseline, weight, smooth_weight)
         return v_virt, v_depth
 
     def read_view_warp(self) -> dict:

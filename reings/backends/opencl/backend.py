@@ -40,6 +40,14 @@ device timeline (profiling events of the in-order queue): a single-kernel stage'
 for a multi-command stage (the sorts, the scan, rasterize) the time from the end of the previous
 stage to its last command's end. `last_stats` holds the counts (visible, intersections).
 
+Frame slots: a frame's buffers (projection outputs, bins and both sorters' ping-pong pairs, the
+rasterizer's images and packed records, the backward's v_proj) belong to one of two slots. Every
+call renders into slot 0, except `forward_device(..., keep=True)`, which renders into slot 1, the
+kept frame: only the next forward with keep=True overwrites it, so the virtual view of the
+view_warp term (reings/train.py) is rendered once, read after the training view's forward and
+backpropagated after its backward. The slots share the gradient outputs of a backward and its
+per-intersection records; slot 1's buffers are allocated on its first use.
+
 Memory: every device buffer comes from `Scratch` (persistent, per index space, grown by >= 1.5x),
 so steady-state calls allocate nothing.
 
@@ -50,7 +58,7 @@ from __future__ import annotations
 
 import warnings
 from dataclasses import dataclass, field
-from typing import Sequence
+from typing import Any, Sequence
 
 import numpy as np
 
@@ -103,7 +111,8 @@ def _frame_key(cam: Camera, background, near: float, override, drop: Drop | None
 
 @dataclass
 class _Frame:
-    """Device state of one forward (buffers are scratch-owned; valid until the next call)."""
+    """Device state of one forward (buffers are its frame slot's; valid until the next call that
+    renders into that slot: module docstring, "Frame slots")."""
 
     n: int
     width: int
@@ -117,6 +126,18 @@ class _Frame:
     key: tuple | None = None  # (camera, background, near, override, drop) for forward reuse
     camera: Camera | None = None  # the camera rendered
     drop: Drop | None = None  # DropGaussian's mask of the projection (its backward uses the same)
+    slot: int = 0  # the frame slot owning its buffers (module docstring): 0, or 1 for a kept frame
+
+
+@dataclass
+class _Slot:
+    """The buffers of one frame slot (module docstring): the scratch names, the two sorters (a
+    sorted result may lie in a sorter's own ping-pong pair) and the rasterizer (the images)."""
+
+    mem: Any  # the backend's Scratch (slot 0) or its suffixed view (slot 1)
+    depth_sorter: RadixSort
+    tile_sorter: RadixSort
+    raster: Any = None  # Rasterizer, built on first use (OpenCLBackend._raster)
 
 
 class OpenCLBackend:
@@ -133,18 +154,12 @@ class OpenCLBackend:
         self.queue = self.handle.queue
         self.lib = library_for(self.handle)
         self.scratch = Scratch(self.handle)
-        with warnings.catch_warnings():  # the second sorter re-retrieves the same kernels, once
-            warnings.simplefilter("ignore")
-            self.depth_sorter = RadixSort(self.handle)  # two sorters: each owns its ping-pong scratch
-            self.tile_sorter = RadixSort(self.handle)
-            self.depth_sorter.kernels(False)
-            self.tile_sorter.kernels(False)
+        self._slots: list[_Slot] = [self._new_slot(self.scratch)]  # slot 1 (kept frames) on first use
         self.scan = ExclusiveScan(self.handle)
         self.wg = 256 if self.cpu else 128  # PoCL: fewer, larger work-groups (dispatch cost ~us each)
         self.proj_vw = 8 if self.cpu else 1  # Gaussians per work-item in project.cl (float8 lanes on CPUs)
         self.proj_wg = 64 if self.cpu else 128  # project.cl work-group (64 x 8 Gaussians on CPUs)
         self._kernels: dict = {}
-        self._raster = None
         self._frame: _Frame | None = None
         self._keep: list = []  # host arrays referenced by non-blocking copies still in flight
         self._cams: dict = {}  # (K, viewmat, W, H, near) bytes -> read-only camera record buffer
@@ -209,13 +224,31 @@ class OpenCLBackend:
         self.last_profile = prof
         self._events = []
 
-    @property
-    def raster(self):
-        if self._raster is None:
+    def _new_slot(self, mem) -> _Slot:
+        with warnings.catch_warnings():  # a later sorter re-retrieves the same kernels, once
+            warnings.simplefilter("ignore")
+            sorters = RadixSort(self.handle), RadixSort(self.handle)  # each owns its ping-pong scratch
+            for sorter in sorters:
+                sorter.kernels(False)
+        return _Slot(mem, *sorters)
+
+    def _slot(self, i: int) -> _Slot:
+        """Frame slot `i` (0, or 1: the kept frame's buffers, names suffixed "@kept")."""
+        if i >= len(self._slots):
+            self._slots.append(self._new_slot(self.scratch.suffixed("@kept")))
+        return self._slots[i]
+
+    def _raster(self, fr: _Frame):
+        """The rasterizer of the frame's slot (its images and packed records are the slot's; the
+        backward's per-emit records are shared)."""
+        sl = self._slot(fr.slot)
+        if sl.raster is None:
             from .rasterize import Rasterizer
 
-            self._raster = Rasterizer(self.handle, scratch=self.scratch)
-        return self._raster
+            with warnings.catch_warnings():  # the second slot's re-retrieves the same kernels, once
+                warnings.simplefilter("ignore")
+                sl.raster = Rasterizer(self.handle, scratch=sl.mem, shared=self.scratch)
+        return sl.raster
 
     def _upload(self, space: str, name: str, a: np.ndarray):
         a = np.ascontiguousarray(a)
@@ -246,7 +279,7 @@ class OpenCLBackend:
                         drop: Drop | None = None) -> None:
         if drop is not None and override is not None:
             raise ValueError("project_fwd: a DropGaussian mask is never combined with an opacity override")
-        n, s = fr.n, self.scratch
+        n, s = fr.n, self._slot(fr.slot).mem
         fr.drop = drop
         b = fr.bufs
         b["cam"] = self._camera_buffer(cam, near)
@@ -286,9 +319,10 @@ class OpenCLBackend:
         """Depth sort, counts, scan, the one control readback, emit, tile sort, tile ranges."""
         import pyopencl as cl
 
-        n, s, b = fr.n, self.scratch, fr.bufs
+        sl = self._slot(fr.slot)
+        n, s, b = fr.n, sl.mem, fr.bufs
         # (1) depth sort of all N: culled keys (0xFFFFFFFF) sort last, ties keep gid order
-        keys, gfr, ev = self.depth_sorter.sort_pairs(b["depth_keys"], b["gid_vals"], n, 0, 32)
+        keys, gfr, ev = sl.depth_sorter.sort_pairs(b["depth_keys"], b["gid_vals"], n, 0, 32)
         self._mark("sort_depth", ev, span=True)
         b["depth_keys_sorted"], b["gid_from_rank"] = keys, gfr
         # (2) tiles touched per rank, V; exclusive scan -> offset_from_rank, total K into ctrl[1]
@@ -314,7 +348,7 @@ class OpenCLBackend:
                           b["tile_rect"], tile_keys, emit_vals, gid_from_emit)
         self._mark("bin_emit", ev)
         # (4) stable tile sort over ceil(log2 T) bits: keeps (depth, gid) order inside each tile
-        tk, efi, ev = self.tile_sorter.sort_pairs(tile_keys, emit_vals, k, 0, tile_bits(fr.n_tiles))
+        tk, efi, ev = sl.tile_sorter.sort_pairs(tile_keys, emit_vals, k, 0, tile_bits(fr.n_tiles))
         self._mark("sort_tile", ev, span=True)
         b["tile_keys_sorted"], b["emit_from_isect"] = tk, efi
         # (5) tile ranges + gid_from_isect, no atomics
@@ -324,11 +358,13 @@ class OpenCLBackend:
                           gid_from_emit, ranges, gfi)
         self._mark("tile_ranges", ev)
 
-    def _new_frame(self, n: int, width: int, height: int, sh_k: int) -> _Frame:
-        self._frame = None  # any call invalidates the previous forward's device state
+    def _new_frame(self, n: int, width: int, height: int, sh_k: int, slot: int = 0) -> _Frame:
+        if slot == 0:
+            self._frame = None  # a call into slot 0 invalidates the previous forward's device state
         tiles_x, tiles_y = tile_grid(width, height)
         self._events = []
-        return _Frame(n=n, width=width, height=height, tiles_x=tiles_x, n_tiles=tiles_x * tiles_y, sh_k=sh_k)
+        return _Frame(n=n, width=width, height=height, tiles_x=tiles_x, n_tiles=tiles_x * tiles_y, sh_k=sh_k,
+                      slot=slot)
 
     def _forward(self, g: Gaussians, cam: Camera, background, near: float, override,
                  want_importance: bool, drop: Drop | None = None) -> _Frame:
@@ -347,7 +383,7 @@ class OpenCLBackend:
         """rasterize_prep + rasterize_fwd; importance: per-emit records reduced per gid."""
         import pyopencl as cl
 
-        r, b = self.raster, fr.bufs
+        r, b = self._raster(fr), fr.bufs
         ev = r.fwd(b["means2d"], b["conics"], b["colors"], b["opacities"], b["depths"], fr.n, b["tile_ranges"],
                    b["gid_from_isect"], b["emit_from_isect"], fr.isects, fr.width, fr.height,
                    tuple(float(x) for x in background), importance=want_importance)
@@ -355,7 +391,7 @@ class OpenCLBackend:
         b["out_rgb"], b["out_depth"], b["out_alpha"] = r.rgb, r.depth, r.alpha
         b["out_T"], b["out_last"] = r.final_T, r.last
         if want_importance:
-            imp = b["importance"] = self.scratch.get("gauss", "importance", fr.n, 4)
+            imp = b["importance"] = self._slot(fr.slot).mem.get("gauss", "importance", fr.n, 4)
             if fr.n:  # culled rows are not written by the reduce: zero them all first
                 cl.enqueue_fill_buffer(self.queue, imp, _F32(0), 0, 4 * fr.n)
             ev = r.reduce(r.imp_emit, 1, b["offset_from_rank"], b["gid_from_rank"], fr.visible, imp)
@@ -371,11 +407,11 @@ class OpenCLBackend:
 
     def _raster_bwd_buffers(self, fr: _Frame, vr, vd, va) -> None:
         """_raster_bwd on cotangent images that are already device buffers (or None)."""
-        r, b = self.raster, fr.bufs
+        r, b = self._raster(fr), fr.bufs
         ev = r.bwd(b["tile_ranges"], b["gid_from_isect"], b["emit_from_isect"], fr.isects, fr.width, fr.height,
                    vr, vd, va)
         self._mark("rasterize_bwd", ev, span=True)
-        vp = b["v_proj"] = self.scratch.get("gauss", "v_proj", fr.n, 4 * V_RECORD)
+        vp = b["v_proj"] = self._slot(fr.slot).mem.get("gauss", "v_proj", fr.n, 4 * V_RECORD)
         ev = r.reduce(r.v_emit, V_RECORD, b["offset_from_rank"], b["gid_from_rank"], fr.visible, vp)
         self._mark("isect_reduce", ev)
 
@@ -384,16 +420,17 @@ class OpenCLBackend:
     # ------------------------------------------------------------------------------------------
     def forward_device(self, inp: dict, n: int, sh_k: int, camera: Camera, background=(0.0, 0.0, 0.0),
                        near: float = 0.01, opacity_override: float | None = None,
-                       drop: Drop | None = None) -> _Frame:
+                       drop: Drop | None = None, keep: bool = False) -> _Frame:
         """`render`'s forward on Gaussians that already live on the device: `inp` maps each field of
         FIELDS to a buffer ([N,3] means, [N,4] quats, [N,3] log_scales, [N] opacity_logits,
         [N,sh_k,3] sh). Nothing is uploaded (the camera record buffer is cached per camera) and
         nothing is read back but the bin stage's (V, K) control words. The returned frame's buffers (fr.bufs["out_rgb"],
         "out_depth", "out_alpha", "out_T", "radii", ...) stay valid until the next call on this
-        backend; the caller must keep `inp` unchanged until `backward_device` has run. drop:
-        DropGaussian's mask (reference_drop.Drop, None: none); `backward_device` of the frame uses
-        the same."""
-        fr = self._new_frame(int(n), camera.width, camera.height, int(sh_k))
+        backend that renders into the frame's slot (module docstring): any call but a forward with
+        keep=True for an ordinary frame, the next forward with keep=True for a kept one; the
+        caller must keep `inp` unchanged until `backward_device` has run. drop: DropGaussian's mask
+        (reference_drop.Drop, None: none); `backward_device` of the frame uses the same."""
+        fr = self._new_frame(int(n), camera.width, camera.height, int(sh_k), 1 if keep else 0)
         fr.camera = camera
         fr.bufs["in"] = dict(inp)
         self._project_device(fr, fr.bufs["in"], camera, near, opacity_override, drop)
@@ -408,7 +445,8 @@ class OpenCLBackend:
         device buffers ([H,W,3], [H,W], [H,W]; None = zero). Returns the gradient buffers
         {field: buffer} ([N,3], [N,4], [N,3], [N], [N,sh_k,3]; fields outside `grad_fields` are
         zeros), valid until the next backward on this backend. fr.bufs["v_proj"] [N, V_RECORD]
-        (rows of culled gids unwritten) and fr.bufs["radii"] feed the densification statistics.
+        (rows of culled gids unwritten; the frame slot's, valid as long as the frame) and
+        fr.bufs["radii"] feed the densification statistics.
         The frame's DropGaussian mask (fr.drop, from forward_device) applies."""
         self._raster_bwd_buffers(fr, v_rgb, v_depth, v_alpha)
         return self._project_bwd_device(fr, opacity_override, grad_fields)

@@ -17,8 +17,12 @@ Device-level API (buffers in, events out; every call enqueues on `handle.queue`,
         rows of `out` for gids with no rank are not touched (zero them first, or accumulate).
 
 Buffers are the persistent `Scratch` ones (grown geometrically, never shrunk); a call's outputs stay
-valid until the next call of the same kind. (On Oclgrind every `Scratch` keeps the buffers it
-replaces alive: see reings/backends/opencl/scratch.py.)
+valid until the next call of the same kind. `Rasterizer(handle, scratch=, shared=)`: the forward's
+outputs come from `scratch`, the backward's per-emit records r.v_emit from `shared` (default:
+`scratch`), so that two rasterizers over two frame slots (reings/backends/opencl/backend.py) keep
+their own images and share the records, which nothing reads after the `reduce` that follows.
+(On Oclgrind every `Scratch` keeps the buffers it replaces alive: see
+reings/backends/opencl/scratch.py.)
 Host-level helpers for tests and debugging:
 `rasterize_fwd_host(proj, bins, W, H, background, want_importance) -> RasterOut` and
 `rasterize_bwd_host(proj, bins, W, H, v_rgb, v_depth, v_alpha, background) -> RasterGrads`.
@@ -45,9 +49,11 @@ def _nd(n: int, local: int) -> int:
 
 class Rasterizer:
     """The rasterizer kernels of one device. `cpu_schedule` overrides REINGS_CPU_SCHEDULE (tests run
-    both schedules on PoCL); extra `defines` (e.g. RASTER_VEC=16, BWD_BATCH=64) go to every build."""
+    both schedules on PoCL); extra `defines` (e.g. RASTER_VEC=16, BWD_BATCH=64) go to every build;
+    `scratch` holds the outputs, `shared` (default `scratch`) the backward's r.v_emit."""
 
-    def __init__(self, handle, cpu_schedule: bool | None = None, scratch: Scratch | None = None, **defines):
+    def __init__(self, handle, cpu_schedule: bool | None = None, scratch: Scratch | None = None,
+                 shared: Scratch | None = None, **defines):
         import pyopencl as cl
 
         self.cl = cl
@@ -61,6 +67,7 @@ class Rasterizer:
         if scratch is None:
             scratch = Scratch(handle)
         self.scratch = scratch
+        self.shared = scratch if shared is None else shared
         self._lib, self._defines = lib, d
         self.k_prep = lib.get(FILE, "rasterize_prep", RASTER_IMPORTANCE=0, **d)
         self.k_fwd = lib.get(FILE, "rasterize_fwd", RASTER_IMPORTANCE=0, **d)
@@ -112,7 +119,7 @@ class Rasterizer:
 
     @property
     def v_emit(self):
-        return self.scratch.get("isect", "raster_v_emit", self.n_isect, 4 * V_RECORD)
+        return self.shared.get("isect", "raster_v_emit", self.n_isect, 4 * V_RECORD)
 
     def _fwd_imp_kernel(self):
         if self._k_fwd_imp is None:

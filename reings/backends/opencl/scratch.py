@@ -112,6 +112,11 @@ class Scratch:
             cl.enqueue_copy(self.handle.queue, buf, a, is_blocking=False, wait_for=wait_for)
         return buf
 
+    def suffixed(self, suffix: str) -> "SuffixedScratch":
+        """This scratch under names ending in `suffix`: a second set of the same buffers (the
+        backend's kept frame slot), allocated, counted and limited here."""
+        return SuffixedScratch(self, suffix)
+
     @contextmanager
     def mapped(self, buf, shape, dtype, write: bool = False, wait_for=None):
         """A numpy view of the first rows of `buf` (zero-copy on CPU devices); valid inside the
@@ -130,3 +135,14 @@ class Scratch:
             yield arr
         finally:
             arr.base.release(self.handle.queue)
+
+
+class SuffixedScratch:
+    """`Scratch.suffixed(suffix)`: the base scratch's `get` with every name ending in `suffix`
+    (buffer ("gauss", "radii") is ("gauss", "radii" + suffix) there)."""
+
+    def __init__(self, base: Scratch, suffix: str):
+        self.base, self.suffix = base, suffix
+
+    def get(self, space: str, name: str, rows: int, row_bytes: int):
+        return self.base.get(space, name + self.suffix, rows, row_bytes)

@@ -295,16 +295,17 @@ class DeviceTrainer:
         return out
 
     def forward(self, cam, k: int, background, near: float, opacity_override: float | None = None,
-                drop=None):
+                drop=None, keep: bool = False):
         """Trainer.forward: project / bin / sort / rasterize the device parameters (k active SH
         coefficients; drop: DropGaussian's mask, kept by the frame for its backward); the frame is
-        the backend's (valid until its next forward)."""
+        the backend's, in its frame slot 0 (valid until the next forward), or with keep=True in
+        its slot 1 (valid until the next forward with keep=True; backend.forward_device)."""
         if not 1 <= k <= self.kmax:
             raise ValueError(f"active SH coefficients {k} outside [1, {self.kmax}]")
         inp = {"means": self.buf("p", "means"), "quats": self.buf("p", "quats"),
                "log_scales": self.buf("p", "log_scales"), "opacity_logits": self.buf("p", "opacity_logits"),
                "sh": self.sh_input(k)}
-        fr = self.b.forward_device(inp, self.n, k, cam, background, near, opacity_override, drop)
+        fr = self.b.forward_device(inp, self.n, k, cam, background, near, opacity_override, drop, keep)
         if self.flush_after_forward:
             self.queue.flush()  # submit the rasterizer now; the host goes on enqueuing loss / backward / Adam
         return fr
@@ -543,23 +544,15 @@ class DeviceTrainer:
                 self.cl.enqueue_copy(self.queue, b, grads[f], byte_count=4 * cols * self.n)
         return out
 
-    def keep_rgb(self, fr):
-        """Trainer.keep_rgb: a device copy of the frame's image (trainer-owned buffer)."""
-        nb = 12 * fr.width * fr.height
-        b = self.mem.get("pixel", "kept_rgb", fr.width * fr.height, 12)
-        if nb:
-            self.cl.enqueue_copy(self.queue, b, fr.bufs["out_rgb"], byte_count=nb)
-        return b
-
     def view_warp(self, virt, fr, view: int, baseline: float, weight: float, smooth_weight: float):
-        """Trainer.view_warp: ViewWarpCL.enqueue (kernels/view_warp.cl) of the kept virtual image
-        and the frame's depth buffer against training image `view`; the cotangents go into
-        trainer-owned buffers (returned); the loss stays on the device (`read_view_warp`)."""
+        """Trainer.view_warp: ViewWarpCL.enqueue (kernels/view_warp.cl) of the kept virtual frame's
+        image buffer and the frame's depth buffer against training image `view`; the cotangents go
+        into trainer-owned buffers (returned); the loss stays on the device (`read_view_warp`)."""
         vw = self.b.view_warp_kernels
         npx = fr.width * fr.height
         v_virt = self.mem.get("pixel", "vw_v_virt", npx, 12)
         v_depth = self.mem.get("pixel", "vw_v_depth", npx, 4)
-        vw.enqueue(virt, fr.bufs["out_depth"], self.gt[view], v_virt, v_depth, fr.height, fr.width,
+        vw.enqueue(virt.bufs["out_rgb"], fr.bufs["out_depth"], self.gt[view], v_virt, v_depth, fr.height, fr.width,
                    fr.camera.fx, baseline, weight, smooth_weight)
         if self.profile is not None:
             self._events.extend(vw.events)
