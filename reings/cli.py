@@ -261,7 +261,8 @@ def add_config_options(parser: argparse.ArgumentParser, exclude=()) -> None:
             continue
         if optional_of(tp) is bool:  # --x (true), --no-x (false), --x none|true|false
             name = option_name(path, f)
-            group.add_argument(name, nargs="?", const=True, type=_optional_bool, metavar="none", **kw)
+            kw["help"] = f"{help_} [--{name[2:]} alone: true; --no-{name[2:]}: false]"
+            group.add_argument(name, nargs="?", const=True, type=_optional_bool, metavar="{none,true,false}", **kw)
             group.add_argument("--no-" + name[2:], action="store_const", const=False, dest=kw["dest"],
                                default=argparse.SUPPRESS, help=argparse.SUPPRESS)
             continue

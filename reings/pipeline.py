@@ -226,7 +226,7 @@ OPACITY_DECAY_BY_FAMILY = {"llff": 1.0, "dtu": 0.995}  # RunConfig.opacity_decay
 # flower, seeds 0-2): 2 views 19.79 -> 20.74, 3 views 20.96 -> 21.68, 4 views 22.39 -> 23.09; without
 # prune_unseen 2 of 6 flower runs at 3 views collapsed in the final stage (17.3 / 17.6 dB)
 DROP_GAMMA_BY_FAMILY = {"llff": 0.2, "dtu": 0.2}
-# RunConfig.prune_unseen = none, reings fits (§20): on for LLFF (no collapse in 18 runs with the
+# RunConfig.prune_unseen = none, reings fits (§20): on for LLFF (no collapse in 27 runs with the
 # drop; alone at 3 views: fern +0.00, flower +0.04 dB, seed 0); not measured on DTU, so off there
 PRUNE_UNSEEN_BY_FAMILY = {"llff": True, "dtu": False}
 DROP_METHODS = ("reings", "dngaussian")  # the methods whose fits take RunConfig.drop_gamma

@@ -555,7 +555,8 @@ class _Iteration:
             dens = D.maybe_densify(self.state, self.cfg.densify, it, self.extent, self.rng)
             if self.cfg.densify.prune_unseen and D.schedule(self.cfg.densify, it)[0]:
                 # after the surgery: its clones and split children are judged at once
-                dens = dict(dens or {}, unseen=D.prune_unseen(self.state, self.seen(self.state.gaussians(0))))
+                dens = dict(dens or {}, unseen=D.prune_unseen(self.state, self.seen(self.state.gaussians(0))),
+                            n=len(self.state))
             self.tr.upload(self.state)
         if dens:
             self.book.history.densify.append((it, dens))
