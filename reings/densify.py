@@ -24,8 +24,7 @@ from .state import TrainState, apply_index_op, reset_moments
 from .types import ACCUM, COUNT, RADII
 
 __all__ = ["ACCUM", "COUNT", "RADII", "init_stats", "ndc_grad_norm", "accumulate", "mean_grads",
-           "densify_and_prune", "reset_opacity", "clean_views", "seen_by", "prune_unseen", "schedule",
-           "maybe_densify"]
+           "densify_and_prune", "reset_opacity", "clean_views", "prune_unseen", "schedule", "maybe_densify"]
 
 
 def _sigmoid(x):
@@ -162,20 +161,10 @@ def clean_views(state: TrainState, visible: np.ndarray) -> int:
     return removed
 
 
-def seen_by(g, cameras, backend, background, near) -> np.ndarray:
-    """[N] bool: Gaussian i is blended (alpha >= 1/255 before transmittance runs out) by at least
-    one pixel of one of `cameras`, i.e. its alpha*T summed over their pixels (Omega_G, the
-    importance of reings.reinit) is > 0. Real opacities, no DropGaussian."""
-    omega = np.zeros(len(g), np.float64)
-    for cam in cameras:
-        omega += backend.render(g, cam, background, near, want_importance=True).importance
-    return omega > 0.0
-
-
 def prune_unseen(state: TrainState, seen: np.ndarray) -> int:
-    """DensifyConfig.prune_unseen: drop the Gaussians no training pixel blends (`seen` from
-    `seen_by`). No loss term of a fit reaches them through a training view, so only the
-    regularisers (whose gradients Adam normalises into full-size steps) and the virtual views move
+    """DensifyConfig.prune_unseen: drop the Gaussians no training pixel blends (`seen`:
+    rendering.gaussian_importance over the training views > 0). No loss term of a fit reaches
+    them through a training view, so only the regularisers (whose gradients Adam normalises into full-size steps) and the virtual views move
     them; a test view between the training views can still see them (docs/method.md §11).
     Returns how many went."""
     seen = np.asarray(seen, bool)

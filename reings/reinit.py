@@ -6,6 +6,7 @@
     ivps_view_scores  IVPS, one view: the pixel score Omega_P and the depth to back-project with
     ivps_points       IVPS: pixels drawn with p ~ Omega_P, back-projected (backproject_pixels)
     gaussian_importance  Omega_G (Eq. 7): alpha*T per Gaussian summed over views and pixels
+                      (defined in reings.rendering, where the training loop's pruning reaches it too)
     cvps_select       CVPS: Gaussians drawn with p ~ Omega_G
     prune_keep_indices   the final prune: the top fraction by Omega_G, deterministically
 
@@ -18,6 +19,7 @@ from __future__ import annotations
 import numpy as np
 
 from .config import ReInGSConfig
+from .rendering import gaussian_importance  # noqa: F401  (Omega_G: CVPS, the final prune, the pipeline)
 from .train import SH_C0, gaussians_from_points, random_points_in_box
 from .types import Gaussians
 
@@ -165,17 +167,6 @@ def ivps_points(g, train, priors, rc: ReInGSConfig, device, bg, near, rng):
     if not pts:
         raise RuntimeError("IVPS: the coarse Gaussians cover no pixel of any training view")
     return np.concatenate(pts).astype(np.float32), np.concatenate(cols).astype(np.float32)
-
-
-def gaussian_importance(g, cameras, device, bg, near) -> np.ndarray:
-    """Omega_G (Eq. 7): per Gaussian, the sum over `cameras` and their pixels of alpha*T where it
-    blends; float64 [N]. The basis of CVPS and of the final prune (pass training cameras only)."""
-    from .rendering import render
-
-    omega = np.zeros(len(g), np.float64)
-    for cam in cameras:
-        omega += render(g, cam, device, bg, near, want_importance=True).importance
-    return omega
 
 
 def prune_keep_indices(omega, keep: float) -> np.ndarray:

@@ -1,4 +1,5 @@
-"""`render` and `render_vjp`: the public entry points of the splatting core.
+"""`render` and `render_vjp`: the public entry points of the splatting core; `gaussian_importance`,
+ReInGS's Omega_G summed over views through `render`.
 
 They validate arguments, pick the backend for `device` (reings.backends.get_backend) and call its
 fused path. Nothing here knows about OpenCL.
@@ -54,6 +55,16 @@ def render(gaussians: Gaussians, camera: Camera, device: str = "pocl",
         raise ValueError(f"opacity_override must be in (0, 1], got {opacity_override!r}")
     return get_backend(device).render(gaussians, camera, background=bg, near=float(near),
                                       opacity_override=opacity_override, want_importance=want_importance)
+
+
+def gaussian_importance(g, cameras, device, bg, near) -> np.ndarray:
+    """Omega_G (Eq. 7): per Gaussian, the sum over `cameras` and their pixels of alpha*T where it
+    blends; float64 [N]. The basis of CVPS, of the final prune and of DensifyConfig.prune_unseen
+    (pass training cameras only; reings.reinit re-exports it)."""
+    omega = np.zeros(len(g), np.float64)
+    for cam in cameras:
+        omega += render(g, cam, device, bg, near, want_importance=True).importance
+    return omega
 
 
 def render_vjp(gaussians: Gaussians, camera: Camera, v_rgb, v_depth=None, v_alpha=None,

@@ -355,8 +355,10 @@ def fit(views, config: TrainConfig, device: str = "pocl", init: Gaussians | None
                         eval_fn, eval_every, log_every,
                         sync=lambda params_only: trainer.download(state, params_only=params_only))
     iteration = _Iteration(trainer, cfg, state, opt, rng, extent, images, cameras, depth_targets, book)
-    if cfg.densify.prune_unseen:  # what each training view's pixels blend, for densify (D.prune_unseen)
-        iteration.seen = lambda g: D.seen_by(g, cameras, backend, cfg.background, cfg.near)
+    if cfg.densify.prune_unseen:  # Omega_G (ReInGS Eq. 7) over the training views > 0, for D.prune_unseen
+        from . import rendering
+
+        iteration.seen = lambda g: rendering.gaussian_importance(g, cameras, device, cfg.background, cfg.near) > 0.0
     try:
         for it in range(state.iteration + 1, cfg.iterations + 1):
             iteration(it)

@@ -367,3 +367,19 @@ def interrupt_and_resume(run, path: str, stop_at: int, every: int = 5):
         run(checkpoint=path, checkpoint_every=every, eval_fn=crash, eval_every=stop_at)
     assert os.path.exists(path)
     return run(checkpoint=path, checkpoint_every=every)
+
+
+def assert_resumes_bit_identically(case, device: str, tmp_path, stop_at: int):
+    """`fit_case` on the device engine, interrupted at the eval of iteration `stop_at` and resumed
+    from its last checkpoint, against the uninterrupted fit: the state (moments and statistics
+    included), the loss history and the densification records, bit for bit. Returns (reference,
+    resumed) for the caller's own histories."""
+    import os
+
+    ref = fit_case(case, device, engine="device")
+    res = interrupt_and_resume(lambda **kw: fit_case(case, device, engine="device", **kw),
+                               os.path.join(tmp_path, "ck.npz"), stop_at=stop_at)
+    assert_same_state(ref.state, res.state, True, "resumed vs uninterrupted")
+    np.testing.assert_array_equal(res.history.loss, ref.history.loss)
+    assert [tuple(x) for x in res.history.densify] == [tuple(x) for x in ref.history.densify]
+    return ref, res

@@ -24,14 +24,14 @@ Checked:
 """
 from __future__ import annotations
 
-import os
 from contextlib import contextmanager
 from dataclasses import replace
 
 import numpy as np
 import pytest
 
-from cases import assert_same_state, dngaussian_fit_case, fit_case, interrupt_and_resume, random_scene, rotation_viewmat
+from cases import (assert_resumes_bit_identically, assert_same_state, dngaussian_fit_case, fit_case, random_scene,
+                   rotation_viewmat)
 from test_project import check_project_bwd, check_project_fwd
 from test_reference_fd import BG as FD_BG
 from test_reference_fd import check_params_fd, fd_camera, fd_scene, render_loss, render_signature
@@ -324,11 +324,7 @@ def test_fit_with_drop_device_matches_host(device, case, shared):
 
 def test_fit_with_drop_resumes_bit_identically(device, case, tmp_path):
     """Stopped at 17, last checkpoint at 15 (inside the view_warp span)."""
-    ref_fit = _fit(case, device, engine="device")
-    res = interrupt_and_resume(lambda **kw: _fit(case, device, engine="device", **kw),
-                               os.path.join(tmp_path, "ck.npz"), stop_at=17)
-    _same_state(ref_fit.state, res.state, True, "resumed vs uninterrupted")
-    np.testing.assert_array_equal(res.history.loss, ref_fit.history.loss)
+    assert_resumes_bit_identically(case, device, tmp_path, stop_at=17)
 
 
 def test_gamma_zero_and_a_noop_mask_give_the_fit_without_the_option(device, case, monkeypatch):

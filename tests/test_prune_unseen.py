@@ -1,7 +1,7 @@
 """Pruning the Gaussians no training pixel blends (DensifyConfig.prune_unseen; docs/method.md §11).
 
 Checked:
-  - `densify.seen_by` on analytic cases (camera at the origin looking down +z): a Gaussian in
+  - the seen mask (`rendering.gaussian_importance` > 0, the rule's test) on analytic cases (camera at the origin looking down +z): a Gaussian in
     front is seen; one behind the camera, one far outside the frustum, one of opacity below
     1/255 and one behind two opaque layers (T < T_MIN there) are not; the mask of this device
     equals the float64 reference's, and both equal an independent brute-force evaluation of
@@ -9,18 +9,17 @@ Checked:
   - `prune_unseen` removes exactly the unseen ones, keeps parameters and moments aligned and
     never empties the model;
   - in a fit: the device engine against the host engine (bit for bit on PoCL), the densify
-    record's counts, a resume from a checkpoint, and the option off gives the fit without it;
+    record's counts, a resume from a checkpoint, and the option off never renders for it;
   - the options: RunConfig reaches the reings fits only; the resume settings.
 """
 from __future__ import annotations
 
-import os
 from dataclasses import replace
 
 import numpy as np
 import pytest
 
-from cases import (assert_same_state, dngaussian_fit_case, fit_case, interrupt_and_resume, make_camera,
+from cases import (assert_resumes_bit_identically, assert_same_state, dngaussian_fit_case, fit_case, make_camera,
                    make_gaussians)
 
 W, H = 48, 32
@@ -94,21 +93,25 @@ def _brute_force_seen(g, cam) -> np.ndarray:
     return seen
 
 
-def test_seen_by_analytic_cases(device):
-    from reings.backends import get_backend
-    from reings.densify import seen_by
+def seen_by(g, cameras, device):
+    """The rule's mask: Omega_G over `cameras` > 0 (reings/train.py, DensifyConfig.prune_unseen)."""
+    from reings.rendering import gaussian_importance
 
+    return gaussian_importance(g, cameras, device, (0.0, 0.0, 0.0), 0.01) > 0.0
+
+
+def test_seen_by_analytic_cases(device):
     g, want = _cases()
     cam = make_camera(W, H)
     brute = _brute_force_seen(g, cam)
     np.testing.assert_array_equal(brute, want)
-    ref = seen_by(g, [cam], get_backend("reference"), (0.0, 0.0, 0.0), 0.01)
+    ref = seen_by(g, [cam], "reference")
     np.testing.assert_array_equal(ref, want)
-    dev = seen_by(g, [cam], get_backend(device), (0.0, 0.0, 0.0), 0.01)
+    dev = seen_by(g, [cam], device)
     np.testing.assert_array_equal(dev, want)
     # two cameras: the union (the second camera turned around sees the one behind the first)
     back = make_camera(W, H, viewmat=np.diag([-1.0, 1.0, -1.0, 1.0]))
-    two = seen_by(g, [cam, back], get_backend(device), (0.0, 0.0, 0.0), 0.01)
+    two = seen_by(g, [cam, back], device)
     np.testing.assert_array_equal(two, want | _brute_force_seen_turned(g, back))
 
 
@@ -173,19 +176,24 @@ def test_fit_prunes_the_unseen_device_matches_host(device, case):
 
 
 def test_fit_with_prune_unseen_resumes_bit_identically(device, case, tmp_path):
-    ref_fit = fit_case(case, device, engine="device")
-    res = interrupt_and_resume(lambda **kw: fit_case(case, device, engine="device", **kw),
-                               os.path.join(tmp_path, "ck.npz"), stop_at=17)
-    assert_same_state(ref_fit.state, res.state, True, "resumed vs uninterrupted")
-    np.testing.assert_array_equal(res.history.loss, ref_fit.history.loss)
+    assert_resumes_bit_identically(case, device, tmp_path, stop_at=17)
 
 
-def test_off_is_the_fit_without_the_option(device, case):
+def test_off_never_renders_for_it_and_on_prunes(device, case, monkeypatch):
+    """Off: the importance renders never run (the fit is the one without the option); on: fewer
+    Gaussians than off, and every densify record's n is the model's size after the pruning."""
+    import reings.rendering as R
+
     scene, init, cfg = case
+    orig = R.gaussian_importance
+    monkeypatch.setattr(R, "gaussian_importance", lambda *a, **k: pytest.fail("rendered with the option off"))
     off = fit_case((scene, init, replace(cfg, densify=replace(cfg.densify, prune_unseen=False))), device)
+    assert all("unseen" not in d for _, d in off.history.densify)
+    sizes = []
+    monkeypatch.setattr(R, "gaussian_importance", lambda g, *a, **k: (sizes.append(len(g)), orig(g, *a, **k))[1])
     on = fit_case(case, device)
     assert len(on.state) < len(off.state)
-    assert all("unseen" not in d for _, d in off.history.densify)
+    assert [d["n"] for _, d in on.history.densify] == [n - d["unseen"] for n, (_, d) in zip(sizes, on.history.densify)]
 # }}}
 
 

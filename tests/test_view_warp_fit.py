@@ -18,13 +18,12 @@ Checked against independent references:
 """
 from __future__ import annotations
 
-import os
 from dataclasses import replace
 
 import numpy as np
 import pytest
 
-from cases import assert_same_state, dngaussian_fit_case, fit_case, interrupt_and_resume
+from cases import assert_resumes_bit_identically, assert_same_state, dngaussian_fit_case, fit_case
 from reings.backends import get_backend
 from reings.backends.opencl import quirks
 from reings.backends.reference import render64
@@ -274,10 +273,7 @@ def test_fit_terms_change_the_result(device, case):
 
 def test_fit_resume_is_bit_identical(device, case, tmp_path):
     """Stopped at 17, last checkpoint at 15: inside the view_warp span."""
-    ref = _fit(case, device, engine="device")
-    res = interrupt_and_resume(lambda **kw: _fit(case, device, engine="device", **kw),
-                               os.path.join(tmp_path, "ck.npz"), stop_at=17)
-    _same_state(ref.state, res.state, True, "resumed vs uninterrupted")
+    ref, res = assert_resumes_bit_identically(case, device, tmp_path, stop_at=17)
     assert [tuple(x) for x in res.history.view_warp] == [tuple(x) for x in ref.history.view_warp]
 
 
