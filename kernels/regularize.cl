@@ -11,6 +11,12 @@
                                zeroed by the host); each work-item a contiguous chunk, one atomic
                                add per item.
      regularize_grads          the three penalties' gradients, one work-item per Gaussian.
+     regularize_value          the penalties' value, for the loop's logging iterations (the
+                               device trainer's `regularize(..., value=True)` / `read_regularize`):
+                               per chunk of `chunk` Gaussians, in order, the sums of max/min scale,
+                               max scale^2, o^2 over o > 0.2, (1 - o)^2 over o < 0.2 and the two
+                               counts, in `real`; the host adds the chunks in float64 and forms
+                               reference_loss.regularize_fwd_bwd's value (tests/test_adam_kernel.py).
      opacity_decay             logits <- logit(f * sigmoid(logits)) in place (Binocular3DGS's opacity
                                decay, the device trainer's `decay_opacity`; twin
                                reference_view_warp.opacity_decay, float64): one work-item per Gaussian.
@@ -90,6 +96,35 @@ __kernel void regularize_grads(const int n,
         if (o < OPA_SPLIT && nl > 0) go = (real)-2.0 * ((real)1.0 - o) / (real)nl;
         v_logits[i] = v_logits[i] + (float)(opa_pena * ((go * o) * ((real)1.0 - o)));
     }
+}
+
+#define REG_VALUE_COLS 6 /* regularize_value's sums per chunk (trainer.REG_VALUE_COLS) */
+
+__kernel void regularize_value(const int n, const int chunk,
+                               __global const float *log_scales,  /* [N, 3] */
+                               __global const float *logits,      /* [N] */
+                               __global real *partial)            /* [ceil(N / chunk), REG_VALUE_COLS] out */
+{
+    const int c = get_global_id(0);
+    const int lo = c * chunk;
+    if (!(lo < n)) return;
+    const int hi = min(n, lo + chunk);
+    real ratio = 0, s2 = 0, oh = 0, ol = 0, nh = 0, nl = 0;
+    for (int i = lo; i < hi; ++i) {
+        real l[3] = {log_scales[3 * i], log_scales[3 * i + 1], log_scales[3 * i + 2]};
+        int imax = 0, imin = 0; /* first occurrence on ties (numpy argmax / argmin) */
+        for (int j = 1; j < 3; ++j) {
+            if (l[j] > l[imax]) imax = j;
+            if (l[j] < l[imin]) imin = j;
+        }
+        ratio += exp(l[imax] - l[imin]);
+        s2 += exp((real)2.0 * l[imax]);
+        const real o = (real)1.0 / ((real)1.0 + exp(-(real)logits[i]));
+        if (o > OPA_SPLIT) { oh += o * o; nh += (real)1; }
+        if (o < OPA_SPLIT) { ol += ((real)1.0 - o) * ((real)1.0 - o); nl += (real)1; }
+    }
+    __global real *p = partial + (size_t)c * REG_VALUE_COLS;
+    p[0] = ratio; p[1] = s2; p[2] = oh; p[3] = ol; p[4] = nh; p[5] = nl;
 }
 
 /* logit(f s(x)) = log f - log((1 - f) + exp(-x)), rewritten for x < 0 as

@@ -147,6 +147,13 @@ class LossConfig:
                                    "weighted by the prior's confidence (1 where it has none); 0 = off",
                               check=lambda v: None if v >= 0 and v == v and v != float("inf")
                               else f"must be >= 0 and finite, got {v}")
+    cross_warp: float = opt(0.0, "the cross-view photometric term (docs/method.md §12): weight of the L1 between "
+                                 "the training image and another training view's image, sampled where the "
+                                 "photometric pass's rendered depth reprojects each pixel (gradient to the depth "
+                                 "only); 0 = off",
+                            check=lambda v: None if v >= 0 and v == v and v != float("inf")
+                            else f"must be >= 0 and finite, got {v}")
+    cross_warp_from: int = opt(1, "first iteration of the cross_warp term")
     shape_pena: float = opt(0.0, "weight of mean(max scale / min scale)")
     scale_pena: float = opt(0.0, "weight of mean(max scale^2)")
     opa_pena: float = opt(0.0, "weight of 1 - mean(o^2 | o>0.2) + mean((1-o)^2 | o<0.2)")
@@ -505,8 +512,16 @@ class OutputConfig:
                                        "(none: about 15 per stage; 0: off)", check=at_least(0), metavar="N")
     checkpoint_every: int = opt(250, "rewrite the running stage's checkpoint every N iterations", check=at_least(1),
                                 metavar="N")
+    # issue 15: a checkpoint is a download of the state and a write of ~16 MB at 57k Gaussians (25 ms on
+    # 2 PoCL cores), and a paper run wrote 72. 60 s: an H100 paper run (stages of 30-45 s) writes the 3
+    # stage ends only; a 40-minute CPU run (250 iterations ~33 s) every 500 iterations, a kill losing ~1 min
+    checkpoint_seconds: float = opt(60.0, "write the checkpoint at a multiple of checkpoint_every only when at least S "
+                                          "seconds have passed since the stage's last one (or its start); the end "
+                                          "of a stage is always checkpointed; 0: at every multiple",
+                                    check=finite_nonneg, metavar="S")
     profile: bool = opt(False, "record the wall seconds of every training phase (photometric, depth and background "
-                               "passes, the view_warp term's renders and kernels, Adam, densification) per stage in "
+                               "passes, the view_warp term's renders and kernels, Adam, densification, test-PSNR "
+                               "probes, checkpoints) per stage in "
                                "metrics.json `stages[].phases`; the device is waited for around each phase, so the run "
                                "is slower")
     prune_curve: bool = opt(False, "study/reporting: also evaluate test PSNR/SSIM of the final model cut to its top "
@@ -606,6 +621,15 @@ class RunConfig:
                                            "confidence; 0 = off; none: the recipe family's (off for 'llff' and 'dtu')",
                                      check=lambda v: None if v is None or (v >= 0 and v == v and v != float("inf"))
                                      else f"must be >= 0 and finite, got {v}", metavar="WEIGHT")
+    cross_warp: float = opt(0.0, "reings fits only: weight of the cross-view photometric term (docs/method.md §12): "
+                                 "the rendered depth of the view being trained reprojects its pixels into "
+                                 "another training view, whose training image must match there (L1, gradient to "
+                                 "the depth only; no prior needed); 0 = off", check=finite_nonneg,
+                            metavar="WEIGHT")
+    cross_warp_start: float = opt(0.0, "reings fits only: where the cross_warp term starts, as a fraction of each "
+                                       "fit's iterations (0: from the first)",
+                                  check=lambda v: None if 0 <= v < 1 else f"must lie in [0, 1), got {v}",
+                                  metavar="FRACTION")
     prune_unseen: bool | None = opt(None, "reings fits: at each densification also drop the Gaussians that no "
                                           "pixel of any training view blends (docs/method.md §11); none: the "
                                           "recipe family's (on for 'llff', off for 'dtu' until measured there; "

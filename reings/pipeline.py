@@ -191,6 +191,10 @@ def run_settings(cfg: RunConfig, dataset_kind: str) -> dict:
             s["opacity_decay"] = cfg.opacity_decay
         if prune_unseen_of(cfg, recipe_family(cfg.recipe, dataset_kind)):  # absent when off (older folders resume)
             s["prune_unseen"] = True
+        if cfg.cross_warp:  # the cross-view photometric term: absent when off (older folders resume)
+            s["cross_warp"] = cfg.cross_warp
+            if cfg.cross_warp_start:
+                s["cross_warp_start"] = cfg.cross_warp_start
     if auto_seeds and (cfg.extent == "stereo" or cfg.holdout != "protocol" or cfg.views <= 2):
         s["stereo_seeds"] = "auto"  # seeds where runs before the option had none (stereo_seeds_of)
     if cfg.soft_depth_shared:
@@ -365,6 +369,9 @@ class RunContext:
             recipe = replace(recipe, loss=replace(recipe.loss, depth_metric=metric))
         if c.method == "reings":
             recipe = self.binocular(recipe)
+            if c.cross_warp:  # docs/method.md §12
+                start = max(1, int(round(c.cross_warp_start * recipe.iterations)))
+                recipe = replace(recipe, loss=replace(recipe.loss, cross_warp=c.cross_warp, cross_warp_from=start))
             if prune_unseen_of(c, self.family):
                 recipe = replace(recipe, densify=replace(recipe.densify, prune_unseen=True))
         if c.dtu_background:
@@ -441,6 +448,7 @@ class RunContext:
                 depth_targets=self.priors if use_priors else None, progress=self.progress,
                 depth_confidence=self.confidences if use_priors else None,
                 checkpoint=self.checkpoint(name), checkpoint_every=c.output.checkpoint_every,
+                checkpoint_seconds=c.output.checkpoint_seconds,
                 eval_fn=self.probe if ee else None, eval_every=ee, desc=name, extent=self.extent, profile=prof)
         # history.eval: (iteration, seconds since this fit's start taken before the probe ran,
         # {"psnr", "eval_seconds"}); restored from the checkpoint on resume
@@ -460,6 +468,7 @@ class RunContext:
         self.model_bytes[name] = gaussians_nbytes(g)
         self.stages.append({"stage": name, "iterations": recipe.iterations, "seconds": train_s,
                             "wall_seconds": float(r.seconds), "eval_seconds": before, "eval_every": ee,
+                            "checkpoints": r.checkpoints,
                             "gaussians": len(g), "model_bytes": self.model_bytes[name],
                             "peak_rss_mb": _peak_rss_mb(), "device_peak_bytes": device_peak_bytes(self.backend),
                             "config": recipe.to_dict(), "history": r.history.to_dict(),
@@ -700,6 +709,8 @@ def _prepare(cfg: RunConfig, backend, prior, overwrite: bool, quiet: bool, scene
         log(f"[{cfg.label}] note: drop_gamma applies to the {' and '.join(DROP_METHODS)} fits only; ignored")
     if cfg.depth_metric and cfg.method != "reings":
         log(f"[{cfg.label}] note: depth_metric applies to the reings fits only; ignored")
+    if cfg.cross_warp and cfg.method != "reings":
+        log(f"[{cfg.label}] note: cross_warp applies to the reings fits only; ignored")
 
     t = time.perf_counter()
     confidences = None  # per view [H, W] in [0, 1] (the stereo prior's) or None
@@ -771,6 +782,7 @@ def _metrics(ctx: RunContext, m: dict, settings: dict, scene, tr_idx, te_idx, cu
         **({"depth_prior_options": ctx.prior_options} if ctx.prior_options else {}), "seed": cfg.seed,
         "sh_degree": cfg.sh_degree, "recipe": ctx.family, "drop_gamma": drop_gamma_of(cfg, ctx.family),
         "depth_metric": depth_metric_of(cfg, ctx.family),
+        **({"cross_warp": cfg.cross_warp} if cfg.cross_warp and cfg.method == "reings" else {}),
         "mean": {k: m[k] for k in ("psnr", "ssim", "lpips", "avge") if k in m and m[k] is not None},
         "per_image": m.get("per_image"), "seconds": ctx.timings, "gaussians": ctx.counts,
         "model_bytes": ctx.model_bytes, "peak_rss_mb": _peak_rss_mb(),
@@ -786,6 +798,7 @@ def _metrics(ctx: RunContext, m: dict, settings: dict, scene, tr_idx, te_idx, cu
         "reings_config": dataclasses.asdict(cfg.reings),
         "config": {**settings, "device": cfg.device, "with_lpips": cfg.output.lpips,
                    "eval_every": cfg.output.eval_every, "checkpoint_every": cfg.output.checkpoint_every,
+                   "checkpoint_seconds": cfg.output.checkpoint_seconds,
                    "prune_curve": cfg.output.prune_curve},
         "run_config": dataclasses.asdict(cfg),
         "stages": ctx.stages,

@@ -31,7 +31,9 @@ from __future__ import annotations
 import json
 import os
 import time
+from contextlib import nullcontext
 from dataclasses import dataclass, field, replace
+from functools import lru_cache
 
 import numpy as np
 
@@ -106,6 +108,7 @@ class History:
     eval: list = field(default_factory=list)  # (iteration, seconds, metrics) from eval_fn
     view_warp: list = field(default_factory=list)  # (iteration, loss, valid fraction) of the view_warp term, when logged
     depth_metric: list = field(default_factory=list)  # (iteration, loss) of the metric depth term, when logged
+    cross_warp: list = field(default_factory=list)  # (iteration, loss, valid fraction) of the cross_warp term, when logged
 
     def to_dict(self) -> dict:
         return {k: getattr(self, k) for k in self.__dataclass_fields__}
@@ -117,10 +120,11 @@ class FitResult:
     history: History
     seconds: float
     state: object = None
+    checkpoints: int = 0  # checkpoints this call wrote (a resumed fit counts its own only)
 
 
-def _psnr(a, b) -> float:
-    mse = float(np.mean(np.square(np.asarray(a, np.float64) - b)))
+def _psnr(mse: float) -> float:
+    """The train PSNR of a mean squared error (Trainer.read_mse), images in [0, 1]."""
     return float(-10 * np.log10(max(mse, 1e-12)))
 
 
@@ -170,22 +174,44 @@ def drop_at(gamma: float, seed: int, it: int, iterations: int) -> Drop | None:
     return Drop.at_rate(gamma * it / iterations, key)
 
 
+def cross_partner(seed: int, it: int, view: int, n_views: int) -> int:
+    """The partner view of iteration `it`'s cross_warp term (docs/method.md §12): uniform over the
+    training views other than `view`, from a generator of its own per iteration
+    (numpy.random.default_rng([seed, 3, it])), so the term shifts no other draw and a resumed fit
+    draws the same partners. n_views >= 2."""
+    k = int(np.random.default_rng([seed, 3, it]).integers(n_views - 1))
+    return k + (k >= view)
+
+
 def _view_of(it: int, seed: int, n_views: int) -> int:
     """The training view of iteration `it` (1-based): a fresh permutation of the views per epoch."""
     epoch, pos = divmod(it - 1, n_views)
-    return int(np.random.default_rng([seed, epoch]).permutation(n_views)[pos])
+    return _epoch_order(seed, epoch, n_views)[pos]
+
+
+@lru_cache(maxsize=8)
+def _epoch_order(seed: int, epoch: int, n_views: int) -> tuple:
+    """The views of one epoch in order, drawn once per epoch (a generator per iteration costs ~60 us
+    of an iteration's host time)."""
+    return tuple(int(v) for v in np.random.default_rng([seed, epoch]).permutation(n_views))
 
 
 class _Bookkeeping:
     """What the loop does around an iteration: the progress bar, history logging, eval probes and
-    checkpoints. `sync(params_only)` brings the state to the host first (Trainer.download)."""
+    checkpoints. `sync(params_only)` brings the state to the host first (Trainer.download).
+    `clock` (seconds, monotonic) times the checkpoints' floor `checkpoint_seconds` (checkpoint_due)."""
 
     def __init__(self, cfg, state, history, rng, t0, progress, desc, checkpoint, checkpoint_every,
-                 eval_fn, eval_every, log_every, sync=None):
+                 eval_fn, eval_every, log_every, sync=None, checkpoint_seconds: float = 0.0,
+                 clock=time.perf_counter, phase=None):
         self.cfg, self.state, self.history, self.rng, self.t0 = cfg, state, history, rng, t0
         self.desc, self.checkpoint, self.checkpoint_every = desc, checkpoint, checkpoint_every
+        self.checkpoint_seconds, self.clock = checkpoint_seconds, clock
+        self.last_checkpoint = clock()  # the fit's (re)start counts as one for the floor
+        self.checkpoints = 0  # written by this call of fit
         self.eval_fn, self.eval_every, self.log_every = eval_fn, eval_every, log_every
         self.sync = sync or (lambda params_only: None)
+        self.phase = phase or (lambda name: nullcontext())  # Trainer.phase: "probe", "checkpoint" in a profile
         self.bar = None
         if progress:
             from tqdm import tqdm
@@ -196,27 +222,43 @@ class _Bookkeeping:
     def logs(self, it: int) -> bool:
         return it % self.log_every == 0 or it == self.cfg.iterations
 
-    def end(self, it: int, deg: int, loss, rgb, gt) -> None:
-        """After iteration `it` (loss and rgb are only read on logging iterations)."""
+    def end(self, it: int, deg: int, loss, psnr) -> None:
+        """After iteration `it` (loss and train PSNR are only read on logging iterations)."""
         h, st, last = self.history, self.state, it == self.cfg.iterations
         if self.logs(it):
             h.iteration.append(it)
             h.loss.append(float(loss))
-            h.train_psnr.append(_psnr(rgb, gt))
+            h.train_psnr.append(psnr)
             h.n_gaussians.append(len(st))
             h.seconds.append(time.perf_counter() - self.t0)
         if self.eval_fn is not None and self.eval_every and (it % self.eval_every == 0 or last):
-            self.sync(True)
-            h.eval.append((it, time.perf_counter() - self.t0, self.eval_fn(st.gaussians(deg))))
-        if self.checkpoint and (it % self.checkpoint_every == 0 or last):
-            self.sync(False)
-            _save_checkpoint(self.checkpoint, st, self.rng, h, {"desc": self.desc})
+            with self.phase("probe"):
+                self.sync(True)
+                h.eval.append((it, time.perf_counter() - self.t0, self.eval_fn(st.gaussians(deg))))
+        if self.checkpoint_due(it):
+            with self.phase("checkpoint"):
+                self.sync(False)
+                _save_checkpoint(self.checkpoint, st, self.rng, h, {"desc": self.desc})
+            self.last_checkpoint = self.clock()
+            self.checkpoints += 1
         if self.bar is not None:
             self.bar.update(1)
             if it % self.log_every == 0:
                 el = time.perf_counter() - self.t0
-                self.bar.set_postfix(loss=f"{loss:.4f}", psnr=f"{_psnr(rgb, gt):.2f}", N=len(st),
+                self.bar.set_postfix(loss=f"{loss:.4f}", psnr=f"{psnr:.2f}", N=len(st),
                                      its=f"{it / max(el, 1e-9):.1f}")
+
+    def checkpoint_due(self, it: int) -> bool:
+        """Whether the checkpoint is written after iteration `it`: always after the fit's last
+        iteration; at a multiple of `checkpoint_every` when at least `checkpoint_seconds` have passed
+        since the last one written (or since the fit started or resumed); 0 s: at every multiple.
+        Which iterations write one changes no value of the fit (a download reads, a resume from any
+        of them is bit-identical), only how much a kill loses."""
+        if not self.checkpoint:
+            return False
+        if it == self.cfg.iterations:
+            return True
+        return it % self.checkpoint_every == 0 and self.clock() - self.last_checkpoint >= self.checkpoint_seconds
 
     def close(self) -> None:
         if self.bar is not None:
@@ -284,7 +326,7 @@ def fit(views, config: TrainConfig, device: str = "pocl", init: Gaussians | None
         depth_targets=None, progress: bool = False, checkpoint: str | None = None,
         checkpoint_every: int = 250, eval_fn=None, eval_every: int = 0, log_every: int = 10,
         desc: str = "fit", extent: float | None = None, engine: str = "auto", adam: str = "auto",
-        profile: dict | None = None, depth_confidence=None) -> FitResult:
+        profile: dict | None = None, depth_confidence=None, checkpoint_seconds: float = 0.0) -> FitResult:
     """Optimise Gaussians on the training views.
 
     views: a `Scene` holding ONLY the training views (`scene.subset(train)`), or a list of
@@ -296,7 +338,8 @@ def fit(views, config: TrainConfig, device: str = "pocl", init: Gaussians | None
         prior's), or None; `LossConfig.depth_confidence` says how much it weights the depth loss.
     checkpoint: path of an .npz; if it exists the fit resumes from it (same seed, device and
         engine give the same result as an uninterrupted run); it is rewritten every
-        `checkpoint_every` its.
+        `checkpoint_every` its, once at least `checkpoint_seconds` have passed since the last
+        rewrite (or the fit's start; 0: every `checkpoint_every` its), and after the last iteration.
     eval_fn: optional f(gaussians) -> dict, called every `eval_every` iterations (speed vs error).
     engine: which Trainer the device's backend makes (`Backend.trainer`): "device" (parameters,
         gradients, Adam moments, densification statistics and the training images stay on the
@@ -310,7 +353,7 @@ def fit(views, config: TrainConfig, device: str = "pocl", init: Gaussians | None
     profile: optional dict that receives wall seconds per phase (and, device trainer, device
         milliseconds per kernel stage under "device_ms"); the device trainer then waits for the
         queue around each phase.
-    Returns FitResult(gaussians, history, seconds, state).
+    Returns FitResult(gaussians, history, seconds, state, checkpoints).
     """
     from . import densify as D
     from .backends import get_backend
@@ -326,6 +369,8 @@ def fit(views, config: TrainConfig, device: str = "pocl", init: Gaussians | None
         raise ValueError(f"fit: LossConfig.drop_gamma must lie in [0, 1), got {L.drop_gamma}")
     if not (L.depth_metric >= 0 and np.isfinite(L.depth_metric)):  # also NaN
         raise ValueError(f"fit: LossConfig.depth_metric must be >= 0 and finite, got {L.depth_metric}")
+    if not (L.cross_warp >= 0 and np.isfinite(L.cross_warp)):  # also NaN
+        raise ValueError(f"fit: LossConfig.cross_warp must be >= 0 and finite, got {L.cross_warp}")
     extent = scene_extent(cameras) if extent is None else extent
     backend = get_backend(device)
     bg_masks = None
@@ -353,7 +398,8 @@ def fit(views, config: TrainConfig, device: str = "pocl", init: Gaussians | None
         trainer.upload_depth_metric(_metric_weights(depth_targets, depth_confidence))
     book = _Bookkeeping(cfg, state, history, rng, t0, progress, desc, checkpoint, checkpoint_every,
                         eval_fn, eval_every, log_every,
-                        sync=lambda params_only: trainer.download(state, params_only=params_only))
+                        sync=lambda params_only: trainer.download(state, params_only=params_only),
+                        checkpoint_seconds=checkpoint_seconds, phase=trainer.phase)
     iteration = _Iteration(trainer, cfg, state, opt, rng, extent, images, cameras, depth_targets, book)
     if cfg.densify.prune_unseen:  # Omega_G (ReInGS Eq. 7) over the training views > 0, for D.prune_unseen
         from . import rendering
@@ -367,7 +413,7 @@ def fit(views, config: TrainConfig, device: str = "pocl", init: Gaussians | None
     trainer.download(state)
     trainer.finish()
     deg = sh_degree_at(cfg.iterations, cfg.sh_degree, cfg.sh_degree_interval)
-    return FitResult(state.gaussians(deg), history, time.perf_counter() - t0, state)
+    return FitResult(state.gaussians(deg), history, time.perf_counter() - t0, state, book.checkpoints)
 
 
 class _Iteration:
@@ -376,8 +422,9 @@ class _Iteration:
     Random draws, in order, from the fit's rng: the depth patch sizes of the hard pass, then of the
     soft pass (`draw_depth_patches`), then densification's split samples; the view of iteration
     `it` comes from its own generator (`_view_of`), as do the view_warp baseline
-    (`warp_baseline`) and DropGaussian's mask (`drop_at`). Values cross from the trainer only when read:
-    the photometric loss and image on logging iterations, the hard depth loss when
+    (`warp_baseline`), DropGaussian's mask (`drop_at`) and the cross_warp partner
+    (`cross_partner`). Values cross from the trainer only when read:
+    the loss terms and the train PSNR's error on logging iterations (`logged`: a few words), the hard depth loss when
     `soft_depth_ema_gate` needs it, the state when densification is due."""
 
     def __init__(self, trainer, cfg: TrainConfig, state, opt, rng, extent: float, images, cameras,
@@ -419,10 +466,10 @@ class _Iteration:
             self.depth_pass(it, cam, vi, "soft", None, ("opacity_logits",), False)
         if L.dark_background:
             self.bg_pass(cam, vi)
-        loss, rgb = self.photometric_pass(it, cam, vi, self.book.logs(it), soft=soft and L.soft_depth_shared)
+        loss, psnr = self.photometric_pass(it, cam, vi, self.book.logs(it), soft=soft and L.soft_depth_shared)
         st.iteration = it
         self.densify(it)
-        self.book.end(it, deg, loss, rgb, self.images[vi])
+        self.book.end(it, deg, loss, psnr)
 
     def depth_pass(self, it: int, cam, vi: int, name: str, opacity, groups: tuple, read: bool):
         """One depth pass (forward, depth loss, backward of `groups`, Adam step of `groups`: here
@@ -465,15 +512,17 @@ class _Iteration:
 
     def photometric_pass(self, it: int, cam, vi: int, log: bool, soft: bool = False):
         """The photometric pass (+ regularisers, the view_warp term, densification statistics,
-        the opacity decay), stepping every group. Returns (loss, rendered image) on logging
-        iterations, else (None, None).
+        the opacity decay), stepping every group. Returns (loss, train PSNR) on logging
+        iterations (`logged`: read after the pass's last enqueue), else (None, None).
 
         soft (`soft_depth_shared`): the soft depth term on this pass's render; after the
         densification statistics are taken, its backward adds the opacities' gradient into the
         held gradients, so one step takes both.
 
         The metric depth term (LossConfig.depth_metric, docs/method.md §10): its depth cotangent
-        joins the training render's backward (added into the view_warp term's when both run).
+        joins the training render's backward (added into the view_warp term's when both run); so
+        does the cross-view photometric term's (LossConfig.cross_warp, docs/method.md §12; its
+        partner view from `cross_partner`).
 
         With the view_warp term (docs/binocular.md §4.2): the virtual view (the training camera
         shifted by a drawn baseline along its x axis) is rendered first, as a kept frame
@@ -487,10 +536,7 @@ class _Iteration:
         DropGaussian (LossConfig.drop_gamma; docs/method.md §9): every render of this pass (the
         training view's and the virtual view's) drops the same Gaussians (`drop_at`); the shared
         soft depth term, taken on this pass's render, sees the dropped model too."""
-        from .losses import regularizers
-
         tr, L, D, ph = self.tr, self.L, self.cfg.densify, self.tr.phase
-        loss = rgb = None
         drop = drop_at(L.drop_gamma, self.cfg.seed, it, self.cfg.iterations)
         warp = L.view_warp_weight > 0 and it >= L.view_warp_from
         if warp:
@@ -501,31 +547,24 @@ class _Iteration:
             fr = tr.forward(cam, self.k, self.bg, self.near, drop=drop)
         with ph("photo_loss"):
             v_rgb = tr.photometric(fr, vi, self.w_l1, self.w_ssim)
-            if log:
-                loss, rgb = tr.read_loss(), tr.read_rgb(fr)
         v_depth = None
         if warp:
             with ph("view_warp"):
                 v_virt, v_depth = tr.view_warp(virt, fr, vi, b, L.view_warp_weight, L.view_warp_smooth)
-                if log:
-                    w = tr.read_view_warp()
-                    loss += w["loss"]
-                    self.book.history.view_warp.append((it, w["loss"], w["valid_fraction"]))
-        if L.depth_metric and self.targets is not None and self.targets[vi] is not None:
+        metric = bool(L.depth_metric) and self.targets is not None and self.targets[vi] is not None
+        if metric:
             with ph("depth_metric"):
                 v_depth = tr.depth_metric(fr, vi, L.depth_metric, into=v_depth)
-                if log:
-                    lm = tr.read_depth_metric()
-                    loss += lm
-                    self.book.history.depth_metric.append((it, lm))
+        cross = L.cross_warp > 0 and it >= L.cross_warp_from and len(self.cameras) > 1
+        if cross:  # the cross-view photometric term (docs/method.md §12): a partner training view
+            j = cross_partner(self.cfg.seed, it, vi, len(self.cameras))
+            with ph("cross_warp"):
+                v_depth = tr.cross_warp(fr, vi, j, self.cameras[j], L.cross_warp, self.near, into=v_depth)
         with ph("photo_backward"):
             gr = tr.backward(fr, v_rgb, v_depth)
         with ph("regularize"):
-            if self.reg_on:
-                if log:  # the penalties' value (host, float64) at the parameters before the step
-                    loss += regularizers(tr.read_params(("log_scales", "opacity_logits")),
-                                         L.shape_pena, L.scale_pena, L.opa_pena)[0]
-                tr.regularize(gr, L.shape_pena, L.scale_pena, L.opa_pena)
+            if self.reg_on:  # logging: the penalties' value at the parameters before the step, too
+                tr.regularize(gr, L.shape_pena, L.scale_pena, L.opa_pena, value=log)
         with ph("accumulate"):
             tr.accumulate(fr)
         if soft or warp:
@@ -543,7 +582,38 @@ class _Iteration:
                 tr.opacity_decay(D.opacity_decay)
         with ph("adam"):
             tr.adam_step(self.opt, gr, self.groups)
-        return loss, rgb
+        if not log:
+            return None, None
+        with ph("log"):
+            return self.logged(it, fr, vi, warp, metric, cross)
+
+    def logged(self, it: int, fr, vi: int, warp: bool, metric: bool, cross: bool = False):
+        """(loss, train PSNR) of a logging iteration's photometric pass, read once the pass is
+        enqueued: the first read waits for the queue once, where reading each term where it is
+        made (until 2026-11-25) waited mid-pass and brought the image and two parameter groups to the
+        host (a GPU idles while the host waits and then enqueues). Each term's buffers survive the
+        rest of the pass (the frame until the next forward; the loss kernels' sums until their next
+        call), so the values are those of the same renders and parameters: the photometric loss, the
+        view_warp, metric depth and cross_warp terms, the penalties at the parameters before the
+        step (`regularize(value=True)`); summed in that order. Also appends the terms' own history."""
+        tr, h = self.tr, self.book.history
+        psnr = _psnr(tr.read_mse(fr, vi))
+        loss = tr.read_loss()
+        if warp:
+            w = tr.read_view_warp()
+            loss += w["loss"]
+            h.view_warp.append((it, w["loss"], w["valid_fraction"]))
+        if metric:
+            lm = tr.read_depth_metric()
+            loss += lm
+            h.depth_metric.append((it, lm))
+        if cross:
+            c = tr.read_cross_warp()
+            loss += c["loss"]
+            h.cross_warp.append((it, c["loss"], c["valid_fraction"]))
+        if self.reg_on:
+            loss += tr.read_regularize()
+        return loss, psnr
 
     def densify(self, it: int) -> None:
         """Densify / prune / reset opacities when the schedule says so: the state goes to the host
@@ -576,7 +646,8 @@ def with_iterations(config: TrainConfig, iterations: int) -> TrainConfig:
         optim=replace(o, position_lr_start=int(round(o.position_lr_start * f)),
                       position_lr_max_steps=sc(o.position_lr_max_steps)),
         loss=replace(L, soft_depth_from=sc(L.soft_depth_from), hard_depth_from=max(1, sc(L.hard_depth_from)),
-                     depth_smooth_from=sc(L.depth_smooth_from), view_warp_from=sc(L.view_warp_from)),
+                     depth_smooth_from=sc(L.depth_smooth_from), view_warp_from=sc(L.view_warp_from),
+                     cross_warp_from=sc(L.cross_warp_from)),
         densify=replace(d, densify_from=sc(d.densify_from), densify_until=sc(d.densify_until),
                         densify_interval=max(10, sc(d.densify_interval)),
                         opacity_reset_interval=sc(d.opacity_reset_interval), opacity_decay_from=sc(d.opacity_decay_from),

@@ -107,7 +107,8 @@ SCENE_KINDS = tuple(FACTOR)
 
 # the kill table's run: test_kills.py's settings (procedural scene, quick preset, 24 iterations a stage)
 KILL_ARGS = ("run", "--method", "reings", "--preset", "quick", "--iterations", "24", "--depth-prior", "exact",
-             "--no-lpips", "--eval-every", "6", "--checkpoint-every", "4", "--seed", "2", "--quiet")
+             "--no-lpips", "--eval-every", "6", "--checkpoint-every", "4", "--checkpoint-seconds", "0", "--seed", "2",
+             "--quiet")
 # (what must exist before the signal, extra delay in s or "random", signal name)
 KILL_MOMENTS = [("config.toml", 0.0, "SIGKILL"),                 # right after the folder is claimed
                 ("checkpoints/fine.npz", 0.0, "SIGINT"),         # Ctrl-C in the fine fit
@@ -840,6 +841,8 @@ RUN_OPTIONS = [
     ("final-prune-negative", ["--final-prune", "-0.1"], ["--final-prune", "-0.1"]),
     ("eval-every-negative", ["--eval-every", "-1"], ["--eval-every", ">= 0"]),
     ("checkpoint-every-zero", ["--checkpoint-every", "0"], ["--checkpoint-every", ">= 1"]),
+    ("checkpoint-seconds-negative", ["--checkpoint-seconds", "-1"], ["--checkpoint-seconds", "-1"]),
+    ("checkpoint-seconds-nan", ["--checkpoint-seconds", "nan"], ["--checkpoint-seconds", "nan"]),
     ("out-empty", ["--out", ""], ["--out", "empty"]),
     ("out-blank", ["--out", "   "], ["--out", "empty"]),
     ("unknown-option", ["--bogus"], ["--bogus"]),
@@ -1885,7 +1888,7 @@ def no_temps_after(ctx, argv):
 
 def _disk_cases():
     D = "disk/"
-    run = run_argv("llff", "--checkpoint-every", "1")
+    run = run_argv("llff", "--checkpoint-every", "1", "--checkpoint-seconds", "0")
 
     def case(name, argv, at, limit, needles, setup=scene("llff"), after=resume_finishes, **kw):
         return Case(D + name, "disk", argv, setup=setup, needles=needles, after=after, runner=fsize_runner,

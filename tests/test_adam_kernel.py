@@ -3,7 +3,8 @@
     kernels/adam.cl adam_step      vs reings.optim.Adam (numpy) and the float64 torch.optim.Adam
                                    step of tests/test_adam.py, per-group lrs and step counts,
                                    strided SH gradients with inactive coefficients
-    kernels/regularize.cl          vs reings.losses.regularizers (reference_loss.regularize_fwd_bwd)
+    kernels/regularize.cl          vs reings.losses.regularizers (reference_loss.regularize_fwd_bwd):
+                                   the gradients, and the value (regularize_value, logging)
     kernels/densify_accumulate.cl  vs reings.densify.accumulate(ndc_grad_norm(...))
 
 Tolerance "float32 rounding": a few ulps of the values compared (the kernels mirror numpy's float32
@@ -131,6 +132,74 @@ def test_regularizer_kernel_matches_numpy(device, rng):
             u = _ulps(got, want)
             assert u.max() <= 4, f"{weights} {k}: {u.max()} ulps"
             assert np.any(got != g0[k]) == (k in rg)
+
+
+@pytest.mark.parametrize("n", [0, 1, 256, 1000])
+def test_regularize_value_kernel_matches_numpy(device, rng, n):
+    """regularize(value=True) / read_regularize (kernels/regularize.cl regularize_value, per-chunk sums
+    added in float64 by reference_loss.regularize_value) against regularize_fwd_bwd's float64 value,
+    and the gradients exactly as without value=True."""
+    from reings.backends.reference_loss import regularize_value, regularize_value_sums
+
+    st = _state(rng, n, 1)
+    if n >= 20:
+        ls = st.params["log_scales"]
+        ls[:10] = ls[:10, :1]  # isotropic rows
+        ls[10:20, 1] = ls[10:20, 0]  # a tie between two axes
+    t = _trainer(device, st, "kernel")
+    g0 = {"log_scales": rng.normal(size=(n, 3)).astype(np.float32) * 1e-3,
+          "opacity_logits": rng.normal(size=n).astype(np.float32) * 1e-3}
+    rtol = 1e-12 if t.fp64 else 1e-5
+    for weights in ((0.002, 0.001, 0.001), (0.0, 0.0, 0.5), (0.3, 0.0, 0.0), (0.0, 0.0, 0.0)):
+        want, _ = regularizers(st.params, *weights)
+        assert regularize_value(regularize_value_sums(st.params), n, *weights) == pytest.approx(want, rel=1e-12)
+        with_value = _grad_buffers(t, g0, 1) if n else {}
+        t.regularize(with_value, *weights, value=True)
+        got = t.read_regularize()
+        assert got == pytest.approx(want, rel=rtol, abs=1e-300)
+        if n:
+            a = {k: t._read(with_value[k], g0[k].shape, np.float32) for k in g0}
+            without = _grad_buffers(t, g0, 1)
+            t.regularize(without, *weights)
+            for k in g0:
+                np.testing.assert_array_equal(a[k], t._read(without[k], g0[k].shape, np.float32))
+            assert t.read_regularize() == got  # a regularize without value keeps the last value
+
+
+_REG_VALUE_OCLGRIND = """
+import numpy as np
+from reings import densify as D
+from reings.backends import get_backend
+from reings.backends.opencl.trainer import REG_VALUE_CHUNK
+from reings.backends.reference_loss import REG_VALUE_COLS, regularize_value
+from reings.losses import regularizers
+from reings.state import TrainState
+from reings.types import Gaussians
+n, rng = 300, np.random.default_rng(0)  # two chunks, the second partial
+g = Gaussians(rng.normal(size=(n, 3)).astype(np.float32), rng.normal(size=(n, 4)).astype(np.float32),
+              rng.normal(-2, 0.7, size=(n, 3)).astype(np.float32), rng.normal(-1, 2, size=n).astype(np.float32),
+              rng.normal(size=(n, 1, 3)).astype(np.float32))
+st = TrainState.from_gaussians(g)
+D.init_stats(st)
+t = get_backend("oclgrind").trainer([], engine="device", adam="kernel")
+t.upload(st)
+chunks = -(-n // REG_VALUE_CHUNK)
+sums = t.mem.get("small", "reg_value", chunks * REG_VALUE_COLS, np.dtype(t.real).itemsize)
+t._launch("regularize_value", t.k_reg_value, chunks, np.int32(n), np.int32(REG_VALUE_CHUNK),
+          t.buf("p", "log_scales"), t.buf("p", "opacity_logits"), sums)
+got = regularize_value(t._read(sums, (chunks, REG_VALUE_COLS), t.real), n, 0.002, 0.001, 0.001)
+want = regularizers(st.params, 0.002, 0.001, 0.001)[0]
+assert abs(got - want) <= 1e-5 * abs(want)
+print("ok")
+"""
+
+
+@pytest.mark.oclgrind
+def test_regularize_value_oclgrind():
+    """regularize_value (the launch `regularize(value=True)` adds) under Oclgrind's checks."""
+    from oclgrind_util import check_script
+
+    check_script(_REG_VALUE_OCLGRIND)
 
 
 def test_densify_accumulate_kernel_matches_numpy(device, rng):

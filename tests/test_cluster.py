@@ -17,8 +17,8 @@ import pytest
 pytest.importorskip("distributed")
 
 GRID = ["--dataset", "procedural", "--views", "2,3", "--seeds", "0,1", "--methods", "dngaussian",
-        "--iterations", "24", "--checkpoint-every", "4", "--depth-prior", "exact", "--no-lpips",
-        "--eval-every", "0", "--quiet"]
+        "--iterations", "24", "--checkpoint-every", "4", "--checkpoint-seconds", "0", "--depth-prior", "exact",
+        "--no-lpips", "--eval-every", "0", "--quiet"]
 
 
 def _means(out) -> dict:

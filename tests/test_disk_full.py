@@ -35,7 +35,7 @@ def test_atomic_write_names_the_file_and_leaves_nothing(tmp_path):
 def test_a_refused_write_is_one_line_and_loses_nothing(tmp_path):
     out = tmp_path / "run"
     args = ["run", "--method", "dngaussian", "--iterations", "30", "--depth-prior", "exact", "--no-lpips",
-            "--eval-every", "0", "--quiet", "--checkpoint-every", "10", "--out", str(out)]
+            "--eval-every", "0", "--quiet", "--checkpoint-every", "10", "--checkpoint-seconds", "0", "--out", str(out)]
     # 60 kB from the first checkpoint on (about 0.2 MB): it does not fit
     env = {**os.environ, "REINGS_TEST_FSIZE_AT": "*/checkpoints/*.npz", "REINGS_TEST_FSIZE_LIMIT": "60000"}
     r = subprocess.run([sys.executable, "-c", fc.FSIZE_WRAPPER, *args], capture_output=True, text=True, timeout=600,

@@ -114,7 +114,7 @@ def test_stage_list_is_the_config_s():
 
 def test_interrupted_run_resumes_to_the_same_result(tmp_path, monkeypatch):
     kw = dict(method="reings", iterations=10, depth_prior="exact", quiet=True, with_lpips=False, eval_every=3,
-              checkpoint_every=4, device="pocl", seed=3)
+              checkpoint_every=4, checkpoint_seconds=0, device="pocl", seed=3)
     ref = reings.run(out=str(tmp_path / "ref"), **kw)
     # one name per stage: the stage list, the metrics keys, the fits' configs (with the run's seed)
     m = ref.metrics

@@ -126,8 +126,10 @@ class Trainer(Protocol):
     renders its virtual view once, as a kept frame (`forward(..., keep=True)`), which survives
     the training view's forward and backward: `view_warp` reads it, and its own `backward` adds
     into the held gradients (`hold`, `backward(into=)`). Values are
-    read only when asked (`read_loss`, `read_rgb`, `read_depth_loss`, `read_params`), so a device
-    implementation moves nothing over the bus in an iteration the loop does not log.
+    read only when asked (`read_loss`, `read_mse`, `read_regularize`, `read_depth_loss`, ...), so a
+    device implementation moves nothing over the bus in an iteration the loop does not log, and a
+    few words in one that it logs (the image and the parameters stay on the device: `read_rgb`,
+    `read_params` are for tests and tools).
 
     Handles: `forward` returns a `Frame`; the loss methods return the cotangent image (a device
     buffer or a host array) that only `backward` consumes; `backward` returns the gradients per
@@ -195,7 +197,12 @@ class Trainer(Protocol):
         """The loss of the last `photometric` (a read from the device: call it when logging)."""
 
     def read_rgb(self, frame: Frame) -> np.ndarray:
-        """The frame's rendered image, [H,W,3] float32 on the host (logging)."""
+        """The frame's rendered image, [H,W,3] float32 on the host (tests, tools)."""
+
+    def read_mse(self, frame: Frame, view: int) -> float:
+        """mean((rgb - image)^2) of the frame's image against training image `view`, as float64
+        (reference_loss.mse; the device reduces it, kernels/mse.cl, and reads H row sums): the
+        loop's train PSNR on logging iterations. Valid while the frame is."""
 
     def depth_loss(self, frame: Frame, view: int, p_local: int, p_global: int, margin: float,
                    w_local: float, w_global: float, w_smooth: float = 0.0) -> Any:
@@ -245,6 +252,19 @@ class Trainer(Protocol):
     def read_depth_metric(self) -> float:
         """The loss of the last `depth_metric` (a read from the device)."""
 
+    def cross_warp(self, frame: Frame, view: int, partner: int, partner_cam: Camera, weight: float, near: float,
+                   into: Any = None) -> Any:
+        """dL/d depth of the cross-view photometric term of this frame (a render of training view
+        `view`): its depth reprojects each pixel into training view `partner` (camera
+        `partner_cam`), whose training image, sampled there, is compared with view `view`'s
+        (weight / 3HW * sum |I_partner(p') - I_view(p)|; reference_cross_warp.cross_warp_fwd_bwd;
+        kernels/cross_warp.cl; docs/method.md §12), for `backward(v_depth=...)`; added into `into`
+        (another depth cotangent of the same frame) and returned when given. The loss waits for
+        `read_cross_warp`."""
+
+    def read_cross_warp(self) -> dict:
+        """{"loss", "valid_fraction"} of the last `cross_warp` (a read from the device)."""
+
     def hold(self, grads: Any) -> Any:
         """The gradients of the last `backward` as a handle that survives the next `backward` (to
         be passed as its `into`): the photometric pass with view_warp backpropagates two renders
@@ -268,10 +288,16 @@ class Trainer(Protocol):
         untouched (Binocular3DGS's opacity decay: reference_state.opacity_decay_;
         kernels/regularize.cl opacity_decay)."""
 
-    def regularize(self, grads: Any, shape_pena: float, scale_pena: float, opa_pena: float) -> None:
+    def regularize(self, grads: Any, shape_pena: float, scale_pena: float, opa_pena: float,
+                   value: bool = False) -> None:
         """Add DNGaussian's shape / scale / opacity penalties' gradients at the held parameters
         into `grads` (reference_loss.regularize_fwd_bwd; kernels/regularize.cl); nothing when every
-        weight is 0. The loop computes the penalties' value from `read_params` when it logs."""
+        weight is 0. value: also take the penalties' value at these parameters for
+        `read_regularize` (the loop asks when it logs; kernels/regularize.cl regularize_value)."""
+
+    def read_regularize(self) -> float:
+        """The penalties' value (float64; 0 when every weight was 0) of the last
+        `regularize(..., value=True)` (a read from the device)."""
 
     def accumulate(self, frame: Frame) -> None:
         """Add the densification statistics of the frame's last backward (a photometric one, every

@@ -27,7 +27,7 @@ import numpy as np
 
 from ..types import ACCUM, FIELDS, PARAM_NAMES, Camera, Gaussians, RenderOutput
 from .reference_drop import Drop
-from .reference_loss import DepthSmoothWeights, regularize_fwd_bwd
+from .reference_loss import DepthSmoothWeights, mse, regularize_fwd_bwd
 from .reference_state import (adam_update, densify_accumulate, grad_add, ndc_grad_norm, opacity_decay_, sh_pack,
                               zero_stats)
 
@@ -73,8 +73,10 @@ class HostTrainer:
         self.targets: list = []  # per view: the depth target as given, or None
         self.smooth: list = []  # per view: DepthSmoothWeights or None
         self._loss = self._depth_loss = self._warp = None
+        self._reg_value = None  # the last regularize(value=True)'s penalties (read_regularize)
         self.dm: list = []  # per view: (weights, target, S, valid pixels) of the metric depth term, or None
         self._dm = None  # the last depth_metric call's (row terms, scale), or None
+        self._cw = None  # the last cross_warp call's (row sums, valid counts, H, W, scale)
         self._zeros: dict = {}  # (H, W) -> zero colour cotangent of the depth passes
         self._tmp = np.empty(0, _F32)  # Adam scratch, grown geometrically
 
@@ -259,6 +261,34 @@ class HostTrainer:
             acc += rows[:, x]
         return float(scale) * float(np.sum(acc.astype(np.float64)))
 
+    def cross_warp(self, fr: HostFrame, view: int, partner: int, partner_cam: Camera, weight: float, near: float,
+                   into=None) -> np.ndarray:
+        """Trainer.cross_warp: kernels/cross_warp.cl's float32 operations in its order
+        (reference_cross_warp.cross_warp_f32; the float64 form is cross_warp_fwd_bwd); returns
+        dL/d depth [H,W], or `into` with it added."""
+        from .reference_cross_warp import CROSS_WARP_ALPHA_MIN, cross_warp_args, cross_warp_f32
+
+        h, w = fr.height, fr.width
+        hm, e = cross_warp_args(fr.cam, partner_cam)
+        scale = _F32(weight / (3.0 * h * w)) if h * w else _F32(0)
+        g, rows, counts = cross_warp_f32(fr.out.depth, fr.out.alpha, self.images[view], self.images[partner], hm, e,
+                                         near, CROSS_WARP_ALPHA_MIN, scale)
+        self._cw = (rows, counts, h, w, scale)
+        if into is None:
+            return g
+        into += g
+        return into
+
+    def read_cross_warp(self) -> dict:
+        """Trainer.read_cross_warp: as the device trainer's (row sums and counts in float64)."""
+        if self._cw is None:
+            raise RuntimeError("read_cross_warp before a cross_warp")
+        rows, counts, h, w, scale = self._cw
+        if h * w == 0:
+            return {"loss": 0.0, "valid_fraction": 0.0}
+        return {"loss": float(scale) * float(np.sum(rows.astype(np.float64))),
+                "valid_fraction": int(np.sum(counts)) / (h * w)}
+
     def hold(self, grads: dict) -> dict:
         """Trainer.hold: writable float32 copies (render_vjp's arrays are fresh, but `regularize`
         may have rebound them)."""
@@ -278,13 +308,30 @@ class HostTrainer:
         """Trainer.opacity_decay: reference_state.opacity_decay_ on the state's logits, in place."""
         opacity_decay_(self.state.params["opacity_logits"], factor)
 
-    def regularize(self, grads: dict, shape_pena: float, scale_pena: float, opa_pena: float) -> None:
-        """Trainer.regularize: reference_loss.regularize_fwd_bwd's gradients added into `grads`."""
+    def regularize(self, grads: dict, shape_pena: float, scale_pena: float, opa_pena: float,
+                   value: bool = False) -> None:
+        """Trainer.regularize: reference_loss.regularize_fwd_bwd's gradients added into `grads`
+        (value: its value kept for `read_regularize`)."""
+        if value:
+            self._reg_value = 0.0
         if not (shape_pena or scale_pena or opa_pena):
             return
-        _, rg = regularize_fwd_bwd(self.state.params, shape_pena, scale_pena, opa_pena)
-        for k, v in rg.items():
-            grads[k] = grads[k] + v
+        v, rg = regularize_fwd_bwd(self.state.params, shape_pena, scale_pena, opa_pena)
+        if value:
+            self._reg_value = v
+        for k, g in rg.items():
+            grads[k] = grads[k] + g
+
+    def read_regularize(self) -> float:
+        """Trainer.read_regularize: regularize_fwd_bwd's float64 value of the last
+        regularize(value=True)."""
+        if self._reg_value is None:
+            raise RuntimeError("read_regularize before a regularize(..., value=True)")
+        return self._reg_value
+
+    def read_mse(self, fr: HostFrame, view: int) -> float:
+        """Trainer.read_mse: reference_loss.mse of the frame's image against training image `view`."""
+        return mse(fr.out.rgb, self.images[view])
 
     def accumulate(self, fr: HostFrame) -> None:
         """Trainer.accumulate: the backend's last_screen into the statistics."""

@@ -16,6 +16,10 @@
     depth_metric_fwd_bwd    the depth_metric stage: relative L1 of the rendered depth against the
                             prior's metric depth, weighted by its confidence (docs/method.md §10)
 
+Values the loop only logs (no gradient): `mse_rows` / `mse` (the train PSNR's mean squared error,
+kernels/mse.cl, tests/test_mse.py) and `regularize_value` (the penalties' value from per-chunk sums,
+kernels/regularize.cl regularize_value, tests/test_adam_kernel.py).
+
 `kernels/photometric.cl` and `kernels/l1.cl` must match the first three (tests/test_losses.py,
 tests/test_peer_step.py), `kernels/depth_loss.cl` the depth terms (tests/test_depth_loss_kernel.py),
 `kernels/regularize.cl` the penalties (tests/test_adam_kernel.py), `kernels/depth_metric.cl` the
@@ -399,6 +403,61 @@ def regularize_fwd_bwd(params: dict, shape_pena: float = 0.0, scale_pena: float 
         loss += opa_pena * v
         grads["opacity_logits"] = (opa_pena * go).astype(np.float32)
     return loss, grads
+
+
+REG_VALUE_COLS = 6  # the per-chunk sums of kernels/regularize.cl regularize_value
+
+
+def regularize_value_sums(params: dict, chunk: int = 256) -> np.ndarray:
+    """kernels/regularize.cl regularize_value's per-chunk sums [ceil(N / chunk), REG_VALUE_COLS]
+    (float64): max/min scale, max scale^2, o^2 over o > OPACITY_SPLIT, (1 - o)^2 over o <
+    OPACITY_SPLIT, and the two counts."""
+    ls = np.asarray(params["log_scales"], np.float64).reshape(-1, 3)
+    o = 1.0 / (1.0 + np.exp(-np.asarray(params["opacity_logits"], np.float64).reshape(-1)))
+    n = len(ls)
+    r = np.arange(n)
+    imax, imin = ls.argmax(axis=1), ls.argmin(axis=1)
+    hi, lo = o > OPACITY_SPLIT, o < OPACITY_SPLIT
+    cols = np.stack([np.exp(ls[r, imax] - ls[r, imin]), np.exp(2.0 * ls[r, imax]), np.where(hi, o * o, 0.0),
+                     np.where(lo, (1.0 - o) ** 2, 0.0), hi, lo], axis=1)
+    c = -(-n // chunk)
+    out = np.zeros((c, REG_VALUE_COLS))
+    np.add.at(out, r // chunk, cols)
+    return out
+
+
+def regularize_value(sums: np.ndarray, n: int, shape_pena: float = 0.0, scale_pena: float = 0.0,
+                     opa_pena: float = 0.0) -> float:
+    """regularize_fwd_bwd's value from per-chunk sums (`regularize_value_sums`, or the kernel's),
+    the chunks added in float64: what the device trainer's `read_regularize` returns."""
+    s = np.sum(np.asarray(sums, np.float64).reshape(-1, REG_VALUE_COLS), axis=0)
+    loss = 0.0
+    if shape_pena and n:
+        loss += shape_pena * float(s[0] / n)
+    if scale_pena and n:
+        loss += scale_pena * float(s[1] / n)
+    if opa_pena:
+        nh, nl = s[4], s[5]  # counts (exact in float64)
+        val = 1.0
+        if nh > 0:
+            val -= float(s[2] / nh)
+        if nl > 0:
+            val += float(s[3] / nl)
+        loss += opa_pena * val
+    return loss
+# }}}
+
+
+# {{{ mse: the train PSNR's mean squared error (kernels/mse.cl)
+def mse_rows(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Per row of [H, W, 3] images the float64 sum of (x - y)^2 (kernels/mse.cl mse_rows)."""
+    d = np.asarray(x, np.float64) - np.asarray(y, np.float64)
+    return np.sum(np.square(d).reshape(d.shape[0], -1), axis=1)
+
+
+def mse(x: np.ndarray, y: np.ndarray) -> float:
+    """mean((x - y)^2) in float64: the train PSNR's error, -10 log10(mse) (reings.train)."""
+    return float(np.mean(np.square(np.asarray(x, np.float64) - y)))
 # }}}
 
 

@@ -53,7 +53,7 @@ from contextlib import ExitStack, contextmanager
 import numpy as np
 
 from ...types import ACCUM, COUNT, PARAM_NAMES, RADII
-from ..reference_loss import DepthSmoothWeights
+from ..reference_loss import REG_VALUE_COLS, DepthSmoothWeights, regularize_value
 from ..reference_state import adam_update, zero_stats
 from .program import typed_invoker
 from .scratch import Scratch
@@ -65,6 +65,7 @@ from .scratch import Scratch
 # (Before the padded 2-D range of the strided adam_step the kernel lost at SH3: 6.2 vs 4.6 ms.)
 CPU_DEFAULT_ADAM = "kernel"
 ADAM_LOCATIONS = ("auto", "kernel", "numpy")
+REG_VALUE_CHUNK = 256  # Gaussians per work-item of regularize_value (its sums are per chunk)
 _F32, _F64, _I32, _U32 = np.float32, np.float64, np.int32, np.uint32
 
 
@@ -122,12 +123,16 @@ class DeviceTrainer:
         self.k_reg_grads = backend.kernel("regularize.cl", "regularize_grads", REGULARIZE_FP64=int(self.fp64))
         self.k_accumulate = backend.kernel("densify_accumulate.cl", "densify_accumulate", DENSIFY_FP64=int(self.fp64))
         self.k_decay = backend.kernel("regularize.cl", "opacity_decay", REGULARIZE_FP64=int(self.fp64))
+        self.k_reg_value = backend.kernel("regularize.cl", "regularize_value", REGULARIZE_FP64=int(self.fp64))
+        self.k_mse_rows = backend.kernel("mse.cl", "mse_rows", MSE_FP64=int(self.fp64))
+        self._reg_value = None  # (sums buffer, chunks, n, weights) of the last regularize(value=True)
         self.k_grad_add = backend.kernel("grad_add.cl", "grad_add")
         self.k_bg_alpha = backend.kernel("bg_alpha.cl", "bg_alpha_grad")
         self.k_dm_grad = backend.kernel("depth_metric.cl", "depth_metric_grad")
         self.k_dm_rows = backend.kernel("depth_metric.cl", "depth_metric_rows")
         self.dm: list = []  # per view: (weight buffer, S = sum of its valid weights) or None (upload_depth_metric)
         self._dm_last = None  # (row-sum buffer, H, scale) of the last depth_metric call, for read_depth_metric
+        self._cw_last = None  # (row sums, counts, H, W, scale) of the last cross_warp call, for read_cross_warp
         self.bg: list = []  # per view: (mask buffer, float32 2 / count) or None (upload_bg_masks)
         self.real = _F64 if self.fp64 else _F32
         self.l1_wg = 1 if backend.cpu else 64  # L1-only loss work-group (kernels/l1.cl)
@@ -534,6 +539,43 @@ class DeviceTrainer:
         rows, h, scale = self._dm_last
         return float(scale) * float(np.sum(self._read(rows, (h,), _F32).astype(_F64)))
 
+    def cross_warp(self, fr, view: int, partner: int, partner_cam, weight: float, near: float, into=None):
+        """Trainer.cross_warp: kernels/cross_warp.cl's depth cotangent of the frame (a render of
+        training view `view`) from training image `partner` (its camera `partner_cam`) against
+        training image `view`, into the trainer's cw_v_depth buffer (returned), or added into the
+        device buffer `into` (returned); the loss's row sums and valid counts are taken now, from
+        this frame, and stay on the device (`read_cross_warp`)."""
+        from ..reference_cross_warp import CROSS_WARP_ALPHA_MIN, cross_warp_args
+
+        h, w = fr.height, fr.width
+        npx = h * w
+        hm, e = cross_warp_args(fr.camera, partner_cam)
+        scale = _F32(weight / (3.0 * npx)) if npx else _F32(0)
+        geom = (_I32(w), _I32(h), _I32(partner_cam.width), _I32(partner_cam.height), *(_F32(x) for x in hm),
+                *(_F32(x) for x in e), _F32(near), _F32(CROSS_WARP_ALPHA_MIN))
+        imgs = (fr.bufs["out_depth"], fr.bufs["out_alpha"], self.gt[view], self.gt[partner])
+        v = into if into is not None else self.mem.get("pixel", "cw_v_depth", max(npx, 1), 4)
+        rows = self.mem.get("small", "cw_rows", max(h, 1), 4)
+        counts = self.mem.get("small", "cw_counts", max(h, 1), 4)
+        self._launch("cross_warp_rows", self.b.kernel("cross_warp.cl", "cross_warp_rows"), h, *geom, *imgs,
+                     rows, counts)
+        self._launch("cross_warp", self.b.kernel("cross_warp.cl", "cross_warp_grad"), npx, *geom, scale,
+                     _I32(into is not None), *imgs, v)
+        self._cw_last = (rows, counts, h, w, scale)
+        return v
+
+    def read_cross_warp(self) -> dict:
+        """Trainer.read_cross_warp: the last cross_warp call's loss and valid fraction (blocking
+        reads of its H row sums and counts, summed in float64)."""
+        if self._cw_last is None:
+            raise RuntimeError("read_cross_warp before a cross_warp")
+        rows, counts, h, w, scale = self._cw_last
+        if h * w == 0:
+            return {"loss": 0.0, "valid_fraction": 0.0}
+        total = float(np.sum(self._read(rows, (h,), _F32).astype(_F64)))
+        valid = int(np.sum(self._read(counts, (h,), _I32).astype(np.int64)))
+        return {"loss": float(scale) * total, "valid_fraction": valid / (h * w)}
+
     def hold(self, grads: dict) -> dict:
         """Trainer.hold: device copies of the gradient buffers (trainer-owned, so the next
         backward, which reuses the backend's, leaves them alone)."""
@@ -574,10 +616,22 @@ class DeviceTrainer:
         self._launch("opacity_decay", self.k_decay, self.n, _I32(self.n), r(np.log(f)), r(1.0 - f),
                      self.buf("p", "opacity_logits"))
 
-    def regularize(self, grads: dict, shape_pena: float, scale_pena: float, opa_pena: float) -> None:
-        """Trainer.regularize: kernels/regularize.cl adds the penalties' gradients into `grads`."""
+    def regularize(self, grads: dict, shape_pena: float, scale_pena: float, opa_pena: float,
+                   value: bool = False) -> None:
+        """Trainer.regularize: kernels/regularize.cl adds the penalties' gradients into `grads`;
+        value: also their per-chunk sums at the parameters now (regularize_value), left on the
+        device for `read_regularize`."""
+        weights = (shape_pena, scale_pena, opa_pena)
+        if value:
+            self._reg_value = (None, 0, self.n, weights)
         if not (shape_pena or scale_pena or opa_pena) or self.n == 0:
             return
+        if value:
+            chunks = -(-self.n // REG_VALUE_CHUNK)
+            sums = self.mem.get("small", "reg_value", chunks * REG_VALUE_COLS, np.dtype(self.real).itemsize)
+            self._launch("regularize_value", self.k_reg_value, chunks, _I32(self.n), _I32(REG_VALUE_CHUNK),
+                         self.buf("p", "log_scales"), self.buf("p", "opacity_logits"), sums)
+            self._reg_value = (sums, chunks, self.n, weights)
         counts = self.mem.get("small", "reg_counts", 2, 4)
         if opa_pena:
             self.cl.enqueue_fill_buffer(self.queue, counts, _I32(0), 0, 8)
@@ -588,6 +642,25 @@ class DeviceTrainer:
         self._launch("regularize_grads", self.k_reg_grads, self.n, _I32(self.n), self.buf("p", "log_scales"),
                      self.buf("p", "opacity_logits"), counts, r(shape_pena), r(scale_pena), r(opa_pena),
                      grads["log_scales"], grads["opacity_logits"])
+
+    def read_regularize(self) -> float:
+        """Trainer.read_regularize: the last regularize(value=True)'s penalties (a blocking read of
+        its per-chunk sums, added in float64: reference_loss.regularize_value)."""
+        if self._reg_value is None:
+            raise RuntimeError("read_regularize before a regularize(..., value=True)")
+        sums, chunks, n, weights = self._reg_value
+        host = np.zeros((0, REG_VALUE_COLS)) if sums is None else self._read(sums, (chunks, REG_VALUE_COLS), self.real)
+        return regularize_value(host, n, *weights)
+
+    def read_mse(self, fr, view: int) -> float:
+        """Trainer.read_mse: kernels/mse.cl's row sums of the frame's image against training image
+        `view` (one launch and a blocking read of H words), added in float64 / 3HW."""
+        h, w = fr.height, fr.width
+        if h * w == 0:
+            return float("nan")  # numpy's mean of nothing
+        rows = self.mem.get("small", "mse_rows", h, np.dtype(self.real).itemsize)
+        self._launch("mse_rows", self.k_mse_rows, h, _I32(w), _I32(h), fr.bufs["out_rgb"], self.gt[view], rows)
+        return float(np.sum(self._read(rows, (h,), self.real).astype(_F64)) / (3 * h * w))
 
     def accumulate(self, fr) -> None:
         """Trainer.accumulate: kernels/densify_accumulate.cl on the frame's radii and v_proj."""

@@ -1,0 +1,157 @@
+"""Float64 twin of the cross-view photometric term (`cross_warp`; kernels/cross_warp.cl;
+docs/method.md §12), the float32 mirror of the kernel that the host trainer runs, and the kernel's
+camera arguments.
+
+The term, for the training view i of the iteration and a partner training view j != i:
+
+    L = w / (3 H W) * sum over valid pixels p of view i, channels c of |I_j(p') - I_i(p)|_c
+
+z_p = D_p / a_p the depth along the optical axis (D the rendered depth sum z alpha T, a the rendered
+alpha, held constant), X = z_p K_i^-1 (x + 0.5, y + 0.5, 1) in camera i, X_j = R_j R_i^T (X - t_i) + t_j
+in camera j, p' = (K_j X_j / z_j) - 0.5 in pixel indices of view j, I_j view j's training image
+sampled bilinearly at p', I_i view i's training image at p. Valid: a_p >= alpha_min, z_p finite and
+> near, z_j > near, 0 <= p'_x <= W_j - 1 and 0 <= p'_y <= H_j - 1 (the far border uses the last cell,
+fraction 1). The gradient reaches D only (the images are constants):
+
+    dL/dD_p = w / (3 H W) / a_p * sum_c sign(r_c) (dI/du du/dz + dI/dv dv/dz)
+
+with the bilinear cell's slopes (one-sided at integer positions: the cell to the right / below)
+and du/dz = f_x (dX_j,x z_j - X_j,x dz_j) / z_j^2 along the ray (dX_j = R_j R_i^T K_i^-1 q). No
+occlusion test. The normaliser is the constant 3 H W (as the view_warp term's L1, docs/binocular.md):
+the loss is then one fixed function of D, its gradient needs no reduction before it, and a view pair
+that overlaps less pulls less.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+CROSS_WARP_ALPHA_MIN = 0.5  # pixels of lower rendered alpha are left out (their z = D / a is ill-defined)
+
+_F32 = np.float32
+
+
+def relative_pose(cam_i, cam_j) -> tuple[np.ndarray, np.ndarray]:
+    """(R, t), float64, with X_j = R X_i + t: R = R_j R_i^T, t = R_j (C_i - C_j) (exactly 0 when
+    the two centres are the same numbers)."""
+    ri, rj = cam_i.viewmat[:3, :3], cam_j.viewmat[:3, :3]
+    return rj @ ri.T, rj @ (cam_i.center - cam_j.center)
+
+
+def cross_warp_args(cam_i, cam_j) -> tuple[np.ndarray, np.ndarray]:
+    """The kernel's geometry: hm = K_j R K_i^-1 (float32 [9], row-major) and e = K_j t (float32 [3])."""
+    r, t = relative_pose(cam_i, cam_j)
+    ki_inv = np.array([[1.0 / cam_i.fx, 0.0, -cam_i.cx / cam_i.fx], [0.0, 1.0 / cam_i.fy, -cam_i.cy / cam_i.fy],
+                       [0.0, 0.0, 1.0]])
+    return (cam_j.K @ r @ ki_inv).astype(_F32).reshape(9), (cam_j.K @ t).astype(_F32)
+
+
+def cross_warp_fwd_bwd(depth, alpha, image_i, image_j, cam_i, cam_j, weight: float, near: float,
+                       alpha_min: float = CROSS_WARP_ALPHA_MIN):
+    """The term in float64 from the cameras (module docstring). Returns (L, dL/dD [H,W], valid [H,W])."""
+    d = np.asarray(depth, np.float64)
+    a = np.asarray(alpha, np.float64)
+    ii = np.asarray(image_i, np.float64)
+    ij = np.asarray(image_j, np.float64)
+    h, w = d.shape
+    hj, wj = ij.shape[:2]
+    if a.shape != d.shape or ii.shape != (h, w, 3) or ij.shape != (hj, wj, 3):
+        raise ValueError(f"cross_warp: depth {d.shape}, alpha {a.shape}, image_i {ii.shape}, image_j {ij.shape}")
+    if not alpha_min > 0:
+        raise ValueError(f"cross_warp: alpha_min must be > 0, got {alpha_min}")
+    ys, xs = np.mgrid[0:h, 0:w].astype(np.float64)
+    ray = np.stack([(xs + 0.5 - cam_i.cx) / cam_i.fx, (ys + 0.5 - cam_i.cy) / cam_i.fy, np.ones_like(xs)], -1)
+    ok = a >= alpha_min
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+        z = np.where(ok, d / np.where(ok, a, 1.0), np.nan)
+        ok &= np.isfinite(z) & (z > near)
+        z = np.where(ok, z, 1.0)
+        ri, ti = cam_i.viewmat[:3, :3], cam_i.viewmat[:3, 3]
+        rj, tj = cam_j.viewmat[:3, :3], cam_j.viewmat[:3, 3]
+        xw = (z[..., None] * ray - ti) @ ri  # R_i^T (X - t_i), row vectors
+        xj = xw @ rj.T + tj
+        dxj = ray @ (rj @ ri.T).T  # dX_j / dz
+        zj = xj[..., 2]
+        ok &= zj > near
+        zs = np.where(ok, zj, 1.0)
+        u = cam_j.fx * xj[..., 0] / zs + cam_j.cx - 0.5
+        v = cam_j.fy * xj[..., 1] / zs + cam_j.cy - 0.5
+        ok &= (u >= 0) & (u <= wj - 1) & (v >= 0) & (v <= hj - 1) & (wj >= 2) & (hj >= 2)
+        dudz = cam_j.fx * (dxj[..., 0] * zs - xj[..., 0] * dxj[..., 2]) / zs ** 2
+        dvdz = cam_j.fy * (dxj[..., 1] * zs - xj[..., 1] * dxj[..., 2]) / zs ** 2
+    u, v = np.where(ok, u, 0.0), np.where(ok, v, 0.0)
+    x0 = np.minimum(np.floor(u).astype(np.int64), max(wj - 2, 0))
+    y0 = np.minimum(np.floor(v).astype(np.int64), max(hj - 2, 0))
+    fu, fv = (u - x0)[..., None], (v - y0)[..., None]
+    x1, y1 = np.minimum(x0 + 1, wj - 1), np.minimum(y0 + 1, hj - 1)
+    i00, i01, i10, i11 = ij[y0, x0], ij[y0, x1], ij[y1, x0], ij[y1, x1]
+    smp = (1 - fu) * (1 - fv) * i00 + fu * (1 - fv) * i01 + (1 - fu) * fv * i10 + fu * fv * i11
+    gu = (1 - fv) * (i01 - i00) + fv * (i11 - i10)
+    gv = (1 - fu) * (i10 - i00) + fu * (i11 - i01)
+    r = smp - ii
+    scale = float(weight) / (3.0 * h * w)
+    okc = ok[..., None]
+    loss = scale * float(np.sum(np.where(okc, np.abs(r), 0.0)))
+    s = np.sign(r)
+    gz = np.sum(s * (gu * dudz[..., None] + gv * dvdz[..., None]), -1)
+    grad = np.where(ok, scale * gz / np.where(ok, a, 1.0), 0.0)
+    return loss, grad, ok
+
+
+def cross_warp_f32(depth, alpha, image_i, image_j, hm, e, near: float, alpha_min: float, scale):
+    """kernels/cross_warp.cl's float32 operations in its order, vectorised (the host trainer's
+    mirror): (dL/dD [H,W] float32, row sums of |r| [H] float32 (left to right, channels in order),
+    valid pixels per row [H] int64). hm, e: cross_warp_args; scale: float32(w / (3 H W))."""
+    f = _F32
+    d = np.asarray(depth, f)
+    a = np.asarray(alpha, f)
+    ii = np.asarray(image_i, f)
+    ij = np.asarray(image_j, f)
+    h, w = d.shape
+    hj, wj = ij.shape[:2]
+    hm, e = np.asarray(hm, f), np.asarray(e, f)
+    near, amin, scale = f(near), f(alpha_min), f(scale)
+    ys, xs = np.mgrid[0:h, 0:w]
+    qx, qy = xs.astype(f) + f(0.5), ys.astype(f) + f(0.5)
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+        ok = (a >= amin) & (wj >= 2) & (hj >= 2)
+        z = d / a
+        ok &= (z > near) & np.isfinite(z)
+        wv = f(1) / z
+        hx = hm[0] * qx + hm[1] * qy + hm[2]
+        hy = hm[3] * qx + hm[4] * qy + hm[5]
+        hz = hm[6] * qx + hm[7] * qy + hm[8]
+        sx, sy, sz = hx + wv * e[0], hy + wv * e[1], hz + wv * e[2]
+        ok &= (z * sz) > near
+        u = sx / sz - f(0.5)
+        v = sy / sz - f(0.5)
+        ok &= (u >= f(0)) & (u <= f(wj - 1)) & (v >= f(0)) & (v <= f(hj - 1))
+        u, v = np.where(ok, u, f(0)), np.where(ok, v, f(0))
+        x0 = np.minimum(np.floor(u).astype(np.int64), max(wj - 2, 0))
+        y0 = np.minimum(np.floor(v).astype(np.int64), max(hj - 2, 0))
+        fu, fv = u - x0.astype(f), v - y0.astype(f)
+        x1, y1 = np.minimum(x0 + 1, wj - 1), np.minimum(y0 + 1, hj - 1)
+        acc_u = np.zeros((h, w), f)
+        acc_v = np.zeros((h, w), f)
+        r = np.zeros((h, w, 3), f)
+        for c in range(3):
+            i00, i01 = ij[y0, x0, c], ij[y0, x1, c]
+            i10, i11 = ij[y1, x0, c], ij[y1, x1, c]
+            dt, db = i01 - i00, i11 - i10
+            top, bot = i00 + fu * dt, i10 + fu * db
+            rc = (top + fv * (bot - top)) - ii[..., c]
+            r[..., c] = rc
+            sg = np.where(rc > 0, f(1), np.where(rc < 0, f(-1), f(0))).astype(f)
+            acc_u = acc_u + sg * (dt + fv * (db - dt))
+            acc_v = acc_v + sg * (bot - top)
+        k = wv / sz
+        k2 = k * k
+        dudz = (sx * e[2] - e[0] * sz) * k2
+        dvdz = (sy * e[2] - e[1] * sz) * k2
+        gz = acc_u * dudz + acc_v * dvdz
+        g = np.where(ok, scale * (gz / a), f(0)).astype(f)
+        ab = np.where(ok[..., None], np.abs(r), f(0)).astype(f)
+    rows = np.zeros(h, f)
+    for x in range(w):  # left to right, channels in order, as cross_warp_rows
+        for c in range(3):
+            rows = rows + ab[:, x, c]
+    return g, rows, ok.sum(1)

@@ -1,0 +1,411 @@
+"""The cross-view photometric term (kernels/cross_warp.cl; reference_cross_warp.cross_warp_fwd_bwd;
+the cross_warp call of train._Iteration.photometric_pass; docs/method.md §12) against independent
+references: a hand-computed translation case, identical cameras and a pure rotation (no depth
+gradient at all), central differences of the float64 twin and of the loss through the float64
+render, the kernel against the twin (zero-alpha pixels, NaN / infinite / negative depths, points
+behind the partner camera, the far border), the host trainer's float32 mirror against the kernel
+bit for bit, the device engine against the host engine on a short fit, resume, off = no call, the
+options, and Oclgrind."""
+from __future__ import annotations
+
+import types
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from cases import (assert_engines_agree, assert_resumes_bit_identically, dngaussian_fit_case, fit_case, make_camera,
+                   rotation_viewmat)
+from reings.backends import get_backend
+from reings.backends.opencl import quirks
+from reings.backends.reference import render64
+from reings.backends.reference_cross_warp import CROSS_WARP_ALPHA_MIN, cross_warp_args, cross_warp_fwd_bwd
+from reings.state import TrainState
+from reings.train import cross_partner
+from reings.types import Camera, Gaussians
+
+NEAR = 0.01
+
+
+def _moved(cam: Camera, angles=(0.0, 0.0, 0.0), centre_shift=(0.0, 0.0, 0.0)) -> Camera:
+    """`cam` rotated by `angles` (rotation_viewmat's, about its own centre) and its centre moved by
+    `centre_shift` (world units)."""
+    r = rotation_viewmat(angles, (0, 0, 0))[:3, :3] @ cam.viewmat[:3, :3]
+    c = cam.center + np.asarray(centre_shift, np.float64)
+    v = np.eye(4)
+    v[:3, :3], v[:3, 3] = r, -r @ c
+    return Camera(cam.K.copy(), v, cam.width, cam.height)
+
+
+def _scale(w, h, weight):
+    return np.float32(weight / (3.0 * h * w))
+
+
+def _run(device, d, a, ii, ij, ci, cj, weight, into=None):
+    """The device trainer's cross_warp on these maps: (dL/dD, read_cross_warp())."""
+    import pyopencl as cl
+
+    h, w = d.shape
+    tr = get_backend(device).trainer([ii, ij], engine="device")
+    mf = cl.mem_flags.READ_WRITE | cl.mem_flags.COPY_HOST_PTR
+    ctx = tr.handle.context
+    fr = types.SimpleNamespace(width=w, height=h, camera=ci,
+                               bufs={"out_depth": cl.Buffer(ctx, mf, hostbuf=np.ascontiguousarray(d, np.float32)),
+                                     "out_alpha": cl.Buffer(ctx, mf, hostbuf=np.ascontiguousarray(a, np.float32))})
+    bb = None if into is None else cl.Buffer(ctx, mf, hostbuf=np.ascontiguousarray(into, np.float32))
+    g = tr._read(tr.cross_warp(fr, 0, 1, cj, weight, NEAR, into=bb), (h, w), np.float32)
+    return g, tr.read_cross_warp()
+
+
+def _host(d, a, ii, ij, ci, cj, weight, into=None):
+    """The host trainer's cross_warp (the float32 mirror) on these maps."""
+    h, w = d.shape
+    tr = get_backend("reference").trainer([ii, ij], engine="host")
+    fr = types.SimpleNamespace(width=w, height=h, cam=ci, out=types.SimpleNamespace(depth=d, alpha=a))
+    g = tr.cross_warp(fr, 0, 1, cj, weight, NEAR, into=into)
+    return g, tr.read_cross_warp()
+
+
+def _exact(device) -> bool:
+    return quirks.is_pocl(get_backend(device).handle.device)  # NVIDIA's float division is not IEEE's
+
+
+# {{{ the float64 twin
+
+def test_twin_hand_case_translation():
+    """Camera j = camera i moved by b along its x axis, constant depth z, I_j a ramp in x, I_i = 0:
+    p' = p - f b / z, r_c = k_c (x - f b / z), dL/dD = scale / a * sum_c k_c f b / z^2."""
+    h, w, f, b, z = 6, 12, 10.0, 0.3, 2.0  # shift f b / z = 1.5 px
+    ci = make_camera(w, h, f=f)
+    cj = _moved(ci, centre_shift=(b, 0, 0))
+    k = np.array([0.01, 0.02, 0.03])
+    ij = np.broadcast_to(np.arange(w)[None, :, None] * k, (h, w, 3)).copy()
+    ii = np.zeros((h, w, 3))
+    a = np.full((h, w), 0.8)
+    a[0, 0] = 0.4  # below alpha_min: out
+    d = a * z
+    loss, g, ok = cross_warp_fwd_bwd(d, a, ii, ij, ci, cj, 2.0, NEAR)
+    xs = np.arange(w)
+    want_ok = np.broadcast_to(xs - 1.5 >= 0, (h, w)).copy()
+    want_ok[0, 0] = False
+    np.testing.assert_array_equal(ok, want_ok)
+    s = 2.0 / (3 * h * w)
+    r = (xs - 1.5)[None, :, None] * k
+    assert loss == pytest.approx(s * np.sum(np.where(want_ok[..., None], np.abs(r), 0)), rel=1e-12)
+    want_g = np.where(want_ok, s / a * np.sum(k) * f * b / z ** 2, 0)
+    np.testing.assert_allclose(g, want_g, rtol=1e-10, atol=1e-15)
+
+
+def test_twin_identical_and_rotation_only_cameras():
+    rng = np.random.default_rng(1)
+    h, w = 9, 13
+    ci = make_camera(w, h, viewmat=rotation_viewmat())
+    d = rng.uniform(1, 4, (h, w))
+    a = np.ones((h, w))
+    ii, ij = rng.uniform(0, 1, (h, w, 3)), rng.uniform(0, 1, (h, w, 3))
+    loss, g, ok = cross_warp_fwd_bwd(d, a, ii, ij, ci, ci, 1.0, NEAR)
+    # every pixel reprojects onto itself; those of the image's edge land on the border, in or out
+    # by a float64 rounding (the kernel's exact arithmetic keeps them all: the kernel tests)
+    assert ok[1:-1, 1:-1].all()
+    assert loss == pytest.approx(np.sum(np.where(ok[..., None], np.abs(ij - ii), 0)) / (3 * h * w), rel=1e-9)
+    assert np.abs(g).max() < 1e-12
+    ro = _moved(ci, angles=(0.05, -0.04, 0.1))  # same centre: no translation
+    _, g, ok = cross_warp_fwd_bwd(d, a, ii, ij, ci, ro, 1.0, NEAR)
+    assert ok.any() and np.abs(g).max() < 1e-12
+
+
+def test_twin_gradient_fd():
+    """Central differences of the twin's loss along random directions of the depth: each pixel's
+    term depends on its own depth only, smoothly away from the L1 kink and the bilinear cell edges
+    (which a 1e-7 step crosses with negligible probability on these random maps)."""
+    rng = np.random.default_rng(3)
+    h, w = 14, 18
+    ci = make_camera(w, h, viewmat=rotation_viewmat())
+    cj = _moved(ci, angles=(0.02, 0.05, -0.03), centre_shift=(0.4, -0.1, 0.05))
+    d0 = rng.uniform(1.5, 4, (h, w))
+    a = rng.uniform(0.3, 1, (h, w))
+    d = d0 * a
+    ii, ij = rng.uniform(0, 1, (h, w, 3)), rng.uniform(0, 1, (h, w, 3))
+    loss, g, ok = cross_warp_fwd_bwd(d, a, ii, ij, ci, cj, 0.7, NEAR)
+    assert ok.sum() > 0.3 * h * w and (~ok).sum() > 0 and np.abs(g[ok]).max() > 0
+    e = 1e-7
+    for trial in range(5):
+        v = rng.normal(size=(h, w))
+        fd = (cross_warp_fwd_bwd(d + e * v, a, ii, ij, ci, cj, 0.7, NEAR)[0]
+              - cross_warp_fwd_bwd(d - e * v, a, ii, ij, ci, cj, 0.7, NEAR)[0]) / (2 * e)
+        an = float(np.sum(g * v))
+        assert fd == pytest.approx(an, rel=1e-5, abs=1e-10), trial
+# }}}
+
+
+# {{{ the kernel against the twin and the host mirror
+
+def _hard_maps(rng, h, w):
+    d0 = rng.uniform(1.0, 5.0, (h, w)).astype(np.float32)
+    a = rng.uniform(0.2, 1.0, (h, w)).astype(np.float32)
+    a[0, :3] = [0.0, CROSS_WARP_ALPHA_MIN, np.nextafter(np.float32(CROSS_WARP_ALPHA_MIN), np.float32(0))]
+    d = (d0 * a).astype(np.float32)
+    d[1, :4] = [np.nan, np.inf, -1.0, 0.0]  # not a depth / behind camera i
+    ii = rng.uniform(0, 1, (h, w, 3)).astype(np.float32)
+    ij = rng.uniform(0, 1, (h, w, 3)).astype(np.float32)
+    return d, a, ii, ij
+
+
+def test_kernel_matches_twin_and_host_mirror(device):
+    rng = np.random.default_rng(5)
+    h, w = 37, 53
+    d, a, ii, ij = _hard_maps(rng, h, w)
+    ci = make_camera(w, h, viewmat=rotation_viewmat())
+    cj = _moved(ci, angles=(0.03, 0.08, -0.02), centre_shift=(0.6, -0.2, 0.1))
+    got, st = _run(device, d, a, ii, ij, ci, cj, 0.3)
+    mirror, hst = _host(d, a, ii, ij, ci, cj, 0.3)
+    loss64, g64, ok = cross_warp_fwd_bwd(d, a, ii, ij, ci, cj, 0.3, NEAR)
+    assert 0.2 < ok.mean() < 0.95
+    assert not ok[0, 0] and ok[0, 1] == (cross_warp_fwd_bwd(d, a, ii, ij, ci, cj, 0.3, NEAR)[2][0, 1])
+    assert not ok[0, 2] and not ok[1, :4].any()
+    nz = got != 0
+    assert not np.any(nz & ~ok)  # no cotangent outside the twin's valid set
+    # the float32 kernel against the float64 twin: equal validity and gradient but for the odd
+    # pixel whose float32 position rounds across a cell edge or the border
+    assert np.mean(nz == (ok & (g64 != 0))) > 0.99
+    close = np.isclose(got, g64, rtol=1e-3, atol=1e-4 * np.abs(g64).max())
+    assert close.mean() > 0.99
+    assert st["loss"] == pytest.approx(loss64, rel=1e-3)
+    assert st["valid_fraction"] == pytest.approx(ok.mean(), abs=0.01)
+    cmp = np.testing.assert_array_equal if _exact(device) else (lambda x, y: np.testing.assert_allclose(x, y, rtol=1e-5))
+    cmp(got, mirror)  # the host trainer's float32 mirror, bit for bit on PoCL
+    assert st["valid_fraction"] == hst["valid_fraction"]
+    assert st["loss"] == pytest.approx(hst["loss"], rel=1e-6)
+    base = rng.normal(size=(h, w)).astype(np.float32)
+    acc, _ = _run(device, d, a, ii, ij, ci, cj, 0.3, into=base)
+    np.testing.assert_array_equal(acc, base + got)
+    cmp(_host(d, a, ii, ij, ci, cj, 0.3, into=base.copy())[0], base + mirror)
+
+
+def test_kernel_identical_cameras_and_border(device):
+    """Identical cameras: every pixel valid (the far row and column lie exactly on the border),
+    the residual is I_j(p) - I_i(p) exactly, and the depth gradient is exactly 0."""
+    rng = np.random.default_rng(7)
+    h, w = 11, 17
+    ci = make_camera(w, h, viewmat=rotation_viewmat())
+    d = rng.uniform(1, 4, (h, w)).astype(np.float32)
+    a = np.ones((h, w), np.float32)
+    ii, ij = rng.uniform(0, 1, (h, w, 3)).astype(np.float32), rng.uniform(0, 1, (h, w, 3)).astype(np.float32)
+    hm, e = cross_warp_args(ci, ci)
+    np.testing.assert_array_equal(e, 0)
+    g, st = _run(device, d, a, ii, ij, ci, ci, 0.9)
+    assert st["valid_fraction"] == 1.0 and not np.any(g)
+    rows = np.zeros(h, np.float32)
+    for x in range(w):
+        for c in range(3):
+            rows = rows + np.abs(ij[:, x, c] - ii[:, x, c])
+    want = float(_scale(w, h, 0.9)) * float(np.sum(rows.astype(np.float64)))
+    assert st["loss"] == want  # the residuals of I_j(p) - I_i(p) themselves, summed in the kernel's order
+    assert _host(d, a, ii, ij, ci, ci, 0.9)[1]["loss"] == want
+    # a pure rotation (both centres at the origin, so t = 0 exactly): p' moves, but not with the depth
+    c0 = make_camera(w, h, viewmat=rotation_viewmat(t=(0, 0, 0)))
+    ro = _moved(c0, angles=(0.04, -0.06, 0.1))
+    np.testing.assert_array_equal(cross_warp_args(c0, ro)[1], 0)
+    g, st = _run(device, d, a, ii, ij, c0, ro, 0.9)
+    assert 0 < st["valid_fraction"] < 1 and not np.any(g)
+    loss64, _, _ = cross_warp_fwd_bwd(d, a, ii, ij, c0, ro, 0.9, NEAR)
+    assert st["loss"] == pytest.approx(loss64, rel=1e-3)
+
+
+def test_kernel_behind_the_partner_and_degenerate_partner(device):
+    rng = np.random.default_rng(9)
+    h, w = 8, 10
+    ci = make_camera(w, h)
+    d = rng.uniform(1, 3, (h, w)).astype(np.float32)
+    a = np.ones((h, w), np.float32)
+    ii, ij = rng.uniform(0, 1, (h, w, 3)).astype(np.float32), rng.uniform(0, 1, (h, w, 3)).astype(np.float32)
+    back = _moved(ci, angles=(0.0, np.pi, 0.0))  # looks the other way from the same centre
+    g, st = _run(device, d, a, ii, ij, ci, back, 1.0)
+    assert st == {"loss": 0.0, "valid_fraction": 0.0} and not np.any(g)
+    assert not cross_warp_fwd_bwd(d, a, ii, ij, ci, back, 1.0, NEAR)[2].any()
+    ahead = _moved(ci, centre_shift=(0, 0, 5.0))  # in front of every point: behind it, z_j < 0
+    g, st = _run(device, d, a, ii, ij, ci, ahead, 1.0)
+    assert st["valid_fraction"] == 0.0 and not np.any(g)
+    # a one-column partner image has no bilinear cell: nothing is valid
+    one = Camera(ci.K.copy(), ci.viewmat.copy(), 1, h)
+    g1, st1 = _host(d, a, ii, ij[:, :1].copy(), ci, one, 1.0)
+    assert st1["valid_fraction"] == 0.0 and not np.any(g1)
+# }}}
+
+
+def test_gradient_through_the_render_fd():
+    """dL/d opacity logits and dL/d means of the term through the float64 render (host trainer on
+    the reference backend) against central differences of the twin's loss (alpha held). The
+    means' differences are noisy (the Gaussians are float32, and the loss is piecewise linear in the
+    sample position: bilinear cells, the L1), so they get a loose bound; the logits a tight one."""
+    import reings
+
+    scene = reings.make_procedural_scene(n_views=2, width=24, height=20, supersample=1)
+    cam, cam2 = scene.cameras
+    rng = np.random.default_rng(2)
+    n = 14
+    pts = cam.center + cam.viewmat[2, :3] * rng.uniform(3, 4, (n, 1)) + cam.viewmat[0, :3] * rng.uniform(-1, 1, (n, 1)) \
+        + cam.viewmat[1, :3] * rng.uniform(-0.8, 0.8, (n, 1))
+    g = Gaussians(pts.astype(np.float32), np.tile(np.float32([1, 0, 0, 0]), (n, 1)), np.full((n, 3), np.log(0.4), np.float32),
+                  rng.uniform(1, 3, n).astype(np.float32), rng.normal(0, 0.5, (n, 1, 3)).astype(np.float32))
+    tr = get_backend("reference").trainer(list(scene.images), engine="host")
+    tr.upload(TrainState.from_gaussians(g, 0))
+    fr = tr.forward(cam, 1, (0, 0, 0), NEAR)
+    vd = tr.cross_warp(fr, 0, 1, cam2, 1.0, NEAR)
+    assert tr.read_cross_warp()["valid_fraction"] > 0.2 and np.abs(vd).max() > 0
+    gr = tr.backward(fr, None, vd, None, ("means", "opacity_logits"))
+    alpha0 = np.asarray(fr.out.alpha, np.float64)
+
+    def loss(gg):
+        out = render64(gg, cam)[2]
+        return cross_warp_fwd_bwd(out.depth, alpha0, scene.images[0], scene.images[1], cam, cam2, 1.0, NEAR)[0]
+
+    for field, tol in (("opacity_logits", 2e-2), ("means", 0.3)):
+        x0 = np.asarray(getattr(g, field), np.float64)
+        for trial in range(3):
+            v = rng.normal(size=x0.shape)
+            v /= np.linalg.norm(v)
+            e = 1e-4
+            ends = [loss(replace(g, **{field: x0 + s * e * v})) for s in (1, -1)]
+            fd = (ends[0] - ends[1]) / (2 * e)
+            an = float(np.sum(np.asarray(gr[field], np.float64) * v))
+            assert abs(fd - an) <= tol * abs(an) + 1e-6, (field, fd, an)
+
+
+# {{{ in the fit
+
+@pytest.fixture(scope="module")
+def case():
+    scene, init, cfg = dngaussian_fit_case(n_views=3, width=64, height=48, n_points=300, sh_degree=1, iterations=21,
+                                           soft_depth_from=3, densify_until=25)
+    return scene, init, replace(cfg, loss=replace(cfg.loss, cross_warp=0.5, cross_warp_from=3))
+
+
+def test_partner_draw():
+    for n in (2, 3, 5):
+        for view in range(n):
+            ps = [cross_partner(0, it, view, n) for it in range(1, 200)]
+            assert all(0 <= p < n and p != view for p in ps)
+            assert len(set(ps)) == n - 1
+    assert cross_partner(4, 17, 1, 5) == cross_partner(4, 17, 1, 5)
+
+
+def test_fit_device_matches_host(device, case):
+    host = fit_case(case, device, engine="host")
+    dev = fit_case(case, device, engine="device")
+    assert [it for it, *_ in host.history.cross_warp] == [5, 10, 15, 20, 21]
+    for (_, lh, vh), (_, ld, vd) in zip(host.history.cross_warp, dev.history.cross_warp):
+        assert lh > 0 and 0 < vh <= 1
+        np.testing.assert_allclose([ld, vd], [lh, vh], rtol=1e-5)
+    assert_engines_agree(device, host.state, dev.state, "cross_warp")
+
+
+def test_fit_off_never_calls_the_term_and_on_changes_the_result(device, case, monkeypatch):
+    scene, init, cfg = case
+    on = fit_case(case, device).state.params["means"]
+    off_cfg = replace(cfg, loss=replace(cfg.loss, cross_warp=0.0))
+    from reings.backends.opencl.trainer import DeviceTrainer
+
+    def boom(*a, **k):
+        raise AssertionError("cross_warp called with weight 0")
+
+    monkeypatch.setattr(DeviceTrainer, "cross_warp", boom)
+    off = fit_case((scene, init, off_cfg), device)
+    assert not off.history.cross_warp
+    p = off.state.params["means"]
+    assert p.shape != on.shape or np.abs(p - on).max() > 1e-5
+    # weight 0 with any start is the default config's fit, bit for bit
+    monkeypatch.undo()
+    dflt = fit_case((scene, init, replace(cfg, loss=replace(cfg.loss, cross_warp=0.0, cross_warp_from=1))), device)
+    np.testing.assert_array_equal(dflt.state.params["means"], p)
+
+
+def test_fit_resume_is_bit_identical(device, case, tmp_path):
+    """Stopped at 17, last checkpoint at 15: inside the term's span."""
+    ref, res = assert_resumes_bit_identically(case, device, tmp_path, stop_at=17)
+    assert [tuple(x) for x in res.history.cross_warp] == [tuple(x) for x in ref.history.cross_warp]
+    assert ref.history.cross_warp
+
+
+def test_bad_weight_is_refused(case):
+    scene, init, cfg = case
+    for bad in (-1.0, float("nan"), float("inf")):
+        with pytest.raises(ValueError, match="cross_warp"):
+            fit_case((scene, init, replace(cfg, loss=replace(cfg.loss, cross_warp=bad))), "reference")
+# }}}
+
+
+def test_options_and_settings():
+    from reings.cli import build_parser, config_from_args
+    from reings.config import RunConfig
+    from reings.evaluate import _ABSENT_WHEN_OFF
+    from reings.pipeline import run_settings
+
+    c = config_from_args(build_parser().parse_args(["run", "--cross-warp", "0.1", "--cross-warp-start", "0.25"]))
+    assert c.cross_warp == 0.1 and c.cross_warp_start == 0.25
+    assert RunConfig().cross_warp == 0.0 and RunConfig().cross_warp_start == 0.0
+    s = run_settings(RunConfig(depth_prior="none").resolved(), "llff")
+    assert "cross_warp" not in s and "cross_warp_start" not in s  # absent when off
+    s = run_settings(RunConfig(depth_prior="none", cross_warp=0.1).resolved(), "llff")
+    assert s["cross_warp"] == 0.1 and "cross_warp_start" not in s
+    s = run_settings(RunConfig(depth_prior="none", cross_warp=0.1, cross_warp_start=0.5).resolved(), "llff")
+    assert s["cross_warp_start"] == 0.5
+    assert "cross_warp" not in run_settings(RunConfig(method="dngaussian", cross_warp=0.1).resolved(), "llff")
+    assert "cross_warp" in _ABSENT_WHEN_OFF
+    with pytest.raises(ValueError, match="cross_warp"):
+        RunConfig(cross_warp=-0.5)
+    with pytest.raises(ValueError, match="cross_warp_start"):
+        RunConfig(cross_warp_start=1.0)
+
+
+def test_run_recipe_sets_the_term():
+    """RunContext.run_recipe puts the weight and the start (fraction of the fit) into the reings
+    fits' LossConfig, and nothing for the baselines."""
+    from reings.config import RunConfig
+    from reings.pipeline import RunContext, baseline_recipe
+
+    for method, want in (("reings", 0.2), ("dngaussian", 0.0)):
+        cfg = RunConfig(method=method, depth_prior="none", cross_warp=0.2, cross_warp_start=0.5, view_warp=0.0)
+        ctx = RunContext.__new__(RunContext)
+        ctx.cfg, ctx.family, ctx.smooth_w = cfg, "llff", None
+        r = ctx.run_recipe(baseline_recipe("dngaussian", 100, 0))
+        assert r.loss.cross_warp == want
+        if want:
+            assert r.loss.cross_warp_from == 50
+
+
+_OCLGRIND_SCRIPT = """
+import types
+import numpy as np
+import pyopencl as cl
+from reings.backends import get_backend
+from reings.types import Camera
+h, w = 5, 7
+rng = np.random.default_rng(0)
+K = np.array([[7.0, 0, 3.5], [0, 7.0, 2.5], [0, 0, 1]])
+ci = Camera(K, np.eye(4), w, h)
+v = np.eye(4); v[0, 3] = -0.3
+cj = Camera(K, v, w, h)
+a = rng.uniform(0, 1, (h, w)).astype(np.float32); a[0, 0] = 0
+d = (a * rng.uniform(1, 3, (h, w))).astype(np.float32); d[1, 0] = np.nan; d[1, 1] = -1
+ii = rng.uniform(0, 1, (h, w, 3)).astype(np.float32)
+ij = rng.uniform(0, 1, (h, w, 3)).astype(np.float32)
+tr = get_backend("oclgrind").trainer([ii, ij], engine="device")
+mf = cl.mem_flags.READ_WRITE | cl.mem_flags.COPY_HOST_PTR
+fr = types.SimpleNamespace(width=w, height=h, camera=ci,
+                           bufs={"out_depth": cl.Buffer(tr.handle.context, mf, hostbuf=d),
+                                 "out_alpha": cl.Buffer(tr.handle.context, mf, hostbuf=a)})
+g = tr._read(tr.cross_warp(fr, 0, 1, cj, 0.5, 0.01), (h, w), np.float32)
+assert np.all(np.isfinite(g)) and g[0, 0] == 0 and g[1, 0] == 0 and g[1, 1] == 0
+st = tr.read_cross_warp()
+assert np.isfinite(st["loss"]) and 0 < st["valid_fraction"] < 1
+print("ok")
+"""
+
+
+@pytest.mark.oclgrind
+def test_oclgrind_checks():
+    """cross_warp_grad and cross_warp_rows, with invalid pixels, under Oclgrind's checks."""
+    from oclgrind_util import check_script
+
+    check_script(_OCLGRIND_SCRIPT)
