@@ -29,7 +29,9 @@
  *                  joins the view_warp / depth_metric cotangent in one backward); each pixel
  *                  writes only its own cotangent: no atomics
  * cross_warp_rows  global (H): per row the float32 sum of |r_c| over its valid pixels, left to
- *                  right, channels in order, and the count of its valid pixels (logging only)
+ *                  right, channels in order, and the count of its valid pixels; launched only
+ *                  when the loss is read (Trainer.read_cross_warp, logging iterations), on the
+ *                  same frame buffers, which hold until the next forward
  */
 #pragma OPENCL FP_CONTRACT OFF
 

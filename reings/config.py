@@ -151,8 +151,7 @@ class LossConfig:
                                  "the training image and another training view's image, sampled where the "
                                  "photometric pass's rendered depth reprojects each pixel (gradient to the depth "
                                  "only); 0 = off",
-                            check=lambda v: None if v >= 0 and v == v and v != float("inf")
-                            else f"must be >= 0 and finite, got {v}")
+                            check=finite_nonneg)
     cross_warp_from: int = opt(1, "first iteration of the cross_warp term")
     shape_pena: float = opt(0.0, "weight of mean(max scale / min scale)")
     scale_pena: float = opt(0.0, "weight of mean(max scale^2)")
@@ -510,14 +509,17 @@ class OutputConfig:
     lpips: bool = opt(True, "compute LPIPS (and AVGE) on the test views")
     eval_every: int | None = opt(None, "test-PSNR probe every N iterations for the PSNR-vs-seconds plot "
                                        "(none: about 15 per stage; 0: off)", check=at_least(0), metavar="N")
-    checkpoint_every: int = opt(250, "rewrite the running stage's checkpoint every N iterations", check=at_least(1),
-                                metavar="N")
+    checkpoint_every: int = opt(250, "rewrite the running stage's checkpoint at every N-th iteration that is at "
+                                     "least --checkpoint-seconds after its last one (the stage's end always)",
+                                check=at_least(1), metavar="N")
     # issue 15: a checkpoint is a download of the state and a write of ~16 MB at 57k Gaussians (25 ms on
     # 2 PoCL cores), and a paper run wrote 72. 60 s: an H100 paper run (stages of 30-45 s) writes the 3
-    # stage ends only; a 40-minute CPU run (250 iterations ~33 s) every 500 iterations, a kill losing ~1 min
+    # stage ends only; a 40-minute CPU run (250 iterations ~33 s) every 500 iterations. A kill loses at
+    # most about the floor plus one checkpoint_every interval (~60 + 33 s there)
     checkpoint_seconds: float = opt(60.0, "write the checkpoint at a multiple of checkpoint_every only when at least S "
-                                          "seconds have passed since the stage's last one (or its start); the end "
-                                          "of a stage is always checkpointed; 0: at every multiple",
+                                          "seconds have passed since the stage's last one (or since the fit's start "
+                                          "or resume); the end of a stage is always checkpointed; a kill loses at "
+                                          "most about S plus one checkpoint_every interval; 0: at every multiple",
                                     check=finite_nonneg, metavar="S")
     profile: bool = opt(False, "record the wall seconds of every training phase (photometric, depth and background "
                                "passes, the view_warp term's renders and kernels, Adam, densification, test-PSNR "

@@ -711,6 +711,10 @@ def _prepare(cfg: RunConfig, backend, prior, overwrite: bool, quiet: bool, scene
         log(f"[{cfg.label}] note: depth_metric applies to the reings fits only; ignored")
     if cfg.cross_warp and cfg.method != "reings":
         log(f"[{cfg.label}] note: cross_warp applies to the reings fits only; ignored")
+    elif cfg.cross_warp and len(train) < 2:
+        log(f"[{cfg.label}] note: cross_warp needs a partner view: {len(train)} training view; ignored")
+    if cfg.cross_warp_start and not cfg.cross_warp:
+        log(f"[{cfg.label}] note: cross_warp_start without cross_warp; ignored")
 
     t = time.perf_counter()
     confidences = None  # per view [H, W] in [0, 1] (the stereo prior's) or None

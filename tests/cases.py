@@ -383,3 +383,20 @@ def assert_resumes_bit_identically(case, device: str, tmp_path, stop_at: int):
     np.testing.assert_array_equal(res.history.loss, ref.history.loss)
     assert [tuple(x) for x in res.history.densify] == [tuple(x) for x in ref.history.densify]
     return ref, res
+
+
+def assert_fd_along_random_directions(loss, g, grads, fields, rng, trials: int = 3, eps: float = 1e-4) -> None:
+    """Central differences of `loss` (Gaussians -> float) at `g` along `trials` random unit
+    directions (drawn from `rng`) of each field, against the analytic gradient `grads[field]`
+    projected on them: |fd - an| <= tol |an| + 1e-6 for each (field, tol) of `fields`, in order."""
+    from dataclasses import replace
+
+    for field, tol in fields:
+        x0 = np.asarray(getattr(g, field), np.float64)
+        for _ in range(trials):
+            v = rng.normal(size=x0.shape)
+            v /= np.linalg.norm(v)
+            ends = [loss(replace(g, **{field: x0 + s * eps * v})) for s in (1, -1)]
+            fd = (ends[0] - ends[1]) / (2 * eps)
+            an = float(np.sum(np.asarray(grads[field], np.float64) * v))
+            assert abs(fd - an) <= tol * abs(an) + 1e-6, (field, fd, an)

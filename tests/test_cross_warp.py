@@ -14,8 +14,8 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from cases import (assert_engines_agree, assert_resumes_bit_identically, dngaussian_fit_case, fit_case, make_camera,
-                   rotation_viewmat)
+from cases import (assert_engines_agree, assert_fd_along_random_directions, assert_resumes_bit_identically,
+                   dngaussian_fit_case, fit_case, make_camera, rotation_viewmat)
 from reings.backends import get_backend
 from reings.backends.opencl import quirks
 from reings.backends.reference import render64
@@ -161,8 +161,7 @@ def test_kernel_matches_twin_and_host_mirror(device):
     mirror, hst = _host(d, a, ii, ij, ci, cj, 0.3)
     loss64, g64, ok = cross_warp_fwd_bwd(d, a, ii, ij, ci, cj, 0.3, NEAR)
     assert 0.2 < ok.mean() < 0.95
-    assert not ok[0, 0] and ok[0, 1] == (cross_warp_fwd_bwd(d, a, ii, ij, ci, cj, 0.3, NEAR)[2][0, 1])
-    assert not ok[0, 2] and not ok[1, :4].any()
+    assert not ok[0, 0] and not ok[0, 2] and not ok[1, :4].any()  # alpha 0 / below alpha_min, bad depths
     nz = got != 0
     assert not np.any(nz & ~ok)  # no cotangent outside the twin's valid set
     # the float32 kernel against the float64 twin: equal validity and gradient but for the odd
@@ -180,6 +179,29 @@ def test_kernel_matches_twin_and_host_mirror(device):
     acc, _ = _run(device, d, a, ii, ij, ci, cj, 0.3, into=base)
     np.testing.assert_array_equal(acc, base + got)
     cmp(_host(d, a, ii, ij, ci, cj, 0.3, into=base.copy())[0], base + mirror)
+
+
+def test_alpha_min_is_inclusive(device):
+    """A pixel of alpha exactly CROSS_WARP_ALPHA_MIN that reprojects inside the partner image is
+    valid (the twin's mask) and gets a cotangent from the kernel; one of the next float32 below it
+    (same depth z = D / a) is invalid and gets none."""
+    rng = np.random.default_rng(11)
+    h, w = 16, 20
+    ci = make_camera(w, h, viewmat=rotation_viewmat())
+    cj = _moved(ci, centre_shift=(0.05, 0.02, 0.0))
+    amin = np.float32(CROSS_WARP_ALPHA_MIN)
+    below = np.nextafter(amin, np.float32(0), dtype=np.float32)
+    a = np.ones((h, w), np.float32)
+    a[8, 10], a[8, 11] = amin, below
+    d = (np.float32(2) * a).astype(np.float32)  # z = 2 exactly everywhere
+    ii, ij = rng.uniform(0, 1, (h, w, 3)).astype(np.float32), rng.uniform(0, 1, (h, w, 3)).astype(np.float32)
+    _, _, ok = cross_warp_fwd_bwd(d, a, ii, ij, ci, cj, 1.0, NEAR)
+    assert ok[8, 10] and not ok[8, 11] and ok[8, 12]  # [8, 12]: alpha 1, inside as well
+    got, _ = _run(device, d, a, ii, ij, ci, cj, 1.0)
+    assert got[8, 10] != 0 and got[8, 12] != 0
+    assert got[8, 11] == 0
+    mirror, _ = _host(d, a, ii, ij, ci, cj, 1.0)
+    assert mirror[8, 10] != 0 and mirror[8, 11] == 0
 
 
 def test_kernel_identical_cameras_and_border(device):
@@ -260,16 +282,7 @@ def test_gradient_through_the_render_fd():
         out = render64(gg, cam)[2]
         return cross_warp_fwd_bwd(out.depth, alpha0, scene.images[0], scene.images[1], cam, cam2, 1.0, NEAR)[0]
 
-    for field, tol in (("opacity_logits", 2e-2), ("means", 0.3)):
-        x0 = np.asarray(getattr(g, field), np.float64)
-        for trial in range(3):
-            v = rng.normal(size=x0.shape)
-            v /= np.linalg.norm(v)
-            e = 1e-4
-            ends = [loss(replace(g, **{field: x0 + s * e * v})) for s in (1, -1)]
-            fd = (ends[0] - ends[1]) / (2 * e)
-            an = float(np.sum(np.asarray(gr[field], np.float64) * v))
-            assert abs(fd - an) <= tol * abs(an) + 1e-6, (field, fd, an)
+    assert_fd_along_random_directions(loss, g, gr, (("opacity_logits", 2e-2), ("means", 0.3)), rng)
 
 
 # {{{ in the fit
@@ -298,6 +311,26 @@ def test_fit_device_matches_host(device, case):
         assert lh > 0 and 0 < vh <= 1
         np.testing.assert_allclose([ld, vd], [lh, vh], rtol=1e-5)
     assert_engines_agree(device, host.state, dev.state, "cross_warp")
+
+
+def test_fit_sums_the_loss_only_when_logged(device, case, monkeypatch):
+    """cross_warp_rows (the loss's row sums and valid counts) runs once per logging iteration of
+    the term, from read_cross_warp, never on the other iterations; the gradient kernel on each."""
+    from reings.backends.opencl.trainer import DeviceTrainer
+
+    stages = []
+    launch = DeviceTrainer._launch
+
+    def counting(self, stage, *a):
+        stages.append(stage)
+        return launch(self, stage, *a)
+
+    monkeypatch.setattr(DeviceTrainer, "_launch", counting)
+    res = fit_case(case, device, engine="device")
+    logged = [it for it, *_ in res.history.cross_warp]
+    assert logged == [5, 10, 15, 20, 21]
+    assert stages.count("cross_warp_rows") == len(logged)
+    assert stages.count("cross_warp") == case[2].iterations - case[2].loss.cross_warp_from + 1
 
 
 def test_fit_off_never_calls_the_term_and_on_changes_the_result(device, case, monkeypatch):

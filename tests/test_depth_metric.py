@@ -12,7 +12,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from cases import assert_engines_agree, dngaussian_fit_case
+from cases import assert_engines_agree, assert_fd_along_random_directions, dngaussian_fit_case
 from reings.backends import get_backend
 from reings.backends.reference import render64
 from reings.backends.reference_loss import depth_metric_fwd_bwd, depth_metric_scale, depth_metric_valid
@@ -143,16 +143,7 @@ def test_gradient_through_the_render_fd():
         out = render64(gg, cam)[2]
         return depth_metric_fwd_bwd(out.depth, alpha0, target, conf, 1.0)[0]
 
-    for field in ("means", "opacity_logits"):
-        x0 = np.asarray(getattr(g, field), np.float64)
-        for trial in range(3):
-            v = rng.normal(size=x0.shape)
-            v /= np.linalg.norm(v)
-            e = 1e-4
-            ends = [loss(replace(g, **{field: x0 + s * e * v})) for s in (1, -1)]
-            fd = (ends[0] - ends[1]) / (2 * e)
-            an = float(np.sum(np.asarray(gr[field], np.float64) * v))
-            assert abs(fd - an) <= 2e-2 * abs(an) + 1e-6, (field, fd, an)
+    assert_fd_along_random_directions(loss, g, gr, (("means", 2e-2), ("opacity_logits", 2e-2)), rng)
 
 
 def test_fit_with_depth_metric_device_matches_host(device):

@@ -1,10 +1,12 @@
 """kernels/mse.cl (the train PSNR's mean squared error, `Trainer.read_mse`) against its float64 twin
-reference_loss.mse_rows / mse, and both trainers' read_mse against the formula the loop used before
-the error was reduced on the device (numpy float64 over the read-back image).
+reference_loss.mse_rows / mse, and the twin, the kernel's row sums and both trainers' read_mse against
+an independent reference (per-pixel Python float differences, exact sums by math.fsum) and hand cases.
 
 Tolerance: with cl_khr_fp64 the kernel's differences, squares and row sums are double, as numpy's,
 so only the order of the additions differs (rtol 1e-12); without it float sums (rtol 1e-5)."""
 from __future__ import annotations
+
+import math
 
 import numpy as np
 import pytest
@@ -22,15 +24,27 @@ class _Frame:
         self.height, self.width, self.bufs = h, w, {"out_rgb": buf}
 
 
+def _mse_fsum(x, y) -> tuple[float, np.ndarray]:
+    """An independent reference: (the mean, per-row sums) of (x - y)^2 with each difference and
+    square taken on Python floats (double) and the sums exact (math.fsum)."""
+    xs, ys = np.asarray(x).tolist(), np.asarray(y).tolist()
+    rows = [math.fsum((float(a) - float(b)) ** 2 for pa, pb in zip(rx, ry) for a, b in zip(pa, pb))
+            for rx, ry in zip(xs, ys)]
+    return math.fsum(rows) / np.asarray(x).size, np.array(rows)
+
+
 def test_mse_twin(rng):
     x = rng.uniform(size=(7, 5, 3)).astype(np.float32)
     y = rng.uniform(size=(7, 5, 3))
     rows = R.mse_rows(x, y)
     assert rows.shape == (7,) and rows.dtype == np.float64
-    want = float(np.mean(np.square(np.asarray(x, np.float64) - y)))  # the loop's formula until 2026-11-25
-    assert R.mse(x, y) == want
+    want, want_rows = _mse_fsum(x, y)
+    np.testing.assert_allclose(rows, want_rows, rtol=1e-14)
+    assert R.mse(x, y) == pytest.approx(want, rel=1e-14)
     assert rows.sum() / x.size == pytest.approx(want, rel=1e-14)
     assert R.mse(x, x) == 0.0
+    # a hand case: every difference 0.5 (exact in float32), so the error is 0.25 exactly
+    assert R.mse(np.zeros((2, 3, 3), np.float32), np.full((2, 3, 3), 0.5)) == 0.25
 
 
 @pytest.mark.parametrize("shape", [(1, 1), (15, 17), (40, 23), (378, 504)])
@@ -47,6 +61,11 @@ def test_mse_kernel_matches_twin(device, shape, rng):
     want = R.mse(x, gt)
     rtol = 1e-12 if t.fp64 else 1e-5
     assert got == pytest.approx(want, rel=rtol)
+    if h * w <= 40 * 23:  # the kernel's own row sums against exact per-row sums (not the twin)
+        ref, ref_rows = _mse_fsum(x, gt)
+        np.testing.assert_allclose(t._read(t.mem.get("small", "mse_rows", h, np.dtype(t.real).itemsize), (h,), t.real),
+                                   ref_rows, rtol=rtol)
+        assert got == pytest.approx(ref, rel=rtol)
     assert t.read_mse(_Frame(h, w, buf), 0) == pytest.approx(R.mse(x, other), rel=rtol)
     t._write(buf, gt)
     assert t.read_mse(_Frame(h, w, buf), 1) == 0.0
@@ -54,7 +73,7 @@ def test_mse_kernel_matches_twin(device, shape, rng):
 
 def test_host_trainer_read_mse(rng):
     gt = rng.uniform(size=(6, 9, 3))
-    t = get_backend("reference").trainer([gt], engine="host")
+    t = get_backend("reference").trainer([gt, np.full((6, 9, 3), 0.75)], engine="host")
 
     class _Out:
         rgb = rng.uniform(size=(6, 9, 3)).astype(np.float32)
@@ -62,7 +81,9 @@ def test_host_trainer_read_mse(rng):
     class _Fr:
         out = _Out
 
-    assert t.read_mse(_Fr, 0) == R.mse(_Out.rgb, gt)
+    assert t.read_mse(_Fr, 0) == pytest.approx(_mse_fsum(_Out.rgb, gt)[0], rel=1e-14)
+    _Out.rgb = np.full((6, 9, 3), 0.25, np.float32)
+    assert t.read_mse(_Fr, 1) == 0.25  # every difference 0.5
 
 
 _OCLGRIND_SCRIPT = """

@@ -250,7 +250,8 @@ class Trainer(Protocol):
         view_warp's) and returned when given. The loss waits for `read_depth_metric`."""
 
     def read_depth_metric(self) -> float:
-        """The loss of the last `depth_metric` (a read from the device)."""
+        """The loss of the last `depth_metric` (a read from the device; the loss's sums are taken
+        now, from that call's frame: valid while the frame is, i.e. until the next `forward`)."""
 
     def cross_warp(self, frame: Frame, view: int, partner: int, partner_cam: Camera, weight: float, near: float,
                    into: Any = None) -> Any:
@@ -263,7 +264,9 @@ class Trainer(Protocol):
         `read_cross_warp`."""
 
     def read_cross_warp(self) -> dict:
-        """{"loss", "valid_fraction"} of the last `cross_warp` (a read from the device)."""
+        """{"loss", "valid_fraction"} of the last `cross_warp` (a read from the device; the loss's
+        sums are taken now, from that call's frame: valid while the frame is, i.e. until the next
+        `forward`; the fit's loop reads on logging iterations before it)."""
 
     def hold(self, grads: Any) -> Any:
         """The gradients of the last `backward` as a handle that survives the next `backward` (to

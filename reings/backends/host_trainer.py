@@ -75,8 +75,8 @@ class HostTrainer:
         self._loss = self._depth_loss = self._warp = None
         self._reg_value = None  # the last regularize(value=True)'s penalties (read_regularize)
         self.dm: list = []  # per view: (weights, target, S, valid pixels) of the metric depth term, or None
-        self._dm = None  # the last depth_metric call's (row terms, scale), or None
-        self._cw = None  # the last cross_warp call's (row sums, valid counts, H, W, scale)
+        self._dm = None  # the last depth_metric call's (residual, weights, target, valid, scale), or None
+        self._cw = None  # the last cross_warp call's (residuals, valid mask, H, W, scale)
         self._zeros: dict = {}  # (H, W) -> zero colour cotangent of the depth passes
         self._tmp = np.empty(0, _F32)  # Adam scratch, grown geometrically
 
@@ -243,8 +243,7 @@ class HostTrainer:
             r = d - a * t
             sg = np.where(r > 0, _F32(1), np.where(r < 0, _F32(-1), _F32(0))).astype(_F32)
             g = np.where(ok, scale * wt * sg / t, _F32(0)).astype(_F32)
-            rows = np.where(ok & np.isfinite(r), wt * np.abs(r) / t, _F32(0)).astype(_F32)
-        self._dm = (rows, scale)  # summed when read (the frame's arrays are fresh per forward)
+        self._dm = (r, wt, t, ok, scale)  # the row terms when read (the frame's arrays are fresh per forward)
         if into is None:
             return g
         into += g
@@ -255,7 +254,9 @@ class HostTrainer:
         then in float64; 0 when the last call had no weights."""
         if self._dm is None:
             return 0.0
-        rows, scale = self._dm
+        r, wt, t, ok, scale = self._dm
+        with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+            rows = np.where(ok & np.isfinite(r), wt * np.abs(r) / t, _F32(0)).astype(_F32)
         acc = np.zeros(rows.shape[0], _F32)
         for x in range(rows.shape[1]):
             acc += rows[:, x]
@@ -265,27 +266,32 @@ class HostTrainer:
                    into=None) -> np.ndarray:
         """Trainer.cross_warp: kernels/cross_warp.cl's float32 operations in its order
         (reference_cross_warp.cross_warp_f32; the float64 form is cross_warp_fwd_bwd); returns
-        dL/d depth [H,W], or `into` with it added."""
-        from .reference_cross_warp import CROSS_WARP_ALPHA_MIN, cross_warp_args, cross_warp_f32
+        dL/d depth [H,W], or `into` with it added. The loss's row sums wait for `read_cross_warp`
+        (from the residuals kept here)."""
+        from .reference_cross_warp import CROSS_WARP_ALPHA_MIN, cross_warp_args, cross_warp_grad_f32
 
         h, w = fr.height, fr.width
         hm, e = cross_warp_args(fr.cam, partner_cam)
         scale = _F32(weight / (3.0 * h * w)) if h * w else _F32(0)
-        g, rows, counts = cross_warp_f32(fr.out.depth, fr.out.alpha, self.images[view], self.images[partner], hm, e,
-                                         near, CROSS_WARP_ALPHA_MIN, scale)
-        self._cw = (rows, counts, h, w, scale)
+        g, r, ok = cross_warp_grad_f32(fr.out.depth, fr.out.alpha, self.images[view], self.images[partner], hm, e,
+                                       near, CROSS_WARP_ALPHA_MIN, scale)
+        self._cw = (r, ok, h, w, scale)
         if into is None:
             return g
         into += g
         return into
 
     def read_cross_warp(self) -> dict:
-        """Trainer.read_cross_warp: as the device trainer's (row sums and counts in float64)."""
+        """Trainer.read_cross_warp: as the device trainer's (cross_warp_rows_f32's row sums and
+        counts now, then summed in float64)."""
+        from .reference_cross_warp import cross_warp_rows_f32
+
         if self._cw is None:
             raise RuntimeError("read_cross_warp before a cross_warp")
-        rows, counts, h, w, scale = self._cw
+        r, ok, h, w, scale = self._cw
         if h * w == 0:
             return {"loss": 0.0, "valid_fraction": 0.0}
+        rows, counts = cross_warp_rows_f32(r, ok)
         return {"loss": float(scale) * float(np.sum(rows.astype(np.float64))),
                 "valid_fraction": int(np.sum(counts)) / (h * w)}
 

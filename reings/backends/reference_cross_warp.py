@@ -1,5 +1,6 @@
 """Float64 twin of the cross-view photometric term (`cross_warp`; kernels/cross_warp.cl;
-docs/method.md §12), the float32 mirror of the kernel that the host trainer runs, and the kernel's
+docs/method.md §12), the float32 mirror of the kernel that the host trainer runs (cross_warp_f32: its gradient and its
+row sums, which the host trainer takes apart: the sums only when read), and the kernel's
 camera arguments.
 
 The term, for the training view i of the iteration and a partner training view j != i:
@@ -101,6 +102,26 @@ def cross_warp_f32(depth, alpha, image_i, image_j, hm, e, near: float, alpha_min
     """kernels/cross_warp.cl's float32 operations in its order, vectorised (the host trainer's
     mirror): (dL/dD [H,W] float32, row sums of |r| [H] float32 (left to right, channels in order),
     valid pixels per row [H] int64). hm, e: cross_warp_args; scale: float32(w / (3 H W))."""
+    g, r, ok = cross_warp_grad_f32(depth, alpha, image_i, image_j, hm, e, near, alpha_min, scale)
+    return (g, *cross_warp_rows_f32(r, ok))
+
+
+def cross_warp_rows_f32(r, ok):
+    """cross_warp_rows's float32 sums from cross_warp_grad_f32's residuals and valid mask: (row
+    sums of |r| [H] float32, left to right, channels in order; valid pixels per row [H] int64)."""
+    f = _F32
+    h, w = ok.shape
+    ab = np.where(ok[..., None], np.abs(r), f(0)).astype(f)
+    rows = np.zeros(h, f)
+    for x in range(w):  # left to right, channels in order, as cross_warp_rows
+        for c in range(3):
+            rows = rows + ab[:, x, c]
+    return rows, ok.sum(1)
+
+
+def cross_warp_grad_f32(depth, alpha, image_i, image_j, hm, e, near: float, alpha_min: float, scale):
+    """cross_warp_grad's float32 operations in its order: (dL/dD [H,W] float32, the residuals
+    [H,W,3] float32, valid [H,W] bool); the row sums come from cross_warp_rows_f32 when read."""
     f = _F32
     d = np.asarray(depth, f)
     a = np.asarray(alpha, f)
@@ -149,9 +170,4 @@ def cross_warp_f32(depth, alpha, image_i, image_j, hm, e, near: float, alpha_min
         dvdz = (sy * e[2] - e[1] * sz) * k2
         gz = acc_u * dudz + acc_v * dvdz
         g = np.where(ok, scale * (gz / a), f(0)).astype(f)
-        ab = np.where(ok[..., None], np.abs(r), f(0)).astype(f)
-    rows = np.zeros(h, f)
-    for x in range(w):  # left to right, channels in order, as cross_warp_rows
-        for c in range(3):
-            rows = rows + ab[:, x, c]
-    return g, rows, ok.sum(1)
+    return g, r, ok

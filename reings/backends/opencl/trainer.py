@@ -53,6 +53,7 @@ from contextlib import ExitStack, contextmanager
 import numpy as np
 
 from ...types import ACCUM, COUNT, PARAM_NAMES, RADII
+from ..reference_cross_warp import CROSS_WARP_ALPHA_MIN, cross_warp_args
 from ..reference_loss import REG_VALUE_COLS, DepthSmoothWeights, regularize_value
 from ..reference_state import adam_update, zero_stats
 from .program import typed_invoker
@@ -131,8 +132,11 @@ class DeviceTrainer:
         self.k_dm_grad = backend.kernel("depth_metric.cl", "depth_metric_grad")
         self.k_dm_rows = backend.kernel("depth_metric.cl", "depth_metric_rows")
         self.dm: list = []  # per view: (weight buffer, S = sum of its valid weights) or None (upload_depth_metric)
-        self._dm_last = None  # (row-sum buffer, H, scale) of the last depth_metric call, for read_depth_metric
-        self._cw_last = None  # (row sums, counts, H, W, scale) of the last cross_warp call, for read_cross_warp
+        self._dm_last = None  # (frame and target buffers, W, H, scale) of the last depth_metric call, for read_depth_metric
+        self.k_cw_grad = backend.kernel("cross_warp.cl", "cross_warp_grad")
+        self.k_cw_rows = backend.kernel("cross_warp.cl", "cross_warp_rows")
+        self._cw_geom: dict = {}  # (view, partner) -> (camera, partner camera, kernel geometry arguments)
+        self._cw_last = None  # (geometry, image buffers, H, W, scale) of the last cross_warp call, for read_cross_warp
         self.bg: list = []  # per view: (mask buffer, float32 2 / count) or None (upload_bg_masks)
         self.real = _F64 if self.fp64 else _F32
         self.l1_wg = 1 if backend.cpu else 64  # L1-only loss work-group (kernels/l1.cl)
@@ -511,8 +515,8 @@ class DeviceTrainer:
     def depth_metric(self, fr, view: int, weight: float, into=None):
         """Trainer.depth_metric: kernels/depth_metric.cl's gradient of the frame's depth against the
         resident target of `view` into the trainer's v_depth buffer (returned), or added into the
-        device buffer `into` (returned); the loss's row sums are taken now, from this frame (the
-        next forward reuses its buffers), and stay on the device (`read_depth_metric`)."""
+        device buffer `into` (returned); the loss's row sums wait for `read_depth_metric`, which
+        launches them on this frame's buffers (valid until the next forward)."""
         npx = fr.width * fr.height
         rec = self.dm[view] if view < len(self.dm) else None
         scale = _F32(weight / rec[1]) if rec is not None and rec[1] > 0 else _F32(0)
@@ -523,55 +527,60 @@ class DeviceTrainer:
                 self.cl.enqueue_fill_buffer(self.queue, v, _F32(0), 0, 4 * npx)
             self._dm_last = None
             return v
-        rows = self.mem.get("small", "dm_rows", fr.height, 4)
-        self._launch("depth_metric_rows", self.k_dm_rows, fr.height, _I32(fr.width), _I32(fr.height),
-                     fr.bufs["out_depth"], fr.bufs["out_alpha"], self.dt[view], wbuf, rows)
-        self._launch("depth_metric", self.k_dm_grad, npx, _I32(npx), scale, _I32(into is not None),
-                     fr.bufs["out_depth"], fr.bufs["out_alpha"], self.dt[view], wbuf, v)
-        self._dm_last = (rows, fr.height, scale)
+        args = (fr.bufs["out_depth"], fr.bufs["out_alpha"], self.dt[view], wbuf)
+        self._launch("depth_metric", self.k_dm_grad, npx, _I32(npx), scale, _I32(into is not None), *args, v)
+        self._dm_last = (args, fr.width, fr.height, scale)
         return v
 
     def read_depth_metric(self) -> float:
-        """Trainer.read_depth_metric: the last depth_metric call's loss (a blocking read of its H
-        row sums, summed in float64); 0 when it had no weights."""
+        """Trainer.read_depth_metric: the last depth_metric call's loss: depth_metric_rows on its
+        frame's buffers (valid until the next forward), then a blocking read of the H row sums,
+        summed in float64; 0 when it had no weights."""
         if self._dm_last is None:
             return 0.0
-        rows, h, scale = self._dm_last
+        args, w, h, scale = self._dm_last
+        rows = self.mem.get("small", "dm_rows", h, 4)
+        self._launch("depth_metric_rows", self.k_dm_rows, h, _I32(w), _I32(h), *args, rows)
         return float(scale) * float(np.sum(self._read(rows, (h,), _F32).astype(_F64)))
 
     def cross_warp(self, fr, view: int, partner: int, partner_cam, weight: float, near: float, into=None):
         """Trainer.cross_warp: kernels/cross_warp.cl's depth cotangent of the frame (a render of
         training view `view`) from training image `partner` (its camera `partner_cam`) against
         training image `view`, into the trainer's cw_v_depth buffer (returned), or added into the
-        device buffer `into` (returned); the loss's row sums and valid counts are taken now, from
-        this frame, and stay on the device (`read_cross_warp`)."""
-        from ..reference_cross_warp import CROSS_WARP_ALPHA_MIN, cross_warp_args
-
+        device buffer `into` (returned); the loss's row sums and valid counts wait for
+        `read_cross_warp`, which launches them on this frame's buffers (valid until the next forward)."""
         h, w = fr.height, fr.width
         npx = h * w
-        hm, e = cross_warp_args(fr.camera, partner_cam)
+        geom = self._cross_warp_geom(view, partner, fr.camera, partner_cam, w, h, near)
         scale = _F32(weight / (3.0 * npx)) if npx else _F32(0)
-        geom = (_I32(w), _I32(h), _I32(partner_cam.width), _I32(partner_cam.height), *(_F32(x) for x in hm),
-                *(_F32(x) for x in e), _F32(near), _F32(CROSS_WARP_ALPHA_MIN))
         imgs = (fr.bufs["out_depth"], fr.bufs["out_alpha"], self.gt[view], self.gt[partner])
         v = into if into is not None else self.mem.get("pixel", "cw_v_depth", max(npx, 1), 4)
-        rows = self.mem.get("small", "cw_rows", max(h, 1), 4)
-        counts = self.mem.get("small", "cw_counts", max(h, 1), 4)
-        self._launch("cross_warp_rows", self.b.kernel("cross_warp.cl", "cross_warp_rows"), h, *geom, *imgs,
-                     rows, counts)
-        self._launch("cross_warp", self.b.kernel("cross_warp.cl", "cross_warp_grad"), npx, *geom, scale,
-                     _I32(into is not None), *imgs, v)
-        self._cw_last = (rows, counts, h, w, scale)
+        self._launch("cross_warp", self.k_cw_grad, npx, *geom, scale, _I32(into is not None), *imgs, v)
+        self._cw_last = (geom, imgs, h, w, scale)
         return v
 
+    def _cross_warp_geom(self, view: int, partner: int, cam, partner_cam, w: int, h: int, near: float) -> tuple:
+        """cross_warp's kernel arguments before the scale: the sizes, hm, e (cross_warp_args, kept
+        per (view, partner) while the two cameras are the same objects), near and alpha_min."""
+        hit = self._cw_geom.get((view, partner))
+        if hit is None or hit[0] is not cam or hit[1] is not partner_cam:
+            hm, e = cross_warp_args(cam, partner_cam)
+            hit = self._cw_geom[(view, partner)] = (cam, partner_cam, (*(_F32(x) for x in hm), *(_F32(x) for x in e)))
+        return (_I32(w), _I32(h), _I32(partner_cam.width), _I32(partner_cam.height), *hit[2],
+                _F32(near), _F32(CROSS_WARP_ALPHA_MIN))
+
     def read_cross_warp(self) -> dict:
-        """Trainer.read_cross_warp: the last cross_warp call's loss and valid fraction (blocking
-        reads of its H row sums and counts, summed in float64)."""
+        """Trainer.read_cross_warp: the last cross_warp call's loss and valid fraction:
+        cross_warp_rows on its frame's buffers (valid until the next forward), then blocking reads
+        of the H row sums and counts, summed in float64."""
         if self._cw_last is None:
             raise RuntimeError("read_cross_warp before a cross_warp")
-        rows, counts, h, w, scale = self._cw_last
+        geom, imgs, h, w, scale = self._cw_last
         if h * w == 0:
             return {"loss": 0.0, "valid_fraction": 0.0}
+        rows = self.mem.get("small", "cw_rows", h, 4)
+        counts = self.mem.get("small", "cw_counts", h, 4)
+        self._launch("cross_warp_rows", self.k_cw_rows, h, *geom, *imgs, rows, counts)
         total = float(np.sum(self._read(rows, (h,), _F32).astype(_F64)))
         valid = int(np.sum(self._read(counts, (h,), _I32).astype(np.int64)))
         return {"loss": float(scale) * total, "valid_fraction": valid / (h * w)}
