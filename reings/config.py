@@ -292,20 +292,23 @@ class RunPreset:
     iterations: dict  # method -> iterations per fitting stage (FIT_STAGES order)
     sh_degree: dict  # method -> maximum SH degree
     stereo_seeds: float | None = None  # ReInGSConfig.stereo_seeds where the run leaves it none (None: the auto rule)
+    soft_depth_shared: bool = False  # RunConfig.soft_depth_shared of the reings fits where the run leaves it none
 
 
 RUN_PRESETS = {
     "quick": RunPreset("3dgs/dngaussian 600 iterations, reings 200/200/600, SH degree 0",
                        {"3dgs": (600,), "dngaussian": (600,), "reings": (200, 200, 600)},
                        {"3dgs": 0, "dngaussian": 0, "reings": 0}),
-    # the quick schedule with EHPS seeded from the stereo prior at every view count: on 2 PoCL cores
-    # (docs/results.md §18) LLFF fern/flower at 2 views 20.09/19.34 dB (quick without seeds 16.93/15.01;
-    # the H100's full schedule 20.12/19.47), at 3 views (seeds 0-2) 21.17/20.46 in 6-7 minutes (the
-    # full schedule 21.09/20.70)
-    "fast": RunPreset("the CPU preset: quick's iterations and SH 0, with EHPS seeded from the stereo prior at every "
-                      "view count (--stereo-seeds 0.1)",
-                      {"3dgs": (600,), "dngaussian": (600,), "reings": (200, 200, 600)},
-                      {"3dgs": 0, "dngaussian": 0, "reings": 0}, stereo_seeds=0.1),
+    # the CPU preset: SH 0, EHPS seeded from the stereo prior at every view count (docs/results.md §18:
+    # +3.7 dB at 2 views under a short schedule), and since session 13 (§23) 300/300/1200 iterations with
+    # the soft depth term on the photometric render: with DropGaussian and the pruning (§20) quick's
+    # 200/200/600 fell 1.11/0.92 dB under the full schedule (fern/flower, 3 views); 300/300/1200 + shared:
+    # seeds 0-2 in docs/results.md §23, in 7-7.5 minutes on 2 shared Xeon cores
+    "fast": RunPreset("the CPU preset: reings 300/300/1200 iterations with the soft depth term on the photometric "
+                      "render (--soft-depth-shared), SH 0, EHPS seeded from the stereo prior at every view count "
+                      "(--stereo-seeds 0.1); the baselines as quick",
+                      {"3dgs": (600,), "dngaussian": (600,), "reings": (300, 300, 1200)},
+                      {"3dgs": 0, "dngaussian": 0, "reings": 0}, stereo_seeds=0.1, soft_depth_shared=True),
     # SH 1 for reings from the model-size study (docs/results.md): -61% parameters per Gaussian,
     # test PSNR -0.14..+0.37 dB (mean +0.07) against SH 3; the baselines keep their recipes' 3
     "paper": RunPreset("6000 iterations per stage (the paper's schedule); SH degree 1 for reings, 3 for the baselines",
@@ -607,9 +610,10 @@ class RunConfig:
                                        "DNGaussian; 1 = the confidence alone)",
                                   check=lambda v: None if 0 <= v <= 1 else f"must lie in [0, 1], got {v}",
                                   metavar="A")
-    soft_depth_shared: bool = opt(False, "every fit with the soft depth term: share the photometric pass's render "
-                                         "with it, and step the opacities once with both gradients (speed, issue 15; "
-                                         "off until its accuracy is measured on the full schedule)")
+    soft_depth_shared: bool | None = opt(None, "every fit with the soft depth term: share the photometric pass's "
+                                                "render with it, and step the opacities once with both gradients "
+                                                "(speed, issue 15); none: the preset's for the reings fits (on for "
+                                                "fast, off otherwise) and off for the baselines")
     drop_gamma: float | None = opt(None, "reings and dngaussian fits: DropGaussian (Park et al. 2025; docs/method.md "
                                          "§9): each Gaussian is left out of the photometric pass's renders with a rate "
                                          "rising linearly to this at each fit's last iteration, the kept ones' "

@@ -155,8 +155,9 @@ def test_the_fast_preset_seeds_at_every_view_count():
     from reings.pipeline import stereo_seeds_of
 
     sfm = SimpleNamespace(method="sfm")
-    fast = RUN_PRESETS["fast"]
-    assert fast.iterations == RUN_PRESETS["quick"].iterations and fast.sh_degree == RUN_PRESETS["quick"].sh_degree
+    fast, quick = RUN_PRESETS["fast"], RUN_PRESETS["quick"]
+    assert fast.sh_degree == quick.sh_degree and fast.iterations["reings"] == (300, 300, 1200)
+    assert all(fast.iterations[m] == quick.iterations[m] for m in ("3dgs", "dngaussian"))  # the baselines as quick
     assert RUN_PRESETS["quick"].stereo_seeds is None and RUN_PRESETS["paper"].stereo_seeds is None
     assert stereo_seeds_of(ReInGSConfig(), sfm, 4, fast.stereo_seeds) == 0.1
     assert stereo_seeds_of(ReInGSConfig(stereo_seeds=0.0), sfm, 4, fast.stereo_seeds) == 0.0  # the run's value wins
@@ -171,3 +172,20 @@ def test_a_fast_run_seeds_ehps_at_three_views(device):
     quick = next(s for s in reings.run(**kw, preset="quick").metrics["stages"] if s["stage"] == "ehps")
     assert fast["stereo_seed_fraction"] == 0.1 and fast["stereo_seeds"] > 0
     assert quick["stereo_seeds"] == 0 and quick["gaussians"] == fast["gaussians"] - fast["stereo_seeds"]
+
+
+def test_the_fast_preset_shares_the_soft_depth_render_for_reings_only():
+    """RunConfig.soft_depth_shared = none takes the preset's (on for fast) for the reings fits and
+    leaves the baselines' recipes alone; an explicit value wins for every method."""
+    from reings.config import RUN_PRESETS, RunConfig
+    from reings.pipeline import run_settings, soft_depth_shared_of
+
+    assert RUN_PRESETS["fast"].soft_depth_shared and not RUN_PRESETS["quick"].soft_depth_shared
+    assert not RUN_PRESETS["paper"].soft_depth_shared
+    assert soft_depth_shared_of(RunConfig(preset="fast"))
+    assert not soft_depth_shared_of(RunConfig(preset="fast", method="dngaussian"))
+    assert not soft_depth_shared_of(RunConfig(preset="fast", soft_depth_shared=False))
+    assert not soft_depth_shared_of(RunConfig(preset="quick")) and not soft_depth_shared_of(RunConfig(preset="paper"))
+    assert soft_depth_shared_of(RunConfig(preset="paper", method="dngaussian", soft_depth_shared=True))
+    assert run_settings(RunConfig(preset="fast").resolved(), "llff")["soft_depth_shared"] is True
+    assert "soft_depth_shared" not in run_settings(RunConfig(preset="quick").resolved(), "llff")
