@@ -288,6 +288,17 @@ def all_cases() -> list[tuple[str, Case]]:
     return [(k, f()) for k, f in CASES.items()]
 
 
+def gaussians_before(cam: Camera, rng: np.random.Generator, n: int, opacity=(0.0, 2.0)) -> Gaussians:
+    """n isotropic SH-0 Gaussians 3-4 units in front of `cam`, spread over its view (the depth terms'
+    through-the-render finite-difference tests); opacity logits uniform in `opacity`. Draws from
+    `rng` in a fixed order (depths, x, y, opacities, colours)."""
+    pts = cam.center + cam.viewmat[2, :3] * rng.uniform(3, 4, (n, 1)) + cam.viewmat[0, :3] * rng.uniform(-1, 1, (n, 1)) \
+        + cam.viewmat[1, :3] * rng.uniform(-0.8, 0.8, (n, 1))
+    return Gaussians(pts.astype(np.float32), np.tile(np.float32([1, 0, 0, 0]), (n, 1)),
+                     np.full((n, 3), np.log(0.4), np.float32), rng.uniform(*opacity, n).astype(np.float32),
+                     rng.normal(0, 0.5, (n, 1, 3)).astype(np.float32))
+
+
 def dngaussian_fit_case(n_views: int, width: int, height: int, n_points: int, sh_degree: int, iterations: int,
                         soft_depth_from: int, densify_until: int):
     """(procedural scene, random init, DNGaussian config squeezed to `iterations`) for the engine tests:

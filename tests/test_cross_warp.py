@@ -15,14 +15,14 @@ import numpy as np
 import pytest
 
 from cases import (assert_engines_agree, assert_fd_along_random_directions, assert_resumes_bit_identically,
-                   dngaussian_fit_case, fit_case, make_camera, rotation_viewmat)
+                   dngaussian_fit_case, fit_case, gaussians_before, make_camera, rotation_viewmat)
 from reings.backends import get_backend
 from reings.backends.opencl import quirks
 from reings.backends.reference import render64
 from reings.backends.reference_cross_warp import CROSS_WARP_ALPHA_MIN, cross_warp_args, cross_warp_fwd_bwd
 from reings.state import TrainState
 from reings.train import cross_partner
-from reings.types import Camera, Gaussians
+from reings.types import Camera
 
 NEAR = 0.01
 
@@ -265,11 +265,7 @@ def test_gradient_through_the_render_fd():
     scene = reings.make_procedural_scene(n_views=2, width=24, height=20, supersample=1)
     cam, cam2 = scene.cameras
     rng = np.random.default_rng(2)
-    n = 14
-    pts = cam.center + cam.viewmat[2, :3] * rng.uniform(3, 4, (n, 1)) + cam.viewmat[0, :3] * rng.uniform(-1, 1, (n, 1)) \
-        + cam.viewmat[1, :3] * rng.uniform(-0.8, 0.8, (n, 1))
-    g = Gaussians(pts.astype(np.float32), np.tile(np.float32([1, 0, 0, 0]), (n, 1)), np.full((n, 3), np.log(0.4), np.float32),
-                  rng.uniform(1, 3, n).astype(np.float32), rng.normal(0, 0.5, (n, 1, 3)).astype(np.float32))
+    g = gaussians_before(cam, rng, 14, opacity=(1, 3))
     tr = get_backend("reference").trainer(list(scene.images), engine="host")
     tr.upload(TrainState.from_gaussians(g, 0))
     fr = tr.forward(cam, 1, (0, 0, 0), NEAR)

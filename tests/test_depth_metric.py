@@ -12,13 +12,12 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from cases import assert_engines_agree, assert_fd_along_random_directions, dngaussian_fit_case
+from cases import assert_engines_agree, assert_fd_along_random_directions, dngaussian_fit_case, gaussians_before
 from reings.backends import get_backend
 from reings.backends.reference import render64
 from reings.backends.reference_loss import depth_metric_fwd_bwd, depth_metric_scale, depth_metric_valid
 from reings.state import TrainState
 from reings.train import fit
-from reings.types import Gaussians
 
 
 def test_twin_hand_case():
@@ -123,11 +122,7 @@ def test_gradient_through_the_render_fd():
     scene = reings.make_procedural_scene(n_views=2, width=24, height=20, supersample=1)
     cam = scene.cameras[0]
     rng = np.random.default_rng(2)
-    n = 14
-    pts = cam.center + cam.viewmat[2, :3] * rng.uniform(3, 4, (n, 1)) + cam.viewmat[0, :3] * rng.uniform(-1, 1, (n, 1)) \
-        + cam.viewmat[1, :3] * rng.uniform(-0.8, 0.8, (n, 1))
-    g = Gaussians(pts.astype(np.float32), np.tile(np.float32([1, 0, 0, 0]), (n, 1)), np.full((n, 3), np.log(0.4), np.float32),
-                  rng.uniform(0, 2, n).astype(np.float32), rng.normal(0, 0.5, (n, 1, 3)).astype(np.float32))
+    g = gaussians_before(cam, rng, 14, opacity=(0, 2))
     target = np.full((20, 24), 3.2)
     conf = rng.uniform(0.2, 1, (20, 24))
     tr = get_backend("reference").trainer([scene.images[0]], engine="host")
