@@ -16,7 +16,6 @@
  * depend on z at all, bit for bit. A pixel is valid iff a >= alpha_min, z is finite and > near,
  * z_j > near and 0 <= p'_x <= W_j - 1, 0 <= p'_y <= H_j - 1 (the far border included: the last cell,
  * x0 = W_j - 2, is used with fraction 1). Invalid pixels add nothing and get a zero cotangent.
- * No occlusion test: view j's depth is not rendered this iteration.
  *     dL/dD_p = scale / a_p * sum_c sign(r_c) (dI/du du/dz + dI/dv dv/dz),
  *     du/dz = (s_x e_z - e_x s_z) (w / s_z)^2,  dv/dz = (s_y e_z - e_y s_z) (w / s_z)^2
  * with dI/du, dI/dv the bilinear cell's slopes (one-sided at integer positions: the cell to the
@@ -25,13 +24,27 @@
  * cameras); the host trainer mirrors these float32 operations in this order
  * (reference_cross_warp.cross_warp_f32), so on PoCL both trainers give the same bits.
  *
+ * Occlusion test (tol > 0; docs/method.md §12): depth_j, alpha_j are view j's rendered depth and
+ * alpha ([Hj, Wj], a render of the partner with the current Gaussians, held constant). A pixel
+ * otherwise valid is OCCLUDED, and then invalid, when the partner's surface at the nearest pixel
+ * of p', (xn, yn) = (floor(p'_x + 0.5), floor(p'_y + 0.5)) at most (Wj - 1, Hj - 1) (ties upward;
+ * not the bilinear cell's four: a depth edge blended across pixels is no surface), is nearer than
+ * the reprojected point:
+ *     alpha_j >= alpha_min  and  z_j > (depth_j / alpha_j) * (1 + tol)
+ * (where the partner's alpha is below alpha_min there is no test: the pixel stays valid). With
+ * tol == 0 the test is off: depth_j / alpha_j are not read (the host passes any buffers) and every
+ * other operation is the same, so the results are those without the test, bit for bit. The
+ * gradient of a valid pixel is the one above (the test is a step in z_p: no derivative).
+ *
  * cross_warp_grad  global (H * W): v_depth = g, or v_depth += g with accumulate != 0 (the term
  *                  joins the view_warp / depth_metric cotangent in one backward); each pixel
  *                  writes only its own cotangent: no atomics
  * cross_warp_rows  global (H): per row the float32 sum of |r_c| over its valid pixels, left to
- *                  right, channels in order, and the count of its valid pixels; launched only
- *                  when the loss is read (Trainer.read_cross_warp, logging iterations), on the
- *                  same frame buffers, which hold until the next forward
+ *                  right, channels in order, the count of its valid pixels and that of its
+ *                  occluded ones (0 with tol == 0); launched only when the loss is read
+ *                  (Trainer.read_cross_warp, logging iterations), on the same frame buffers,
+ *                  which hold until the next forward (and the same held partner depth, until
+ *                  the next Trainer.hold_depth)
  */
 #pragma OPENCL FP_CONTRACT OFF
 
@@ -39,18 +52,24 @@ typedef struct {
     float h00, h01, h02, h10, h11, h12, h20, h21, h22, e0, e1, e2;
 } cw_geom;
 
-/* The pixel (x, y): 1 if valid, with the three residuals r[c] and dL/dz / scale in *gz. */
+#define CW_INVALID 0
+#define CW_VALID 1
+#define CW_OCCLUDED 2  /* valid but for the occlusion test (tol > 0): invalid */
+
+/* The pixel (x, y): CW_VALID with the three residuals r[c] and dL/dz / scale in *gz, else
+ * CW_INVALID or CW_OCCLUDED (nothing written). */
 static int cw_pixel(const int x, const int y, const int width, const int wj, const int hj,
-                    const cw_geom g, const float near, const float alpha_min,
+                    const cw_geom g, const float near, const float alpha_min, const float tol,
                     __global const float *depth, __global const float *alpha,
                     __global const float *img_i, __global const float *img_j,
+                    __global const float *depth_j, __global const float *alpha_j,
                     float *r, float *gz)
 {
     const int n = y * width + x;
     const float a = alpha[n];
-    if (!(a >= alpha_min) || wj < 2 || hj < 2) return 0;
+    if (!(a >= alpha_min) || wj < 2 || hj < 2) return CW_INVALID;
     const float z = depth[n] / a;
-    if (!(z > near) || !isfinite(z)) return 0;
+    if (!(z > near) || !isfinite(z)) return CW_INVALID;
     const float w = 1.0f / z;
     const float qx = (float)x + 0.5f, qy = (float)y + 0.5f;
     const float hx = g.h00 * qx + g.h01 * qy + g.h02;
@@ -58,9 +77,15 @@ static int cw_pixel(const int x, const int y, const int width, const int wj, con
     const float hz = g.h20 * qx + g.h21 * qy + g.h22;
     const float sx = hx + w * g.e0, sy = hy + w * g.e1, sz = hz + w * g.e2;
     const float zj = z * sz;
-    if (!(zj > near)) return 0;
+    if (!(zj > near)) return CW_INVALID;
     const float u = sx / sz - 0.5f, v = sy / sz - 0.5f;
-    if (!(u >= 0.0f && u <= (float)(wj - 1) && v >= 0.0f && v <= (float)(hj - 1))) return 0;
+    if (!(u >= 0.0f && u <= (float)(wj - 1) && v >= 0.0f && v <= (float)(hj - 1))) return CW_INVALID;
+    if (tol > 0.0f) {  /* the occlusion test at p's nearest pixel of view j */
+        const int xn = min((int)floor(u + 0.5f), wj - 1), yn = min((int)floor(v + 0.5f), hj - 1);
+        const int m = yn * wj + xn;
+        const float aj = alpha_j[m];
+        if (aj >= alpha_min && zj > (depth_j[m] / aj) * (1.0f + tol)) return CW_OCCLUDED;
+    }
     const int x0 = min((int)floor(u), wj - 2), y0 = min((int)floor(v), hj - 2);
     const float fu = u - (float)x0, fv = v - (float)y0;
     const int b00 = (y0 * wj + x0) * 3, b10 = b00 + 3 * wj;
@@ -81,7 +106,7 @@ static int cw_pixel(const int x, const int y, const int width, const int wj, con
     const float k2 = k * k;
     const float dudz = (sx * g.e2 - g.e0 * sz) * k2, dvdz = (sy * g.e2 - g.e1 * sz) * k2;
     *gz = acc_u * dudz + acc_v * dvdz;
-    return 1;
+    return CW_VALID;
 }
 
 #define CW_GEOM_ARGS const float h00, const float h01, const float h02, const float h10, const float h11, \
@@ -89,11 +114,14 @@ static int cw_pixel(const int x, const int y, const int width, const int wj, con
 #define CW_GEOM ((cw_geom){h00, h01, h02, h10, h11, h12, h20, h21, h22, e0, e1, e2})
 
 __kernel void cross_warp_grad(const int width, const int height, const int wj, const int hj, CW_GEOM_ARGS,
-                              const float near, const float alpha_min, const float scale, const int accumulate,
+                              const float near, const float alpha_min, const float tol,
+                              const float scale, const int accumulate,
                               __global const float *depth,   /* [H, W] rendered depth of view i */
                               __global const float *alpha,   /* [H, W] its rendered alpha */
                               __global const float *img_i,   /* [H, W, 3] training image of view i */
                               __global const float *img_j,   /* [Hj, Wj, 3] training image of view j */
+                              __global const float *depth_j, /* [Hj, Wj] rendered depth of view j (tol > 0) */
+                              __global const float *alpha_j, /* [Hj, Wj] its rendered alpha (tol > 0) */
                               __global float *v_depth)       /* [H, W] out (or +=) */
 {
     const int n = get_global_id(0);
@@ -101,31 +129,39 @@ __kernel void cross_warp_grad(const int width, const int height, const int wj, c
     const int y = n / width, x = n - y * width;
     float r[3], gz = 0.0f;
     float g = 0.0f;
-    if (cw_pixel(x, y, width, wj, hj, CW_GEOM, near, alpha_min, depth, alpha, img_i, img_j, r, &gz))
+    if (cw_pixel(x, y, width, wj, hj, CW_GEOM, near, alpha_min, tol, depth, alpha, img_i, img_j, depth_j, alpha_j,
+                 r, &gz) == CW_VALID)
         g = scale * (gz / alpha[n]);
     v_depth[n] = accumulate ? v_depth[n] + g : g;
 }
 
 __kernel void cross_warp_rows(const int width, const int height, const int wj, const int hj, CW_GEOM_ARGS,
-                              const float near, const float alpha_min,
+                              const float near, const float alpha_min, const float tol,
                               __global const float *depth, __global const float *alpha,
                               __global const float *img_i, __global const float *img_j,
+                              __global const float *depth_j, __global const float *alpha_j,
                               __global float *rows,          /* [H] out: sum of |r| */
-                              __global int *counts)          /* [H] out: valid pixels */
+                              __global int *counts,          /* [H] out: valid pixels */
+                              __global int *occluded)        /* [H] out: occluded pixels */
 {
     const int y = get_global_id(0);
     if (!(y < height)) return;
     float acc = 0.0f;
-    int cnt = 0;
+    int cnt = 0, occ = 0;
     for (int x = 0; x < width; ++x) {
         float r[3], gz;
-        if (cw_pixel(x, y, width, wj, hj, CW_GEOM, near, alpha_min, depth, alpha, img_i, img_j, r, &gz)) {
+        const int st = cw_pixel(x, y, width, wj, hj, CW_GEOM, near, alpha_min, tol, depth, alpha, img_i, img_j,
+                                depth_j, alpha_j, r, &gz);
+        if (st == CW_VALID) {
             acc = acc + fabs(r[0]);
             acc = acc + fabs(r[1]);
             acc = acc + fabs(r[2]);
             cnt += 1;
+        } else if (st == CW_OCCLUDED) {
+            occ += 1;
         }
     }
     rows[y] = acc;
     counts[y] = cnt;
+    occluded[y] = occ;
 }

@@ -153,6 +153,11 @@ class LossConfig:
                                  "only); 0 = off",
                             check=finite_nonneg)
     cross_warp_from: int = opt(1, "first iteration of the cross_warp term")
+    cross_warp_occlusion: float = opt(0.0, "the cross_warp term's occlusion test (docs/method.md §12): a pixel is "
+                                           "left out where the partner view's rendered surface is nearer than "
+                                           "the reprojected point by more than this relative tolerance, z_j > "
+                                           "Z_j (1 + tol) (one forward of the partner per iteration); 0 = no test",
+                                      check=finite_nonneg)
     shape_pena: float = opt(0.0, "weight of mean(max scale / min scale)")
     scale_pena: float = opt(0.0, "weight of mean(max scale^2)")
     opa_pena: float = opt(0.0, "weight of 1 - mean(o^2 | o>0.2) + mean((1-o)^2 | o<0.2)")
@@ -636,6 +641,12 @@ class RunConfig:
                                        "fit's iterations (0: from the first)",
                                   check=lambda v: None if 0 <= v < 1 else f"must lie in [0, 1), got {v}",
                                   metavar="FRACTION")
+    cross_warp_occlusion: float = opt(0.0, "reings fits only: the cross_warp term's occlusion test (docs/method.md "
+                                           "§12): the partner view's depth is rendered too (one forward per "
+                                           "iteration), and a pixel whose reprojected point lies behind the "
+                                           "partner's surface, z_j > Z_j (1 + TOL), is left out of the term; "
+                                           "0 = no test",
+                                      check=finite_nonneg, metavar="TOL")
     prune_unseen: bool | None = opt(None, "reings fits: at each densification also drop the Gaussians that no "
                                           "pixel of any training view blends (docs/method.md §11); none: the "
                                           "recipe family's (on for 'llff', off for 'dtu' until measured there; "

@@ -163,7 +163,8 @@ def _setting_tag(m: dict) -> str:
         tag.append(f"metric {cfg['depth_metric']:g}")
     if cfg.get("cross_warp"):  # the cross-view photometric term (absent when off)
         tag.append(f"cross {cfg['cross_warp']:g}" + (f" from {cfg['cross_warp_start']:g}"
-                                                      if cfg.get("cross_warp_start") else ""))
+                                                      if cfg.get("cross_warp_start") else "")
+                   + (f" occl {cfg['cross_warp_occlusion']:g}" if cfg.get("cross_warp_occlusion") else ""))
     if cfg.get("prune_unseen"):  # absent when off
         tag.append("prune unseen")
     seeds = (cfg.get("reings_config") or {}).get("stereo_seeds")  # absent: none (the preset's or the auto rule)
@@ -518,7 +519,8 @@ def _prepare(jobs) -> None:
 
 
 # settings recorded only when on (absent = off): a run that has one and a config that has not differ
-_ABSENT_WHEN_OFF = ("drop_gamma", "depth_metric", "prune_unseen", "cross_warp", "cross_warp_start")
+_ABSENT_WHEN_OFF = ("drop_gamma", "depth_metric", "prune_unseen", "cross_warp", "cross_warp_start",
+                    "cross_warp_occlusion")
 
 
 def _settings_differ(metrics_path: str, cfg, dataset_kind: str | None = None) -> str:

@@ -195,6 +195,8 @@ def run_settings(cfg: RunConfig, dataset_kind: str) -> dict:
             s["cross_warp"] = cfg.cross_warp
             if cfg.cross_warp_start:
                 s["cross_warp_start"] = cfg.cross_warp_start
+            if cfg.cross_warp_occlusion:
+                s["cross_warp_occlusion"] = cfg.cross_warp_occlusion
     if auto_seeds and (cfg.extent == "stereo" or cfg.holdout != "protocol" or cfg.views <= 2):
         s["stereo_seeds"] = "auto"  # seeds where runs before the option had none (stereo_seeds_of)
     if soft_depth_shared_of(cfg):
@@ -380,7 +382,8 @@ class RunContext:
             recipe = self.binocular(recipe)
             if c.cross_warp:  # docs/method.md §12
                 start = max(1, int(round(c.cross_warp_start * recipe.iterations)))
-                recipe = replace(recipe, loss=replace(recipe.loss, cross_warp=c.cross_warp, cross_warp_from=start))
+                recipe = replace(recipe, loss=replace(recipe.loss, cross_warp=c.cross_warp, cross_warp_from=start,
+                                                      cross_warp_occlusion=c.cross_warp_occlusion))
             if prune_unseen_of(c, self.family):
                 recipe = replace(recipe, densify=replace(recipe.densify, prune_unseen=True))
         if c.dtu_background:
@@ -722,8 +725,9 @@ def _prepare(cfg: RunConfig, backend, prior, overwrite: bool, quiet: bool, scene
         log(f"[{cfg.label}] note: cross_warp applies to the reings fits only; ignored")
     elif cfg.cross_warp and len(train) < 2:
         log(f"[{cfg.label}] note: cross_warp needs a partner view: {len(train)} training view; ignored")
-    if cfg.cross_warp_start and not cfg.cross_warp:
-        log(f"[{cfg.label}] note: cross_warp_start without cross_warp; ignored")
+    for opt_name in ("cross_warp_start", "cross_warp_occlusion"):
+        if getattr(cfg, opt_name) and not cfg.cross_warp:
+            log(f"[{cfg.label}] note: {opt_name} without cross_warp; ignored")
 
     t = time.perf_counter()
     confidences = None  # per view [H, W] in [0, 1] (the stereo prior's) or None
@@ -796,6 +800,8 @@ def _metrics(ctx: RunContext, m: dict, settings: dict, scene, tr_idx, te_idx, cu
         "sh_degree": cfg.sh_degree, "recipe": ctx.family, "drop_gamma": drop_gamma_of(cfg, ctx.family),
         "depth_metric": depth_metric_of(cfg, ctx.family),
         **({"cross_warp": cfg.cross_warp} if cfg.cross_warp and cfg.method == "reings" else {}),
+        **({"cross_warp_occlusion": cfg.cross_warp_occlusion}
+           if cfg.cross_warp and cfg.cross_warp_occlusion and cfg.method == "reings" else {}),
         "mean": {k: m[k] for k in ("psnr", "ssim", "lpips", "avge") if k in m and m[k] is not None},
         "per_image": m.get("per_image"), "seconds": ctx.timings, "gaussians": ctx.counts,
         "model_bytes": ctx.model_bytes, "peak_rss_mb": _peak_rss_mb(),

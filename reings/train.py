@@ -108,7 +108,9 @@ class History:
     eval: list = field(default_factory=list)  # (iteration, seconds, metrics) from eval_fn
     view_warp: list = field(default_factory=list)  # (iteration, loss, valid fraction) of the view_warp term, when logged
     depth_metric: list = field(default_factory=list)  # (iteration, loss) of the metric depth term, when logged
-    cross_warp: list = field(default_factory=list)  # (iteration, loss, valid fraction) of the cross_warp term, when logged
+    # (iteration, loss, valid fraction[, occluded fraction: with its occlusion test on]) of the cross_warp
+    # term, when logged
+    cross_warp: list = field(default_factory=list)
 
     def to_dict(self) -> dict:
         return {k: getattr(self, k) for k in self.__dataclass_fields__}
@@ -367,10 +369,10 @@ def fit(views, config: TrainConfig, device: str = "pocl", init: Gaussians | None
     cfg, L = config, config.loss
     if not 0.0 <= L.drop_gamma < 1.0:  # also NaN
         raise ValueError(f"fit: LossConfig.drop_gamma must lie in [0, 1), got {L.drop_gamma}")
-    if not (L.depth_metric >= 0 and np.isfinite(L.depth_metric)):  # also NaN
-        raise ValueError(f"fit: LossConfig.depth_metric must be >= 0 and finite, got {L.depth_metric}")
-    if not (L.cross_warp >= 0 and np.isfinite(L.cross_warp)):  # also NaN
-        raise ValueError(f"fit: LossConfig.cross_warp must be >= 0 and finite, got {L.cross_warp}")
+    for name in ("depth_metric", "cross_warp", "cross_warp_occlusion"):
+        v = getattr(L, name)
+        if not (v >= 0 and np.isfinite(v)):  # also NaN
+            raise ValueError(f"fit: LossConfig.{name} must be >= 0 and finite, got {v}")
     extent = scene_extent(cameras) if extent is None else extent
     backend = get_backend(device)
     bg_masks = None
@@ -522,7 +524,9 @@ class _Iteration:
         The metric depth term (LossConfig.depth_metric, docs/method.md §10): its depth cotangent
         joins the training render's backward (added into the view_warp term's when both run); so
         does the cross-view photometric term's (LossConfig.cross_warp, docs/method.md §12; its
-        partner view from `cross_partner`).
+        partner view from `cross_partner`). With its occlusion test (LossConfig.cross_warp_occlusion)
+        the partner view is rendered first (no backward) and its depth held (`hold_depth`: a copy
+        that survives the training view's forward).
 
         With the view_warp term (docs/binocular.md §4.2): the virtual view (the training camera
         shifted by a drawn baseline along its x axis) is rendered first, as a kept frame
@@ -534,8 +538,9 @@ class _Iteration:
         backward: the same bits, one forward more).
 
         DropGaussian (LossConfig.drop_gamma; docs/method.md §9): every render of this pass (the
-        training view's and the virtual view's) drops the same Gaussians (`drop_at`); the shared
-        soft depth term, taken on this pass's render, sees the dropped model too."""
+        training view's, the virtual view's, the cross_warp partner's) drops the same Gaussians
+        (`drop_at`); the shared soft depth term, taken on this pass's render, sees the dropped
+        model too, and the occlusion test compares depths of the one dropped model."""
         tr, L, D, ph = self.tr, self.L, self.cfg.densify, self.tr.phase
         drop = drop_at(L.drop_gamma, self.cfg.seed, it, self.cfg.iterations)
         warp = L.view_warp_weight > 0 and it >= L.view_warp_from
@@ -543,6 +548,12 @@ class _Iteration:
             b = warp_baseline(self.cfg.seed, it, L.view_warp_baseline)
             with ph("warp_render"):
                 virt = tr.forward(virtual_camera(cam, b), self.k, self.bg, self.near, drop=drop, keep=True)
+        cross = L.cross_warp > 0 and it >= L.cross_warp_from and len(self.cameras) > 1
+        j = cross_partner(self.cfg.seed, it, vi, len(self.cameras)) if cross else None
+        held = None
+        if cross and L.cross_warp_occlusion > 0:  # the partner's depth for the occlusion test (no backward)
+            with ph("cross_warp_render"):
+                held = tr.hold_depth(tr.forward(self.cameras[j], self.k, self.bg, self.near, drop=drop))
         with ph("photo_render"):
             fr = tr.forward(cam, self.k, self.bg, self.near, drop=drop)
         with ph("photo_loss"):
@@ -555,11 +566,10 @@ class _Iteration:
         if metric:
             with ph("depth_metric"):
                 v_depth = tr.depth_metric(fr, vi, L.depth_metric, into=v_depth)
-        cross = L.cross_warp > 0 and it >= L.cross_warp_from and len(self.cameras) > 1
         if cross:  # the cross-view photometric term (docs/method.md §12): a partner training view
-            j = cross_partner(self.cfg.seed, it, vi, len(self.cameras))
             with ph("cross_warp"):
-                v_depth = tr.cross_warp(fr, vi, j, self.cameras[j], L.cross_warp, self.near, into=v_depth)
+                v_depth = tr.cross_warp(fr, vi, j, self.cameras[j], L.cross_warp, self.near, into=v_depth,
+                                        occlusion=L.cross_warp_occlusion, partner_depth=held)
         with ph("photo_backward"):
             gr = tr.backward(fr, v_rgb, v_depth)
         with ph("regularize"):
@@ -610,7 +620,8 @@ class _Iteration:
         if cross:
             c = tr.read_cross_warp()
             loss += c["loss"]
-            h.cross_warp.append((it, c["loss"], c["valid_fraction"]))
+            occl = (c["occluded_fraction"],) if self.L.cross_warp_occlusion > 0 else ()
+            h.cross_warp.append((it, c["loss"], c["valid_fraction"], *occl))
         if self.reg_on:
             loss += tr.read_regularize()
         return loss, psnr

@@ -5,7 +5,10 @@ gradient at all), central differences of the float64 twin and of the loss throug
 render, the kernel against the twin (zero-alpha pixels, NaN / infinite / negative depths, points
 behind the partner camera, the far border), the host trainer's float32 mirror against the kernel
 bit for bit, the device engine against the host engine on a short fit, resume, off = no call, the
-options, and Oclgrind."""
+options, and Oclgrind. The occlusion test (LossConfig.cross_warp_occlusion): a hand-built near strip
+in front of a far plane (exactly which pixels the partner cannot see), the kernel against the twin
+and the mirror on random partner depths, central differences with it on, tolerance 0 = the term
+without it bit for bit (kernel and fit), the engines, resume and Oclgrind with it on."""
 from __future__ import annotations
 
 import types
@@ -15,7 +18,7 @@ import numpy as np
 import pytest
 
 from cases import (assert_engines_agree, assert_fd_along_random_directions, assert_resumes_bit_identically,
-                   dngaussian_fit_case, fit_case, gaussians_before, make_camera, rotation_viewmat)
+                   assert_same_state, dngaussian_fit_case, fit_case, gaussians_before, make_camera, rotation_viewmat)
 from reings.backends import get_backend
 from reings.backends.opencl import quirks
 from reings.backends.reference import render64
@@ -41,28 +44,36 @@ def _scale(w, h, weight):
     return np.float32(weight / (3.0 * h * w))
 
 
-def _run(device, d, a, ii, ij, ci, cj, weight, into=None):
-    """The device trainer's cross_warp on these maps: (dL/dD, read_cross_warp())."""
+def _run(device, d, a, ii, ij, ci, cj, weight, into=None, tol=0.0, partner=None):
+    """The device trainer's cross_warp on these maps: (dL/dD, read_cross_warp()); tol > 0: the
+    occlusion test against partner = (depth_j, alpha_j), held by hold_depth."""
     import pyopencl as cl
 
-    h, w = d.shape
     tr = get_backend(device).trainer([ii, ij], engine="device")
     mf = cl.mem_flags.READ_WRITE | cl.mem_flags.COPY_HOST_PTR
     ctx = tr.handle.context
-    fr = types.SimpleNamespace(width=w, height=h, camera=ci,
-                               bufs={"out_depth": cl.Buffer(ctx, mf, hostbuf=np.ascontiguousarray(d, np.float32)),
-                                     "out_alpha": cl.Buffer(ctx, mf, hostbuf=np.ascontiguousarray(a, np.float32))})
+
+    def frame(cam, dd, aa):
+        return types.SimpleNamespace(width=cam.width, height=cam.height, camera=cam,
+                                     bufs={k: cl.Buffer(ctx, mf, hostbuf=np.ascontiguousarray(x, np.float32))
+                                           for k, x in (("out_depth", dd), ("out_alpha", aa))})
+
+    held = None if partner is None else tr.hold_depth(frame(cj, *partner))
     bb = None if into is None else cl.Buffer(ctx, mf, hostbuf=np.ascontiguousarray(into, np.float32))
-    g = tr._read(tr.cross_warp(fr, 0, 1, cj, weight, NEAR, into=bb), (h, w), np.float32)
-    return g, tr.read_cross_warp()
+    v = tr.cross_warp(frame(ci, d, a), 0, 1, cj, weight, NEAR, into=bb, occlusion=tol, partner_depth=held)
+    return tr._read(v, d.shape, np.float32), tr.read_cross_warp()
 
 
-def _host(d, a, ii, ij, ci, cj, weight, into=None):
-    """The host trainer's cross_warp (the float32 mirror) on these maps."""
-    h, w = d.shape
+def _host(d, a, ii, ij, ci, cj, weight, into=None, tol=0.0, partner=None):
+    """The host trainer's cross_warp (the float32 mirror) on these maps (tol, partner: _run's)."""
     tr = get_backend("reference").trainer([ii, ij], engine="host")
-    fr = types.SimpleNamespace(width=w, height=h, cam=ci, out=types.SimpleNamespace(depth=d, alpha=a))
-    g = tr.cross_warp(fr, 0, 1, cj, weight, NEAR, into=into)
+
+    def frame(cam, dd, aa):
+        return types.SimpleNamespace(width=cam.width, height=cam.height, cam=cam,
+                                     out=types.SimpleNamespace(depth=dd, alpha=aa))
+
+    held = None if partner is None else tr.hold_depth(frame(cj, *partner))
+    g = tr.cross_warp(frame(ci, d, a), 0, 1, cj, weight, NEAR, into=into, occlusion=tol, partner_depth=held)
     return g, tr.read_cross_warp()
 
 
@@ -114,10 +125,14 @@ def test_twin_identical_and_rotation_only_cameras():
     assert ok.any() and np.abs(g).max() < 1e-12
 
 
-def test_twin_gradient_fd():
+@pytest.mark.parametrize("tol", [0.0, 0.03])
+def test_twin_gradient_fd(tol):
     """Central differences of the twin's loss along random directions of the depth: each pixel's
     term depends on its own depth only, smoothly away from the L1 kink and the bilinear cell edges
-    (which a 1e-7 step crosses with negligible probability on these random maps)."""
+    (which a 1e-7 step crosses with negligible probability on these random maps). tol > 0: with the
+    occlusion test against a random partner depth (a constant), which leaves out a good share of
+    the pixels; the step moves no pixel across it (nor p' across a partner pixel) but with the
+    same negligible probability."""
     rng = np.random.default_rng(3)
     h, w = 14, 18
     ci = make_camera(w, h, viewmat=rotation_viewmat())
@@ -126,15 +141,175 @@ def test_twin_gradient_fd():
     a = rng.uniform(0.3, 1, (h, w))
     d = d0 * a
     ii, ij = rng.uniform(0, 1, (h, w, 3)), rng.uniform(0, 1, (h, w, 3))
-    loss, g, ok = cross_warp_fwd_bwd(d, a, ii, ij, ci, cj, 0.7, NEAR)
-    assert ok.sum() > 0.3 * h * w and (~ok).sum() > 0 and np.abs(g[ok]).max() > 0
+    aj = rng.uniform(0.3, 1, (h, w))
+    occ = dict(occlusion=tol, depth_j=aj * rng.uniform(1.0, 4.5, (h, w)), alpha_j=aj)
+    loss, g, ok = cross_warp_fwd_bwd(d, a, ii, ij, ci, cj, 0.7, NEAR, **occ)
+    assert ok.sum() > 0.2 * h * w and (~ok).sum() > 0 and np.abs(g[ok]).max() > 0
+    if tol:
+        occluded = cross_warp_fwd_bwd(d, a, ii, ij, ci, cj, 0.7, NEAR)[2] & ~ok
+        assert occluded.sum() > 0.1 * h * w and not np.any(g[occluded])
     e = 1e-7
     for trial in range(5):
         v = rng.normal(size=(h, w))
-        fd = (cross_warp_fwd_bwd(d + e * v, a, ii, ij, ci, cj, 0.7, NEAR)[0]
-              - cross_warp_fwd_bwd(d - e * v, a, ii, ij, ci, cj, 0.7, NEAR)[0]) / (2 * e)
+        fd = (cross_warp_fwd_bwd(d + e * v, a, ii, ij, ci, cj, 0.7, NEAR, **occ)[0]
+              - cross_warp_fwd_bwd(d - e * v, a, ii, ij, ci, cj, 0.7, NEAR, **occ)[0]) / (2 * e)
         an = float(np.sum(g * v))
         assert fd == pytest.approx(an, rel=1e-5, abs=1e-10), trial
+
+
+def _strip_case(tol):
+    """A near strip (z = 2, X in [0.3, 1.1] in camera i's frame, every Y) in front of a far plane
+    (z = 4), seen by camera i and by camera j, camera i moved by b = 0.5 along x (f = 16, c_x = 16,
+    W = 32): the maps of both views (the partner's depth as a render gives it, D_j = a_j Z_j) and
+    the pixels the occlusion test must leave out, worked out column by column from the geometry
+    alone. Rows of the partner: 0, 5 as built; 1 alpha 0.3 (below alpha_min: no test); 2 alpha
+    exactly alpha_min; 3 the far plane a little nearer, 4 / (1 + tol / 2) (inside the tolerance);
+    4 the far plane at 4 / (1 + 2 tol) (beyond it: every far pixel of view i is hidden)."""
+    h, w, f, b, x0, x1 = 6, 32, 16.0, 0.5, 0.3, 1.1
+    ci = make_camera(w, h, f=f)
+    cj = _moved(ci, centre_shift=(b, 0, 0))
+    cols = np.arange(w) + 0.5 - ci.cx
+    zi = np.where((2 * cols / f >= x0) & (2 * cols / f <= x1), 2.0, 4.0)  # view i: the strip hides the plane
+    zj = np.where((2 * cols / f + b >= x0) & (2 * cols / f + b <= x1), 2.0, 4.0)  # view j's rays: X = X_j + b
+    a = np.ones((h, w))
+    d = a * zi
+    aj = np.ones((h, w))
+    aj[1], aj[2] = 0.3, CROSS_WARP_ALPHA_MIN
+    zjr = np.tile(zj, (h, 1))
+    zjr[3][zj == 4] = 4 / (1 + tol / 2)
+    zjr[4][zj == 4] = 4 / (1 + 2 * tol)
+    # view i's pixel x at depth z lands at p'_x = x - f b / z in view j (2 px at the plane, 4 on the strip)
+    px = np.arange(w) - f * b / zi
+    seen = (px >= 0) & (px <= w - 1)
+    hidden = np.zeros((h, w), bool)
+    for y in range(h):
+        for x in np.flatnonzero(seen):
+            xn = int(np.floor(px[x] + 0.5))
+            if aj[y, xn] >= CROSS_WARP_ALPHA_MIN and zi[x] > zjr[y, xn] * (1 + tol):
+                hidden[y, x] = True
+    rng = np.random.default_rng(13)
+    ii, ij = rng.uniform(0, 1, (h, w, 3)), rng.uniform(0, 1, (h, w, 3))
+    maps = [m.astype(np.float32) for m in (d, a, ii, ij, aj * zjr, aj)]
+    return ci, cj, maps, seen, hidden
+
+
+def test_occlusion_strip_in_front_of_a_plane(device):
+    """_strip_case: the far-plane pixels just left of the strip in view i (x = 16, 17) are behind
+    the strip for camera j; the strip's own pixels, seen by both, are not hidden. Exactly those
+    pixels are left out by the twin, the kernel and the mirror; the others keep the values they
+    have without the test, bit for bit; and the occluded fraction counts them."""
+    tol = 0.05
+    ci, cj, (d, a, ii, ij, dj, aj), seen, hidden = _strip_case(tol)
+    for y in (0, 2, 3, 5):
+        assert list(np.flatnonzero(hidden[y])) == [16, 17]
+    assert not hidden[1].any()  # the partner's alpha is below alpha_min: no test
+    assert list(np.flatnonzero(hidden[4])) == [x for x in range(2, 32) if not 18 <= x <= 24]
+    ok0 = cross_warp_fwd_bwd(d, a, ii, ij, ci, cj, 1.0, NEAR)[2]
+    np.testing.assert_array_equal(ok0, np.broadcast_to(seen, ok0.shape))
+    _, g64, ok = cross_warp_fwd_bwd(d, a, ii, ij, ci, cj, 1.0, NEAR, occlusion=tol, depth_j=dj, alpha_j=aj)
+    np.testing.assert_array_equal(ok0 & ~ok, hidden)
+    g0, st0 = _run(device, d, a, ii, ij, ci, cj, 1.0)
+    g, st = _run(device, d, a, ii, ij, ci, cj, 1.0, tol=tol, partner=(dj, aj))
+    np.testing.assert_array_equal(g, np.where(hidden, 0, g0))
+    assert np.all(g0[hidden] != 0)
+    assert st["occluded_fraction"] == hidden.mean() and st0["occluded_fraction"] == 0
+    assert st["valid_fraction"] == ok.mean() and st0["valid_fraction"] == ok0.mean()
+    mirror, hst = _host(d, a, ii, ij, ci, cj, 1.0, tol=tol, partner=(dj, aj))
+    assert hst["occluded_fraction"] == hidden.mean() and hst["valid_fraction"] == ok.mean()
+    np.testing.assert_array_equal(mirror == 0, g == 0)
+    np.testing.assert_allclose(g, g64, rtol=1e-4, atol=1e-6 * np.abs(g64).max())
+    # the loss loses the hidden pixels' residuals: the twin's sum over the pixels left valid
+    loss0 = cross_warp_fwd_bwd(d, a, ii, ij, ci, cj, 1.0, NEAR)[0]
+    loss = cross_warp_fwd_bwd(d, a, ii, ij, ci, cj, 1.0, NEAR, occlusion=tol, depth_j=dj, alpha_j=aj)[0]
+    assert loss < loss0
+    assert st["loss"] == pytest.approx(loss, rel=1e-5) and st0["loss"] == pytest.approx(loss0, rel=1e-5)
+
+
+def test_kernel_occlusion_matches_twin_and_mirror(device):
+    """Random partner depths and alphas (some below alpha_min, some 0) on _hard_maps: the kernel
+    against the float64 twin (the occluded set and the gradient, but for the odd pixel at a float32
+    rounding of p' across a pixel or cell edge) and against the host mirror bit for bit (PoCL);
+    tolerance 0 with the partner given is the term without it, bit for bit; so is a tolerance so
+    large that no depth is beyond it (the partner read, the arithmetic of the rest unchanged)."""
+    rng = np.random.default_rng(17)
+    h, w = 37, 53
+    d, a, ii, ij = _hard_maps(rng, h, w)
+    ci = make_camera(w, h, viewmat=rotation_viewmat())
+    cj = _moved(ci, angles=(0.03, 0.08, -0.02), centre_shift=(0.6, -0.2, 0.1))
+    aj = rng.uniform(0.2, 1.0, (h, w)).astype(np.float32)
+    aj[::7] = 0.0
+    dj = (aj * rng.uniform(0.5, 5.0, (h, w))).astype(np.float32)
+    tol = 0.04
+    got, st = _run(device, d, a, ii, ij, ci, cj, 0.3, tol=tol, partner=(dj, aj))
+    mirror, hst = _host(d, a, ii, ij, ci, cj, 0.3, tol=tol, partner=(dj, aj))
+    _, g64, ok = cross_warp_fwd_bwd(d, a, ii, ij, ci, cj, 0.3, NEAR, occlusion=tol, depth_j=dj, alpha_j=aj)
+    _, _, ok0 = cross_warp_fwd_bwd(d, a, ii, ij, ci, cj, 0.3, NEAR)
+    occ64 = ok0 & ~ok
+    assert 0.08 < occ64.mean() < 0.6 and ok.mean() > 0.1
+    nz = got != 0
+    assert not np.any(nz & ~ok0)
+    assert np.mean(nz == (ok & (g64 != 0))) > 0.98
+    assert np.isclose(got, g64, rtol=1e-3, atol=1e-4 * np.abs(g64).max()).mean() > 0.98
+    assert st["occluded_fraction"] == pytest.approx(occ64.mean(), abs=0.02)
+    assert st["valid_fraction"] == pytest.approx(ok.mean(), abs=0.02)
+    cmp = np.testing.assert_array_equal if _exact(device) else (lambda x, y: np.testing.assert_allclose(x, y, rtol=1e-5))
+    cmp(got, mirror)
+    assert (st["valid_fraction"], st["occluded_fraction"]) == (hst["valid_fraction"], hst["occluded_fraction"])
+    assert st["loss"] == pytest.approx(hst["loss"], rel=1e-6)
+    base = rng.normal(size=(h, w)).astype(np.float32)
+    acc, _ = _run(device, d, a, ii, ij, ci, cj, 0.3, into=base, tol=tol, partner=(dj, aj))
+    np.testing.assert_array_equal(acc, base + got)
+    off, st_off = _run(device, d, a, ii, ij, ci, cj, 0.3)
+    for t in (0.0, 1e30):
+        g, stt = _run(device, d, a, ii, ij, ci, cj, 0.3, tol=t, partner=(dj, aj))
+        np.testing.assert_array_equal(g, off)
+        assert stt == st_off and stt["occluded_fraction"] == 0
+        np.testing.assert_array_equal(_host(d, a, ii, ij, ci, cj, 0.3, tol=t, partner=(dj, aj))[0],
+                                      _host(d, a, ii, ij, ci, cj, 0.3)[0])
+
+
+def test_occlusion_on_exact_depths_leaves_out_mismatches():
+    """The procedural scene's exact depths (alpha 1) of two training views: the test leaves out a
+    share of the pixels (its objects occlude one another and the background), and those pixels'
+    colours disagree across the views several times more than the ones kept (measured 0.19-0.22
+    against 0.04-0.05 mean |r| at 64 x 48): it removes true mismatches, not a random set."""
+    import reings
+
+    s = reings.make_procedural_scene(n_views=3, width=64, height=48, supersample=1)
+    for i, j in ((0, 1), (1, 2)):
+        ci, cj, d = s.cameras[i], s.cameras[j], s.depths[i]
+        one = np.ones_like(d)
+        ok0 = cross_warp_fwd_bwd(d, one, s.images[i], s.images[j], ci, cj, 1.0, NEAR)[2]
+        ok = cross_warp_fwd_bwd(d, one, s.images[i], s.images[j], ci, cj, 1.0, NEAR, occlusion=0.05,
+                                depth_j=s.depths[j], alpha_j=np.ones_like(s.depths[j]))[2]
+        hidden = ok0 & ~ok
+        assert 0.02 < hidden.mean() < 0.3
+
+        def mean_residual(m):  # the twin's loss over the pixels of m alone (alpha 0 elsewhere), per pixel
+            return cross_warp_fwd_bwd(d, m.astype(float), s.images[i], s.images[j], ci, cj, 1.0, NEAR)[0] * d.size / m.sum()
+
+        assert mean_residual(hidden) > 3 * mean_residual(ok), (i, j)
+
+
+def test_occlusion_needs_the_partner_depth():
+    rng = np.random.default_rng(19)
+    h, w = 6, 8
+    d, a, ii, ij = _hard_maps(rng, h, w)
+    ci = make_camera(w, h)
+    cj = _moved(ci, centre_shift=(0.1, 0, 0))
+    with pytest.raises(ValueError, match="partner_depth"):
+        _host(d, a, ii, ij, ci, cj, 1.0, tol=0.1)
+    with pytest.raises(ValueError, match="depth_j"):
+        cross_warp_fwd_bwd(d, a, ii, ij, ci, cj, 1.0, NEAR, occlusion=0.1)
+    tr = get_backend("reference").trainer([ii, ij], engine="host")
+    fr = types.SimpleNamespace(width=w, height=h, cam=ci, out=types.SimpleNamespace(depth=d, alpha=a))
+    small = types.SimpleNamespace(width=w - 1, height=h, cam=cj, out=types.SimpleNamespace(depth=d[:, 1:], alpha=a[:, 1:]))
+    with pytest.raises(ValueError, match="partner camera"):
+        tr.cross_warp(fr, 0, 1, cj, 1.0, NEAR, occlusion=0.1, partner_depth=tr.hold_depth(small))
+    old = tr.hold_depth(fr)
+    tr.hold_depth(fr)
+    with pytest.raises(ValueError, match="stale"):
+        tr.cross_warp(fr, 0, 1, cj, 1.0, NEAR, occlusion=0.1, partner_depth=old)
 # }}}
 
 
@@ -243,7 +418,7 @@ def test_kernel_behind_the_partner_and_degenerate_partner(device):
     ii, ij = rng.uniform(0, 1, (h, w, 3)).astype(np.float32), rng.uniform(0, 1, (h, w, 3)).astype(np.float32)
     back = _moved(ci, angles=(0.0, np.pi, 0.0))  # looks the other way from the same centre
     g, st = _run(device, d, a, ii, ij, ci, back, 1.0)
-    assert st == {"loss": 0.0, "valid_fraction": 0.0} and not np.any(g)
+    assert st == {"loss": 0.0, "valid_fraction": 0.0, "occluded_fraction": 0.0} and not np.any(g)
     assert not cross_warp_fwd_bwd(d, a, ii, ij, ci, back, 1.0, NEAR)[2].any()
     ahead = _moved(ci, centre_shift=(0, 0, 5.0))  # in front of every point: behind it, z_j < 0
     g, st = _run(device, d, a, ii, ij, ci, ahead, 1.0)
@@ -356,11 +531,71 @@ def test_fit_resume_is_bit_identical(device, case, tmp_path):
     assert ref.history.cross_warp
 
 
+def _with_occlusion(case, tol):
+    scene, init, cfg = case
+    return scene, init, replace(cfg, loss=replace(cfg.loss, cross_warp_occlusion=tol))
+
+
+def test_fit_occlusion_device_matches_host(device, case):
+    """With the occlusion test on, both engines give the same fit (bit for bit on PoCL) and the
+    same history, whose rows carry the occluded fraction; the partner render is its own phase;
+    the result differs from the fit without the test."""
+    occl = _with_occlusion(case, 0.02)
+    prof: dict = {}
+    host = fit_case(occl, device, engine="host", profile=prof)
+    dev = fit_case(occl, device, engine="device")
+    assert [it for it, *_ in host.history.cross_warp] == [5, 10, 15, 20, 21]
+    assert all(len(row) == 4 for row in host.history.cross_warp)
+    assert max(o for *_, o in host.history.cross_warp) > 0
+    for (_, lh, vh, oh), (_, ld, vd, od) in zip(host.history.cross_warp, dev.history.cross_warp):
+        assert lh > 0 and 0 < vh + oh <= 1
+        np.testing.assert_allclose([ld, vd, od], [lh, vh, oh], rtol=1e-5)
+    assert_engines_agree(device, host.state, dev.state, "cross_warp occlusion")
+    assert prof["cross_warp_render"] > 0 and prof["cross_warp"] > 0
+    off = fit_case(case, device, engine="host")
+    assert len(off.state) != len(host.state) or np.abs(off.state.params["means"] - host.state.params["means"]).max() > 0
+
+
+def test_fit_occlusion_off_is_the_fit_without_it(device, case, monkeypatch):
+    """Tolerance 0: no partner render, no held depth, the fit of before the option bit for bit
+    (the same config). A tolerance no depth can exceed: the partner is rendered and held on every
+    iteration of the term, one forward more each, and still the fit is the same bit for bit: the
+    extra render moves nothing (no draw, no statistic, no frame the pass uses)."""
+    from reings.backends.opencl.trainer import DeviceTrainer
+
+    calls = {"forward": 0, "hold_depth": 0}
+    for name in calls:
+        orig = getattr(DeviceTrainer, name)
+
+        def counted(self, *a, _orig=orig, _name=name, **k):
+            calls[_name] += 1
+            return _orig(self, *a, **k)
+
+        monkeypatch.setattr(DeviceTrainer, name, counted)
+    ref = fit_case(case, device, engine="device")
+    forwards = calls["forward"]
+    assert calls["hold_depth"] == 0
+    big = fit_case(_with_occlusion(case, 1e30), device, engine="device")
+    span = case[2].iterations - case[2].loss.cross_warp_from + 1
+    assert calls["hold_depth"] == span and calls["forward"] == 2 * forwards + span
+    assert_same_state(ref.state, big.state, True, "tolerance 1e30 vs 0")
+    np.testing.assert_array_equal(big.history.loss, ref.history.loss)
+    assert [tuple(r) for r in big.history.cross_warp] == [(*r, 0.0) for r in ref.history.cross_warp]
+
+
+def test_fit_occlusion_resume_is_bit_identical(device, case, tmp_path):
+    """With the occlusion test on: stopped at 17, last checkpoint at 15, inside the term's span."""
+    ref, res = assert_resumes_bit_identically(_with_occlusion(case, 0.02), device, tmp_path, stop_at=17)
+    assert [tuple(x) for x in res.history.cross_warp] == [tuple(x) for x in ref.history.cross_warp]
+    assert ref.history.cross_warp and all(len(x) == 4 for x in ref.history.cross_warp)
+
+
 def test_bad_weight_is_refused(case):
     scene, init, cfg = case
-    for bad in (-1.0, float("nan"), float("inf")):
-        with pytest.raises(ValueError, match="cross_warp"):
-            fit_case((scene, init, replace(cfg, loss=replace(cfg.loss, cross_warp=bad))), "reference")
+    for name in ("cross_warp", "cross_warp_occlusion"):
+        for bad in (-1.0, float("nan"), float("inf")):
+            with pytest.raises(ValueError, match=name):
+                fit_case((scene, init, replace(cfg, loss=replace(cfg.loss, **{name: bad}))), "reference")
 # }}}
 
 
@@ -370,21 +605,28 @@ def test_options_and_settings():
     from reings.evaluate import _ABSENT_WHEN_OFF
     from reings.pipeline import run_settings
 
-    c = config_from_args(build_parser().parse_args(["run", "--cross-warp", "0.1", "--cross-warp-start", "0.25"]))
-    assert c.cross_warp == 0.1 and c.cross_warp_start == 0.25
+    c = config_from_args(build_parser().parse_args(["run", "--cross-warp", "0.1", "--cross-warp-start", "0.25",
+                                                    "--cross-warp-occlusion", "0.05"]))
+    assert c.cross_warp == 0.1 and c.cross_warp_start == 0.25 and c.cross_warp_occlusion == 0.05
     assert RunConfig().cross_warp == 0.0 and RunConfig().cross_warp_start == 0.0
+    assert RunConfig().cross_warp_occlusion == 0.0
     s = run_settings(RunConfig(depth_prior="none").resolved(), "llff")
-    assert "cross_warp" not in s and "cross_warp_start" not in s  # absent when off
+    assert not {"cross_warp", "cross_warp_start", "cross_warp_occlusion"} & set(s)  # absent when off
     s = run_settings(RunConfig(depth_prior="none", cross_warp=0.1).resolved(), "llff")
-    assert s["cross_warp"] == 0.1 and "cross_warp_start" not in s
-    s = run_settings(RunConfig(depth_prior="none", cross_warp=0.1, cross_warp_start=0.5).resolved(), "llff")
-    assert s["cross_warp_start"] == 0.5
+    assert s["cross_warp"] == 0.1 and "cross_warp_start" not in s and "cross_warp_occlusion" not in s
+    s = run_settings(RunConfig(depth_prior="none", cross_warp=0.1, cross_warp_start=0.5,
+                               cross_warp_occlusion=0.05).resolved(), "llff")
+    assert s["cross_warp_start"] == 0.5 and s["cross_warp_occlusion"] == 0.05
     assert "cross_warp" not in run_settings(RunConfig(method="dngaussian", cross_warp=0.1).resolved(), "llff")
-    assert "cross_warp" in _ABSENT_WHEN_OFF
+    assert "cross_warp_occlusion" not in run_settings(RunConfig(cross_warp_occlusion=0.1).resolved(), "llff")
+    assert "cross_warp" in _ABSENT_WHEN_OFF and "cross_warp_occlusion" in _ABSENT_WHEN_OFF
     with pytest.raises(ValueError, match="cross_warp"):
         RunConfig(cross_warp=-0.5)
     with pytest.raises(ValueError, match="cross_warp_start"):
         RunConfig(cross_warp_start=1.0)
+    for bad in (-0.1, float("nan"), float("inf")):
+        with pytest.raises(ValueError, match="cross_warp_occlusion"):
+            RunConfig(cross_warp_occlusion=bad)
 
 
 def test_run_recipe_sets_the_term():
@@ -394,11 +636,12 @@ def test_run_recipe_sets_the_term():
     from reings.pipeline import RunContext, baseline_recipe
 
     for method, want in (("reings", 0.2), ("dngaussian", 0.0)):
-        cfg = RunConfig(method=method, depth_prior="none", cross_warp=0.2, cross_warp_start=0.5, view_warp=0.0)
+        cfg = RunConfig(method=method, depth_prior="none", cross_warp=0.2, cross_warp_start=0.5, view_warp=0.0,
+                        cross_warp_occlusion=0.03)
         ctx = RunContext.__new__(RunContext)
         ctx.cfg, ctx.family, ctx.smooth_w = cfg, "llff", None
         r = ctx.run_recipe(baseline_recipe("dngaussian", 100, 0))
-        assert r.loss.cross_warp == want
+        assert r.loss.cross_warp == want and r.loss.cross_warp_occlusion == (0.03 if want else 0.0)
         if want:
             assert r.loss.cross_warp_from == 50
 
@@ -427,14 +670,25 @@ fr = types.SimpleNamespace(width=w, height=h, camera=ci,
 g = tr._read(tr.cross_warp(fr, 0, 1, cj, 0.5, 0.01), (h, w), np.float32)
 assert np.all(np.isfinite(g)) and g[0, 0] == 0 and g[1, 0] == 0 and g[1, 1] == 0
 st = tr.read_cross_warp()
-assert np.isfinite(st["loss"]) and 0 < st["valid_fraction"] < 1
+assert np.isfinite(st["loss"]) and 0 < st["valid_fraction"] < 1 and st["occluded_fraction"] == 0
+# the occlusion test: the partner's depth held (a copy), nearer than most reprojected points
+aj = np.ones((h, w), np.float32); aj[0] = 0.2
+pf = types.SimpleNamespace(width=w, height=h, camera=cj,
+                           bufs={"out_depth": cl.Buffer(tr.handle.context, mf, hostbuf=(aj * 1.2).astype(np.float32)),
+                                 "out_alpha": cl.Buffer(tr.handle.context, mf, hostbuf=aj)})
+held = tr.hold_depth(pf)
+g = tr._read(tr.cross_warp(fr, 0, 1, cj, 0.5, 0.01, occlusion=0.05, partner_depth=held), (h, w), np.float32)
+assert np.all(np.isfinite(g))
+st = tr.read_cross_warp()
+assert np.isfinite(st["loss"]) and 0 < st["occluded_fraction"] < 1
 print("ok")
 """
 
 
 @pytest.mark.oclgrind
 def test_oclgrind_checks():
-    """cross_warp_grad and cross_warp_rows, with invalid pixels, under Oclgrind's checks."""
+    """cross_warp_grad and cross_warp_rows, with invalid pixels, without and with the occlusion
+    test (hold_depth's copies read), under Oclgrind's checks."""
     from oclgrind_util import check_script
 
     check_script(_OCLGRIND_SCRIPT)

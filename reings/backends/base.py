@@ -108,6 +108,32 @@ class Frame(Protocol):
     height: int
 
 
+@dataclass
+class HeldDepth:
+    """`Trainer.hold_depth`: a frame's depth and alpha images (device buffers or host arrays, the
+    trainer's) that survive the next `forward`, until the next `hold_depth` (`serial` tells which
+    it was): the partner view's render for `cross_warp`'s occlusion test."""
+
+    depth: Any
+    alpha: Any
+    width: int
+    height: int
+    serial: int
+
+
+def check_held_depth(held: HeldDepth | None, cam: Camera, serial: int) -> HeldDepth:
+    """`held` if it is the trainer's last `hold_depth` (`serial`) and of `cam`'s size; else
+    ValueError (cross_warp's occlusion test reads it as camera `cam`'s render)."""
+    if held is None:
+        raise ValueError("cross_warp: the occlusion test needs partner_depth (hold_depth of the partner's render)")
+    if held.serial != serial:
+        raise ValueError("cross_warp: partner_depth is stale (another hold_depth came after it)")
+    if (held.width, held.height) != (cam.width, cam.height):
+        raise ValueError(f"cross_warp: partner_depth is {held.width}x{held.height}, the partner camera "
+                         f"{cam.width}x{cam.height}")
+    return held
+
+
 class Trainer(Protocol):
     """The operations of one training iteration, on a training state held by a backend.
 
@@ -253,20 +279,28 @@ class Trainer(Protocol):
         """The loss of the last `depth_metric` (a read from the device; the loss's sums are taken
         now, from that call's frame: valid while the frame is, i.e. until the next `forward`)."""
 
+    def hold_depth(self, frame: Frame) -> HeldDepth:
+        """The frame's depth and alpha images as a handle that survives the next `forward`, until
+        the next `hold_depth` (a copy on the device): the partner view's render for `cross_warp`'s
+        occlusion test, rendered before the training view's own frame."""
+
     def cross_warp(self, frame: Frame, view: int, partner: int, partner_cam: Camera, weight: float, near: float,
-                   into: Any = None) -> Any:
+                   into: Any = None, occlusion: float = 0.0, partner_depth: HeldDepth | None = None) -> Any:
         """dL/d depth of the cross-view photometric term of this frame (a render of training view
         `view`): its depth reprojects each pixel into training view `partner` (camera
         `partner_cam`), whose training image, sampled there, is compared with view `view`'s
         (weight / 3HW * sum |I_partner(p') - I_view(p)|; reference_cross_warp.cross_warp_fwd_bwd;
         kernels/cross_warp.cl; docs/method.md §12), for `backward(v_depth=...)`; added into `into`
-        (another depth cotangent of the same frame) and returned when given. The loss waits for
-        `read_cross_warp`."""
+        (another depth cotangent of the same frame) and returned when given. occlusion > 0: the
+        occlusion test with that tolerance, against `partner_depth` (`hold_depth` of a render of
+        `partner_cam`, held constant); 0: no test. The loss waits for `read_cross_warp`."""
 
     def read_cross_warp(self) -> dict:
-        """{"loss", "valid_fraction"} of the last `cross_warp` (a read from the device; the loss's
-        sums are taken now, from that call's frame: valid while the frame is, i.e. until the next
-        `forward`; the fit's loop reads on logging iterations before it)."""
+        """{"loss", "valid_fraction", "occluded_fraction"} of the last `cross_warp` (a read from the
+        device; the loss's sums are taken now, from that call's frame and held partner depth: valid
+        while the frame is, i.e. until the next `forward`; the fit's loop reads on logging
+        iterations before it). occluded_fraction: the pixels the occlusion test left out (0 without
+        it), of H W as valid_fraction."""
 
     def hold(self, grads: Any) -> Any:
         """The gradients of the last `backward` as a handle that survives the next `backward` (to

@@ -26,6 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..types import ACCUM, FIELDS, PARAM_NAMES, Camera, Gaussians, RenderOutput
+from .base import HeldDepth, check_held_depth
 from .reference_drop import Drop
 from .reference_loss import DepthSmoothWeights, mse, regularize_fwd_bwd
 from .reference_state import (adam_update, densify_accumulate, grad_add, ndc_grad_norm, opacity_decay_, sh_pack,
@@ -76,7 +77,8 @@ class HostTrainer:
         self._reg_value = None  # the last regularize(value=True)'s penalties (read_regularize)
         self.dm: list = []  # per view: (weights, target, S, valid pixels) of the metric depth term, or None
         self._dm = None  # the last depth_metric call's (residual, weights, target, valid, scale), or None
-        self._cw = None  # the last cross_warp call's (residuals, valid mask, H, W, scale)
+        self._cw = None  # the last cross_warp call's (residuals, valid mask, occluded mask, H, W, scale)
+        self._held_depth = 0  # hold_depth calls: a held depth is valid while its count is the last
         self._zeros: dict = {}  # (H, W) -> zero colour cotangent of the depth passes
         self._tmp = np.empty(0, _F32)  # Adam scratch, grown geometrically
 
@@ -262,20 +264,30 @@ class HostTrainer:
             acc += rows[:, x]
         return float(scale) * float(np.sum(acc.astype(np.float64)))
 
+    def hold_depth(self, fr: HostFrame) -> HeldDepth:
+        """Trainer.hold_depth: float32 copies of the frame's depth and alpha."""
+        self._held_depth += 1
+        return HeldDepth(np.array(fr.out.depth, _F32), np.array(fr.out.alpha, _F32), fr.width, fr.height,
+                         self._held_depth)
+
     def cross_warp(self, fr: HostFrame, view: int, partner: int, partner_cam: Camera, weight: float, near: float,
-                   into=None) -> np.ndarray:
+                   into=None, occlusion: float = 0.0, partner_depth: HeldDepth | None = None) -> np.ndarray:
         """Trainer.cross_warp: kernels/cross_warp.cl's float32 operations in its order
-        (reference_cross_warp.cross_warp_f32; the float64 form is cross_warp_fwd_bwd); returns
-        dL/d depth [H,W], or `into` with it added. The loss's row sums wait for `read_cross_warp`
-        (from the residuals kept here)."""
+        (reference_cross_warp.cross_warp_f32; the float64 form is cross_warp_fwd_bwd), the
+        occlusion test against `partner_depth` when occlusion > 0; returns dL/d depth [H,W], or
+        `into` with it added. The loss's row sums wait for `read_cross_warp` (from the residuals
+        kept here)."""
         from .reference_cross_warp import CROSS_WARP_ALPHA_MIN, cross_warp_args, cross_warp_grad_f32
 
         h, w = fr.height, fr.width
         hm, e = cross_warp_args(fr.cam, partner_cam)
         scale = _F32(weight / (3.0 * h * w)) if h * w else _F32(0)
-        g, r, ok = cross_warp_grad_f32(fr.out.depth, fr.out.alpha, self.images[view], self.images[partner], hm, e,
-                                       near, CROSS_WARP_ALPHA_MIN, scale)
-        self._cw = (r, ok, h, w, scale)
+        tol = _F32(occlusion)
+        pd = check_held_depth(partner_depth, partner_cam, self._held_depth) if tol > 0 else None
+        g, r, ok, occ = cross_warp_grad_f32(fr.out.depth, fr.out.alpha, self.images[view], self.images[partner], hm,
+                                            e, near, CROSS_WARP_ALPHA_MIN, scale, tol,
+                                            *((pd.depth, pd.alpha) if pd is not None else (None, None)))
+        self._cw = (r, ok, occ, h, w, scale)
         if into is None:
             return g
         into += g
@@ -288,12 +300,12 @@ class HostTrainer:
 
         if self._cw is None:
             raise RuntimeError("read_cross_warp before a cross_warp")
-        r, ok, h, w, scale = self._cw
+        r, ok, occ, h, w, scale = self._cw
         if h * w == 0:
-            return {"loss": 0.0, "valid_fraction": 0.0}
-        rows, counts = cross_warp_rows_f32(r, ok)
+            return {"loss": 0.0, "valid_fraction": 0.0, "occluded_fraction": 0.0}
+        rows, counts, occluded = cross_warp_rows_f32(r, ok, occ)
         return {"loss": float(scale) * float(np.sum(rows.astype(np.float64))),
-                "valid_fraction": int(np.sum(counts)) / (h * w)}
+                "valid_fraction": int(np.sum(counts)) / (h * w), "occluded_fraction": int(np.sum(occluded)) / (h * w)}
 
     def hold(self, grads: dict) -> dict:
         """Trainer.hold: writable float32 copies (render_vjp's arrays are fresh, but `regularize`

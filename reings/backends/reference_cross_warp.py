@@ -17,10 +17,16 @@ fraction 1). The gradient reaches D only (the images are constants):
     dL/dD_p = w / (3 H W) / a_p * sum_c sign(r_c) (dI/du du/dz + dI/dv dv/dz)
 
 with the bilinear cell's slopes (one-sided at integer positions: the cell to the right / below)
-and du/dz = f_x (dX_j,x z_j - X_j,x dz_j) / z_j^2 along the ray (dX_j = R_j R_i^T K_i^-1 q). No
-occlusion test. The normaliser is the constant 3 H W (as the view_warp term's L1, docs/binocular.md):
-the loss is then one fixed function of D, its gradient needs no reduction before it, and a view pair
-that overlaps less pulls less.
+and du/dz = f_x (dX_j,x z_j - X_j,x dz_j) / z_j^2 along the ray (dX_j = R_j R_i^T K_i^-1 q). The
+normaliser is the constant 3 H W (as the view_warp term's L1, docs/binocular.md): the loss is then one
+fixed function of D, its gradient needs no reduction before it, and a view pair that overlaps less
+pulls less.
+
+The occlusion test (`occlusion` = tol > 0; off at 0): with D_j, a_j view j's rendered depth and alpha
+(a render of the partner, held constant), a pixel otherwise valid is occluded, and left out, when
+a_j >= alpha_min and z_j > (D_j / a_j) (1 + tol) at the nearest pixel of p',
+(floor(p'_x + 0.5), floor(p'_y + 0.5)) clamped to (W_j - 1, H_j - 1); where a_j < alpha_min there is no
+test. The gradient of the pixels left valid is unchanged (the test is a step: no derivative).
 """
 from __future__ import annotations
 
@@ -47,8 +53,10 @@ def cross_warp_args(cam_i, cam_j) -> tuple[np.ndarray, np.ndarray]:
 
 
 def cross_warp_fwd_bwd(depth, alpha, image_i, image_j, cam_i, cam_j, weight: float, near: float,
-                       alpha_min: float = CROSS_WARP_ALPHA_MIN):
-    """The term in float64 from the cameras (module docstring). Returns (L, dL/dD [H,W], valid [H,W])."""
+                       alpha_min: float = CROSS_WARP_ALPHA_MIN, occlusion: float = 0.0, depth_j=None, alpha_j=None):
+    """The term in float64 from the cameras (module docstring). Returns (L, dL/dD [H,W], valid [H,W]).
+    occlusion: the occlusion test's tolerance (0: off), against view j's rendered depth_j, alpha_j
+    [H_j,W_j] (needed when on); the occluded pixels are those valid with occlusion 0 and not with it."""
     d = np.asarray(depth, np.float64)
     a = np.asarray(alpha, np.float64)
     ii = np.asarray(image_i, np.float64)
@@ -77,6 +85,8 @@ def cross_warp_fwd_bwd(depth, alpha, image_i, image_j, cam_i, cam_j, weight: flo
         u = cam_j.fx * xj[..., 0] / zs + cam_j.cx - 0.5
         v = cam_j.fy * xj[..., 1] / zs + cam_j.cy - 0.5
         ok &= (u >= 0) & (u <= wj - 1) & (v >= 0) & (v <= hj - 1) & (wj >= 2) & (hj >= 2)
+        if occlusion > 0:
+            ok &= ~_occluded64(ok, u, v, zj, depth_j, alpha_j, (hj, wj), occlusion, alpha_min)
         dudz = cam_j.fx * (dxj[..., 0] * zs - xj[..., 0] * dxj[..., 2]) / zs ** 2
         dvdz = cam_j.fy * (dxj[..., 1] * zs - xj[..., 1] * dxj[..., 2]) / zs ** 2
     u, v = np.where(ok, u, 0.0), np.where(ok, v, 0.0)
@@ -98,17 +108,37 @@ def cross_warp_fwd_bwd(depth, alpha, image_i, image_j, cam_i, cam_j, weight: flo
     return loss, grad, ok
 
 
-def cross_warp_f32(depth, alpha, image_i, image_j, hm, e, near: float, alpha_min: float, scale):
+def _occluded64(ok, u, v, zj, depth_j, alpha_j, shape_j, tol: float, alpha_min: float):
+    """The occlusion test in float64 (module docstring): [H,W] bool, True where `ok` and view j's
+    surface at p's nearest pixel (u, v: p' in pixel indices) is nearer than z_j / (1 + tol)."""
+    if depth_j is None or alpha_j is None:
+        raise ValueError("cross_warp: the occlusion test needs the partner's rendered depth_j and alpha_j")
+    dj, aj = np.asarray(depth_j, np.float64), np.asarray(alpha_j, np.float64)
+    if dj.shape != shape_j or aj.shape != shape_j:
+        raise ValueError(f"cross_warp: depth_j {dj.shape}, alpha_j {aj.shape}, partner image {shape_j}")
+    xn = np.minimum(np.floor(np.where(ok, u, 0.0) + 0.5).astype(np.int64), shape_j[1] - 1)
+    yn = np.minimum(np.floor(np.where(ok, v, 0.0) + 0.5).astype(np.int64), shape_j[0] - 1)
+    a = aj[yn, xn]
+    test = a >= alpha_min
+    zn = dj[yn, xn] / np.where(test, a, 1.0)
+    return ok & test & (zj > zn * (1.0 + tol))
+
+
+def cross_warp_f32(depth, alpha, image_i, image_j, hm, e, near: float, alpha_min: float, scale,
+                   tol: float = 0.0, depth_j=None, alpha_j=None):
     """kernels/cross_warp.cl's float32 operations in its order, vectorised (the host trainer's
     mirror): (dL/dD [H,W] float32, row sums of |r| [H] float32 (left to right, channels in order),
-    valid pixels per row [H] int64). hm, e: cross_warp_args; scale: float32(w / (3 H W))."""
-    g, r, ok = cross_warp_grad_f32(depth, alpha, image_i, image_j, hm, e, near, alpha_min, scale)
-    return (g, *cross_warp_rows_f32(r, ok))
+    valid pixels per row [H] int64, occluded pixels per row [H] int64). hm, e: cross_warp_args;
+    scale: float32(w / (3 H W)); tol, depth_j, alpha_j: the occlusion test (tol 0: off)."""
+    g, r, ok, occ = cross_warp_grad_f32(depth, alpha, image_i, image_j, hm, e, near, alpha_min, scale,
+                                        tol, depth_j, alpha_j)
+    return (g, *cross_warp_rows_f32(r, ok, occ))
 
 
-def cross_warp_rows_f32(r, ok):
-    """cross_warp_rows's float32 sums from cross_warp_grad_f32's residuals and valid mask: (row
-    sums of |r| [H] float32, left to right, channels in order; valid pixels per row [H] int64)."""
+def cross_warp_rows_f32(r, ok, occ):
+    """cross_warp_rows's float32 sums from cross_warp_grad_f32's residuals, valid and occluded
+    masks: (row sums of |r| [H] float32, left to right, channels in order; valid pixels per row [H]
+    int64; occluded pixels per row [H] int64)."""
     f = _F32
     h, w = ok.shape
     ab = np.where(ok[..., None], np.abs(r), f(0)).astype(f)
@@ -116,12 +146,15 @@ def cross_warp_rows_f32(r, ok):
     for x in range(w):  # left to right, channels in order, as cross_warp_rows
         for c in range(3):
             rows = rows + ab[:, x, c]
-    return rows, ok.sum(1)
+    return rows, ok.sum(1), occ.sum(1)
 
 
-def cross_warp_grad_f32(depth, alpha, image_i, image_j, hm, e, near: float, alpha_min: float, scale):
+def cross_warp_grad_f32(depth, alpha, image_i, image_j, hm, e, near: float, alpha_min: float, scale,
+                        tol: float = 0.0, depth_j=None, alpha_j=None):
     """cross_warp_grad's float32 operations in its order: (dL/dD [H,W] float32, the residuals
-    [H,W,3] float32, valid [H,W] bool); the row sums come from cross_warp_rows_f32 when read."""
+    [H,W,3] float32, valid [H,W] bool, occluded [H,W] bool); the row sums come from
+    cross_warp_rows_f32 when read. tol > 0: the occlusion test against view j's rendered depth_j,
+    alpha_j [Hj,Wj]."""
     f = _F32
     d = np.asarray(depth, f)
     a = np.asarray(alpha, f)
@@ -147,6 +180,16 @@ def cross_warp_grad_f32(depth, alpha, image_i, image_j, hm, e, near: float, alph
         v = sy / sz - f(0.5)
         ok &= (u >= f(0)) & (u <= f(wj - 1)) & (v >= f(0)) & (v <= f(hj - 1))
         u, v = np.where(ok, u, f(0)), np.where(ok, v, f(0))
+        occ = np.zeros((h, w), bool)
+        if f(tol) > 0:  # the kernel's test, in its float32 operations (tol as the kernel gets it)
+            if depth_j is None or alpha_j is None:
+                raise ValueError("cross_warp: the occlusion test needs the partner's rendered depth_j and alpha_j")
+            dj, aj = np.asarray(depth_j, f), np.asarray(alpha_j, f)
+            xn = np.minimum(np.floor(u + f(0.5)).astype(np.int64), wj - 1)
+            yn = np.minimum(np.floor(v + f(0.5)).astype(np.int64), hj - 1)
+            an = aj[yn, xn]
+            occ = ok & (an >= amin) & ((z * sz) > (dj[yn, xn] / an) * (f(1) + f(tol)))
+            ok &= ~occ
         x0 = np.minimum(np.floor(u).astype(np.int64), max(wj - 2, 0))
         y0 = np.minimum(np.floor(v).astype(np.int64), max(hj - 2, 0))
         fu, fv = u - x0.astype(f), v - y0.astype(f)
@@ -170,4 +213,4 @@ def cross_warp_grad_f32(depth, alpha, image_i, image_j, hm, e, near: float, alph
         dvdz = (sy * e[2] - e[1] * sz) * k2
         gz = acc_u * dudz + acc_v * dvdz
         g = np.where(ok, scale * (gz / a), f(0)).astype(f)
-    return g, r, ok
+    return g, r, ok, occ

@@ -11,6 +11,8 @@ Kept on the device for the whole fit (buffers of a private `Scratch`, grown geom
     dt<i>                          the training views' depth targets [H,W] (upload_depth_targets, once per fit)
     dw<i>                          their per-pixel depth-loss weights [H,W] (--depth-confidence; only when given)
     v_rgb, v_depth                 the cotangent images of the current pass
+    held_depth, held_alpha         a render's depth and alpha kept past the next forward (hold_depth: the
+                                   cross_warp partner's, for its occlusion test)
     sh_packed                      [N,k,3] SH at the active degree (kernels/sh_pack.cl, redone only
                                    after the SH groups were stepped or the degree changed)
 
@@ -53,6 +55,7 @@ from contextlib import ExitStack, contextmanager
 import numpy as np
 
 from ...types import ACCUM, COUNT, PARAM_NAMES, RADII
+from ..base import HeldDepth, check_held_depth
 from ..reference_cross_warp import CROSS_WARP_ALPHA_MIN, cross_warp_args
 from ..reference_loss import REG_VALUE_COLS, DepthSmoothWeights, regularize_value
 from ..reference_state import adam_update, zero_stats
@@ -137,6 +140,7 @@ class DeviceTrainer:
         self.k_cw_rows = backend.kernel("cross_warp.cl", "cross_warp_rows")
         self._cw_geom: dict = {}  # (view, partner) -> (camera, partner camera, kernel geometry arguments)
         self._cw_last = None  # (geometry, image buffers, H, W, scale) of the last cross_warp call, for read_cross_warp
+        self._held_depth = 0  # hold_depth calls: a held depth is valid while its count is the last
         self.bg: list = []  # per view: (mask buffer, float32 2 / count) or None (upload_bg_masks)
         self.real = _F64 if self.fp64 else _F32
         self.l1_wg = 1 if backend.cpu else 64  # L1-only loss work-group (kernels/l1.cl)
@@ -543,47 +547,73 @@ class DeviceTrainer:
         self._launch("depth_metric_rows", self.k_dm_rows, h, _I32(w), _I32(h), *args, rows)
         return float(scale) * float(np.sum(self._read(rows, (h,), _F32).astype(_F64)))
 
-    def cross_warp(self, fr, view: int, partner: int, partner_cam, weight: float, near: float, into=None):
+    def hold_depth(self, fr) -> HeldDepth:
+        """Trainer.hold_depth: device copies of the frame's depth and alpha buffers into the
+        trainer's held_depth / held_alpha (the next forward, which reuses the frame slot's, leaves
+        them alone), valid until the next hold_depth."""
+        npx = fr.width * fr.height
+        d = self.mem.get("pixel", "held_depth", max(npx, 1), 4)
+        a = self.mem.get("pixel", "held_alpha", max(npx, 1), 4)
+        if npx:
+            self.cl.enqueue_copy(self.queue, d, fr.bufs["out_depth"], byte_count=4 * npx)
+            self.cl.enqueue_copy(self.queue, a, fr.bufs["out_alpha"], byte_count=4 * npx)
+        self._held_depth += 1
+        return HeldDepth(d, a, fr.width, fr.height, self._held_depth)
+
+    def cross_warp(self, fr, view: int, partner: int, partner_cam, weight: float, near: float, into=None,
+                   occlusion: float = 0.0, partner_depth: HeldDepth | None = None):
         """Trainer.cross_warp: kernels/cross_warp.cl's depth cotangent of the frame (a render of
         training view `view`) from training image `partner` (its camera `partner_cam`) against
         training image `view`, into the trainer's cw_v_depth buffer (returned), or added into the
-        device buffer `into` (returned); the loss's row sums and valid counts wait for
-        `read_cross_warp`, which launches them on this frame's buffers (valid until the next forward)."""
+        device buffer `into` (returned); occlusion > 0: the occlusion test against `partner_depth`
+        (`hold_depth` of a render of `partner_cam`). The loss's row sums and counts wait for
+        `read_cross_warp`, which launches them on this frame's buffers (valid until the next forward)
+        and the held depth's."""
         h, w = fr.height, fr.width
         npx = h * w
-        geom = self._cross_warp_geom(view, partner, fr.camera, partner_cam, w, h, near)
+        geom = self._cross_warp_geom(view, partner, fr.camera, partner_cam, w, h, near, occlusion)
         scale = _F32(weight / (3.0 * npx)) if npx else _F32(0)
         imgs = (fr.bufs["out_depth"], fr.bufs["out_alpha"], self.gt[view], self.gt[partner])
+        tol = geom[-1]  # float32, as the kernel tests it
+        if tol > 0:
+            pd = check_held_depth(partner_depth, partner_cam, self._held_depth)
+            imgs += (pd.depth, pd.alpha)
+        else:  # the test is off: the kernel reads no partner depth
+            imgs += imgs[:2]
         v = into if into is not None else self.mem.get("pixel", "cw_v_depth", max(npx, 1), 4)
         self._launch("cross_warp", self.k_cw_grad, npx, *geom, scale, _I32(into is not None), *imgs, v)
         self._cw_last = (geom, imgs, h, w, scale)
         return v
 
-    def _cross_warp_geom(self, view: int, partner: int, cam, partner_cam, w: int, h: int, near: float) -> tuple:
+    def _cross_warp_geom(self, view: int, partner: int, cam, partner_cam, w: int, h: int, near: float,
+                         occlusion: float) -> tuple:
         """cross_warp's kernel arguments before the scale: the sizes, hm, e (cross_warp_args, kept
-        per (view, partner) while the two cameras are the same objects), near and alpha_min."""
+        per (view, partner) while the two cameras are the same objects), near, alpha_min and the
+        occlusion tolerance (float32; 0: off)."""
         hit = self._cw_geom.get((view, partner))
         if hit is None or hit[0] is not cam or hit[1] is not partner_cam:
             hm, e = cross_warp_args(cam, partner_cam)
             hit = self._cw_geom[(view, partner)] = (cam, partner_cam, (*(_F32(x) for x in hm), *(_F32(x) for x in e)))
         return (_I32(w), _I32(h), _I32(partner_cam.width), _I32(partner_cam.height), *hit[2],
-                _F32(near), _F32(CROSS_WARP_ALPHA_MIN))
+                _F32(near), _F32(CROSS_WARP_ALPHA_MIN), _F32(occlusion))
 
     def read_cross_warp(self) -> dict:
-        """Trainer.read_cross_warp: the last cross_warp call's loss and valid fraction:
+        """Trainer.read_cross_warp: the last cross_warp call's loss, valid and occluded fractions:
         cross_warp_rows on its frame's buffers (valid until the next forward), then blocking reads
         of the H row sums and counts, summed in float64."""
         if self._cw_last is None:
             raise RuntimeError("read_cross_warp before a cross_warp")
         geom, imgs, h, w, scale = self._cw_last
         if h * w == 0:
-            return {"loss": 0.0, "valid_fraction": 0.0}
+            return {"loss": 0.0, "valid_fraction": 0.0, "occluded_fraction": 0.0}
         rows = self.mem.get("small", "cw_rows", h, 4)
         counts = self.mem.get("small", "cw_counts", h, 4)
-        self._launch("cross_warp_rows", self.k_cw_rows, h, *geom, *imgs, rows, counts)
+        occluded = self.mem.get("small", "cw_occluded", h, 4)
+        self._launch("cross_warp_rows", self.k_cw_rows, h, *geom, *imgs, rows, counts, occluded)
         total = float(np.sum(self._read(rows, (h,), _F32).astype(_F64)))
         valid = int(np.sum(self._read(counts, (h,), _I32).astype(np.int64)))
-        return {"loss": float(scale) * total, "valid_fraction": valid / (h * w)}
+        occ = int(np.sum(self._read(occluded, (h,), _I32).astype(np.int64)))
+        return {"loss": float(scale) * total, "valid_fraction": valid / (h * w), "occluded_fraction": occ / (h * w)}
 
     def hold(self, grads: dict) -> dict:
         """Trainer.hold: device copies of the gradient buffers (trainer-owned, so the next
