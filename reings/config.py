@@ -632,11 +632,13 @@ class RunConfig:
                                            "confidence; 0 = off; none: the recipe family's (off for 'llff' and 'dtu')",
                                      check=lambda v: None if v is None or (v >= 0 and v == v and v != float("inf"))
                                      else f"must be >= 0 and finite, got {v}", metavar="WEIGHT")
-    cross_warp: float = opt(0.0, "reings fits only: weight of the cross-view photometric term (docs/method.md §12): "
-                                 "the rendered depth of the view being trained reprojects its pixels into "
-                                 "another training view, whose training image must match there (L1, gradient to "
-                                 "the depth only; no prior needed); 0 = off", check=finite_nonneg,
-                            metavar="WEIGHT")
+    cross_warp: float | None = opt(None, "reings fits only: weight of the cross-view photometric term (docs/method.md "
+                                         "§12): the rendered depth of the view being trained reprojects its pixels "
+                                         "into another training view, whose training image must match there (L1, "
+                                         "gradient to the depth only; no prior needed); 0 = off; none: the recipe "
+                                         "family's (0.1 for 'llff' with --depth-prior none, off for 'dtu' and with "
+                                         "any depth prior; docs/results.md §24)", check=finite_nonneg,
+                                   metavar="WEIGHT")
     cross_warp_start: float = opt(0.0, "reings fits only: where the cross_warp term starts, as a fraction of each "
                                        "fit's iterations (0: from the first)",
                                   check=lambda v: None if 0 <= v < 1 else f"must lie in [0, 1), got {v}",

@@ -40,7 +40,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from .config import RUN_PRESETS, ReInGSConfig, RunConfig, run_config  # noqa: F401 (ReInGSConfig: re-exported)
-from .data.depth_prior import prior_kind
+from .data.depth_prior import NO_PRIOR, prior_kind
 from .reinit import (cvps_select, ehps_init, gaussian_importance, ivps_points, prune_keep_indices,
                      stereo_box, stereo_seed_points)
 from .train import fit, gaussians_from_points, random_points_in_box, scene_extent, with_iterations
@@ -191,8 +191,9 @@ def run_settings(cfg: RunConfig, dataset_kind: str) -> dict:
             s["opacity_decay"] = cfg.opacity_decay
         if prune_unseen_of(cfg, recipe_family(cfg.recipe, dataset_kind)):  # absent when off (older folders resume)
             s["prune_unseen"] = True
-        if cfg.cross_warp:  # the cross-view photometric term: absent when off (older folders resume)
-            s["cross_warp"] = cfg.cross_warp
+        cross = cross_warp_of(cfg, recipe_family(cfg.recipe, dataset_kind))
+        if cross:  # the cross-view photometric term, the value the fits use: absent when off (older folders resume)
+            s["cross_warp"] = cross
             if cfg.cross_warp_start:
                 s["cross_warp_start"] = cfg.cross_warp_start
             if cfg.cross_warp_occlusion:
@@ -237,6 +238,12 @@ DROP_GAMMA_BY_FAMILY = {"llff": 0.2, "dtu": 0.2}
 PRUNE_UNSEEN_BY_FAMILY = {"llff": True, "dtu": False}
 DROP_METHODS = ("reings", "dngaussian")  # the methods whose fits take RunConfig.drop_gamma
 DEPTH_METRIC_BY_FAMILY = {"llff": 0.0, "dtu": 0.0}  # RunConfig.depth_metric = none: off until measured
+# RunConfig.cross_warp = none, reings fits with --depth-prior none (docs/results.md §24; the term:
+# docs/method.md §12): LLFF fern + flower, full schedule, seeds 0-2, NVIDIA: weight 0.1 takes
+# 2 views 18.42 -> 19.27 dB, 3 views 21.16 -> 21.24, 4 views 22.91 -> 23.05; 0.3 collapsed one
+# flower run (10.7 dB). DTU scan24 (stereo prior): 0.1 costs 1.0 dB (18.54 -> 17.53), so off for
+# 'dtu'; with a depth prior on LLFF not measured, so off with any prior
+CROSS_WARP_BY_FAMILY = {"llff": 0.1, "dtu": 0.0}
 # the stereo prior's settings per recipe family (docs/results.md §15): DTU's training views are
 # ~35 degrees apart, where the plane sweep's matches are ambiguous (brick, windows) and only a much
 # stronger SGM smoothness and each view's own near/far hold; LLFF keeps the settings it was measured with
@@ -297,6 +304,17 @@ def depth_metric_of(cfg: RunConfig, family: str) -> float:
     if cfg.method != "reings" or prior_kind(cfg.depth_prior) not in METRIC_PRIORS:
         return 0.0
     return DEPTH_METRIC_BY_FAMILY[family] if cfg.depth_metric is None else float(cfg.depth_metric)
+
+
+def cross_warp_of(cfg: RunConfig, family: str) -> float:
+    """The cross-view photometric term's weight in the run's reings fits (LossConfig.cross_warp):
+    RunConfig.cross_warp, or for none the recipe family's (CROSS_WARP_BY_FAMILY) without a depth
+    prior and 0 with one; 0 for the baselines."""
+    if cfg.method != "reings":
+        return 0.0
+    if cfg.cross_warp is None:
+        return CROSS_WARP_BY_FAMILY[family] if prior_kind(cfg.depth_prior) in NO_PRIOR else 0.0
+    return float(cfg.cross_warp)
 
 
 def baseline_recipe(method: str, iters: int, sh_degree: int, family: str = "llff"):
@@ -380,9 +398,10 @@ class RunContext:
             recipe = replace(recipe, loss=replace(recipe.loss, depth_metric=metric))
         if c.method == "reings":
             recipe = self.binocular(recipe)
-            if c.cross_warp:  # docs/method.md §12
+            cross = cross_warp_of(c, self.family)
+            if cross:  # docs/method.md §12
                 start = max(1, int(round(c.cross_warp_start * recipe.iterations)))
-                recipe = replace(recipe, loss=replace(recipe.loss, cross_warp=c.cross_warp, cross_warp_from=start,
+                recipe = replace(recipe, loss=replace(recipe.loss, cross_warp=cross, cross_warp_from=start,
                                                       cross_warp_occlusion=c.cross_warp_occlusion))
             if prune_unseen_of(c, self.family):
                 recipe = replace(recipe, densify=replace(recipe.densify, prune_unseen=True))
@@ -678,6 +697,26 @@ def _check_extras(cfg: RunConfig) -> None:
     load_lpips_model(path)  # a model that does not load is an error now, not after the training
 
 
+def option_notes(cfg: RunConfig, family: str, n_train: int) -> list:
+    """The notes on options this run ignores (its method, its training views): only for values
+    given, never for a none resolved to the recipe's (cross_warp_of, drop_gamma_of, ...)."""
+    notes = []
+    if cfg.reings.final_prune > 0 and cfg.method != "reings":
+        notes.append("final_prune applies to reings only; ignored")
+    if cfg.drop_gamma and cfg.method not in DROP_METHODS:
+        notes.append(f"drop_gamma applies to the {' and '.join(DROP_METHODS)} fits only; ignored")
+    if cfg.depth_metric and cfg.method != "reings":
+        notes.append("depth_metric applies to the reings fits only; ignored")
+    if cfg.cross_warp and cfg.method != "reings":
+        notes.append("cross_warp applies to the reings fits only; ignored")
+    elif cfg.cross_warp and n_train < 2:  # given: the recipe's default needs no note
+        notes.append(f"cross_warp needs a partner view: {n_train} training view; ignored")
+    for opt_name in ("cross_warp_start", "cross_warp_occlusion"):
+        if getattr(cfg, opt_name) and not (cfg.cross_warp or cross_warp_of(cfg, family)):
+            notes.append(f"{opt_name} without cross_warp; ignored")
+    return notes
+
+
 def _prepare(cfg: RunConfig, backend, prior, overwrite: bool, quiet: bool, scene=None):
     """Load (unless `scene` is given) and split the scene, claim the output folder, compute the priors and the scene box:
     (RunContext, settings, scene, train indices, test indices)."""
@@ -715,19 +754,8 @@ def _prepare(cfg: RunConfig, backend, prior, overwrite: bool, quiet: bool, scene
     from .log import logger, progress_enabled
 
     log = logger.info
-    if cfg.reings.final_prune > 0 and cfg.method != "reings":
-        log(f"[{cfg.label}] note: final_prune applies to reings only; ignored")
-    if cfg.drop_gamma and cfg.method not in DROP_METHODS:
-        log(f"[{cfg.label}] note: drop_gamma applies to the {' and '.join(DROP_METHODS)} fits only; ignored")
-    if cfg.depth_metric and cfg.method != "reings":
-        log(f"[{cfg.label}] note: depth_metric applies to the reings fits only; ignored")
-    if cfg.cross_warp and cfg.method != "reings":
-        log(f"[{cfg.label}] note: cross_warp applies to the reings fits only; ignored")
-    elif cfg.cross_warp and len(train) < 2:
-        log(f"[{cfg.label}] note: cross_warp needs a partner view: {len(train)} training view; ignored")
-    for opt_name in ("cross_warp_start", "cross_warp_occlusion"):
-        if getattr(cfg, opt_name) and not cfg.cross_warp:
-            log(f"[{cfg.label}] note: {opt_name} without cross_warp; ignored")
+    for note in option_notes(cfg, family, len(train)):
+        log(f"[{cfg.label}] note: {note}")
 
     t = time.perf_counter()
     confidences = None  # per view [H, W] in [0, 1] (the stereo prior's) or None
@@ -783,6 +811,7 @@ def _metrics(ctx: RunContext, m: dict, settings: dict, scene, tr_idx, te_idx, cu
     """metrics.json (docs/pipeline.md lists the keys)."""
     cfg, backend, box = ctx.cfg, ctx.backend, ctx.box
     dev_peak = device_peak_bytes(backend)
+    cross = cross_warp_of(cfg, ctx.family)  # the cross-view term's weight (recorded only when on)
     if ctx.in_memory:  # reings.run(scene=...) / reings.reconstruct
         scene_name = os.path.basename(os.path.normpath(scene.source)) if scene.source else "in-memory"
     else:
@@ -799,9 +828,8 @@ def _metrics(ctx: RunContext, m: dict, settings: dict, scene, tr_idx, te_idx, cu
         **({"depth_prior_options": ctx.prior_options} if ctx.prior_options else {}), "seed": cfg.seed,
         "sh_degree": cfg.sh_degree, "recipe": ctx.family, "drop_gamma": drop_gamma_of(cfg, ctx.family),
         "depth_metric": depth_metric_of(cfg, ctx.family),
-        **({"cross_warp": cfg.cross_warp} if cfg.cross_warp and cfg.method == "reings" else {}),
-        **({"cross_warp_occlusion": cfg.cross_warp_occlusion}
-           if cfg.cross_warp and cfg.cross_warp_occlusion and cfg.method == "reings" else {}),
+        **({"cross_warp": cross} if cross else {}),
+        **({"cross_warp_occlusion": cfg.cross_warp_occlusion} if cross and cfg.cross_warp_occlusion else {}),
         "mean": {k: m[k] for k in ("psnr", "ssim", "lpips", "avge") if k in m and m[k] is not None},
         "per_image": m.get("per_image"), "seconds": ctx.timings, "gaussians": ctx.counts,
         "model_bytes": ctx.model_bytes, "peak_rss_mb": _peak_rss_mb(),

@@ -608,16 +608,28 @@ def test_options_and_settings():
     c = config_from_args(build_parser().parse_args(["run", "--cross-warp", "0.1", "--cross-warp-start", "0.25",
                                                     "--cross-warp-occlusion", "0.05"]))
     assert c.cross_warp == 0.1 and c.cross_warp_start == 0.25 and c.cross_warp_occlusion == 0.05
-    assert RunConfig().cross_warp == 0.0 and RunConfig().cross_warp_start == 0.0
+    assert config_from_args(build_parser().parse_args(["run"])).cross_warp is None  # absent: the recipe's
+    assert config_from_args(build_parser().parse_args(["run", "--cross-warp", "0"])).cross_warp == 0.0
+    assert config_from_args(build_parser().parse_args(["run", "--cross-warp", "none"])).cross_warp is None
+    assert RunConfig().cross_warp is None and RunConfig().cross_warp_start == 0.0
     assert RunConfig().cross_warp_occlusion == 0.0
-    s = run_settings(RunConfig(depth_prior="none").resolved(), "llff")
+    s = run_settings(RunConfig(depth_prior="none", cross_warp=0).resolved(), "llff")
     assert not {"cross_warp", "cross_warp_start", "cross_warp_occlusion"} & set(s)  # absent when off
-    s = run_settings(RunConfig(depth_prior="none", cross_warp=0.1).resolved(), "llff")
+    s = run_settings(RunConfig().resolved(), "llff")  # the stereo prior: off by default
+    assert not {"cross_warp", "cross_warp_start", "cross_warp_occlusion"} & set(s)
+    s = run_settings(RunConfig(depth_prior="none").resolved(), "llff")  # the default without a prior
     assert s["cross_warp"] == 0.1 and "cross_warp_start" not in s and "cross_warp_occlusion" not in s
-    s = run_settings(RunConfig(depth_prior="none", cross_warp=0.1, cross_warp_start=0.5,
-                               cross_warp_occlusion=0.05).resolved(), "llff")
-    assert s["cross_warp_start"] == 0.5 and s["cross_warp_occlusion"] == 0.05
-    assert "cross_warp" not in run_settings(RunConfig(method="dngaussian", cross_warp=0.1).resolved(), "llff")
+    s = run_settings(RunConfig(depth_prior="none", cross_warp=0.2).resolved(), "llff")
+    assert s["cross_warp"] == 0.2 and "cross_warp_start" not in s and "cross_warp_occlusion" not in s
+    s = run_settings(RunConfig(depth_prior="none", cross_warp_start=0.5, cross_warp_occlusion=0.05).resolved(), "llff")
+    assert s["cross_warp"] == 0.1 and s["cross_warp_start"] == 0.5 and s["cross_warp_occlusion"] == 0.05
+    assert "cross_warp" not in run_settings(RunConfig(depth_prior="none").resolved(), "dtu")
+    assert "cross_warp" not in run_settings(RunConfig(depth_prior="none", recipe="dtu").resolved(), "llff")
+    assert run_settings(RunConfig(cross_warp=0.1).resolved(), "dtu")["cross_warp"] == 0.1  # given: it wins
+    for method in ("dngaussian", "3dgs"):
+        for w in (None, 0.1):
+            assert "cross_warp" not in run_settings(RunConfig(method=method, depth_prior="none",
+                                                              cross_warp=w).resolved(), "llff")
     assert "cross_warp_occlusion" not in run_settings(RunConfig(cross_warp_occlusion=0.1).resolved(), "llff")
     assert "cross_warp" in _ABSENT_WHEN_OFF and "cross_warp_occlusion" in _ABSENT_WHEN_OFF
     with pytest.raises(ValueError, match="cross_warp"):
@@ -627,6 +639,96 @@ def test_options_and_settings():
     for bad in (-0.1, float("nan"), float("inf")):
         with pytest.raises(ValueError, match="cross_warp_occlusion"):
             RunConfig(cross_warp_occlusion=bad)
+
+
+def test_default_rule():
+    """RunConfig.cross_warp = none (pipeline.cross_warp_of): 0.1 for the reings fits of the 'llff'
+    family without a depth prior, 0 for 'dtu', with any prior, and for the baselines; a value given
+    wins in the reings fits, 0 included; the baselines never take one."""
+    from reings.config import RunConfig
+    from reings.pipeline import CROSS_WARP_BY_FAMILY, cross_warp_of
+
+    assert CROSS_WARP_BY_FAMILY == {"llff": 0.1, "dtu": 0.0}
+    for family in ("llff", "dtu"):
+        for prior in ("none", "off", "no", "None", "stereo", "stereo:sgm_p1=0.2", "exact", "onnx:model.onnx"):
+            for method in ("reings", "reings-no-ehps", "dngaussian", "3dgs"):
+                cfg = RunConfig(method=method, depth_prior=prior)
+                on = cfg.method == "reings" and family == "llff" and prior.lower() in ("none", "off", "no")
+                assert cross_warp_of(cfg, family) == (0.1 if on else 0.0), (family, prior, method)
+                for w in (0.0, 0.3):  # given: the reings fits take it, the baselines never
+                    want = w if cfg.method == "reings" else 0.0
+                    assert cross_warp_of(RunConfig(method=method, depth_prior=prior, cross_warp=w), family) == want
+
+
+def test_notes_only_for_a_value_given():
+    """pipeline.option_notes: the default (none) never logs a note, on the baselines, on the 'dtu'
+    family or with one training view; a value given that a fit ignores does."""
+    from reings.config import RunConfig
+    from reings.pipeline import option_notes as all_notes
+
+    def option_notes(cfg, family, n):  # those on the cross_warp options (others: final_prune's on a baseline)
+        return [t for t in all_notes(cfg, family, n) if "cross_warp" in t]
+
+    for method in ("reings", "dngaussian", "3dgs"):
+        for family in ("llff", "dtu"):
+            for prior in ("none", "stereo"):
+                for n in (1, 3):
+                    assert not option_notes(RunConfig(method=method, depth_prior=prior), family, n), (
+                        method, family, prior, n)
+    for method in ("dngaussian", "3dgs"):
+        assert option_notes(RunConfig(method=method, cross_warp=0.1), "llff", 3) == [
+            "cross_warp applies to the reings fits only; ignored"]
+        assert not option_notes(RunConfig(method=method, cross_warp=0), "llff", 3)
+    assert option_notes(RunConfig(cross_warp=0.1), "llff", 1) == [
+        "cross_warp needs a partner view: 1 training view; ignored"]
+    assert not option_notes(RunConfig(cross_warp=0.1), "llff", 2)
+    # the start and the occlusion test: a note where the term is off, none where the default turns it on
+    assert not option_notes(RunConfig(depth_prior="none", cross_warp_start=0.5), "llff", 3)
+    assert option_notes(RunConfig(depth_prior="none", cross_warp_start=0.5), "dtu", 3) == [
+        "cross_warp_start without cross_warp; ignored"]
+    assert option_notes(RunConfig(depth_prior="none", cross_warp=0, cross_warp_occlusion=0.1), "llff", 3) == [
+        "cross_warp_occlusion without cross_warp; ignored"]
+
+
+def test_run_recipe_takes_the_default():
+    """RunContext.run_recipe: the resolved weight (cross_warp_of) reaches the reings fits'
+    LossConfig, from the first iteration; 0 elsewhere."""
+    from reings.config import RunConfig
+    from reings.pipeline import RunContext, baseline_recipe, cross_warp_of
+
+    for method in ("reings", "dngaussian"):
+        for family in ("llff", "dtu"):
+            for prior, w in (("none", None), ("stereo", None), ("none", 0.0), ("stereo", 0.3)):
+                cfg = RunConfig(method=method, depth_prior=prior, cross_warp=w, view_warp=0.0)
+                ctx = RunContext.__new__(RunContext)
+                ctx.cfg, ctx.family, ctx.smooth_w = cfg, family, None
+                r = ctx.run_recipe(baseline_recipe("dngaussian", 100, 0, family))
+                want = cross_warp_of(cfg, family)
+                assert r.loss.cross_warp == want, (method, family, prior, w)
+                assert r.loss.cross_warp_from == 1
+                if method == "reings" and w is None:
+                    assert want == (0.1 if (family, prior) == ("llff", "none") else 0.0)
+
+
+def test_a_run_records_the_resolved_weight(device, caplog):
+    """metrics.json: the weight the fits use at the top level and in `config`, only when on; no
+    note for the default on a baseline."""
+    import logging
+
+    import reings
+
+    scene = reings.make_procedural_scene(n_views=8, width=64, height=48, supersample=1)
+    kw = dict(scene=scene, iterations=(2, 2, 2), device=device, with_lpips=False, eval_every=0, quiet=True,
+              views=3, extent="frusta", depth_prior="none")
+    m = reings.run(method="reings", **kw).metrics
+    assert m["cross_warp"] == 0.1 and m["config"]["cross_warp"] == 0.1 and m["recipe"] == "llff"
+    assert "cross_warp_occlusion" not in m and "cross_warp_start" not in m["config"]
+    m = reings.run(method="reings", cross_warp=0.0, **kw).metrics
+    assert "cross_warp" not in m and "cross_warp" not in m["config"]
+    with caplog.at_level(logging.INFO, logger="reings"):
+        m = reings.run(method="dngaussian", **{**kw, "iterations": 2}).metrics
+    assert "cross_warp" not in m and "cross_warp" not in m["config"]
+    assert not [r for r in caplog.records if "cross_warp" in r.getMessage()]
 
 
 def test_run_recipe_sets_the_term():

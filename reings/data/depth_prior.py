@@ -507,6 +507,9 @@ class StereoDepthPrior(DepthPrior):
 # --------------------------------------------------------------------------------------------
 
 
+NO_PRIOR = ("none", "off", "no")  # the --depth-prior specs of no prior (get_depth_prior -> NoDepthPrior)
+
+
 def prior_kind(spec: str) -> str:
     """The kind of a --depth-prior spec: "stereo" for "stereo" and "stereo:k=v,...", else the spec
     lower-cased up to its first ':' ("onnx", "none", "exact", ...)."""
@@ -550,7 +553,7 @@ def get_depth_prior(kind: str, cache_dir=None, cache: bool = True, **options) ->
         raise DepthPriorError(f"depth prior: expected 'onnx:PATH', 'stereo[:k=v,...]' or 'none', got {kind!r}")
     k = kind.strip()
     low = k.lower()
-    if low in ("none", "off", "no"):
+    if low in NO_PRIOR:
         return NoDepthPrior()
     if low == "stereo" or low.startswith("stereo:"):
         spec = _stereo_spec_options(k[7:]) if low.startswith("stereo:") else {}
