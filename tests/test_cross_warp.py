@@ -8,9 +8,12 @@ bit for bit, the device engine against the host engine on a short fit, resume, o
 options, and Oclgrind. The occlusion test (LossConfig.cross_warp_occlusion): a hand-built near strip
 in front of a far plane (exactly which pixels the partner cannot see), the kernel against the twin
 and the mirror on random partner depths, central differences with it on, tolerance 0 = the term
-without it bit for bit (kernel and fit), the engines, resume and Oclgrind with it on."""
+without it bit for bit (kernel and fit), the engines, resume and Oclgrind with it on; the nearest
+pixel (not floor) and the far border by hand, the pass's DropGaussian mask on the partner's render,
+both trainers' refusals; the default's resolution for `make run` and in `reings eval`'s checks."""
 from __future__ import annotations
 
+import functools
 import types
 from dataclasses import replace
 
@@ -310,6 +313,90 @@ def test_occlusion_needs_the_partner_depth():
     tr.hold_depth(fr)
     with pytest.raises(ValueError, match="stale"):
         tr.cross_warp(fr, 0, 1, cj, 1.0, NEAR, occlusion=0.1, partner_depth=old)
+
+
+def test_device_occlusion_needs_the_partner_depth(device):
+    """The device trainer refuses what the host trainer refuses: no held depth, one of another
+    size, one a later hold_depth made stale."""
+    import pyopencl as cl
+
+    rng = np.random.default_rng(23)
+    h, w = 6, 8
+    d, a, ii, ij = _hard_maps(rng, h, w)
+    ci = make_camera(w, h)
+    cj = _moved(ci, centre_shift=(0.1, 0, 0))
+    tr = get_backend(device).trainer([ii, ij], engine="device")
+    mf = cl.mem_flags.READ_WRITE | cl.mem_flags.COPY_HOST_PTR
+
+    def frame(cam, dd, aa):
+        return types.SimpleNamespace(width=cam.width, height=cam.height, camera=cam,
+                                     bufs={k: cl.Buffer(tr.handle.context, mf, hostbuf=np.ascontiguousarray(x))
+                                           for k, x in (("out_depth", dd), ("out_alpha", aa))})
+
+    fr = frame(ci, d, a)
+    with pytest.raises(ValueError, match="partner_depth"):
+        tr.cross_warp(fr, 0, 1, cj, 1.0, NEAR, occlusion=0.1)
+    small = frame(Camera(cj.K.copy(), cj.viewmat.copy(), w - 1, h), d[:, 1:].copy(), a[:, 1:].copy())
+    with pytest.raises(ValueError, match="partner camera"):
+        tr.cross_warp(fr, 0, 1, cj, 1.0, NEAR, occlusion=0.1, partner_depth=tr.hold_depth(small))
+    old = tr.hold_depth(frame(cj, d, a))
+    tr.hold_depth(frame(cj, d, a))
+    with pytest.raises(ValueError, match="stale"):
+        tr.cross_warp(fr, 0, 1, cj, 1.0, NEAR, occlusion=0.1, partner_depth=old)
+
+
+def _occlusion_agrees(device, d, a, ii, ij, ci, cj, tol, dj, aj, want):
+    """The twin, the kernel and the host mirror leave out exactly the pixels `want` ([H,W] bool):
+    the twin's mask; the trainers' cotangents, zero there and those without the test elsewhere;
+    their losses, the twin's over the pixels left (the left-out residuals are random); their counts."""
+    ok0 = cross_warp_fwd_bwd(d, a, ii, ij, ci, cj, 1.0, NEAR)[2]
+    loss, _, ok = cross_warp_fwd_bwd(d, a, ii, ij, ci, cj, 1.0, NEAR, occlusion=tol, depth_j=dj, alpha_j=aj)
+    np.testing.assert_array_equal(ok0 & ~ok, want)
+    for run in (functools.partial(_run, device), _host):
+        g0 = run(d, a, ii, ij, ci, cj, 1.0)[0]
+        g, st = run(d, a, ii, ij, ci, cj, 1.0, tol=tol, partner=(dj, aj))
+        np.testing.assert_array_equal(g, np.where(want, 0, g0))
+        assert st["occluded_fraction"] == want.mean() and st["valid_fraction"] == ok.mean()
+        assert st["loss"] == pytest.approx(loss, rel=1e-5)
+
+
+def test_occlusion_reads_the_nearest_pixel(device):
+    """A plane at z = 4 seen from two cameras a (0.575, 0.3) translation apart (f = 16): view i's
+    pixel (x, y) lands at p' = (x - 2.3, y - 1.2), whose nearest pixel is (x - 2, y - 1) (floor
+    would give (x - 3, y - 2), the bilinear cell's corner). The partner's surface nearer at one
+    pixel (7, 5) hides exactly view i's pixel (9, 6)."""
+    h, w, tol = 12, 20, 0.05
+    ci = make_camera(w, h, f=16.0)
+    cj = _moved(ci, centre_shift=(0.575, 0.3, 0.0))
+    d, a = np.full((h, w), 4.0, np.float32), np.ones((h, w), np.float32)
+    rng = np.random.default_rng(29)
+    ii, ij = rng.uniform(0, 1, (h, w, 3)).astype(np.float32), rng.uniform(0, 1, (h, w, 3)).astype(np.float32)
+    dj, aj = np.full((h, w), 4.0, np.float32), np.ones((h, w), np.float32)
+    dj[5, 7] = 4.0 / (1 + 2 * tol)
+    want = np.zeros((h, w), bool)
+    want[6, 9] = True
+    _occlusion_agrees(device, d, a, ii, ij, ci, cj, tol, dj, aj, want)
+
+
+def test_occlusion_at_the_far_border(device):
+    """Identical cameras (f = 16, a plane at z = 4: p' = p exactly in float64 and float32, the far
+    row and column on the border): the partner's surface nearer along its last row and column and
+    at (0, 0) hides exactly those pixels (the nearest pixel of u = W - 1 is W - 1, not the last
+    bilinear cell's W - 2), but for one of the last row where the partner's alpha is below
+    alpha_min (no test)."""
+    h, w, tol = 7, 9, 0.05
+    ci = make_camera(w, h, f=16.0)
+    rng = np.random.default_rng(31)
+    d, a = np.full((h, w), 4.0, np.float32), np.ones((h, w), np.float32)
+    ii, ij = rng.uniform(0, 1, (h, w, 3)).astype(np.float32), rng.uniform(0, 1, (h, w, 3)).astype(np.float32)
+    aj = np.ones((h, w), np.float32)
+    aj[h - 1, 3] = 0.25
+    want = np.zeros((h, w), bool)
+    want[h - 1], want[:, w - 1], want[0, 0] = True, True, True
+    want[h - 1, 3] = False
+    dj = np.where(want | (aj < 1), d / (1 + 2 * tol), d).astype(np.float32) * aj
+    assert cross_warp_fwd_bwd(d, a, ii, ij, ci, ci, 1.0, NEAR)[2].all()  # every pixel valid without the test
+    _occlusion_agrees(device, d, a, ii, ij, ci, ci, tol, dj, aj, want)
 # }}}
 
 
@@ -583,6 +670,34 @@ def test_fit_occlusion_off_is_the_fit_without_it(device, case, monkeypatch):
     assert [tuple(r) for r in big.history.cross_warp] == [(*r, 0.0) for r in ref.history.cross_warp]
 
 
+def test_fit_occlusion_partner_takes_the_pass_drop(device, case, monkeypatch):
+    """With DropGaussian on, the partner's render (the forward whose frame hold_depth keeps) drops
+    the same Gaussians as the training view's render right after it: the mask of the iteration
+    (docs/method.md §12: both depths of one dropped model)."""
+    from reings.backends.opencl.trainer import DeviceTrainer
+
+    calls = []
+    fwd, hold = DeviceTrainer.forward, DeviceTrainer.hold_depth
+
+    def forward(self, *a, **k):
+        calls.append(("forward", k.get("drop")))
+        return fwd(self, *a, **k)
+
+    def hold_depth(self, fr):
+        calls.append(("hold_depth", None))
+        return hold(self, fr)
+
+    monkeypatch.setattr(DeviceTrainer, "forward", forward)
+    monkeypatch.setattr(DeviceTrainer, "hold_depth", hold_depth)
+    scene, init, cfg = _with_occlusion(case, 0.02)
+    fit_case((scene, init, replace(cfg, loss=replace(cfg.loss, drop_gamma=0.3))), device, engine="device")
+    at = [i for i, (name, _) in enumerate(calls) if name == "hold_depth"]
+    assert len(at) == cfg.iterations - cfg.loss.cross_warp_from + 1
+    for i in at:
+        (before, partner), (after, training) = calls[i - 1], calls[i + 1]
+        assert before == after == "forward" and partner is not None and partner is training
+
+
 def test_fit_occlusion_resume_is_bit_identical(device, case, tmp_path):
     """With the occlusion test on: stopped at 17, last checkpoint at 15, inside the term's span."""
     ref, res = assert_resumes_bit_identically(_with_occlusion(case, 0.02), device, tmp_path, stop_at=17)
@@ -658,6 +773,47 @@ def test_default_rule():
                 for w in (0.0, 0.3):  # given: the reings fits take it, the baselines never
                     want = w if cfg.method == "reings" else 0.0
                     assert cross_warp_of(RunConfig(method=method, depth_prior=prior, cross_warp=w), family) == want
+
+
+def test_make_run_has_no_term():
+    """`make run` (`reings run --preset quick`, no --data: the procedural scene, the stereo prior)
+    resolves the term to 0: no cross_warp in its settings nor in its fits' recipe."""
+    from reings.cli import build_parser, config_from_args
+    from reings.pipeline import cross_warp_of, recipe_family, run_settings
+
+    cfg = config_from_args(build_parser().parse_args(["run", "--preset", "quick", "--out", "o", "--overwrite"]))
+    cfg = cfg.resolved()
+    assert cfg.data is None and cfg.cross_warp is None and cfg.depth_prior == "stereo"
+    assert cross_warp_of(cfg, recipe_family(cfg.recipe, "procedural")) == 0.0
+    assert "cross_warp" not in run_settings(cfg, "procedural")
+
+
+def test_eval_tag_and_reuse_check(tmp_path):
+    """`reings eval`: a finished LLFF reings run without a prior from before the default (no
+    cross_warp in its settings) differs from what the defaults ask now, one with it does not; the
+    DTU family's is unchanged; the table's tag names the weight and the occlusion tolerance."""
+    import json
+
+    from reings.config import RunConfig
+    from reings.evaluate import _setting_tag, _settings_differ
+    from reings.pipeline import run_settings
+
+    cfg = RunConfig(depth_prior="none")
+    for kind, on in (("llff", True), ("dtu", False)):
+        now = json.loads(json.dumps(run_settings(cfg.resolved(), kind)))
+        assert ("cross_warp" in now) == on
+        old = {k: v for k, v in now.items() if k != "cross_warp"}
+        for name, config in (("old", old), ("now", now)):
+            (tmp_path / kind / name).mkdir(parents=True)
+            (tmp_path / kind / name / "metrics.json").write_text(json.dumps({"config": config}))
+        assert ("cross_warp" in _settings_differ(str(tmp_path / kind / "old" / "metrics.json"), cfg, kind)) == on
+        assert _settings_differ(str(tmp_path / kind / "now" / "metrics.json"), cfg, kind) == ""
+    occl = RunConfig(depth_prior="none", cross_warp_occlusion=0.05)
+    assert "cross_warp_occlusion" in _settings_differ(str(tmp_path / "llff" / "now" / "metrics.json"), occl, "llff")
+    s = run_settings(RunConfig(depth_prior="none", cross_warp_start=0.25, cross_warp_occlusion=0.05).resolved(),
+                     "llff")
+    tag = _setting_tag({"preset": "paper", "method": "reings", "depth_prior": "none", "config": s})
+    assert "cross 0.1 from 0.25 occl 0.05" in tag
 
 
 def test_notes_only_for_a_value_given():
