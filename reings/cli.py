@@ -231,7 +231,7 @@ def _default_text(v) -> str:
     if isinstance(v, bool):
         return "on" if v else "off"
     if isinstance(v, tuple):
-        return ",".join(map(str, v))
+        return ",".join(map(str, v)) if v else "none"
     return str(v)
 
 

@@ -91,6 +91,29 @@ def parse_iterations(text: str):
     if bad:
         raise ValueError(bad)
     return tuple(vals)
+
+
+def blur_sigmas(v):
+    """None, or why a tuple of blur sigmas (pixels) is refused: each a finite number >= 0."""
+    bad = [x for x in v if not (x >= 0.0 and x != math.inf)]  # refuses nan
+    return f"must hold finite numbers >= 0, got {bad[0]}" if bad else None
+
+
+def parse_blur_sigmas(text: str):
+    """SIGMA[,SIGMA...] (numbers >= 0, in pixels), or none / an empty text: no level."""
+    t = str(text).strip()
+    if t.lower() in ("", "none"):
+        return ()
+    vals = []
+    for p in t.split(","):
+        try:
+            vals.append(float(p))
+        except ValueError:
+            raise ValueError(f"expected comma-separated numbers (sigmas in pixels) or none, got {text!r}") from None
+    bad = blur_sigmas(vals)
+    if bad:
+        raise ValueError(bad)
+    return tuple(vals)
 # }}}
 
 
@@ -158,6 +181,11 @@ class LossConfig:
                                            "the reprojected point by more than this relative tolerance, z_j > "
                                            "Z_j (1 + tol) (one forward of the partner per iteration); 0 = no test",
                                       check=finite_nonneg)
+    cross_warp_blur: tuple[float, ...] = opt((), "the cross_warp term's blur levels (docs/method.md §12): standard "
+                                                 "deviations in pixels; the term is also taken on both training "
+                                                 "images blurred by a Gaussian of each, and is the mean over the "
+                                                 "sharp level and these (each weighted cross_warp / levels); "
+                                                 "() = the sharp level only", check=blur_sigmas)
     shape_pena: float = opt(0.0, "weight of mean(max scale / min scale)")
     scale_pena: float = opt(0.0, "weight of mean(max scale^2)")
     opa_pena: float = opt(0.0, "weight of 1 - mean(o^2 | o>0.2) + mean((1-o)^2 | o<0.2)")
@@ -591,12 +619,14 @@ class RunConfig:
     # schedule): +0.54 dB on fern, +0.84 on flower, SSIM +0.022 alone; the opacity decay stays off: it moved
     # flower by -1.58 dB alone and -0.26 dB on top of the term (fern: +0.46 / +0.47)
     view_warp: float = opt(1.0, "reings fits only: weight of the binocular view-consistency term (Han et al. "
-                                "2024; docs/binocular.md) from 2/3 of each fit; 0 = off", check=finite_nonneg,
-                           metavar="WEIGHT")
-    view_warp_start: float = opt(2 / 3, "reings fits only: where the view_warp term starts, as a fraction of each "
-                                        "fit's iterations (Binocular3DGS: 2/3)",
-                                 check=lambda v: None if 0 <= v < 1 else f"must lie in [0, 1), got {v}",
-                                 metavar="FRACTION")
+                                "2024; docs/binocular.md) from 2/3 of each fit (1/3 for 'llff' with --depth-prior "
+                                "none; --view-warp-start); 0 = off", check=finite_nonneg, metavar="WEIGHT")
+    view_warp_start: float | None = opt(None, "reings fits only: where the view_warp term starts, as a fraction of "
+                                              "each fit's iterations; none: the recipe family's (1/3 for 'llff' "
+                                              "with --depth-prior none, else 2/3 as Binocular3DGS; docs/results.md "
+                                              "§25)",
+                                        check=lambda v: None if v is None or 0 <= v < 1
+                                        else f"must lie in [0, 1), got {v}", metavar="FRACTION")
     view_warp_disparity: float = opt(4.0, "the view_warp term's largest virtual-view shift, in pixels at the median "
                                           "depth of the scene's SfM points in the training views (scale-free; the "
                                           "authors' 0.4 COLMAP units is 2.6-5.5 px on the LLFF scenes here)",
@@ -623,7 +653,8 @@ class RunConfig:
                                          "§9): each Gaussian is left out of the photometric pass's renders with a rate "
                                          "rising linearly to this at each fit's last iteration, the kept ones' "
                                          "opacities scaled by 1 / (1 - rate); 0 = off; none: the recipe family's "
-                                         "for reings (0.2 for 'dtu' and 'llff'; docs/results.md §19, §20), off for dngaussian",
+                                         "for reings (0.2 for 'dtu' and 'llff', 0.3 for 'llff' with --depth-prior none; "
+                                         "docs/results.md §19, §20, §25), off for dngaussian",
                                    check=lambda v: None if v is None or 0 <= v < 1 else f"must lie in [0, 1), got {v}",
                                    metavar="GAMMA")
     depth_metric: float | None = opt(None, "reings fits with a metric depth prior (stereo, exact): the metric depth "
@@ -636,8 +667,8 @@ class RunConfig:
                                          "§12): the rendered depth of the view being trained reprojects its pixels "
                                          "into another training view, whose training image must match there (L1, "
                                          "gradient to the depth only; no prior needed); 0 = off; none: the recipe "
-                                         "family's (0.1 for 'llff' with --depth-prior none, off for 'dtu' and with "
-                                         "any depth prior; docs/results.md §24)", check=finite_nonneg,
+                                         "family's (0.15 for 'llff' with --depth-prior none, off for 'dtu' and with "
+                                         "any depth prior; docs/results.md §24, §25)", check=finite_nonneg,
                                    metavar="WEIGHT")
     cross_warp_start: float = opt(0.0, "reings fits only: where the cross_warp term starts, as a fraction of each "
                                        "fit's iterations (0: from the first)",
@@ -649,6 +680,14 @@ class RunConfig:
                                            "partner's surface, z_j > Z_j (1 + TOL), is left out of the term; "
                                            "0 = no test",
                                       check=finite_nonneg, metavar="TOL")
+    cross_warp_blur: tuple[float, ...] = opt((), "reings fits only: the cross_warp term's blur levels "
+                                                 "(docs/method.md §12), comma-separated Gaussian standard "
+                                                 "deviations in pixels (e.g. 2,4): the term is also taken on both "
+                                                 "training images blurred by each (a wider basin for the depth), "
+                                                 "and is the mean over the sharp level and these; none: the sharp "
+                                                 "level only (measured worse at 2 views without a prior, "
+                                                 "docs/results.md §25, so none by default)", parse=parse_blur_sigmas, check=blur_sigmas,
+                                             metavar="SIGMAS")
     prune_unseen: bool | None = opt(None, "reings fits: at each densification also drop the Gaussians that no "
                                           "pixel of any training view blends (docs/method.md §11); none: the "
                                           "recipe family's (on for 'llff', off for 'dtu' until measured there; "

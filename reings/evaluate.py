@@ -154,7 +154,8 @@ def _setting_tag(m: dict) -> str:
     if cfg.get("depth_smooth") is not None:
         tag.append(f"smooth {cfg['depth_smooth']:g}")
     if cfg.get("view_warp"):
-        tag.append(f"warp {cfg['view_warp']:g}/{cfg.get('view_warp_disparity', 4.0):g}px")
+        tag.append(f"warp {cfg['view_warp']:g}/{cfg.get('view_warp_disparity', 4.0):g}px"
+                   + (f" from {cfg['view_warp_start']:.3g}" if cfg.get("view_warp_start") is not None else ""))
     if cfg.get("opacity_decay") not in (None, 1):
         tag.append(f"decay {cfg['opacity_decay']:g}")
     if cfg.get("drop_gamma"):  # DropGaussian (absent when off)
@@ -164,7 +165,9 @@ def _setting_tag(m: dict) -> str:
     if cfg.get("cross_warp"):  # the cross-view photometric term (absent when off)
         tag.append(f"cross {cfg['cross_warp']:g}" + (f" from {cfg['cross_warp_start']:g}"
                                                       if cfg.get("cross_warp_start") else "")
-                   + (f" occl {cfg['cross_warp_occlusion']:g}" if cfg.get("cross_warp_occlusion") else ""))
+                   + (f" occl {cfg['cross_warp_occlusion']:g}" if cfg.get("cross_warp_occlusion") else "")
+                   + (" blur " + ",".join(f"{v:g}" for v in cfg["cross_warp_blur"]) if cfg.get("cross_warp_blur")
+                      else ""))
     if cfg.get("prune_unseen"):  # absent when off
         tag.append("prune unseen")
     seeds = (cfg.get("reings_config") or {}).get("stereo_seeds")  # absent: none (the preset's or the auto rule)
@@ -518,9 +521,10 @@ def _prepare(jobs) -> None:
               f"{', cached' if ext.cached else ''}), {time.perf_counter() - t:.1f} s", flush=True)
 
 
-# settings recorded only when on (absent = off): a run that has one and a config that has not differ
+# settings recorded only when on (absent = off; view_warp_start: absent = 2/3): a run that has one and a
+# config that has not differ
 _ABSENT_WHEN_OFF = ("drop_gamma", "depth_metric", "prune_unseen", "cross_warp", "cross_warp_start",
-                    "cross_warp_occlusion")
+                    "cross_warp_occlusion", "cross_warp_blur", "view_warp_start")
 
 
 def _settings_differ(metrics_path: str, cfg, dataset_kind: str | None = None) -> str:

@@ -109,7 +109,7 @@ class History:
     view_warp: list = field(default_factory=list)  # (iteration, loss, valid fraction) of the view_warp term, when logged
     depth_metric: list = field(default_factory=list)  # (iteration, loss) of the metric depth term, when logged
     # (iteration, loss, valid fraction[, occluded fraction: with its occlusion test on]) of the cross_warp
-    # term, when logged
+    # term, when logged (the loss: all its levels, LossConfig.cross_warp_blur; the fractions: the sharp level's)
     cross_warp: list = field(default_factory=list)
 
     def to_dict(self) -> dict:
@@ -373,6 +373,9 @@ def fit(views, config: TrainConfig, device: str = "pocl", init: Gaussians | None
         v = getattr(L, name)
         if not (v >= 0 and np.isfinite(v)):  # also NaN
             raise ValueError(f"fit: LossConfig.{name} must be >= 0 and finite, got {v}")
+    for v in L.cross_warp_blur:
+        if not (v >= 0 and np.isfinite(v)):  # also NaN
+            raise ValueError(f"fit: LossConfig.cross_warp_blur must hold numbers >= 0 and finite, got {v}")
     extent = scene_extent(cameras) if extent is None else extent
     backend = get_backend(device)
     bg_masks = None
@@ -524,9 +527,11 @@ class _Iteration:
         The metric depth term (LossConfig.depth_metric, docs/method.md §10): its depth cotangent
         joins the training render's backward (added into the view_warp term's when both run); so
         does the cross-view photometric term's (LossConfig.cross_warp, docs/method.md §12; its
-        partner view from `cross_partner`). With its occlusion test (LossConfig.cross_warp_occlusion)
-        the partner view is rendered first (no backward) and its depth held (`hold_depth`: a copy
-        that survives the training view's forward).
+        partner view from `cross_partner`; with blur levels, LossConfig.cross_warp_blur, one call per
+        level, sharp first, each of weight cross_warp / levels, into the one cotangent). With its
+        occlusion test (LossConfig.cross_warp_occlusion) the partner view is rendered first (no
+        backward) and its depth held (`hold_depth`: a copy that survives the training view's
+        forward), the same for every level.
 
         With the view_warp term (docs/binocular.md §4.2): the virtual view (the training camera
         shifted by a drawn baseline along its x axis) is rendered first, as a kept frame
@@ -567,9 +572,12 @@ class _Iteration:
             with ph("depth_metric"):
                 v_depth = tr.depth_metric(fr, vi, L.depth_metric, into=v_depth)
         if cross:  # the cross-view photometric term (docs/method.md §12): a partner training view
+            levels = (0.0, *L.cross_warp_blur)  # sharp, then the blur levels: the term is their mean
             with ph("cross_warp"):
-                v_depth = tr.cross_warp(fr, vi, j, self.cameras[j], L.cross_warp, self.near, into=v_depth,
-                                        occlusion=L.cross_warp_occlusion, partner_depth=held)
+                for sigma in levels:
+                    v_depth = tr.cross_warp(fr, vi, j, self.cameras[j], L.cross_warp / len(levels), self.near,
+                                            into=v_depth, occlusion=L.cross_warp_occlusion, partner_depth=held,
+                                            sigma=sigma)
         with ph("photo_backward"):
             gr = tr.backward(fr, v_rgb, v_depth)
         with ph("regularize"):

@@ -733,11 +733,11 @@ def test_options_and_settings():
     s = run_settings(RunConfig().resolved(), "llff")  # the stereo prior: off by default
     assert not {"cross_warp", "cross_warp_start", "cross_warp_occlusion"} & set(s)
     s = run_settings(RunConfig(depth_prior="none").resolved(), "llff")  # the default without a prior
-    assert s["cross_warp"] == 0.1 and "cross_warp_start" not in s and "cross_warp_occlusion" not in s
+    assert s["cross_warp"] == 0.15 and "cross_warp_start" not in s and "cross_warp_occlusion" not in s
     s = run_settings(RunConfig(depth_prior="none", cross_warp=0.2).resolved(), "llff")
     assert s["cross_warp"] == 0.2 and "cross_warp_start" not in s and "cross_warp_occlusion" not in s
     s = run_settings(RunConfig(depth_prior="none", cross_warp_start=0.5, cross_warp_occlusion=0.05).resolved(), "llff")
-    assert s["cross_warp"] == 0.1 and s["cross_warp_start"] == 0.5 and s["cross_warp_occlusion"] == 0.05
+    assert s["cross_warp"] == 0.15 and s["cross_warp_start"] == 0.5 and s["cross_warp_occlusion"] == 0.05
     assert "cross_warp" not in run_settings(RunConfig(depth_prior="none").resolved(), "dtu")
     assert "cross_warp" not in run_settings(RunConfig(depth_prior="none", recipe="dtu").resolved(), "llff")
     assert run_settings(RunConfig(cross_warp=0.1).resolved(), "dtu")["cross_warp"] == 0.1  # given: it wins
@@ -757,19 +757,19 @@ def test_options_and_settings():
 
 
 def test_default_rule():
-    """RunConfig.cross_warp = none (pipeline.cross_warp_of): 0.1 for the reings fits of the 'llff'
+    """RunConfig.cross_warp = none (pipeline.cross_warp_of): 0.15 for the reings fits of the 'llff'
     family without a depth prior, 0 for 'dtu', with any prior, and for the baselines; a value given
     wins in the reings fits, 0 included; the baselines never take one."""
     from reings.config import RunConfig
     from reings.pipeline import CROSS_WARP_BY_FAMILY, cross_warp_of
 
-    assert CROSS_WARP_BY_FAMILY == {"llff": 0.1, "dtu": 0.0}
+    assert CROSS_WARP_BY_FAMILY == {"llff": 0.15, "dtu": 0.0}
     for family in ("llff", "dtu"):
         for prior in ("none", "off", "no", "None", "stereo", "stereo:sgm_p1=0.2", "exact", "onnx:model.onnx"):
             for method in ("reings", "reings-no-ehps", "dngaussian", "3dgs"):
                 cfg = RunConfig(method=method, depth_prior=prior)
                 on = cfg.method == "reings" and family == "llff" and prior.lower() in ("none", "off", "no")
-                assert cross_warp_of(cfg, family) == (0.1 if on else 0.0), (family, prior, method)
+                assert cross_warp_of(cfg, family) == (0.15 if on else 0.0), (family, prior, method)
                 for w in (0.0, 0.3):  # given: the reings fits take it, the baselines never
                     want = w if cfg.method == "reings" else 0.0
                     assert cross_warp_of(RunConfig(method=method, depth_prior=prior, cross_warp=w), family) == want
@@ -813,7 +813,7 @@ def test_eval_tag_and_reuse_check(tmp_path):
     s = run_settings(RunConfig(depth_prior="none", cross_warp_start=0.25, cross_warp_occlusion=0.05).resolved(),
                      "llff")
     tag = _setting_tag({"preset": "paper", "method": "reings", "depth_prior": "none", "config": s})
-    assert "cross 0.1 from 0.25 occl 0.05" in tag
+    assert "cross 0.15 from 0.25 occl 0.05" in tag
 
 
 def test_notes_only_for_a_value_given():
@@ -863,7 +863,7 @@ def test_run_recipe_takes_the_default():
                 assert r.loss.cross_warp == want, (method, family, prior, w)
                 assert r.loss.cross_warp_from == 1
                 if method == "reings" and w is None:
-                    assert want == (0.1 if (family, prior) == ("llff", "none") else 0.0)
+                    assert want == (0.15 if (family, prior) == ("llff", "none") else 0.0)
 
 
 def test_a_run_records_the_resolved_weight(device, caplog):
@@ -877,7 +877,7 @@ def test_a_run_records_the_resolved_weight(device, caplog):
     kw = dict(scene=scene, iterations=(2, 2, 2), device=device, with_lpips=False, eval_every=0, quiet=True,
               views=3, extent="frusta", depth_prior="none")
     m = reings.run(method="reings", **kw).metrics
-    assert m["cross_warp"] == 0.1 and m["config"]["cross_warp"] == 0.1 and m["recipe"] == "llff"
+    assert m["cross_warp"] == 0.15 and m["config"]["cross_warp"] == 0.15 and m["recipe"] == "llff"
     assert "cross_warp_occlusion" not in m and "cross_warp_start" not in m["config"]
     m = reings.run(method="reings", cross_warp=0.0, **kw).metrics
     assert "cross_warp" not in m and "cross_warp" not in m["config"]

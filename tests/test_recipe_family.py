@@ -135,3 +135,78 @@ def test_run_recipe_per_method(method):
     off = _ctx("dtu", method=method)[0].run_recipe(baseline_recipe("dngaussian", 600, 0, "dtu"))
     assert not off.loss.dark_background and not off.densify.dark_white_rules
 # }}}
+
+
+@pytest.mark.parametrize("family", ["llff", "dtu"])
+@pytest.mark.parametrize("prior", ["none", "off", "stereo", "exact"])
+def test_no_prior_rules(family, prior):
+    """Without a depth prior the 'llff' family's reings fits take NO_PRIOR_BY_FAMILY's rules (the
+    view_warp term from 1/3 of each fit, DropGaussian 0.3); with a prior, on 'dtu' and for the
+    baselines the family's rules stay (2/3; 0.2 for reings, 0 for dngaussian); a value given wins."""
+    from reings.pipeline import NO_PRIOR_BY_FAMILY, drop_gamma_of, run_settings, view_warp_start_of
+
+    assert NO_PRIOR_BY_FAMILY == {"llff": {"drop_gamma": 0.3, "view_warp_start": 1 / 3}, "dtu": {}}
+    rule = family == "llff" and prior in ("none", "off")
+    ctx, _ = _ctx(family, depth_prior=prior)
+    assert view_warp_start_of(ctx.cfg, family) == (1 / 3 if rule else 2 / 3)
+    assert drop_gamma_of(ctx.cfg, family) == (0.3 if rule else 0.2)
+    r = ctx.binocular(soft_depth_recipe(600, 0, family))
+    assert r.loss.view_warp_from == (200 if rule else 400)
+    s = run_settings(ctx.cfg, family)
+    assert s.get("view_warp_start") == (1 / 3 if rule else None)  # recorded only off the old default
+    assert s["drop_gamma"] == (0.3 if rule else 0.2)
+    base, _ = _ctx(family, depth_prior=prior, method="dngaussian")
+    assert drop_gamma_of(base.cfg, family) == 0.0
+    given, _ = _ctx(family, depth_prior=prior, view_warp_start=0.5, drop_gamma=0.1)
+    assert view_warp_start_of(given.cfg, family) == 0.5 and drop_gamma_of(given.cfg, family) == 0.1
+    assert given.binocular(soft_depth_recipe(600, 0, family)).loss.view_warp_from == 300
+
+
+def test_no_prior_folders_of_before_are_not_taken_for_the_new_rules(tmp_path):
+    """A no-prior LLFF run of before the rules (cross_warp 0.1, view_warp from 2/3, drop 0.2) is not
+    resumed (checkpoints/run.json) and is flagged by `reings eval`, also when only the start differs
+    (the other two given as before: view_warp_start is absent at 2/3); a stereo-prior run of before
+    is still the same run."""
+    import json
+
+    from reings.evaluate import _settings_differ
+    from reings.outputs import check_out
+    from reings.pipeline import run_settings
+
+    old_cfg = RunConfig(depth_prior="none", cross_warp=0.1, drop_gamma=0.2, view_warp_start=2 / 3)
+    old = json.loads(json.dumps(run_settings(old_cfg.resolved(), "llff")))
+    assert "view_warp_start" not in old and old["cross_warp"] == 0.1 and old["drop_gamma"] == 0.2
+    for name, cfg, diff in (("default", RunConfig(depth_prior="none"), {"cross_warp", "drop_gamma", "view_warp_start"}),
+                            ("given", RunConfig(depth_prior="none", cross_warp=0.1, drop_gamma=0.2), {"view_warp_start"})):
+        out = tmp_path / name
+        (out / "checkpoints").mkdir(parents=True)
+        (out / "checkpoints" / "run.json").write_text(json.dumps(old))
+        with pytest.raises(ValueError, match="other settings"):
+            check_out(str(out), run_settings(cfg.resolved(), "llff"), False)
+        (out / "metrics.json").write_text(json.dumps({"config": old}))
+        got = _settings_differ(str(out / "metrics.json"), cfg, "llff")
+        assert {part.split(" ", 1)[0] for part in got.split(", ")} == diff, got
+    prior = json.loads(json.dumps(run_settings(RunConfig().resolved(), "llff")))
+    assert "view_warp_start" not in prior and prior["drop_gamma"] == 0.2
+    (tmp_path / "prior.json").write_text(json.dumps({"config": prior}))
+    assert _settings_differ(str(tmp_path / "prior.json"), RunConfig(), "llff") == ""
+
+
+def test_a_no_prior_run_records_the_rules(device):
+    """reings.run (the keyword path) without a prior: the fits take the view_warp term from 1/3 and
+    DropGaussian 0.3, and metrics.json records both (config.view_warp_start, drop_gamma) and the
+    cross_warp default; with a prior (exact, on the procedural scene) the old rules."""
+    import reings
+
+    scene = reings.make_procedural_scene(n_views=8, width=64, height=48, supersample=1)
+    kw = dict(scene=scene, iterations=(6, 6, 6), device=device, with_lpips=False, eval_every=0, quiet=True,
+              views=3, extent="frusta")
+    for prior, start, frm, drop, cross in (("none", 1 / 3, 2, 0.3, 0.15), ("exact", None, 4, 0.2, None)):
+        m = reings.run(method="reings", depth_prior=prior, **kw).metrics
+        assert m["config"].get("view_warp_start") == start and m["run_config"]["view_warp_start"] is None, prior
+        assert m["drop_gamma"] == drop and m["config"]["drop_gamma"] == drop, prior
+        assert m.get("cross_warp") == cross and m["config"].get("cross_warp") == cross, prior
+        fits = [s for s in m["stages"] if "config" in s]
+        assert len(fits) == 3, prior
+        assert [s["config"]["loss"]["view_warp_from"] for s in fits] == [frm] * 3, prior
+        assert [s["config"]["loss"]["drop_gamma"] for s in fits] == [drop] * 3, prior

@@ -285,7 +285,8 @@ class Trainer(Protocol):
         occlusion test, rendered before the training view's own frame."""
 
     def cross_warp(self, frame: Frame, view: int, partner: int, partner_cam: Camera, weight: float, near: float,
-                   into: Any = None, occlusion: float = 0.0, partner_depth: HeldDepth | None = None) -> Any:
+                   into: Any = None, occlusion: float = 0.0, partner_depth: HeldDepth | None = None,
+                   sigma: float = 0.0) -> Any:
         """dL/d depth of the cross-view photometric term of this frame (a render of training view
         `view`): its depth reprojects each pixel into training view `partner` (camera
         `partner_cam`), whose training image, sampled there, is compared with view `view`'s
@@ -293,14 +294,21 @@ class Trainer(Protocol):
         kernels/cross_warp.cl; docs/method.md §12), for `backward(v_depth=...)`; added into `into`
         (another depth cotangent of the same frame) and returned when given. occlusion > 0: the
         occlusion test with that tolerance, against `partner_depth` (`hold_depth` of a render of
-        `partner_cam`, held constant); 0: no test. The loss waits for `read_cross_warp`."""
+        `partner_cam`, held constant); 0: no test. sigma > 0: a blur level (LossConfig.cross_warp_blur;
+        docs/method.md §12): both training images replaced by reference_cross_warp.blur_image's
+        float32 copies at that sigma (made once per view and sigma, kept by the trainer); 0: the
+        images themselves. The loss waits for `read_cross_warp`."""
 
     def read_cross_warp(self) -> dict:
-        """{"loss", "valid_fraction", "occluded_fraction"} of the last `cross_warp` (a read from the
-        device; the loss's sums are taken now, from that call's frame and held partner depth: valid
-        while the frame is, i.e. until the next `forward`; the fit's loop reads on logging
-        iterations before it). occluded_fraction: the pixels the occlusion test left out (0 without
-        it), of H W as valid_fraction."""
+        """{"loss", "valid_fraction", "occluded_fraction"} of the `cross_warp` calls since the last
+        `forward` (a read from the device; the loss's sums are taken now, from those calls' frame and
+        held partner depth: valid while the frame is, i.e. until the next `forward`; the fit's loop
+        reads on logging iterations before it). loss: the sum of the calls' losses, in their order
+        (the levels of the term: sharp, then the blur levels); the fractions: the last call's, which
+        are every level's of the same frame, partner and occlusion test (validity depends on the
+        depth, alpha, cameras and the partner depth, not on the images), so the sharp level's.
+        occluded_fraction: the pixels the occlusion test left out (0 without it), of H W as
+        valid_fraction."""
 
     def hold(self, grads: Any) -> Any:
         """The gradients of the last `backward` as a handle that survives the next `backward` (to

@@ -77,7 +77,9 @@ class HostTrainer:
         self._reg_value = None  # the last regularize(value=True)'s penalties (read_regularize)
         self.dm: list = []  # per view: (weights, target, S, valid pixels) of the metric depth term, or None
         self._dm = None  # the last depth_metric call's (residual, weights, target, valid, scale), or None
-        self._cw = None  # the last cross_warp call's (residuals, valid mask, occluded mask, H, W, scale)
+        self._cw: list = []  # the cross_warp calls' (residuals, valid mask, occluded mask, H, W, scale) since the
+        # last forward (one per level), for read_cross_warp
+        self._cw_blur: dict = {}  # (view, sigma) -> the blurred training image (cross_warp's blur levels)
         self._held_depth = 0  # hold_depth calls: a held depth is valid while its count is the last
         self._zeros: dict = {}  # (H, W) -> zero colour cotangent of the depth passes
         self._tmp = np.empty(0, _F32)  # Adam scratch, grown geometrically
@@ -138,6 +140,7 @@ class HostTrainer:
         g = Gaussians(p["means"], p["quats"], p["log_scales"], p["opacity_logits"], sh)
         bg = tuple(float(x) for x in np.asarray(background, _F32).reshape(3))
         out = self.b.render(g, cam, background=bg, near=float(near), opacity_override=opacity_override, drop=drop)
+        self._cw = []  # read_cross_warp sums the levels of one frame: those called after this forward
         return HostFrame(cam, g, out, bg, float(near), cam.width, cam.height, drop)
 
     def read_rgb(self, fr: HostFrame) -> np.ndarray:
@@ -271,12 +274,13 @@ class HostTrainer:
                          self._held_depth)
 
     def cross_warp(self, fr: HostFrame, view: int, partner: int, partner_cam: Camera, weight: float, near: float,
-                   into=None, occlusion: float = 0.0, partner_depth: HeldDepth | None = None) -> np.ndarray:
+                   into=None, occlusion: float = 0.0, partner_depth: HeldDepth | None = None,
+                   sigma: float = 0.0) -> np.ndarray:
         """Trainer.cross_warp: kernels/cross_warp.cl's float32 operations in its order
         (reference_cross_warp.cross_warp_f32; the float64 form is cross_warp_fwd_bwd), the
-        occlusion test against `partner_depth` when occlusion > 0; returns dL/d depth [H,W], or
-        `into` with it added. The loss's row sums wait for `read_cross_warp` (from the residuals
-        kept here)."""
+        occlusion test against `partner_depth` when occlusion > 0, both training images blurred
+        when sigma > 0 (`_cross_warp_image`); returns dL/d depth [H,W], or `into` with it added.
+        The loss's row sums wait for `read_cross_warp` (from the residuals kept here)."""
         from .reference_cross_warp import CROSS_WARP_ALPHA_MIN, cross_warp_args, cross_warp_grad_f32
 
         h, w = fr.height, fr.width
@@ -284,28 +288,48 @@ class HostTrainer:
         scale = _F32(weight / (3.0 * h * w)) if h * w else _F32(0)
         tol = _F32(occlusion)
         pd = check_held_depth(partner_depth, partner_cam, self._held_depth) if tol > 0 else None
-        g, r, ok, occ = cross_warp_grad_f32(fr.out.depth, fr.out.alpha, self.images[view], self.images[partner], hm,
-                                            e, near, CROSS_WARP_ALPHA_MIN, scale, tol,
-                                            *((pd.depth, pd.alpha) if pd is not None else (None, None)))
-        self._cw = (r, ok, occ, h, w, scale)
+        g, r, ok, occ = cross_warp_grad_f32(fr.out.depth, fr.out.alpha, self._cross_warp_image(view, sigma),
+                                            self._cross_warp_image(partner, sigma), hm, e, near, CROSS_WARP_ALPHA_MIN,
+                                            scale, tol, *((pd.depth, pd.alpha) if pd is not None else (None, None)))
+        self._cw.append((r, ok, occ, h, w, scale))
         if into is None:
             return g
         into += g
         return into
 
+    def _cross_warp_image(self, view: int, sigma: float):
+        """Training image `view` for cross_warp's level sigma: the image as given at 0, else
+        reference_cross_warp.blur_image of it as float32 (the device trainer's gt buffer), made at
+        the first call of that (view, sigma) and kept for the fit."""
+        from .reference_cross_warp import blur_image
+
+        sigma = float(sigma)
+        if sigma == 0:
+            return self.images[view]
+        img = self._cw_blur.get((view, sigma))
+        if img is None:
+            img = self._cw_blur[(view, sigma)] = blur_image(np.asarray(self.images[view], _F32), sigma)
+        return img
+
     def read_cross_warp(self) -> dict:
-        """Trainer.read_cross_warp: as the device trainer's (cross_warp_rows_f32's row sums and
-        counts now, then summed in float64)."""
+        """Trainer.read_cross_warp: as the device trainer's (per call since the last forward,
+        cross_warp_rows_f32's row sums and counts now, then summed in float64; the calls' losses
+        added in their order, the fractions of the last call)."""
         from .reference_cross_warp import cross_warp_rows_f32
 
-        if self._cw is None:
-            raise RuntimeError("read_cross_warp before a cross_warp")
-        r, ok, occ, h, w, scale = self._cw
-        if h * w == 0:
-            return {"loss": 0.0, "valid_fraction": 0.0, "occluded_fraction": 0.0}
-        rows, counts, occluded = cross_warp_rows_f32(r, ok, occ)
-        return {"loss": float(scale) * float(np.sum(rows.astype(np.float64))),
-                "valid_fraction": int(np.sum(counts)) / (h * w), "occluded_fraction": int(np.sum(occluded)) / (h * w)}
+        if not self._cw:
+            raise RuntimeError("read_cross_warp before a cross_warp (since the last forward)")
+        loss, out = 0.0, None
+        for r, ok, occ, h, w, scale in self._cw:
+            if h * w == 0:
+                out = {"loss": 0.0, "valid_fraction": 0.0, "occluded_fraction": 0.0}
+                continue
+            rows, counts, occluded = cross_warp_rows_f32(r, ok, occ)
+            out = {"loss": float(scale) * float(np.sum(rows.astype(np.float64))),
+                   "valid_fraction": int(np.sum(counts)) / (h * w),
+                   "occluded_fraction": int(np.sum(occluded)) / (h * w)}
+            loss += out["loss"]
+        return {**out, "loss": loss}
 
     def hold(self, grads: dict) -> dict:
         """Trainer.hold: writable float32 copies (render_vjp's arrays are fresh, but `regularize`

@@ -27,6 +27,11 @@ The occlusion test (`occlusion` = tol > 0; off at 0): with D_j, a_j view j's ren
 a_j >= alpha_min and z_j > (D_j / a_j) (1 + tol) at the nearest pixel of p',
 (floor(p'_x + 0.5), floor(p'_y + 0.5)) clamped to (W_j - 1, H_j - 1); where a_j < alpha_min there is no
 test. The gradient of the pixels left valid is unchanged (the test is a step: no derivative).
+
+Blur levels (LossConfig.cross_warp_blur; docs/method.md §12): the same term on copies of both
+training images blurred by `blur_image` (a separable Gaussian of standard deviation sigma pixels,
+radius ceil(3 sigma), weights summing to 1, reflect-101 borders, float64 rounded once to float32);
+the kernel, the mirror and the twin take them as they take the sharp images.
 """
 from __future__ import annotations
 
@@ -35,6 +40,57 @@ import numpy as np
 CROSS_WARP_ALPHA_MIN = 0.5  # pixels of lower rendered alpha are left out (their z = D / a is ill-defined)
 
 _F32 = np.float32
+
+
+def blur_kernel(sigma: float) -> np.ndarray:
+    """The float64 weights of `blur_image`'s 1-D Gaussian: exp(-x^2 / (2 sigma^2)) for the
+    integers x in [-r, r], r = ceil(3 sigma), divided by their sum (so they sum to 1)."""
+    r = int(np.ceil(3.0 * float(sigma)))
+    x = np.arange(-r, r + 1, dtype=np.float64)
+    with np.errstate(over="ignore", divide="ignore"):
+        k = np.exp(-0.5 * (x / float(sigma)) ** 2)
+    return k / np.sum(k)
+
+
+def _reflect101_index(n: int, r: int) -> np.ndarray:
+    """Indices of a length-n axis padded by r on each side, mirrored without repeating the edge
+    (reflect-101: ... 2 1 | 0 1 2 ... n-1 | n-2 n-3 ...), folded again as often as r needs; a
+    length-1 axis repeats its one sample."""
+    i = np.arange(-r, n + r)
+    if n == 1:
+        return np.zeros_like(i)
+    p = 2 * (n - 1)
+    i = np.mod(i, p)
+    return np.where(i >= n, p - i, i)
+
+
+def blur_image(img, sigma: float):
+    """`img` [H,W] or [H,W,C] blurred by a separable Gaussian of standard deviation `sigma`
+    pixels (blur_kernel: radius ceil(3 sigma), weights summing to 1) along the rows, then the
+    columns, with reflect-101 borders (mirrored without repeating the edge pixel), computed in
+    float64 and rounded once to float32. sigma 0 returns `img` itself (the same object,
+    untouched). The cross_warp term's blur levels (LossConfig.cross_warp_blur): both trainers
+    take these float32 images, so the kernel and the host mirror see the same inputs."""
+    sigma = float(sigma)
+    if not (sigma >= 0 and np.isfinite(sigma)):
+        raise ValueError(f"blur_image: sigma must be a finite number >= 0, got {sigma}")
+    if sigma == 0:
+        return img
+    a = np.asarray(img, np.float64)
+    if a.ndim not in (2, 3) or 0 in a.shape[:2]:
+        raise ValueError(f"blur_image: expected a non-empty [H,W] or [H,W,C] image, got shape {a.shape}")
+    k = blur_kernel(sigma)
+    r = (len(k) - 1) // 2
+    h, w = a.shape[:2]
+    cols = a[:, _reflect101_index(w, r)]  # [H, W + 2r, ...]
+    out = np.zeros_like(a)
+    for t in range(len(k)):  # along x: fixed order, tap by tap
+        out += k[t] * cols[:, t:t + w]
+    rows = out[_reflect101_index(h, r)]  # [H + 2r, W, ...]
+    out = np.zeros_like(a)
+    for t in range(len(k)):  # along y
+        out += k[t] * rows[t:t + h]
+    return out.astype(np.float32)
 
 
 def relative_pose(cam_i, cam_j) -> tuple[np.ndarray, np.ndarray]:

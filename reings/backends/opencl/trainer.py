@@ -8,6 +8,8 @@ Kept on the device for the whole fit (buffers of a private `Scratch`, grown geom
     grad2d_accum, grad2d_count, max_radii2d   the densification statistics (reings.types ACCUM,
                                    COUNT, RADII)
     gt<i>                          the training images [H,W,3]
+    gt<i>_blur<sigma>              their blurred copies (reference_cross_warp.blur_image), uploaded once per
+                                   (view, sigma) at the first cross_warp of that level (LossConfig.cross_warp_blur)
     dt<i>                          the training views' depth targets [H,W] (upload_depth_targets, once per fit)
     dw<i>                          their per-pixel depth-loss weights [H,W] (--depth-confidence; only when given)
     v_rgb, v_depth                 the cotangent images of the current pass
@@ -56,7 +58,7 @@ import numpy as np
 
 from ...types import ACCUM, COUNT, PARAM_NAMES, RADII
 from ..base import HeldDepth, check_held_depth
-from ..reference_cross_warp import CROSS_WARP_ALPHA_MIN, cross_warp_args
+from ..reference_cross_warp import CROSS_WARP_ALPHA_MIN, blur_image, cross_warp_args
 from ..reference_loss import REG_VALUE_COLS, DepthSmoothWeights, regularize_value
 from ..reference_state import adam_update, zero_stats
 from .program import typed_invoker
@@ -139,7 +141,9 @@ class DeviceTrainer:
         self.k_cw_grad = backend.kernel("cross_warp.cl", "cross_warp_grad")
         self.k_cw_rows = backend.kernel("cross_warp.cl", "cross_warp_rows")
         self._cw_geom: dict = {}  # (view, partner) -> (camera, partner camera, kernel geometry arguments)
-        self._cw_last = None  # (geometry, image buffers, H, W, scale) of the last cross_warp call, for read_cross_warp
+        self._cw_last: list = []  # (geometry, image buffers, H, W, scale) of the cross_warp calls since the last
+        # forward (one per level), for read_cross_warp
+        self._cw_blur: dict = {}  # (view, sigma) -> the blurred training image's buffer (cross_warp's blur levels)
         self._held_depth = 0  # hold_depth calls: a held depth is valid while its count is the last
         self.bg: list = []  # per view: (mask buffer, float32 2 / count) or None (upload_bg_masks)
         self.real = _F64 if self.fp64 else _F32
@@ -148,7 +152,8 @@ class DeviceTrainer:
         self.k_l1_total = backend.kernel("l1.cl", "l1_total", L1_WG=self.l1_wg)
         self._loss = None  # ("l1", n, w_l1) after an L1-only photometric pass, ("ssim",) after the full one
         self.gt = []
-        for i, im in enumerate(images):
+        self.images = list(images)  # as given: the blur levels are made from them (cross_warp)
+        for i, im in enumerate(self.images):
             a = np.ascontiguousarray(im, _F32)
             buf = self.mem.get("pixel", f"gt{i}", a.shape[0] * a.shape[1], 12)
             cl.enqueue_copy(self.queue, buf, a)
@@ -319,6 +324,7 @@ class DeviceTrainer:
                "log_scales": self.buf("p", "log_scales"), "opacity_logits": self.buf("p", "opacity_logits"),
                "sh": self.sh_input(k)}
         fr = self.b.forward_device(inp, self.n, k, cam, background, near, opacity_override, drop, keep)
+        self._cw_last = []  # read_cross_warp sums the levels of one frame: those called after this forward
         if self.flush_after_forward:
             self.queue.flush()  # submit the rasterizer now; the host goes on enqueuing loss / backward / Adam
         return fr
@@ -561,19 +567,20 @@ class DeviceTrainer:
         return HeldDepth(d, a, fr.width, fr.height, self._held_depth)
 
     def cross_warp(self, fr, view: int, partner: int, partner_cam, weight: float, near: float, into=None,
-                   occlusion: float = 0.0, partner_depth: HeldDepth | None = None):
+                   occlusion: float = 0.0, partner_depth: HeldDepth | None = None, sigma: float = 0.0):
         """Trainer.cross_warp: kernels/cross_warp.cl's depth cotangent of the frame (a render of
         training view `view`) from training image `partner` (its camera `partner_cam`) against
         training image `view`, into the trainer's cw_v_depth buffer (returned), or added into the
         device buffer `into` (returned); occlusion > 0: the occlusion test against `partner_depth`
-        (`hold_depth` of a render of `partner_cam`). The loss's row sums and counts wait for
-        `read_cross_warp`, which launches them on this frame's buffers (valid until the next forward)
-        and the held depth's."""
+        (`hold_depth` of a render of `partner_cam`); sigma > 0: both training images blurred
+        (`_cross_warp_image`). The loss's row sums and counts wait for `read_cross_warp`, which
+        launches them on this frame's buffers (valid until the next forward) and the held depth's."""
         h, w = fr.height, fr.width
         npx = h * w
         geom = self._cross_warp_geom(view, partner, fr.camera, partner_cam, w, h, near, occlusion)
         scale = _F32(weight / (3.0 * npx)) if npx else _F32(0)
-        imgs = (fr.bufs["out_depth"], fr.bufs["out_alpha"], self.gt[view], self.gt[partner])
+        imgs = (fr.bufs["out_depth"], fr.bufs["out_alpha"], self._cross_warp_image(view, sigma),
+                self._cross_warp_image(partner, sigma))
         tol = geom[-1]  # float32, as the kernel tests it
         if tol > 0:
             pd = check_held_depth(partner_depth, partner_cam, self._held_depth)
@@ -582,8 +589,23 @@ class DeviceTrainer:
             imgs += imgs[:2]
         v = into if into is not None else self.mem.get("pixel", "cw_v_depth", max(npx, 1), 4)
         self._launch("cross_warp", self.k_cw_grad, npx, *geom, scale, _I32(into is not None), *imgs, v)
-        self._cw_last = (geom, imgs, h, w, scale)
+        self._cw_last.append((geom, imgs, h, w, scale))
         return v
+
+    def _cross_warp_image(self, view: int, sigma: float):
+        """Training image `view`'s buffer for cross_warp's level sigma: gt<view> at 0, else
+        reference_cross_warp.blur_image of the image as given (as float32, as the gt buffer holds
+        it), made and uploaded at the first call of that (view, sigma) and kept for the fit."""
+        sigma = float(sigma)
+        if sigma == 0:
+            return self.gt[view]
+        buf = self._cw_blur.get((view, sigma))
+        if buf is None:
+            a = np.ascontiguousarray(blur_image(np.asarray(self.images[view], _F32), sigma), _F32)
+            buf = self.mem.get("pixel", f"gt{view}_blur{sigma!r}", a.shape[0] * a.shape[1], 12)
+            self.cl.enqueue_copy(self.queue, buf, a)  # blocking: `a` may go
+            self._cw_blur[(view, sigma)] = buf
+        return buf
 
     def _cross_warp_geom(self, view: int, partner: int, cam, partner_cam, w: int, h: int, near: float,
                          occlusion: float) -> tuple:
@@ -598,22 +620,27 @@ class DeviceTrainer:
                 _F32(near), _F32(CROSS_WARP_ALPHA_MIN), _F32(occlusion))
 
     def read_cross_warp(self) -> dict:
-        """Trainer.read_cross_warp: the last cross_warp call's loss, valid and occluded fractions:
-        cross_warp_rows on its frame's buffers (valid until the next forward), then blocking reads
-        of the H row sums and counts, summed in float64."""
-        if self._cw_last is None:
-            raise RuntimeError("read_cross_warp before a cross_warp")
-        geom, imgs, h, w, scale = self._cw_last
-        if h * w == 0:
-            return {"loss": 0.0, "valid_fraction": 0.0, "occluded_fraction": 0.0}
-        rows = self.mem.get("small", "cw_rows", h, 4)
-        counts = self.mem.get("small", "cw_counts", h, 4)
-        occluded = self.mem.get("small", "cw_occluded", h, 4)
-        self._launch("cross_warp_rows", self.k_cw_rows, h, *geom, *imgs, rows, counts, occluded)
-        total = float(np.sum(self._read(rows, (h,), _F32).astype(_F64)))
-        valid = int(np.sum(self._read(counts, (h,), _I32).astype(np.int64)))
-        occ = int(np.sum(self._read(occluded, (h,), _I32).astype(np.int64)))
-        return {"loss": float(scale) * total, "valid_fraction": valid / (h * w), "occluded_fraction": occ / (h * w)}
+        """Trainer.read_cross_warp: the loss of the cross_warp calls since the last forward (the
+        levels of one frame), valid and occluded fractions of the last one: per call cross_warp_rows
+        on its frame's buffers (valid until the next forward), then blocking reads of the H row sums
+        and counts, summed in float64; the calls' losses added in their order."""
+        if not self._cw_last:
+            raise RuntimeError("read_cross_warp before a cross_warp (since the last forward)")
+        loss, out = 0.0, None
+        for geom, imgs, h, w, scale in self._cw_last:
+            if h * w == 0:
+                out = {"loss": 0.0, "valid_fraction": 0.0, "occluded_fraction": 0.0}
+                continue
+            rows = self.mem.get("small", "cw_rows", h, 4)
+            counts = self.mem.get("small", "cw_counts", h, 4)
+            occluded = self.mem.get("small", "cw_occluded", h, 4)
+            self._launch("cross_warp_rows", self.k_cw_rows, h, *geom, *imgs, rows, counts, occluded)
+            total = float(np.sum(self._read(rows, (h,), _F32).astype(_F64)))
+            valid = int(np.sum(self._read(counts, (h,), _I32).astype(np.int64)))
+            occ = int(np.sum(self._read(occluded, (h,), _I32).astype(np.int64)))
+            out = {"loss": float(scale) * total, "valid_fraction": valid / (h * w), "occluded_fraction": occ / (h * w)}
+            loss += out["loss"]
+        return {**out, "loss": loss}
 
     def hold(self, grads: dict) -> dict:
         """Trainer.hold: device copies of the gradient buffers (trainer-owned, so the next
