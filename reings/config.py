@@ -94,13 +94,15 @@ def parse_iterations(text: str):
 
 
 def blur_sigmas(v):
-    """None, or why a tuple of blur sigmas (pixels) is refused: each a finite number >= 0."""
-    bad = [x for x in v if not (x >= 0.0 and x != math.inf)]  # refuses nan
-    return f"must hold finite numbers >= 0, got {bad[0]}" if bad else None
+    """None, or why a tuple of blur sigmas (pixels) is refused: each a finite number > 0 (the sharp
+    level, sigma 0, is always taken: a 0 here would count it twice)."""
+    bad = [x for x in v if not (x > 0.0 and x != math.inf)]  # refuses nan
+    return (f"must hold finite numbers > 0 (the sharp level is always taken), got {bad[0]}" if bad
+            else None)
 
 
 def parse_blur_sigmas(text: str):
-    """SIGMA[,SIGMA...] (numbers >= 0, in pixels), or none / an empty text: no level."""
+    """SIGMA[,SIGMA...] (numbers > 0, in pixels), or none / an empty text: no level."""
     t = str(text).strip()
     if t.lower() in ("", "none"):
         return ()

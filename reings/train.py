@@ -374,8 +374,8 @@ def fit(views, config: TrainConfig, device: str = "pocl", init: Gaussians | None
         if not (v >= 0 and np.isfinite(v)):  # also NaN
             raise ValueError(f"fit: LossConfig.{name} must be >= 0 and finite, got {v}")
     for v in L.cross_warp_blur:
-        if not (v >= 0 and np.isfinite(v)):  # also NaN
-            raise ValueError(f"fit: LossConfig.cross_warp_blur must hold numbers >= 0 and finite, got {v}")
+        if not (v > 0 and np.isfinite(v)):  # also NaN; 0 is the sharp level, always taken
+            raise ValueError(f"fit: LossConfig.cross_warp_blur must hold numbers > 0 and finite, got {v}")
     extent = scene_extent(cameras) if extent is None else extent
     backend = get_backend(device)
     bg_masks = None

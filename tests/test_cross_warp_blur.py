@@ -396,12 +396,12 @@ def test_option_parse_and_refusals(capsys):
     assert parse("--cross-warp-blur", "none").cross_warp_blur == ()
     assert parse().cross_warp_blur == () and RunConfig().cross_warp_blur == () and LossConfig().cross_warp_blur == ()
     assert parse_blur_sigmas(" 0.5 , 3 ") == (0.5, 3.0)
-    for bad in ("2,-1", "nan", "2,inf", "a,2"):
+    for bad in ("2,-1", "nan", "2,inf", "a,2", "0,2", "0"):
         with pytest.raises(SystemExit):
             parse("--cross-warp-blur", bad)
         err = capsys.readouterr().err
         assert "--cross-warp-blur" in err, err
-    for bad in ((-1.0,), (2.0, float("nan")), (float("inf"),)):
+    for bad in ((-1.0,), (2.0, float("nan")), (float("inf"),), (0.0, 2.0)):
         with pytest.raises(ValueError, match="cross_warp_blur"):
             RunConfig(cross_warp_blur=bad)
     assert RunConfig(cross_warp_blur=[2, 4]).cross_warp_blur == (2.0, 4.0)
