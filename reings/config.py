@@ -76,21 +76,27 @@ def positive_all(v):
     return f"must be >= 1, got {bad[0]}" if bad else None
 
 
+def _checked_list(parts, convert, wrong: str, check) -> tuple:
+    """The comma-separated `parts` converted one by one (ValueError `wrong` + the part when one does
+    not convert), then `check`ed as a whole (ValueError with its reason)."""
+    vals = []
+    for p in parts:
+        try:
+            vals.append(convert(p))
+        except ValueError:
+            raise ValueError(f"{wrong}, got {p!r}") from None
+    bad = check(vals)
+    if bad:
+        raise ValueError(bad)
+    return tuple(vals)
+
+
 def parse_iterations(text: str):
     """N, or A,B,C (one count per reings fitting stage: coarse, fine, final); positive integers."""
     parts = [p.strip() for p in str(text).split(",")]
     if len(parts) not in (1, 3):
         raise ValueError(f"expected N or A,B,C (one count per reings stage: coarse, fine, final), got {text!r}")
-    vals = []
-    for p in parts:
-        try:
-            vals.append(int(p))
-        except ValueError:
-            raise ValueError(f"expected an integer, got {p!r}") from None
-    bad = positive_all(vals)
-    if bad:
-        raise ValueError(bad)
-    return tuple(vals)
+    return _checked_list(parts, int, "expected an integer", positive_all)
 
 
 def blur_sigmas(v):
@@ -106,16 +112,8 @@ def parse_blur_sigmas(text: str):
     t = str(text).strip()
     if t.lower() in ("", "none"):
         return ()
-    vals = []
-    for p in t.split(","):
-        try:
-            vals.append(float(p))
-        except ValueError:
-            raise ValueError(f"expected comma-separated numbers (sigmas in pixels) or none, got {text!r}") from None
-    bad = blur_sigmas(vals)
-    if bad:
-        raise ValueError(bad)
-    return tuple(vals)
+    return _checked_list(t.split(","), float, "expected comma-separated numbers (sigmas in pixels) or none",
+                         blur_sigmas)
 # }}}
 
 

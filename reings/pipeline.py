@@ -243,7 +243,8 @@ DROP_GAMMA_BY_FAMILY = {"llff": 0.2, "dtu": 0.2}
 # 0.2), together: 2 views 19.27 -> 19.58 dB, 3 views 21.24 -> 21.46, 4 views 23.05 -> 23.04 (LPIPS
 # 0.311 -> 0.305, 0.246 -> 0.248, 0.186 -> 0.197). Held-out check on trex and room: §25. DTU has no
 # measured no-prior rules (its prior is worth +1.9 dB, §22), so it keeps its family's.
-NO_PRIOR_BY_FAMILY = {"llff": {"drop_gamma": 0.3, "view_warp_start": 1 / 3}, "dtu": {}}
+# The cross-view term is a no-prior rule only (below): off with any prior, on DTU and for the baselines.
+NO_PRIOR_BY_FAMILY = {"llff": {"cross_warp": 0.15, "drop_gamma": 0.3, "view_warp_start": 1 / 3}, "dtu": {}}
 VIEW_WARP_START = 2 / 3  # the view_warp term's start (Binocular3DGS: 2/3 of the schedule)
 # RunConfig.prune_unseen = none, reings fits (§20): on for LLFF (no collapse in 27 runs with the
 # drop; alone at 3 views: fern +0.00, flower +0.04 dB, seed 0); not measured on DTU, so off there
@@ -255,8 +256,7 @@ DEPTH_METRIC_BY_FAMILY = {"llff": 0.0, "dtu": 0.0}  # RunConfig.depth_metric = n
 # 2 views 18.42 -> 19.27 dB, 3 views 21.16 -> 21.24, 4 views 22.91 -> 23.05; 0.3 collapsed one
 # flower run (10.7 dB). DTU scan24 (stereo prior): 0.1 costs 1.0 dB (18.54 -> 17.53), so off for
 # 'dtu'; with a depth prior on LLFF not measured, so off with any prior
-# 0.15 since §25 (with the no-prior rules above: 2 views 19.27 -> 19.58 dB)
-CROSS_WARP_BY_FAMILY = {"llff": 0.15, "dtu": 0.0}
+# 0.15 since §25 (with the no-prior rules above: 2 views 19.27 -> 19.58 dB): NO_PRIOR_BY_FAMILY's "cross_warp"
 # the stereo prior's settings per recipe family (docs/results.md §15): DTU's training views are
 # ~35 degrees apart, where the plane sweep's matches are ambiguous (brick, windows) and only a much
 # stronger SGM smoothness and each view's own near/far hold; LLFF keeps the settings it was measured with
@@ -339,12 +339,12 @@ def depth_metric_of(cfg: RunConfig, family: str) -> float:
 
 def cross_warp_of(cfg: RunConfig, family: str) -> float:
     """The cross-view photometric term's weight in the run's reings fits (LossConfig.cross_warp):
-    RunConfig.cross_warp, or for none the recipe family's (CROSS_WARP_BY_FAMILY) without a depth
-    prior and 0 with one; 0 for the baselines."""
+    RunConfig.cross_warp, or for none the recipe family's no-prior rule (NO_PRIOR_BY_FAMILY) without
+    a depth prior and 0 with one; 0 for the baselines."""
     if cfg.method != "reings":
         return 0.0
     if cfg.cross_warp is None:
-        return CROSS_WARP_BY_FAMILY[family] if prior_kind(cfg.depth_prior) in NO_PRIOR else 0.0
+        return _no_prior_rule(cfg, family, "cross_warp", 0.0)
     return float(cfg.cross_warp)
 
 

@@ -39,7 +39,7 @@ import numpy as np
 
 from .backends.reference_drop import Drop
 from .backends.reference_view_warp import draw_baseline, virtual_camera
-from .config import TrainConfig
+from .config import TrainConfig, blur_sigmas
 from .types import Camera, Gaussians
 
 SH_C0 = 0.28209479177387814
@@ -373,9 +373,9 @@ def fit(views, config: TrainConfig, device: str = "pocl", init: Gaussians | None
         v = getattr(L, name)
         if not (v >= 0 and np.isfinite(v)):  # also NaN
             raise ValueError(f"fit: LossConfig.{name} must be >= 0 and finite, got {v}")
-    for v in L.cross_warp_blur:
-        if not (v > 0 and np.isfinite(v)):  # also NaN; 0 is the sharp level, always taken
-            raise ValueError(f"fit: LossConfig.cross_warp_blur must hold numbers > 0 and finite, got {v}")
+    bad = blur_sigmas(L.cross_warp_blur)  # 0 is the sharp level, always taken
+    if bad:
+        raise ValueError(f"fit: LossConfig.cross_warp_blur {bad}")
     extent = scene_extent(cameras) if extent is None else extent
     backend = get_backend(device)
     bg_masks = None

@@ -761,9 +761,9 @@ def test_default_rule():
     family without a depth prior, 0 for 'dtu', with any prior, and for the baselines; a value given
     wins in the reings fits, 0 included; the baselines never take one."""
     from reings.config import RunConfig
-    from reings.pipeline import CROSS_WARP_BY_FAMILY, cross_warp_of
+    from reings.pipeline import NO_PRIOR_BY_FAMILY, cross_warp_of
 
-    assert CROSS_WARP_BY_FAMILY == {"llff": 0.15, "dtu": 0.0}
+    assert {f: r.get("cross_warp", 0.0) for f, r in NO_PRIOR_BY_FAMILY.items()} == {"llff": 0.15, "dtu": 0.0}
     for family in ("llff", "dtu"):
         for prior in ("none", "off", "no", "None", "stereo", "stereo:sgm_p1=0.2", "exact", "onnx:model.onnx"):
             for method in ("reings", "reings-no-ehps", "dngaussian", "3dgs"):

@@ -145,7 +145,8 @@ def test_no_prior_rules(family, prior):
     baselines the family's rules stay (2/3; 0.2 for reings, 0 for dngaussian); a value given wins."""
     from reings.pipeline import NO_PRIOR_BY_FAMILY, drop_gamma_of, run_settings, view_warp_start_of
 
-    assert NO_PRIOR_BY_FAMILY == {"llff": {"drop_gamma": 0.3, "view_warp_start": 1 / 3}, "dtu": {}}
+    assert NO_PRIOR_BY_FAMILY == {"llff": {"cross_warp": 0.15, "drop_gamma": 0.3, "view_warp_start": 1 / 3},
+                                  "dtu": {}}
     rule = family == "llff" and prior in ("none", "off")
     ctx, _ = _ctx(family, depth_prior=prior)
     assert view_warp_start_of(ctx.cfg, family) == (1 / 3 if rule else 2 / 3)
