@@ -5,6 +5,7 @@
     python bench/bench_host.py --device pocl --mode calls     # OpenCL commands and host syncs per iteration
     python bench/bench_host.py --device pocl --mode cprofile  # the host's top costs per iteration
     python bench/bench_host.py --device pocl --mode wall --save /tmp/p.npz   # final state, for a bitcheck
+    REINGS_BIN=async python bench/bench_host.py --device pocl --mode calls  # the sync-free binning
 
 Case: the built-in procedural scene (--width x --height, default 504x378 as LLFF at the paper's
 resolution), 3 training views with their exact depths as the depth prior, --gaussians initial
@@ -20,7 +21,8 @@ ms/iteration is steady state: from the first logging iteration to the last (Hist
 kernel builds, the upload and the first iterations are left out. A warm-up fit of --warmup
 iterations runs first in the same process (kernel builds; with --mode stubbed it also leaves the
 binning's (V, K) words of a real forward in the device buffers, so the stubbed loop takes the
-host path of a real one). One JSON line per run goes to --json (appended).
+host path of a real one). One JSON line per run goes to --json (appended), with the backend's
+binning mode (`bin_mode`, from REINGS_BIN: docs/perf_notes.md §8) and the forwards binned per mode.
 """
 from __future__ import annotations
 
@@ -113,9 +115,11 @@ def main(argv=None):
                gaussians=args.gaussians,
                sh_degree=args.sh_degree, width=args.width, height=args.height, iterations=its,
                log_every=args.log_every, drop=args.drop, view_warp=not args.no_view_warp,
-               ms_per_iteration=steady, fit_seconds=wall, final_loss=h.loss[-1], final_psnr=h.train_psnr[-1])
+               ms_per_iteration=steady, fit_seconds=wall, final_loss=h.loss[-1], final_psnr=h.train_psnr[-1],
+               bin_mode=be.bin_mode, binned=dict(be.binned))
     print(f"{args.mode:8s} {args.label}: {steady:8.2f} ms/iteration (steady, its {h.iteration[0]}..{h.iteration[-1]}); "
-          f"fit {wall:.2f} s; loss {h.loss[-1]:.6f} psnr {h.train_psnr[-1]:.4f}", flush=True)
+          f"fit {wall:.2f} s; loss {h.loss[-1]:.6f} psnr {h.train_psnr[-1]:.4f}; binning {be.bin_mode} {be.binned}",
+          flush=True)
     if calls is not None:
         rec["calls_per_iteration"] = calls.as_dict(per=its)
         print("  per iteration: " + ", ".join(f"{k} {v:.1f}" for k, v in rec["calls_per_iteration"].items() if v),

@@ -10,7 +10,7 @@
      bin_count     per rank r in [0, N]: tiles_touched[r] (0 for culled and for r == N), and ctrl[0] = V
                    (the one r where the visible prefix ends; no atomics)
      scan          exclusive scan of tiles_touched[0..N] -> offset_from_rank, offset_from_rank[N] = K
-     (one blocking read of ctrl = (V, K))
+     (one blocking read of ctrl = (V, K); none in the sync-free mode, below)
      bin_emit      per rank r < V: its tiles row-major (ty outer, tx inner) at emit slots
                    offset_from_rank[r] + i: tile_keys[emit] = tile, emit_vals[emit] = emit,
                    gid_from_emit[emit] = gid
@@ -18,6 +18,13 @@
                    kept inside a tile -> emit_from_isect
      tile_ranges   per isect i in [0, K]: [start, end) of every tile from the sorted keys (searchsorted
                    semantics; each tile written exactly once, no atomics) and gid_from_isect
+
+   Device counts (the sync-free binning, docs/perf_notes.md §8): bin_emit and tile_ranges take
+   (counts, count_at) last. count_at < 0: the scalar count (n_visible, n_isects) is V or K, read
+   back by the host. count_at >= 0: V or K is counts[count_at] (ctrl, written by bin_count and the
+   scan), the scalar is only a bound; the host launches bin_emit over all N ranks (ranks >= V emit
+   nothing) and tile_ranges for an estimate of K + 1 (a grid-stride loop covers 0..K whatever the
+   launch size). The buffers are sized for K <= V * n_tiles (every tile rect lies in the grid).
 
    Defines: none (the tile grid arrives as tiles_x / n_tiles). Integers only: no float math here.
 */
@@ -53,9 +60,11 @@ __kernel void bin_emit(const int n_visible, const int tiles_x,
                        __global const int *tile_rect,         /* [N, 4] by gid */
                        __global uint *tile_keys,              /* [K] by emit */
                        __global uint *emit_vals,              /* [K] by emit, = emit */
-                       __global uint *gid_from_emit) {        /* [K] */
+                       __global uint *gid_from_emit,          /* [K] */
+                       __global const uint *counts,           /* V = counts[count_at] (header) */
+                       const int count_at) {
     const int r = get_global_id(0);
-    if (r >= n_visible) return;
+    if (r >= (int)launch_count((uint)n_visible, counts, count_at)) return;
     const uint g = gid_from_rank[r];
     __global const int *rc = tile_rect + 4 * (size_t)g;
     const int tx0 = rc[0], ty0 = rc[1], tx1 = rc[2], ty1 = rc[3];
@@ -78,13 +87,17 @@ __kernel void tile_ranges(const int n_isects, const int n_tiles,
                           __global const uint *emit_from_isect,  /* [K] */
                           __global const uint *gid_from_emit,    /* [K] */
                           __global int *ranges,                  /* [T, 2] */
-                          __global int *gid_from_isect) {        /* [K] */
-    const int i = get_global_id(0);
-    if (i > n_isects) return;
-    const int prev = i == 0 ? -1 : (int)tile_keys_sorted[i - 1];
-    const int cur = i == n_isects ? n_tiles : (int)tile_keys_sorted[i];
-    /* tiles in (prev, cur] start at i; tiles in [prev, cur) end at i */
-    for (int t = prev + 1; t <= cur && t < n_tiles; ++t) ranges[2 * t] = i;
-    for (int t = max(prev, 0); t < cur; ++t) ranges[2 * t + 1] = i;
-    if (i < n_isects) gid_from_isect[i] = (int)gid_from_emit[emit_from_isect[i]];
+                          __global int *gid_from_isect,          /* [K] */
+                          __global const uint *counts,           /* K = counts[count_at] (header) */
+                          const int count_at) {
+    const int k = (int)launch_count((uint)n_isects, counts, count_at);
+    const int stride = (int)get_global_size(0);
+    for (int i = get_global_id(0); i <= k; i += stride) { /* once per work-item with a host count */
+        const int prev = i == 0 ? -1 : (int)tile_keys_sorted[i - 1];
+        const int cur = i == k ? n_tiles : (int)tile_keys_sorted[i];
+        /* tiles in (prev, cur] start at i; tiles in [prev, cur) end at i */
+        for (int t = prev + 1; t <= cur && t < n_tiles; ++t) ranges[2 * t] = i;
+        for (int t = max(prev, 0); t < cur; ++t) ranges[2 * t + 1] = i;
+        if (i < k) gid_from_isect[i] = (int)gid_from_emit[emit_from_isect[i]];
+    }
 }

@@ -31,6 +31,14 @@
 #define CLAMP_GUARD 0.3f          /* Jacobian guard band, fraction of tan(fov/2) (gsplat) */
 #define V_RECORD 10               /* floats per intersection gradient record (rasterize_bwd) */
 
+/* The element count of a launch: the host's scalar `n` when count_at < 0, else counts[count_at],
+ * a count that an earlier command of the queue wrote on the device (the sync-free binning,
+ * docs/perf_notes.md §8: bin_count's V in ctrl[0], the scan's K in ctrl[1]); then `n` is only the
+ * capacity the host sized the buffers and the launch for. */
+inline uint launch_count(const uint n, __global const uint *counts, const int count_at) {
+    return count_at < 0 ? n : counts[count_at];
+}
+
 /* The alpha box of a splat: the pixels outside it have alpha = o exp(power) < ALPHA_MIN, so they
  * are never blended. rasterize_prep skips the (pixel, Gaussian) pairs outside it; project_fwd cuts
  * the tile rect to the tiles it overlaps (a little wider: PROJ_BOX_SLACK in project.cl). With

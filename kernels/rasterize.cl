@@ -22,7 +22,9 @@
  *                   behind a Gaussian comes from the forward output minus what was blended so far,
  *                   folded with the cotangents into one scalar R per pixel.
  *   isect_reduce    out[gid_from_rank[r], :] (+)= sum of records[offset_from_rank[r] ..
- *                   offset_from_rank[r+1], :], records of width `width` (10: gradients, 1: importance);
+ *                   offset_from_rank[r+1], :], records of width `width` (10: gradients, 1: importance),
+ *                   for r < V: the scalar n_rank, or the device's ctrl[0] (sync-free binning, counts /
+ *                   count_at, common.h launch_count);
  *                   a sum that overflows is redone scaled (see Overflow): +-inf or finite, never NaN.
  *
  * Defines (defaults): REINGS_CPU_SCHEDULE (0), REINGS_NV_PTX (0) from quirks.build_defines;
@@ -144,9 +146,11 @@ __kernel void isect_reduce(__global const float *records,       // [K_emit, widt
                            __global const int *offset_from_rank, // [V + 1]
                            __global const int *gid_from_rank,    // [V]
                            __global float *out,                  // [N, width]
-                           const int n_rank, const int width, const int accumulate) {
+                           const int n_rank, const int width, const int accumulate,
+                           __global const uint *counts,          // V = counts[count_at] when count_at >= 0
+                           const int count_at) {                 //   (n_rank: the launch bound; common.h)
     const int r = get_global_id(0);
-    if (r >= n_rank) return;
+    if (r >= (int)launch_count((uint)n_rank, counts, count_at)) return;
     const int a = offset_from_rank[r], b = offset_from_rank[r + 1];
     const int gid = gid_from_rank[r];
     for (int f = 0; f < width; ++f) {

@@ -212,8 +212,8 @@ def bench_train_step(be, g, cam, target=None, warmup: int = 8, repeats: int = 40
     parameters, L1 vs `target`, backward, Adam over all groups; no loss read), timed like
     bench/peer_gsplat.py's: median wall clock per step with a queue.finish() after each, after
     `warmup` steps. Also: OpenCL launches / host syncs per step (ClCalls), the host time per step
-    until the final finish is called ("step_host_enqueue_ms": enqueueing plus the binning's wait for
-    (V, K)), and with `breakdown` a
+    until the final finish is called ("step_host_enqueue_ms": enqueueing plus, in the sync binning, the
+    binning's wait for (V, K)), and with `breakdown` a
     second run with profiling events -> device ms per stage ("dev_<stage>_ms"), their sum, and the
     device span (first kernel start to last kernel end). The parameters move with every step
     (restore them with trainer.upload if needed)."""

@@ -74,7 +74,8 @@ def worker_specs(n: int | None, device: str, runs_per_gpu: int = 1) -> list[dict
     n = (len(gpus) or 1) if n is None else n
     if n < 1:
         raise ClusterError(f"--cluster local:N needs N >= 1, got {n}")
-    specs = [{"device": d, "resources": {"RUN": 1, "GPU": 1}, "env": {WORKER_DEVICE: d}} for d in gpus[:n]]
+    specs = [{"device": d, "resources": {"RUN": 1, "GPU": 1}, "env": {WORKER_DEVICE: d, **_bin_budget(runs_per_gpu)}}
+             for d in gpus[:n]]
     cpu = n - len(specs)
     if cpu:
         cores = os.cpu_count() or 1
@@ -84,6 +85,17 @@ def worker_specs(n: int | None, device: str, runs_per_gpu: int = 1) -> list[dict
         specs += [{"device": cpu_dev, "resources": {"RUN": 1},
                    "env": {WORKER_DEVICE: cpu_dev, "POCL_MAX_PTHREAD_COUNT": str(per)}} for _ in range(cpu)]
     return specs
+
+
+def _bin_budget(runs_per_gpu: int) -> dict:
+    """The env of a GPU worker sharing its GPU with runs_per_gpu - 1 others: each gets that share
+    of the sync-free binning's memory budget (REINGS_BIN_BUDGET, docs/perf_notes.md §8), unless
+    the variable is set already."""
+    from .backends.opencl.bin_counts import BIN_BUDGET_ENV, bin_budget_setting
+
+    if runs_per_gpu <= 1 or os.environ.get(BIN_BUDGET_ENV):
+        return {}
+    return {BIN_BUDGET_ENV: repr(bin_budget_setting(None) / runs_per_gpu)}
 
 
 def _worker_environ():

@@ -92,6 +92,13 @@ def device_peak_bytes(backend) -> int | None:
     return None
 
 
+def binning_of(backend) -> dict | None:
+    """The backend's binning mode (OpenCL: "auto" / "sync" / "async", docs/perf_notes.md §8) and the
+    forwards binned in each mode in this process; None where the backend has none (`reference`)."""
+    mode = getattr(backend, "bin_mode", None)
+    return None if mode is None else {"mode": mode, **getattr(backend, "binned", {})}
+
+
 def _peak_rss_mb() -> float | None:
     """This process's peak resident memory in MiB (None where the platform has no `resource`:
     Windows). ru_maxrss is in KiB on Linux, in bytes on macOS."""
@@ -867,7 +874,8 @@ def _metrics(ctx: RunContext, m: dict, settings: dict, scene, tr_idx, te_idx, cu
         "per_image": m.get("per_image"), "seconds": ctx.timings, "gaussians": ctx.counts,
         "model_bytes": ctx.model_bytes, "peak_rss_mb": _peak_rss_mb(),
         "memory": {"peak_rss_mb": _peak_rss_mb(), "device_peak_mb": None if dev_peak is None else dev_peak / 2**20,
-                   "device_peak_bytes": dev_peak, "model_mb": {k: v / 2**20 for k, v in ctx.model_bytes.items()},
+                   "device_peak_bytes": dev_peak, "binning": binning_of(backend),
+                   "model_mb": {k: v / 2**20 for k, v in ctx.model_bytes.items()},
                    "note": "peaks are this process's high-water marks (several runs in one process share them)"},
         "sfm": {"method": box.method, "points": int(box.num_sfm_points), "lo": box.lo, "hi": box.hi,
                 "cached": bool(getattr(box, "cached", False)), "note": getattr(box, "note", ""),

@@ -9,9 +9,11 @@ where the case does not pin it (e.g. random scenes). All cameras are pinhole wit
     POISON_VALUES    name -> float32 value, for paired cull / stay-visible tests
     random_scene     seeded random scene of any size
     perf_scene       docs/perf_notes.md §1.7 scenes A/B/C (re-exported from reings.bench_scenes)
+    binning(be, mode)   an OpenCL backend's binning mode inside a `with` block (sync / async)
 """
 from __future__ import annotations
 
+from contextlib import contextmanager
 from typing import NamedTuple
 
 import numpy as np
@@ -411,3 +413,17 @@ def assert_fd_along_random_directions(loss, g, grads, fields, rng, trials: int =
             fd = (ends[0] - ends[1]) / (2 * eps)
             an = float(np.sum(np.asarray(grads[field], np.float64) * v))
             assert abs(fd - an) <= tol * abs(an) + 1e-6, (field, fd, an)
+
+
+@contextmanager
+def binning(be, mode: str):
+    """OpenCLBackend `be` binning in `mode` ("sync", "async" or "auto": OpenCLBackend.bin_mode,
+    docs/perf_notes.md §8) inside the block; yields the counts of forwards binned per mode in it."""
+    old, before = be.bin_mode, dict(be.binned)
+    be.bin_mode = mode
+    done: dict = {}
+    try:
+        yield done
+    finally:
+        be.bin_mode = old
+        done.update({k: be.binned[k] - before[k] for k in before})

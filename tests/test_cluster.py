@@ -99,18 +99,25 @@ def test_cluster_errors(tmp_path, capsys):
 
 
 def test_worker_specs_share_each_gpu(monkeypatch):
-    """--runs-per-gpu K: K workers per GPU (GPU=1 each), then PoCL workers on the spare cores."""
+    """--runs-per-gpu K: K workers per GPU (GPU=1 each), then PoCL workers on the spare cores; the
+    K workers of a GPU get 1/K of the sync-free binning's memory budget each."""
     from reings.backends.opencl import device
     from reings.cluster import ClusterError, worker_specs
 
     monkeypatch.setattr(device, "list_devices", lambda: [{"nv_ptx": True}, {"nv_ptx": True}, {"nv_ptx": False}])
     monkeypatch.setattr(os, "cpu_count", lambda: 16)
+    monkeypatch.delenv("REINGS_BIN_BUDGET", raising=False)
     specs = worker_specs(7, "cuda", runs_per_gpu=3)
     assert [s["device"] for s in specs] == ["cuda:0"] * 3 + ["cuda:1"] * 3 + ["pocl"]
     assert all(s["resources"] == {"RUN": 1, "GPU": 1} for s in specs[:6])
     assert specs[6]["resources"] == {"RUN": 1} and specs[6]["env"]["POCL_MAX_PTHREAD_COUNT"] == "10"
     assert [s["device"] for s in worker_specs(None, "cuda", runs_per_gpu=2)] == ["cuda:0", "cuda:0", "cuda:1", "cuda:1"]
     assert [s["device"] for s in worker_specs(2, "cuda")] == ["cuda:0", "cuda:1"]
+    # K runs sharing a GPU share the sync-free binning's memory budget (docs/perf_notes.md §8)
+    assert all(float(s["env"]["REINGS_BIN_BUDGET"]) == 0.25 / 3 for s in specs[:6])
+    assert "REINGS_BIN_BUDGET" not in worker_specs(2, "cuda")[0]["env"]
+    monkeypatch.setenv("REINGS_BIN_BUDGET", "0.1")
+    assert "REINGS_BIN_BUDGET" not in worker_specs(2, "cuda", runs_per_gpu=2)[0]["env"]
     with pytest.raises(ClusterError, match="--runs-per-gpu"):
         worker_specs(2, "cuda", runs_per_gpu=0)
 

@@ -14,7 +14,10 @@ rounded sqrt / division, cl_khr_fp64) the two engines are bit-identical, which t
 there. Elsewhere (e.g. NVIDIA OpenCL, whose sqrt / division need not be correctly rounded) they
 may differ by float32 rounding that the iterations carry along: |diff| <= 2e-5 + 1e-5 |x|, below a
 sixth of the smallest single Adam step (sh_rest lr 1.25e-4), so a missing term, a wrong lr or step
-count, or a wrong group still fails."""
+count, or a wrong group still fails.
+
+The sync-free binning (docs/perf_notes.md §8) against the sync one: the same fit bit for bit on
+every device (the same kernels on the same data; only buffer capacities and launch sizes differ)."""
 from __future__ import annotations
 
 import os
@@ -22,7 +25,7 @@ import os
 import numpy as np
 import pytest
 
-from cases import dngaussian_fit_case, interrupt_and_resume
+from cases import binning, dngaussian_fit_case, interrupt_and_resume
 from reings.backends import get_backend
 from reings.backends.opencl import quirks
 from reings.train import fit
@@ -86,6 +89,32 @@ def test_device_fit_checkpoint_resume(device, case, tmp_path):
     assert res.history.iteration == ref.history.iteration
     assert [tuple(x) for x in res.history.densify] == ref.history.densify  # JSON turns tuples into lists
     np.testing.assert_array_equal(res.history.loss, ref.history.loss)
+
+
+def test_device_fit_sync_free_binning_is_bit_identical(device, case, tmp_path):
+    """The device engine binning sync-free (no blocking read of (V, K)) against binning in sync:
+    the same state, moments, statistics and history, bit for bit; and a resume from a checkpoint of
+    a sync-free fit (interrupted at 12) lands on the same bits."""
+    from reings.backends.opencl.harness import ClCalls
+
+    be = get_backend(device)
+    with binning(be, "sync") as sync:
+        ref = _fit(case, device, engine="device")
+    with binning(be, "async") as free, ClCalls() as calls_free:
+        got = _fit(case, device, engine="device")
+    assert sync["async"] == free["sync"] == 0 and free["async"] == sync["sync"] == 67, (sync, free)  # 23 + 21 soft + 23 hard
+    _assert_same_state(ref.state, got.state, True, "sync-free vs sync binning")
+    h, d = ref.history, got.history
+    assert h.loss == d.loss and h.train_psnr == d.train_psnr and h.n_gaussians == d.n_gaussians
+    assert [tuple(x) for x in h.densify] == [tuple(x) for x in d.densify]
+    # every forward's blocking read is gone: the fit's own reads remain (logging, downloads)
+    with binning(be, "sync"), ClCalls() as calls_sync:
+        _fit(case, device, engine="device")
+    assert calls_sync.n["reads_blocking"] - calls_free.n["reads_blocking"] == sync["sync"]
+    with binning(be, "async"):
+        res = interrupt_and_resume(lambda **kw: _fit(case, device, engine="device", **kw),
+                                   os.path.join(tmp_path, "ck.npz"), stop_at=12)
+    _assert_same_state(ref.state, res.state, True, "sync-free resumed vs sync uninterrupted")
 
 
 def test_engine_choice(case):

@@ -221,7 +221,9 @@ def test_isect_reduce_overflow(device):
 
 
 def test_isect_reduce(device):
-    """Segmented sum per rank into its gid, width 1 and 10, plain and accumulating; others untouched."""
+    """Segmented sum per rank into its gid, width 1 and 10, plain and accumulating; others untouched;
+    with the rank count from the host, and from the device (count=(ctrl, 0): the sync-free
+    binning's V, launched over a bound of N ranks, docs/perf_notes.md §8)."""
     import pyopencl as cl
 
     from reings.backends.opencl.rasterize import rasterizer_for
@@ -240,14 +242,24 @@ def test_isect_reduce(device):
         want = init.copy()
         for k in range(v):
             want[gid_from_rank[k]] = rec[offs[k]:offs[k + 1]].sum(0)
+        # the device-count launch covers N ranks: pad the rank arrays as the binning's are (ranks
+        # >= V hold culled gids, their offsets K) with rows that would corrupt `out` if summed
+        pad_offs = np.concatenate([offs, np.full(n - v, offs[-1] + 1, np.int32)])
+        pad_gids = np.concatenate([gid_from_rank, np.setdiff1d(np.arange(n), gid_from_rank)]).astype(np.int32)
+        pad_rec = np.concatenate([rec, np.full((1, width), 1e6, np.float32)])
+        ctrl = cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=np.array([v, 12345], np.uint32))
         for acc in (False, True):
-            bufs = [cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=a) for a in (rec, offs, gid_from_rank)]
-            out = cl.Buffer(ctx, mf.READ_WRITE | mf.COPY_HOST_PTR, hostbuf=init)
-            r.reduce(bufs[0], width, bufs[1], bufs[2], v, out, accumulate=acc)
-            got = np.empty_like(init)
-            cl.enqueue_copy(q, got, out)
             exp = want + np.where(np.isin(np.arange(n), gid_from_rank)[:, None], init, 0) if acc else want
-            assert_close(got, exp, 1e-5, 1e-5, name=f"reduce width {width} accumulate {acc}")
+            for count in (None, (ctrl, 0)):
+                arrays = (rec, offs, gid_from_rank) if count is None else (pad_rec, pad_offs, pad_gids)
+                bufs = [cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=a) for a in arrays]
+                out = cl.Buffer(ctx, mf.READ_WRITE | mf.COPY_HOST_PTR, hostbuf=init)
+                r.reduce(bufs[0], width, bufs[1], bufs[2], v if count is None else n, out, accumulate=acc,
+                         count=count)
+                got = np.empty_like(init)
+                cl.enqueue_copy(q, got, out)
+                assert_close(got, exp, 1e-5, 1e-5,
+                             name=f"reduce width {width} accumulate {acc} {'device' if count else 'host'} count")
 
 
 # ------------------------------------------------------------------------------------------------
@@ -293,6 +305,9 @@ _OCLGRIND_SCRIPT = """
     proj, vr, vd, va = _overflow_inputs("all_colours", w, h, proj)
     g = rasterize_bwd_host(proj, bins, w, h, vr, vd, va, BG, device="oclgrind", cpu_schedule=cpu)
     assert not np.isnan(g.v_emit).any() and not np.isnan(g.v_conics).any()
+    # isect_reduce with the rank count from the host and from the device (sync-free binning)
+    from test_rasterize import test_isect_reduce
+    test_isect_reduce("oclgrind")
 """
 
 

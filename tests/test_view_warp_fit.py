@@ -14,7 +14,10 @@ Checked against independent references:
     as tests/test_device_fit.py), and a resumed fit against the uninterrupted one;
   - the kept virtual frame against the schedule it replaced, which rendered the virtual view
     again just before its backward: the same bits (with DropGaussian and the shared soft depth
-    term too), one forward fewer per iteration.
+    term too), one forward fewer per iteration;
+  - the fit with the sync-free binning (docs/perf_notes.md §8: the kept frame's counts in its own
+    slot's ctrl) against the sync binning, with DropGaussian and the shared soft depth term: the
+    same bits.
 """
 from __future__ import annotations
 
@@ -23,7 +26,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from cases import assert_resumes_bit_identically, assert_same_state, dngaussian_fit_case, fit_case
+from cases import assert_resumes_bit_identically, assert_same_state, binning, dngaussian_fit_case, fit_case
 from reings.backends import get_backend
 from reings.backends.opencl import quirks
 from reings.backends.reference import render64
@@ -338,6 +341,22 @@ def test_fit_with_the_kept_frame_matches_rendering_it_again(device, case, monkey
     for k, a, what in zip(kept, again, ("view_warp", "view_warp, drop, shared soft depth")):
         _same_state(k.state, a.state, True, f"kept frame vs rendered again ({what})")
         assert k.history.loss == a.history.loss and k.history.view_warp == a.history.view_warp
+
+
+def test_fit_sync_free_binning_is_bit_identical(device, case):
+    """Kept frames (slot 1), DropGaussian and the shared soft depth term, binned sync-free against
+    in sync: the same state and histories."""
+    scene, init, cfg = case
+    c = (scene, init, replace(cfg, loss=replace(cfg.loss, drop_gamma=0.2, soft_depth_shared=True)))
+    be = get_backend(device)
+    runs = {}
+    for mode in ("sync", "async"):
+        with binning(be, mode) as done:
+            runs[mode] = _fit(c, device, engine="device")
+        assert done[mode] > cfg.iterations and sum(done.values()) == done[mode], done
+    a, b = runs["sync"], runs["async"]
+    _same_state(a.state, b.state, True, "sync-free vs sync binning (view_warp, drop, shared soft depth)")
+    assert a.history.loss == b.history.loss and a.history.view_warp == b.history.view_warp
 
 
 def test_baselines_are_per_iteration_and_bounded():

@@ -9,16 +9,30 @@ Stage methods with the reference's names take and return host numpy (tests, debu
 `render_vjp` keep every intermediate on the device:
 
     upload -> project_fwd -> depth sort (all N, culled keys last) -> bin_count -> scan
-      -> ONE blocking read of (V, K) -> bin_emit -> tile sort (ceil(log2 T) bits) -> tile_ranges
-      -> rasterize_fwd -> one final batch of reads
+      -> ONE blocking read of (V, K) (none sync-free: "Binning" below) -> bin_emit
+      -> tile sort (ceil(log2 T) bits) -> tile_ranges -> rasterize_fwd -> one final batch of reads
     render_vjp: [forward] -> rasterize_bwd -> isect_reduce -> project_bwd -> one final batch of reads
 
 Device-resident entry points (the device trainer, reings/backends/opencl/trainer.py):
 `forward_device(inp, n, sh_k, cam, ...)` runs the forward on Gaussians already in device buffers and
 returns the frame; `backward_device(fr, v_rgb_buf, v_depth_buf, ...)` returns gradient buffers.
 Nothing goes up per call (the camera record lives in a buffer cached per camera) and nothing but
-the bin stage's (V, K) comes back. The trainer launches its own kernels with `kernel` + `launch`
-and folds the stage times with `collect_profile` / `pending_events`.
+the bin stage's (V, K) comes back (without a wait when sync-free). The trainer launches its own
+kernels with `kernel` + `launch` and folds the stage times with `collect_profile` /
+`pending_events`.
+
+Binning (docs/perf_notes.md §8; reings/backends/opencl/bin_counts.py): `bin_mode` ("auto" |
+"sync" | "async"; the constructor's argument, else $REINGS_BIN, else "auto") decides per forward
+(`binning(n, n_tiles)`) how the binning learns V and K. sync: one blocking read, the K buffers and
+launches sized by K. async (sync-free): the K buffers at the bound N * n_tiles, V and K left in the
+frame slot's ctrl buffer for the kernels (bin_emit over N ranks, the tile sort and tile_ranges
+launched for an estimate of K and looping to the device's, the reduces over N ranks), the counts
+read back without blocking; the same bits either way. "auto" = async on non-CPU devices whose
+memory holds the bound within `bin_budget` of it (argument, else $REINGS_BIN_BUDGET, else a
+quarter), else sync (PoCL: sync). A frame's `visible` / `isects`
+and `last_stats` resolve a sync-free read when first asked. `binned` counts the forwards per mode.
+Every path that bins on the device follows the mode; `bin` (an uploaded projection) only while
+its rects keep the bound.
 
 Training (the Backend protocol of reings/backends/base.py): `trainer(images, engine, adam,
 profile)` makes the device trainer (default) or the host one; `photometric_loss` / `depth_loss`
@@ -38,7 +52,8 @@ edit of an input is detected).
 Device time per stage: after each call, `last_profile` maps stage name -> milliseconds on the
 device timeline (profiling events of the in-order queue): a single-kernel stage's own duration, or
 for a multi-command stage (the sorts, the scan, rasterize) the time from the end of the previous
-stage to its last command's end. `last_stats` holds the counts (visible, intersections).
+stage to its last command's end. `last_stats` holds the counts (visible, intersections) of the
+last forward.
 
 Frame slots: a frame's buffers (projection outputs, bins and both sorters' ping-pong pairs, the
 rasterizer's images and packed records, the backward's v_proj) belong to one of two slots. Every
@@ -49,7 +64,8 @@ backpropagated after its backward. The slots share the gradient outputs of a bac
 per-intersection records; slot 1's buffers are allocated on its first use.
 
 Memory: every device buffer comes from `Scratch` (persistent, per index space, grown by >= 1.5x),
-so steady-state calls allocate nothing.
+so steady-state calls allocate nothing. Sync-free, the intersection buffers hold N * n_tiles
+entries (93 bytes per entry over both slots: bin_counts.isect_bound_bytes).
 
 Not here: input validation (reings/rendering.py), kernel math (kernels/*.cl), sorting/scan
 (sort.py), rasterization (rasterize.py).
@@ -57,6 +73,7 @@ Not here: input validation (reings/rendering.py), kernel math (kernels/*.cl), so
 from __future__ import annotations
 
 import warnings
+from collections import deque
 from dataclasses import dataclass, field
 from typing import Any, Sequence
 
@@ -66,6 +83,8 @@ from ...types import FIELDS, Camera, Gaussians, RenderOutput
 from ..base import (CLAMP_GUARD, V_RECORD, Bins, Projected, RasterGrads, RasterOut, tile_grid)
 from ..reference_drop import Drop, drop_args
 from . import quirks
+from .bin_counts import (CountsRing, DeviceCounts, bin_budget_setting, bin_mode_setting, choose_binning,
+                         isect_capacity)
 from .device import open_device
 from .program import library_for, typed_invoker
 from .scratch import Scratch
@@ -75,6 +94,8 @@ CAM_RECORD = 24  # floats, layout in kernels/project.cl
 CAM_CACHE = 256  # camera record buffers kept (OpenCLBackend._camera_buffer)
 DEPTH_KEY_CULLED = 0xFFFFFFFF
 GRAD_BITS = {"means": 1, "quats": 2, "log_scales": 4, "opacity_logits": 8, "sh": 16}
+ISECT_GUESS = 8  # sync-free binning: intersections per Gaussian guessed before a slot's first K is known
+ISECT_HISTORY = 8  # ... then the largest of its last ISECT_HISTORY known K's, plus 1/8
 _F32, _I32, _U32 = np.float32, np.int32, np.uint32
 
 
@@ -120,13 +141,28 @@ class _Frame:
     tiles_x: int
     n_tiles: int
     sh_k: int
-    visible: int = 0
-    isects: int = 0
+    counts: Any = (0, 0)  # (V, K), or a DeviceCounts of a sync-free forward (resolved when asked)
+    cap: int = 0  # the K-sized buffers' capacity: K (sync) or the bound N * n_tiles (sync-free)
+    sync_free: bool = False  # V and K live in bufs["ctrl"] (ctrl[0], ctrl[1]); the host never waited
     bufs: dict = field(default_factory=dict)
     key: tuple | None = None  # (camera, background, near, override, drop) for forward reuse
     camera: Camera | None = None  # the camera rendered
     drop: Drop | None = None  # DropGaussian's mask of the projection (its backward uses the same)
     slot: int = 0  # the frame slot owning its buffers (module docstring): 0, or 1 for a kept frame
+
+    @property
+    def visible(self) -> int:
+        """V, the visible Gaussians (a sync-free frame's: read back when first asked)."""
+        return self.resolved()[0]
+
+    @property
+    def isects(self) -> int:
+        """K, the intersections (a sync-free frame's: read back when first asked)."""
+        return self.resolved()[1]
+
+    def resolved(self) -> tuple[int, int]:
+        c = self.counts
+        return c.get() if isinstance(c, DeviceCounts) else c
 
 
 @dataclass
@@ -138,6 +174,7 @@ class _Slot:
     depth_sorter: RadixSort
     tile_sorter: RadixSort
     raster: Any = None  # Rasterizer, built on first use (OpenCLBackend._raster)
+    isects: deque = field(default_factory=lambda: deque(maxlen=ISECT_HISTORY))  # its last known K's
 
 
 class OpenCLBackend:
@@ -145,8 +182,10 @@ class OpenCLBackend:
 
     engines = ("device", "host")  # Backend.engines: the device trainer by default
 
-    def __init__(self, device_spec: str = "pocl"):
+    def __init__(self, device_spec: str = "pocl", bin_mode: str | None = None, bin_budget: float | None = None):
         self.spec = device_spec
+        self.bin_mode = bin_mode_setting(bin_mode)  # "auto" | "sync" | "async" (module docstring, "Binning")
+        self.bin_budget = bin_budget_setting(bin_budget)  # auto's share of the device memory
         self.handle = open_device(device_spec)
         self.name = f"opencl:{device_spec}"
         self.device_name = self.handle.name
@@ -164,11 +203,30 @@ class OpenCLBackend:
         self._keep: list = []  # host arrays referenced by non-blocking copies still in flight
         self._cams: dict = {}  # (K, viewmat, W, H, near) bytes -> read-only camera record buffer
         self._counts = np.empty(2, _U32)  # the binning's (V, K) readback word pair
+        self._ring: CountsRing | None = None  # the sync-free binning's pinned count words, on first use
+        self.binned = {"sync": 0, "async": 0}  # forwards binned in each mode
         self._events: list = []  # (stage, event) of the current call
         self.last_profile: dict[str, float] = {}
-        self.last_stats: dict[str, int] = {}
+        self._last_counts: Any = None  # the last forward's (V, K) or DeviceCounts (last_stats)
         self.last_screen = None  # Backend.last_screen: (v_means2d, radii) of the last full render_vjp
         self._photometric = self._depth_loss = self._view_warp = None  # the loss kernels, built on first use
+
+    @property
+    def last_stats(self) -> dict[str, int]:
+        """The counts of the last forward, {"visible": V, "intersections": K} ({} before any); a
+        sync-free forward's are read back when asked (a wait only if the queue has not passed them)."""
+        c = self._last_counts
+        if c is None:
+            return {}
+        v, k = c.get() if isinstance(c, DeviceCounts) else c
+        return dict(visible=v, intersections=k)
+
+    def binning(self, n: int, n_tiles: int) -> str:
+        """"sync" or "async": how a forward of n Gaussians over n_tiles tiles bins under this
+        backend's `bin_mode` (bin_counts.choose_binning; module docstring, "Binning")."""
+        d = self.handle.device
+        return choose_binning(self.bin_mode, self.cpu, isect_capacity(n, n_tiles), self.scratch.max_alloc,
+                              int(d.global_mem_size), self.bin_budget)
 
     # ------------------------------------------------------------------------------------------
     # plumbing
@@ -315,8 +373,10 @@ class OpenCLBackend:
                                               hostbuf=camera_record(cam, near))
         return buf
 
-    def _bin_device(self, fr: _Frame) -> None:
-        """Depth sort, counts, scan, the one control readback, emit, tile sort, tile ranges."""
+    def _bin_device(self, fr: _Frame, allow_async: bool = True) -> None:
+        """Depth sort, counts, scan, then (V, K): one blocking read (sync), or left in ctrl on the
+        device (sync-free, when `binning` says so and allow_async), then emit, tile sort, tile
+        ranges (`_bin_emit_ranges`)."""
         import pyopencl as cl
 
         sl = self._slot(fr.slot)
@@ -327,36 +387,71 @@ class OpenCLBackend:
         b["depth_keys_sorted"], b["gid_from_rank"] = keys, gfr
         # (2) tiles touched per rank, V; exclusive scan -> offset_from_rank, total K into ctrl[1]
         touched = s.get("gauss", "tiles_touched", n + 1, 4)
-        ctrl = s.get("small", "ctrl", 2, 4)
+        ctrl = b["ctrl"] = s.get("small", "ctrl", 2, 4)
         offsets = b["offset_from_rank"] = s.get("gauss", "offset_from_rank", n + 1, 4)
         ev = self.launch(self.kernel("bin.cl", "bin_count"), n + 1, _I32(n), keys, gfr, b["tile_rect"],
                           touched, ctrl)
         self._mark("bin_count", ev)
         _, ev = self.scan(touched, offsets, n + 1, total_buf=ctrl, total_at=1, read_total=False)
         self._mark("scan", ev, span=True)
-        # the one blocking device -> host read of the forward: (V, K) together
-        counts = self._counts
-        cl.enqueue_copy(self.queue, counts, ctrl, is_blocking=True)
-        self._keep = []
-        v, k = int(counts[0]), int(counts[1])
-        fr.visible, fr.isects = v, k
+        if allow_async and self.binning(n, fr.n_tiles) == "async":
+            # sync-free: buffers at the bound, the counts read back without blocking
+            if self._ring is None:
+                self._ring = CountsRing(self.handle)
+            fr.sync_free, fr.cap = True, isect_capacity(n, fr.n_tiles)
+            fr.counts = self._ring.read(ctrl, sl.isects)
+        else:
+            # the one blocking device -> host read of the forward: (V, K) together
+            counts = self._counts
+            cl.enqueue_copy(self.queue, counts, ctrl, is_blocking=True)
+            self._keep = []
+            fr.counts = int(counts[0]), int(counts[1])
+            fr.cap = fr.counts[1]
+            sl.isects.append(fr.cap)  # the launch estimates of later sync-free forwards, if any
+        self.binned["async" if fr.sync_free else "sync"] += 1
+        self._bin_emit_ranges(fr, sl)
+
+    def _isect_estimate(self, sl: _Slot, fr: _Frame) -> int:
+        """The launch size's guess of a sync-free frame's K (kernels loop to the real one): the
+        largest of the slot's last known K's plus 1/8, else ISECT_GUESS per Gaussian; at most the
+        bound. Only reads that the queue has already passed are looked at (no wait)."""
+        self._ring.poll()
+        guess = max(sl.isects) if sl.isects else ISECT_GUESS * fr.n
+        return min(fr.cap, guess + guess // 8 + 1)
+
+    def _bin_emit_ranges(self, fr: _Frame, sl: _Slot) -> None:
+        """bin_emit, the stable tile sort, tile_ranges: with host counts (V, K), or sync-free with
+        the counts of ctrl (count_at 0: V, 1: K), launched over N ranks and an estimate of K."""
+        n, s, b, cap, ctrl = fr.n, sl.mem, fr.bufs, fr.cap, fr.bufs["ctrl"]
+        if fr.sync_free:
+            v_launch, at_v, at_k = n, _I32(0), _I32(1)
+            k_launch = self._isect_estimate(sl, fr)
+        else:
+            v_launch, at_v, at_k = fr.visible, _I32(-1), _I32(-1)
+            k_launch = cap
+        gfr, offsets = b["gid_from_rank"], b["offset_from_rank"]
         # (3) emit: tile ids row-major per rank at its slots; values = emit slot
-        tile_keys = s.get("isect", "tile_keys", k, 4)
-        emit_vals = s.get("isect", "emit_vals", k, 4)
-        gid_from_emit = b["gid_from_emit"] = s.get("isect", "gid_from_emit", k, 4)
-        ev = self.launch(self.kernel("bin.cl", "bin_emit"), v, _I32(v), _I32(fr.tiles_x), gfr, offsets,
-                          b["tile_rect"], tile_keys, emit_vals, gid_from_emit)
+        tile_keys = s.get("isect", "tile_keys", cap, 4)
+        emit_vals = s.get("isect", "emit_vals", cap, 4)
+        gid_from_emit = b["gid_from_emit"] = s.get("isect", "gid_from_emit", cap, 4)
+        ev = self.launch(self.kernel("bin.cl", "bin_emit"), v_launch, _I32(v_launch), _I32(fr.tiles_x), gfr,
+                          offsets, b["tile_rect"], tile_keys, emit_vals, gid_from_emit, ctrl, at_v)
         self._mark("bin_emit", ev)
         # (4) stable tile sort over ceil(log2 T) bits: keeps (depth, gid) order inside each tile
-        tk, efi, ev = sl.tile_sorter.sort_pairs(tile_keys, emit_vals, k, 0, tile_bits(fr.n_tiles))
+        tk, efi, ev = sl.tile_sorter.sort_pairs(tile_keys, emit_vals, cap, 0, tile_bits(fr.n_tiles),
+                                                count=(ctrl, 1) if fr.sync_free else None, estimate=k_launch)
         self._mark("sort_tile", ev, span=True)
         b["tile_keys_sorted"], b["emit_from_isect"] = tk, efi
         # (5) tile ranges + gid_from_isect, no atomics
         ranges = b["tile_ranges"] = s.get("tile", "tile_ranges", fr.n_tiles, 8)
-        gfi = b["gid_from_isect"] = s.get("isect", "gid_from_isect", k, 4)
-        ev = self.launch(self.kernel("bin.cl", "tile_ranges"), k + 1, _I32(k), _I32(fr.n_tiles), tk, efi,
-                          gid_from_emit, ranges, gfi)
+        gfi = b["gid_from_isect"] = s.get("isect", "gid_from_isect", cap, 4)
+        ev = self.launch(self.kernel("bin.cl", "tile_ranges"), k_launch + 1, _I32(cap), _I32(fr.n_tiles), tk,
+                          efi, gid_from_emit, ranges, gfi, ctrl, at_k)
         self._mark("tile_ranges", ev)
+
+    def _rank_count(self, fr: _Frame) -> tuple:
+        """(n_rank, count) of the per-rank reduces: (V, None), or sync-free (N, (ctrl, 0))."""
+        return (fr.n, (fr.bufs["ctrl"], 0)) if fr.sync_free else (fr.visible, None)
 
     def _new_frame(self, n: int, width: int, height: int, sh_k: int, slot: int = 0) -> _Frame:
         if slot == 0:
@@ -385,7 +480,7 @@ class OpenCLBackend:
 
         r, b = self._raster(fr), fr.bufs
         ev = r.fwd(b["means2d"], b["conics"], b["colors"], b["opacities"], b["depths"], fr.n, b["tile_ranges"],
-                   b["gid_from_isect"], b["emit_from_isect"], fr.isects, fr.width, fr.height,
+                   b["gid_from_isect"], b["emit_from_isect"], fr.cap, fr.width, fr.height,
                    tuple(float(x) for x in background), importance=want_importance)
         self._mark("rasterize_fwd", ev, span=True)
         b["out_rgb"], b["out_depth"], b["out_alpha"] = r.rgb, r.depth, r.alpha
@@ -394,7 +489,8 @@ class OpenCLBackend:
             imp = b["importance"] = self._slot(fr.slot).mem.get("gauss", "importance", fr.n, 4)
             if fr.n:  # culled rows are not written by the reduce: zero them all first
                 cl.enqueue_fill_buffer(self.queue, imp, _F32(0), 0, 4 * fr.n)
-            ev = r.reduce(r.imp_emit, 1, b["offset_from_rank"], b["gid_from_rank"], fr.visible, imp)
+            n_rank, count = self._rank_count(fr)
+            ev = r.reduce(r.imp_emit, 1, b["offset_from_rank"], b["gid_from_rank"], n_rank, imp, count=count)
             self._mark("importance_reduce", ev)
 
     def _raster_bwd(self, fr: _Frame, v_rgb, v_depth, v_alpha) -> None:
@@ -408,11 +504,12 @@ class OpenCLBackend:
     def _raster_bwd_buffers(self, fr: _Frame, vr, vd, va) -> None:
         """_raster_bwd on cotangent images that are already device buffers (or None)."""
         r, b = self._raster(fr), fr.bufs
-        ev = r.bwd(b["tile_ranges"], b["gid_from_isect"], b["emit_from_isect"], fr.isects, fr.width, fr.height,
+        ev = r.bwd(b["tile_ranges"], b["gid_from_isect"], b["emit_from_isect"], fr.cap, fr.width, fr.height,
                    vr, vd, va)
         self._mark("rasterize_bwd", ev, span=True)
         vp = b["v_proj"] = self._slot(fr.slot).mem.get("gauss", "v_proj", fr.n, 4 * V_RECORD)
-        ev = r.reduce(r.v_emit, V_RECORD, b["offset_from_rank"], b["gid_from_rank"], fr.visible, vp)
+        n_rank, count = self._rank_count(fr)
+        ev = r.reduce(r.v_emit, V_RECORD, b["offset_from_rank"], b["gid_from_rank"], n_rank, vp, count=count)
         self._mark("isect_reduce", ev)
 
     # ------------------------------------------------------------------------------------------
@@ -424,7 +521,8 @@ class OpenCLBackend:
         """`render`'s forward on Gaussians that already live on the device: `inp` maps each field of
         FIELDS to a buffer ([N,3] means, [N,4] quats, [N,3] log_scales, [N] opacity_logits,
         [N,sh_k,3] sh). Nothing is uploaded (the camera record buffer is cached per camera) and
-        nothing is read back but the bin stage's (V, K) control words. The returned frame's buffers (fr.bufs["out_rgb"],
+        nothing is read back but the bin stage's (V, K) control words (sync-free: without a wait,
+        fr.visible / fr.isects resolved when asked). The returned frame's buffers (fr.bufs["out_rgb"],
         "out_depth", "out_alpha", "out_T", "radii", ...) stay valid until the next call on this
         backend that renders into the frame's slot (module docstring): any call but a forward with
         keep=True for an ordinary frame, the next forward with keep=True for a kept one; the
@@ -436,7 +534,7 @@ class OpenCLBackend:
         self._project_device(fr, fr.bufs["in"], camera, near, opacity_override, drop)
         self._bin_device(fr)
         self._raster_fwd(fr, background, False)
-        self.last_stats = dict(visible=fr.visible, intersections=fr.isects)
+        self._last_counts = fr.counts
         return fr
 
     def backward_device(self, fr: _Frame, v_rgb=None, v_depth=None, v_alpha=None,
@@ -527,8 +625,8 @@ class OpenCLBackend:
         final_T = self._read(b["out_T"], (H, W), _F32)
         imp = self._read(b["importance"], (fr.n,), _F32) if want_importance else None
         self._finish()
-        stats = dict(visible=fr.visible, intersections=fr.isects)
-        self.last_stats = stats
+        self._last_counts = fr.counts
+        stats = self.last_stats
         self._frame = fr
         return RenderOutput(rgb=rgb, depth=depth, alpha=alpha, final_T=final_T, importance=imp, stats=stats)
 
@@ -589,7 +687,7 @@ class OpenCLBackend:
             self.last_screen = (np.where(radii[:, None] > 0, v_proj[:, :2], 0).astype(np.float32), radii)
         else:
             self.last_screen = None
-        self.last_stats = dict(visible=fr.visible, intersections=fr.isects)
+        self._last_counts = fr.counts
         return Gaussians(**res)
 
     def _project_bwd_device(self, fr: _Frame, override, grad_fields) -> dict:
@@ -648,7 +746,8 @@ class OpenCLBackend:
 
     def _upload_bins(self, fr: _Frame, bins: Bins) -> None:
         b = fr.bufs
-        fr.visible, fr.isects = len(bins.gid_from_rank), len(bins.gid_from_isect)
+        fr.counts = len(bins.gid_from_rank), len(bins.gid_from_isect)
+        fr.cap = fr.counts[1]
         b["gid_from_rank"] = self._upload("gauss", "gid_from_rank_in", np.asarray(bins.gid_from_rank, _U32))
         b["offset_from_rank"] = self._upload("gauss", "offset_from_rank_in", np.asarray(bins.offset_from_rank, _U32))
         b["gid_from_isect"] = self._upload("isect", "gid_from_isect_in", np.asarray(bins.gid_from_isect, _I32))
@@ -659,7 +758,10 @@ class OpenCLBackend:
         n = proj.means2d.shape[0]
         fr = self._new_frame(n, width, height, 1)
         self._upload_projected(fr, proj)
-        self._bin_device(fr)
+        # an uploaded projection may break the sync-free bound (a visible rect beyond the grid)
+        rect = np.asarray(proj.tile_rect, np.int64).reshape(n, 4)[np.asarray(proj.radii) > 0]
+        tiles = (rect[:, 2] - rect[:, 0]) * (rect[:, 3] - rect[:, 1])
+        self._bin_device(fr, allow_async=bool(np.all((tiles >= 0) & (tiles <= fr.n_tiles))))
         out = self._read_bins(fr)
         self._finish()
         return out

@@ -23,10 +23,12 @@ def _median(xs):
 
 
 def device_info(be) -> dict:
-    """Device, driver, platform / OpenCL C versions and compute units of OpenCLBackend `be`."""
+    """Device, driver, platform / OpenCL C versions, compute units and binning mode (`bin_mode`:
+    auto / sync / async, docs/perf_notes.md §8) of OpenCLBackend `be`."""
     d, p = be.handle.device, be.handle.platform
     return dict(device=be.device_name, driver=d.driver_version.strip(), platform_version=p.version.strip(),
-                opencl_c=d.opencl_c_version.strip(), compute_units=int(d.max_compute_units), spec=be.spec)
+                opencl_c=d.opencl_c_version.strip(), compute_units=int(d.max_compute_units), spec=be.spec,
+                bin_mode=be.bin_mode)
 
 
 def sort_comparison(be, keys: np.ndarray, tbits: int, repeats: int, warmup: int, which: str) -> dict:

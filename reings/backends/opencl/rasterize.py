@@ -12,9 +12,12 @@ Device-level API (buffers in, events out; every call enqueues on `handle.queue`,
           v_rgb=None, v_depth=None, v_alpha=None)                 -> event
         reads r.packed and r.rgb/depth/final_T/last of the last `fwd` on this Rasterizer (pass
         `fwd_out=(rgb, depth, final_T, last, packed)` to use others) and writes r.v_emit [K, 10]
-    r.reduce(records, width, offset_from_rank, gid_from_rank, n_rank, out, accumulate=False) -> event
+    r.reduce(records, width, offset_from_rank, gid_from_rank, n_rank, out, accumulate=False,
+             count=None)                                          -> event
         out[gid_from_rank[r], :] (+)= sum of records[offset_from_rank[r]:offset_from_rank[r+1], :];
         rows of `out` for gids with no rank are not touched (zero them first, or accumulate).
+        count=(buffer, index): the number of ranks is the uint32 buffer[index] on the device (the
+        binning's V, sync-free mode) and n_rank only bounds it (the launch size).
 
 Buffers are the persistent `Scratch` ones (grown geometrically, never shrunk); a call's outputs stay
 valid until the next call of the same kind. `Rasterizer(handle, scratch=, shared=)`: the forward's
@@ -80,7 +83,7 @@ class Rasterizer:
         self.k_fwd.set_scalar_arg_dtypes(fwd_types)
         self._fwd_types = fwd_types
         self.k_bwd.set_scalar_arg_dtypes([None] * 4 + [i32] * 4 + [None] * 7 + [i32, None])
-        self.k_reduce.set_scalar_arg_dtypes([None] * 4 + [i32] * 3)
+        self.k_reduce.set_scalar_arg_dtypes([None] * 4 + [i32] * 3 + [None, i32])
         self.local = 1 if self.cpu_schedule else TILE_PIXELS
         self._dummy = self.scratch.get("small", "raster_dummy", 16, 4)
         self.n = self.n_isect = self.width = self.height = 0
@@ -180,12 +183,13 @@ class Rasterizer:
                           np.int32(mask), self.v_emit, wait_for=wait_for)
 
     def reduce(self, records, width: int, offset_from_rank, gid_from_rank, n_rank: int, out,
-               accumulate: bool = False, wait_for=None):
+               accumulate: bool = False, wait_for=None, count=None):
         if n_rank == 0:
             return self.cl.enqueue_marker(self.queue, wait_for=wait_for)
+        counts, count_at = (self._dummy, -1) if count is None else count
         return self.k_reduce(self.queue, (_nd(n_rank, 64),), None, records, offset_from_rank, gid_from_rank,
                              out, np.int32(n_rank), np.int32(width), np.int32(bool(accumulate)),
-                             wait_for=wait_for)
+                             counts, np.int32(count_at), wait_for=wait_for)
 
 
 # ------------------------------------------------------------------------------------------

@@ -4,6 +4,9 @@
     k, v, ev = sorter.sort_pairs(keys_buf, vals_buf, n, begin_bit=0, end_bit=43, key64=True)
     keys, vals = sorter.sort_pairs_host(keys_np, vals_np, 0, 43)     # numpy in, numpy out
 
+    # sync-free binning (docs/perf_notes.md §8): the count lives on the device, n is the capacity
+    k, v, ev = sorter.sort_pairs(keys_buf, vals_buf, cap, 0, 10, count=(ctrl, 1), estimate=k_guess)
+
     scan = ExclusiveScan.for_handle(handle)
     total, ev = scan(in_buf, out_buf, n)            # out = exclusive prefix sum, total read back
     _, ev = scan(in_buf, out_buf, n, total_buf=counts, total_at=1, read_total=False)  # no readback
@@ -21,6 +24,13 @@ along untouched. The passes ping-pong between the caller's buffers and scratch b
 object owns (grown geometrically, never reallocated when large enough). **The input buffers are
 clobbered**, and the result lies either in them or in the scratch pair: use the buffers returned,
 and copy them out before the next sort_pairs call on the same RadixSort if they are the scratch pair.
+
+Device counts (`count=(buf, index)`): the number of pairs is the uint32 buf[index], written on the
+device by an earlier command of the queue (the binning's K), and n is only the capacity (the
+buffers hold n pairs, the scratch is sized for n). Nothing is read back: the GPU schedule launches
+work-groups for `estimate` pairs and loops over the virtual blocks of the real count, the CPU
+schedule splits the real count among its usual number of blocks (kernels/sort.cl, "Device
+counts"). The first count pairs come out the same bits as a sort of that many with a host count.
 """
 from __future__ import annotations
 
@@ -209,6 +219,7 @@ class RadixSort:
         ctx = handle.context
         self._keys_tmp, self._vals_tmp = _Scratch(ctx), _Scratch(ctx)
         self._hist, self._totals = _Scratch(ctx), _Scratch(ctx)
+        self._no_count = _Scratch(ctx)  # the counts argument of a host-count sort (never read)
 
     def kernels(self, key64: bool):
         ks = self._kernels.get(key64)
@@ -217,10 +228,11 @@ class RadixSort:
             if not self.cpu:
                 defines.update(SORT_WG=self.wg, SORT_ITEMS=self.items)
             u, b, h = np.uint32, None, self.handle  # b: a buffer argument
+            i = np.int32  # count_at
             ks = self._kernels[key64] = (
-                _kernel(h, "sort.cl", "radix_hist", [b, u, u, u, u, b], **defines),
-                _kernel(h, "sort.cl", "radix_scan", [b, u, u, b], **defines),
-                _kernel(h, "sort.cl", "radix_scatter", [b, b, b, b, u, u, u, u, b, b], **defines),
+                _kernel(h, "sort.cl", "radix_hist", [b, u, u, u, u, b, b, i], **defines),
+                _kernel(h, "sort.cl", "radix_scan", [b, u, u, b, b, i], **defines),
+                _kernel(h, "sort.cl", "radix_scatter", [b, b, b, b, u, u, u, u, b, b, b, i], **defines),
             )
         return ks
 
@@ -231,13 +243,27 @@ class RadixSort:
         block = self.wg * self.items
         return -(-n // block), block
 
+    def device_geometry(self, capacity: int, estimate: int) -> tuple[int, int]:
+        """(blocks launched, virtual blocks the histogram holds) of a sort with a device count of
+        at most `capacity` pairs, launched for `estimate` of them (module docstring)."""
+        if self.cpu:
+            nblocks = max(1, int(self.handle.device.max_compute_units)) * self.per_core
+            return nblocks, nblocks
+        block = self.wg * self.items
+        cap_blocks = max(1, -(-capacity // block))
+        return max(1, min(-(-estimate // block), cap_blocks)), cap_blocks
+
     def sort_pairs(self, keys_buf, vals_buf, n: int, begin_bit: int = 0, end_bit: int | None = None,
-                   key64: bool = False, wait_for=None):
+                   key64: bool = False, wait_for=None, count=None, estimate: int | None = None):
         """Sort n pairs by key bits [begin_bit, end_bit); returns (keys_out, vals_out, event).
 
         keys_buf  [n] uint32 (uint64 if key64)   vals_buf [n] uint32   -- both clobbered
+        count     None, or (buffer, index): the number of pairs is the uint32 buffer[index] on the
+                  device, at most n, which is then the capacity (module docstring, "Device counts")
+        estimate  with count: the launch geometry's guess of the count (default n)
         The returned buffers are either the inputs or this object's scratch pair; event is the last
-        enqueued command (None if nothing was enqueued: n <= 1 or an empty bit range).
+        enqueued command (None if nothing was enqueued: n <= 1 with a host count, or an empty bit
+        range).
         """
         import pyopencl as cl
 
@@ -246,7 +272,7 @@ class RadixSort:
         if not (0 <= begin_bit <= end_bit <= (64 if key64 else 32)):
             raise ValueError(f"bad bit range [{begin_bit}, {end_bit}) for {'64' if key64 else '32'}-bit keys")
         passes = split_bits(begin_bit, end_bit, self.max_bits)
-        if n <= 1 or not passes:
+        if (n <= 1 and count is None) or not passes:
             ev = cl.enqueue_marker(self.handle.queue, wait_for=wait_for) if wait_for else None
             return keys_buf, vals_buf, ev
         if n >= 2**32:
@@ -254,12 +280,18 @@ class RadixSort:
         hist_k, scan_k, scat_k = self.kernels(key64)
         q = self.handle.queue
         ksize = 8 if key64 else 4
-        nblocks, chunk = self.geometry(n)
+        if count is None:
+            nblocks, chunk = self.geometry(n)
+            hist_blocks, counts, count_at = nblocks, None, np.int32(-1)
+        else:
+            nblocks, hist_blocks = self.device_geometry(n, n if estimate is None else int(estimate))
+            chunk, (counts, count_at) = 0, (count[0], np.int32(count[1]))
         maxbins = 1 << max(w for _, w in passes)
         kt = self._keys_tmp.get(n * ksize)
         vt = self._vals_tmp.get(n * 4)
-        hist = self._hist.get(4 * maxbins * nblocks)
+        hist = self._hist.get(4 * maxbins * hist_blocks)
         totals = self._totals.get(4 * maxbins)
+        counts = self._no_count.get(4) if counts is None else counts
         src, dst = (keys_buf, vals_buf), (kt, vt)
         if self.cpu:
             g, l = (nblocks,), (1,)
@@ -268,11 +300,12 @@ class RadixSort:
         ev = None
         for shift, w in passes:
             nbins = 1 << w
-            hist_k(q, g, l, src[0], n, chunk, shift, nbins, hist, wait_for=wait_for)
+            hist_k(q, g, l, src[0], n, chunk, shift, nbins, hist, counts, count_at, wait_for=wait_for)
             wait_for = None
             if not self.cpu:
-                scan_k(q, (nbins * self.wg,), (self.wg,), hist, nblocks, nbins, totals)
-            ev = scat_k(q, g, l, src[0], src[1], dst[0], dst[1], n, chunk, shift, nbins, hist, totals)
+                scan_k(q, (nbins * self.wg,), (self.wg,), hist, n, nbins, totals, counts, count_at)
+            ev = scat_k(q, g, l, src[0], src[1], dst[0], dst[1], n, chunk, shift, nbins, hist, totals,
+                        counts, count_at)
             src, dst = dst, src
         return src[0], src[1], ev
 

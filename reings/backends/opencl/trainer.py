@@ -31,7 +31,8 @@ loss kernels' host code is reings/backends/opencl/losses.py (the backend's `phot
 
 `step_l1` is the plain step of gsplat's benchmark (bench/peer_gsplat.py, bench/peer_step.py): forward,
 w_l1 * mean|rgb - gt| by kernels/l1.cl (the `photometric` pass with w_ssim == 0: no SSIM kernel runs),
-backward, Adam over all groups; the binning's (V, K) is its only host read.
+backward, Adam over all groups; the binning's (V, K) is its only host read (a blocking one in the
+sync binning, none sync-free: backend.py, "Binning").
 
 Host overhead per step (bench/peer_step.py --overhead): every launch goes through pyopencl's typed
 invoker (program.typed_invoker: the generic one costs ~6.5 us per numpy scalar argument), buffers
