@@ -171,11 +171,11 @@ def test_bin_large_count_sync_free(device, mode):
 
 
 def test_bin_mode_setting(monkeypatch):
-    """OpenCLBackend's bin_mode: the argument, else REINGS_BIN, else "auto"; anything else refused."""
+    """OpenCLBackend's bin_mode: the argument, else REINGS_BIN, else "sync"; anything else refused."""
     from reings.backends.opencl.bin_counts import BIN_ENV, bin_mode_setting
 
     monkeypatch.delenv(BIN_ENV, raising=False)
-    assert bin_mode_setting(None) == "auto"
+    assert bin_mode_setting(None) == "sync"
     monkeypatch.setenv(BIN_ENV, "Async")
     assert bin_mode_setting(None) == "async" and bin_mode_setting("sync") == "sync"
     monkeypatch.setenv(BIN_ENV, "fast")

@@ -22,7 +22,8 @@ kernels with `kernel` + `launch` and folds the stage times with `collect_profile
 `pending_events`.
 
 Binning (docs/perf_notes.md §8; reings/backends/opencl/bin_counts.py): `bin_mode` ("auto" |
-"sync" | "async"; the constructor's argument, else $REINGS_BIN, else "auto") decides per forward
+"sync" | "async"; the constructor's argument, else $REINGS_BIN, else "sync": docs/results.md §26
+measured no end-to-end gain on an H100 run for ~100x the memory of K) decides per forward
 (`binning(n, n_tiles)`) how the binning learns V and K. sync: one blocking read, the K buffers and
 launches sized by K. async (sync-free): the K buffers at the bound N * n_tiles, V and K left in the
 frame slot's ctrl buffer for the kernels (bin_emit over N ranks, the tile sort and tile_ranges

@@ -1,7 +1,7 @@
 """The binning's counts (V visible Gaussians, K intersections) and the sync-free binning mode of
 `OpenCLBackend` (docs/perf_notes.md §8).
 
-    mode = bin_mode_setting(None)          # "auto" | "sync" | "async"; REINGS_BIN overrides the default
+    mode = bin_mode_setting(None)          # "sync" (default) | "auto" | "async"; REINGS_BIN overrides
     budget = bin_budget_setting(None)      # auto's share of the device memory; REINGS_BIN_BUDGET
     cap = isect_capacity(n, n_tiles)       # the bound: K <= V * n_tiles <= N * n_tiles
     choose_binning(mode, cpu, cap, max_alloc, global_mem, budget) -> "sync" | "async"
@@ -36,7 +36,8 @@ import numpy as np
 from ..base import V_RECORD
 
 BIN_MODES = ("auto", "sync", "async")
-BIN_ENV = "REINGS_BIN"  # overrides the default mode ("auto") of a backend made without one
+BIN_DEFAULT = "sync"  # measured (docs/results.md §26): no end-to-end gain on an H100 run, ~100x the memory of K
+BIN_ENV = "REINGS_BIN"  # overrides the default mode (BIN_DEFAULT) of a backend made without one
 BIN_BUDGET = 0.25  # auto: async only if the bound's bytes fit this fraction of the device's memory
 BIN_BUDGET_ENV = "REINGS_BIN_BUDGET"  # overrides BIN_BUDGET (a process sharing its GPU: a smaller share)
 ISECT_LIMIT = 2**31 - 2**24  # the kernels index intersections with int32 (grid-stride loops included)
@@ -47,8 +48,8 @@ STATS_ROWS = 256  # rows of the pinned ring (reads in flight at most before the 
 
 
 def bin_mode_setting(mode: str | None) -> str:
-    """The binning mode of a backend: `mode`, else $REINGS_BIN, else "auto"; checked."""
-    m = mode if mode is not None else (os.environ.get(BIN_ENV) or "auto")
+    """The binning mode of a backend: `mode`, else $REINGS_BIN, else BIN_DEFAULT ("sync"); checked."""
+    m = mode if mode is not None else (os.environ.get(BIN_ENV) or BIN_DEFAULT)
     m = m.strip().lower()
     if m not in BIN_MODES:
         src = "bin_mode" if mode is not None else BIN_ENV
