@@ -99,5 +99,6 @@ __kernel void tile_ranges(const int n_isects, const int n_tiles,
         for (int t = prev + 1; t <= cur && t < n_tiles; ++t) ranges[2 * t] = i;
         for (int t = max(prev, 0); t < cur; ++t) ranges[2 * t + 1] = i;
         if (i < k) gid_from_isect[i] = (int)gid_from_emit[emit_from_isect[i]];
+        if (i > k - stride) break; /* i + stride > k: stop before the int sum can pass INT_MAX */
     }
 }

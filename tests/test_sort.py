@@ -235,6 +235,22 @@ def test_sort_device_count_small_blocks(device, schedule, count, rng):
 
 
 @pytest.mark.parametrize("schedule", SCHEDULES)
+@pytest.mark.parametrize("count", [1, 128, 129, 5003])
+def test_sort_device_count_at_capacity(device, schedule, count, rng):
+    """A device count equal to the capacity (K = N * n_tiles: every buffer and every histogram
+    column in use, the last virtual block partial or full), 128-element blocks, launched for 1 and
+    for the count."""
+    from reings.backends.opencl.device import open_device
+    from reings.backends.opencl.sort import RadixSort
+
+    s = RadixSort(open_device(device), cpu_schedule=schedule == "cpu", wg=32, items=4)
+    keys = rng.integers(0, 2**32, count, dtype=np.uint64).astype(np.uint32)
+    for est in (1, count):
+        _check_sort_device_count(s, keys, count, 0, 10, est)
+        _check_sort_device_count(s, keys, count, 0, 32, est, at=0)
+
+
+@pytest.mark.parametrize("schedule", SCHEDULES)
 def test_sort_device_count_matches_host_count(device, schedule, rng, _sorters):
     """The same bits from a host count and from a device count (the sync and sync-free binnings),
     for the tile sort of a binning-like input (tile ids in depth order, values = emit slots)."""

@@ -10,7 +10,7 @@
     c.get() -> (V, K)                      # waits for that read only if the queue has not passed it
     ring.poll()                            # resolves every read the queue has passed (no wait)
 
-Sync (the default on CPU devices): the backend reads (V, K) back with one blocking read per forward
+Sync (the default, BIN_DEFAULT): the backend reads (V, K) back with one blocking read per forward
 and sizes the K buffers and launches with them. Async (sync-free): every K-sized buffer of the frame
 is allocated at the bound `isect_capacity`, so nothing can overflow; V and K stay in the ctrl
 buffer, where bin_emit, the tile sort, tile_ranges and the reduces read them (their `counts,
