@@ -135,20 +135,25 @@ def test_bin_all_culled_and_empty(device):
         check_bin(device, e, 64, 48, name=f"empty {mode}", mode=mode)
 
 
-def test_bin_large_count(device):
-    """Hand-made rects: ~1.2M intersections (several scan / sort blocks, int32 offsets)."""
-    w, h = 1024, 768
+def _rect_case(w: int, h: int, n: int, side: int, seed: int) -> Projected:
+    """n hand-made tile rects of 1..side tiles a side on the w x h grid, 10 % culled (radius 0,
+    empty rect, depth 0), depths uniform in [0.5, 50)."""
     tx, ty = tile_grid(w, h)
-    n = 70000
-    rng = np.random.default_rng(0)
-    x0, y0 = rng.integers(0, tx - 8, n), rng.integers(0, ty - 8, n)
-    rect = np.stack([x0, y0, x0 + rng.integers(1, 9, n), y0 + rng.integers(1, 9, n)], 1).astype(np.int32)
+    rng = np.random.default_rng(seed)
+    x0, y0 = rng.integers(0, tx - side, n), rng.integers(0, ty - side, n)
+    rect = np.stack([x0, y0, x0 + rng.integers(1, side + 1, n), y0 + rng.integers(1, side + 1, n)],
+                    1).astype(np.int32)
     radii = np.where(rng.random(n) < 0.9, 5, 0).astype(np.int32)
     rect[radii == 0] = 0
     depths = np.where(radii > 0, rng.uniform(0.5, 50, n), 0.0)
     z2, z3 = np.zeros((n, 2)), np.zeros((n, 3))
-    p = Projected(z2, z3, depths, radii, rect, z3, np.zeros(n))
-    dev, _ = check_bin(device, p, w, h, name="large")
+    return Projected(z2, z3, depths, radii, rect, z3, np.zeros(n))
+
+
+def test_bin_large_count(device):
+    """Hand-made rects: ~1.2M intersections (several scan / sort blocks, int32 offsets)."""
+    w, h = 1024, 768
+    dev, _ = check_bin(device, _rect_case(w, h, 70000, 8, 0), w, h, name="large")
     assert len(dev.gid_from_isect) > 1_000_000
 
 
@@ -157,17 +162,7 @@ def test_bin_large_count_sync_free(device, mode):
     """Over a million intersections at a bound the device can allocate (30k Gaussians x 768 tiles:
     the large case above would need 215M, which falls back to sync on PoCL's 2 GiB allocations)."""
     w, h = 512, 384
-    tx, ty = tile_grid(w, h)
-    n = 30000
-    rng = np.random.default_rng(1)
-    x0, y0 = rng.integers(0, tx - 12, n), rng.integers(0, ty - 12, n)
-    rect = np.stack([x0, y0, x0 + rng.integers(1, 13, n), y0 + rng.integers(1, 13, n)], 1).astype(np.int32)
-    radii = np.where(rng.random(n) < 0.9, 5, 0).astype(np.int32)
-    rect[radii == 0] = 0
-    depths = np.where(radii > 0, rng.uniform(0.5, 50, n), 0.0)
-    z2, z3 = np.zeros((n, 2)), np.zeros((n, 3))
-    dev, _ = check_bin(device, Projected(z2, z3, depths, radii, rect, z3, np.zeros(n)), w, h, name=f"large {mode}",
-                       mode=mode)
+    dev, _ = check_bin(device, _rect_case(w, h, 30000, 12, 1), w, h, name=f"large {mode}", mode=mode)
     assert len(dev.gid_from_isect) > 1_000_000
 
 
