@@ -427,3 +427,17 @@ def binning(be, mode: str):
     finally:
         be.bin_mode = old
         done.update({k: be.binned[k] - before[k] for k in before})
+
+
+def device_depth_frame(trainer, cam: Camera, depth, alpha):
+    """A stand-in for a device trainer's rendered frame of `cam`: its depth and alpha maps ([H, W])
+    uploaded as the frame's "out_depth" / "out_alpha" buffers (what cross_warp and hold_depth read)."""
+    import types
+
+    import pyopencl as cl
+
+    mf = cl.mem_flags.READ_WRITE | cl.mem_flags.COPY_HOST_PTR
+    ctx = trainer.handle.context
+    return types.SimpleNamespace(width=cam.width, height=cam.height, camera=cam,
+                                 bufs={k: cl.Buffer(ctx, mf, hostbuf=np.ascontiguousarray(x, np.float32))
+                                       for k, x in (("out_depth", depth), ("out_alpha", alpha))})

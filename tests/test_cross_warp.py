@@ -20,7 +20,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from cases import (assert_engines_agree, assert_fd_along_random_directions, assert_resumes_bit_identically,
+from cases import (assert_engines_agree, device_depth_frame, assert_fd_along_random_directions, assert_resumes_bit_identically,
                    assert_same_state, dngaussian_fit_case, fit_case, gaussians_before, make_camera, rotation_viewmat)
 from reings.backends import get_backend
 from reings.backends.opencl import quirks
@@ -54,16 +54,10 @@ def _run(device, d, a, ii, ij, ci, cj, weight, into=None, tol=0.0, partner=None)
 
     tr = get_backend(device).trainer([ii, ij], engine="device")
     mf = cl.mem_flags.READ_WRITE | cl.mem_flags.COPY_HOST_PTR
-    ctx = tr.handle.context
-
-    def frame(cam, dd, aa):
-        return types.SimpleNamespace(width=cam.width, height=cam.height, camera=cam,
-                                     bufs={k: cl.Buffer(ctx, mf, hostbuf=np.ascontiguousarray(x, np.float32))
-                                           for k, x in (("out_depth", dd), ("out_alpha", aa))})
-
-    held = None if partner is None else tr.hold_depth(frame(cj, *partner))
-    bb = None if into is None else cl.Buffer(ctx, mf, hostbuf=np.ascontiguousarray(into, np.float32))
-    v = tr.cross_warp(frame(ci, d, a), 0, 1, cj, weight, NEAR, into=bb, occlusion=tol, partner_depth=held)
+    held = None if partner is None else tr.hold_depth(device_depth_frame(tr, cj, *partner))
+    bb = None if into is None else cl.Buffer(tr.handle.context, mf, hostbuf=np.ascontiguousarray(into, np.float32))
+    v = tr.cross_warp(device_depth_frame(tr, ci, d, a), 0, 1, cj, weight, NEAR, into=bb, occlusion=tol,
+                      partner_depth=held)
     return tr._read(v, d.shape, np.float32), tr.read_cross_warp()
 
 
@@ -318,29 +312,20 @@ def test_occlusion_needs_the_partner_depth():
 def test_device_occlusion_needs_the_partner_depth(device):
     """The device trainer refuses what the host trainer refuses: no held depth, one of another
     size, one a later hold_depth made stale."""
-    import pyopencl as cl
-
     rng = np.random.default_rng(23)
     h, w = 6, 8
     d, a, ii, ij = _hard_maps(rng, h, w)
     ci = make_camera(w, h)
     cj = _moved(ci, centre_shift=(0.1, 0, 0))
     tr = get_backend(device).trainer([ii, ij], engine="device")
-    mf = cl.mem_flags.READ_WRITE | cl.mem_flags.COPY_HOST_PTR
-
-    def frame(cam, dd, aa):
-        return types.SimpleNamespace(width=cam.width, height=cam.height, camera=cam,
-                                     bufs={k: cl.Buffer(tr.handle.context, mf, hostbuf=np.ascontiguousarray(x))
-                                           for k, x in (("out_depth", dd), ("out_alpha", aa))})
-
-    fr = frame(ci, d, a)
+    fr = device_depth_frame(tr, ci, d, a)
     with pytest.raises(ValueError, match="partner_depth"):
         tr.cross_warp(fr, 0, 1, cj, 1.0, NEAR, occlusion=0.1)
-    small = frame(Camera(cj.K.copy(), cj.viewmat.copy(), w - 1, h), d[:, 1:].copy(), a[:, 1:].copy())
+    small = device_depth_frame(tr, Camera(cj.K.copy(), cj.viewmat.copy(), w - 1, h), d[:, 1:], a[:, 1:])
     with pytest.raises(ValueError, match="partner camera"):
         tr.cross_warp(fr, 0, 1, cj, 1.0, NEAR, occlusion=0.1, partner_depth=tr.hold_depth(small))
-    old = tr.hold_depth(frame(cj, d, a))
-    tr.hold_depth(frame(cj, d, a))
+    old = tr.hold_depth(device_depth_frame(tr, cj, d, a))
+    tr.hold_depth(device_depth_frame(tr, cj, d, a))
     with pytest.raises(ValueError, match="stale"):
         tr.cross_warp(fr, 0, 1, cj, 1.0, NEAR, occlusion=0.1, partner_depth=old)
 

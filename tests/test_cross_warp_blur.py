@@ -16,7 +16,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from cases import assert_engines_agree, dngaussian_fit_case, fit_case, make_camera, rotation_viewmat
+from cases import assert_engines_agree, device_depth_frame, dngaussian_fit_case, fit_case, make_camera, rotation_viewmat
 from reings.backends import get_backend
 from reings.backends.opencl import quirks
 from reings.backends.reference_cross_warp import blur_image, cross_warp_fwd_bwd
@@ -122,19 +122,9 @@ def _cams(h, w):
 
 def _device_levels(device, d, a, images, ci, cj, weight, sigmas, tol=0.0, partner=None):
     """The device trainer's calls of the engine's level loop on these maps: (dL/dD, read_cross_warp())."""
-    import pyopencl as cl
-
     tr = get_backend(device).trainer(images, engine="device")
-    mf = cl.mem_flags.READ_WRITE | cl.mem_flags.COPY_HOST_PTR
-    ctx = tr.handle.context
-
-    def frame(cam, dd, aa):
-        return types.SimpleNamespace(width=cam.width, height=cam.height, camera=cam,
-                                     bufs={k: cl.Buffer(ctx, mf, hostbuf=np.ascontiguousarray(x, np.float32))
-                                           for k, x in (("out_depth", dd), ("out_alpha", aa))})
-
-    held = None if partner is None else tr.hold_depth(frame(cj, *partner))
-    fr, v = frame(ci, d, a), None
+    held = None if partner is None else tr.hold_depth(device_depth_frame(tr, cj, *partner))
+    fr, v = device_depth_frame(tr, ci, d, a), None
     levels = (0.0, *sigmas)
     for s in levels:
         v = tr.cross_warp(fr, 0, 1, cj, weight / len(levels), NEAR, into=v, occlusion=tol, partner_depth=held, sigma=s)

@@ -191,6 +191,7 @@ class OpenCLBackend:
         self.name = f"opencl:{device_spec}"
         self.device_name = self.handle.name
         self.cpu = quirks.is_cpu(self.handle.device)
+        self.global_mem = int(self.handle.device.global_mem_size)  # CL_DEVICE_GLOBAL_MEM_SIZE (`binning`)
         self.queue = self.handle.queue
         self.lib = library_for(self.handle)
         self.scratch = Scratch(self.handle)
@@ -225,9 +226,8 @@ class OpenCLBackend:
     def binning(self, n: int, n_tiles: int) -> str:
         """"sync" or "async": how a forward of n Gaussians over n_tiles tiles bins under this
         backend's `bin_mode` (bin_counts.choose_binning; module docstring, "Binning")."""
-        d = self.handle.device
         return choose_binning(self.bin_mode, self.cpu, isect_capacity(n, n_tiles), self.scratch.max_alloc,
-                              int(d.global_mem_size), self.bin_budget)
+                              self.global_mem, self.bin_budget)
 
     # ------------------------------------------------------------------------------------------
     # plumbing
