@@ -645,6 +645,10 @@ class RunConfig:
                                        "DNGaussian; 1 = the confidence alone)",
                                   check=lambda v: None if 0 <= v <= 1 else f"must lie in [0, 1], got {v}",
                                   metavar="A")
+    lambda_dssim: float | None = opt(None, "every fit: the SSIM weight l of the photometric loss L1 + l (1 - SSIM); "
+                                           "none: the recipe family's (DNGaussian: 0.2 for 'llff', 0.6 for 'dtu')",
+                                     check=lambda v: None if v is None or (0 <= v <= 10 and v == v)
+                                     else f"must lie in [0, 10], got {v}", metavar="L")
     soft_depth_shared: bool | None = opt(None, "every fit with the soft depth term: share the photometric pass's "
                                                 "render with it, and step the opacities once with both gradients "
                                                 "(speed, issue 15); none: the preset's for the reings fits (on for "

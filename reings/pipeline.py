@@ -189,6 +189,8 @@ def run_settings(cfg: RunConfig, dataset_kind: str) -> dict:
         s["dtu_background"] = True
     if cfg.depth_confidence:  # absent at 0, the value before the option existed
         s["depth_confidence"] = cfg.depth_confidence
+    if cfg.lambda_dssim is not None:  # absent at none (the recipe's), the value before the option existed
+        s["lambda_dssim"] = cfg.lambda_dssim
     if cfg.method == "reings":  # the baselines ignore both; keys absent when off (older folders resume)
         if cfg.view_warp:
             s["view_warp"], s["view_warp_disparity"] = cfg.view_warp, cfg.view_warp_disparity
@@ -426,6 +428,8 @@ class RunContext:
             recipe = replace(recipe, loss=replace(recipe.loss, depth_smooth_weight=self.smooth_w))
         if c.depth_confidence:
             recipe = replace(recipe, loss=replace(recipe.loss, depth_confidence=c.depth_confidence))
+        if c.lambda_dssim is not None:
+            recipe = replace(recipe, loss=replace(recipe.loss, lambda_dssim=c.lambda_dssim))
         if soft_depth_shared_of(c):
             recipe = replace(recipe, loss=replace(recipe.loss, soft_depth_shared=True))
         drop = drop_gamma_of(c, self.family)

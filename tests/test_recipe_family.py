@@ -134,6 +134,20 @@ def test_run_recipe_per_method(method):
     assert (r.loss.view_warp_weight, r.densify.opacity_decay) == ((1.0, 0.995) if method == "reings" else (0.0, None))
     off = _ctx("dtu", method=method)[0].run_recipe(baseline_recipe("dngaussian", 600, 0, "dtu"))
     assert not off.loss.dark_background and not off.densify.dark_white_rules
+
+
+@pytest.mark.parametrize("family, given, want", [("llff", None, 0.2), ("dtu", None, 0.6), ("llff", 0.4, 0.4),
+                                                  ("dtu", 0.3, 0.3), ("llff", 0.0, 0.0)])
+@pytest.mark.parametrize("method", ["reings", "dngaussian"])
+def test_lambda_dssim_reaches_every_fit(family, given, want, method):
+    """--lambda-dssim: none leaves the recipe family's SSIM weight (DNGaussian's 0.2 / 0.6); a value given,
+    0 included, reaches every fit, and is a resume key only when given."""
+    from reings.pipeline import run_settings
+
+    ctx, _ = _ctx(family, method=method, lambda_dssim=given)
+    r = ctx.run_recipe(baseline_recipe("dngaussian", 600, 0, family))
+    assert r.loss.lambda_dssim == want
+    assert run_settings(ctx.cfg, family).get("lambda_dssim") == given
 # }}}
 
 
