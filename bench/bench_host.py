@@ -6,6 +6,7 @@
     python bench/bench_host.py --device pocl --mode cprofile  # the host's top costs per iteration
     python bench/bench_host.py --device pocl --mode wall --save /tmp/p.npz   # final state, for a bitcheck
     REINGS_BIN=async python bench/bench_host.py --device pocl --mode calls  # the sync-free binning
+    REINGS_DEPTH_ORDER=sort python bench/bench_host.py --device pocl --mode calls  # every forward sorts
 
 Case: the built-in procedural scene (--width x --height, default 504x378 as LLFF at the paper's
 resolution), 3 training views with their exact depths as the depth prior, --gaussians initial
@@ -22,7 +23,9 @@ kernel builds, the upload and the first iterations are left out. A warm-up fit o
 iterations runs first in the same process (kernel builds; with --mode stubbed it also leaves the
 binning's (V, K) words of a real forward in the device buffers, so the stubbed loop takes the
 host path of a real one). One JSON line per run goes to --json (appended), with the backend's
-binning mode (`bin_mode`, from REINGS_BIN: docs/perf_notes.md §8) and the forwards binned per mode.
+binning mode (`bin_mode`, from REINGS_BIN: docs/perf_notes.md §8) and the forwards binned per mode,
+its depth order mode (`depth_order`, from REINGS_DEPTH_ORDER: docs/perf_notes.md §9) and the
+forwards of the measured fit that sorted / shared a depth order (`depth_sorts`).
 """
 from __future__ import annotations
 
@@ -91,6 +94,7 @@ def main(argv=None):
 
     run(args.warmup)
     its = args.iterations
+    sorts0 = dict(be.depth_sorts)
     calls = prof = None
     t = time.perf_counter()
     if args.mode == "wall":
@@ -116,10 +120,11 @@ def main(argv=None):
                sh_degree=args.sh_degree, width=args.width, height=args.height, iterations=its,
                log_every=args.log_every, drop=args.drop, view_warp=not args.no_view_warp,
                ms_per_iteration=steady, fit_seconds=wall, final_loss=h.loss[-1], final_psnr=h.train_psnr[-1],
-               bin_mode=be.bin_mode, binned=dict(be.binned))
+               bin_mode=be.bin_mode, binned=dict(be.binned), depth_order=be.depth_order,
+               depth_sorts={k: v - sorts0[k] for k, v in be.depth_sorts.items()})
     print(f"{args.mode:8s} {args.label}: {steady:8.2f} ms/iteration (steady, its {h.iteration[0]}..{h.iteration[-1]}); "
-          f"fit {wall:.2f} s; loss {h.loss[-1]:.6f} psnr {h.train_psnr[-1]:.4f}; binning {be.bin_mode} {be.binned}",
-          flush=True)
+          f"fit {wall:.2f} s; loss {h.loss[-1]:.6f} psnr {h.train_psnr[-1]:.4f}; "
+          f"binning {be.bin_mode} {be.binned}; depth order {be.depth_order} {rec['depth_sorts']}", flush=True)
     if calls is not None:
         rec["calls_per_iteration"] = calls.as_dict(per=its)
         print("  per iteration: " + ", ".join(f"{k} {v:.1f}" for k, v in rec["calls_per_iteration"].items() if v),

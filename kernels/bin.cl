@@ -3,28 +3,42 @@
    Computes the same function as `reings.backends.reference.bin` (index spaces of
    reings/backends/base.py: gid, rank, emit, isect, tile). The pipeline (OpenCLBackend._bin):
 
-     project_fwd   depth_keys[gid] = float bits of t_z (visible) or DEPTH_KEY_CULLED, gid_vals = gid
-     sort_pairs    32-bit stable radix sort of all N (depth_key, gid) pairs: the visible Gaussians come
-                   first, in (t_z, gid) order (ties keep gid order because the input is in gid order),
-                   so sorted values[0:V] = gid_from_rank. The culled ones trail with the sentinel key.
-     bin_count     per rank r in [0, N]: tiles_touched[r] (0 for culled and for r == N), and ctrl[0] = V
-                   (the one r where the visible prefix ends; no atomics)
-     scan          exclusive scan of tiles_touched[0..N] -> offset_from_rank, offset_from_rank[N] = K
-     (one blocking read of ctrl = (V, K); none in the sync-free mode, below)
+     project_fwd   depth_keys[gid] = float bits of t_z where t_z > near, else DEPTH_KEY_CULLED (the
+                   near-plane test only: a Gaussian culled for another reason keeps its z key and has
+                   an empty tile rect), gid_vals = gid
+     sort_pairs    32-bit stable radix sort of all N (depth_key, gid) pairs: the ranked Gaussians (a
+                   z key) come first, in (t_z, gid) order (ties keep gid order because the input is
+                   in gid order), so sorted values[0:V] = gid_from_rank. The others trail with the
+                   sentinel key. The visible Gaussians are a subset of the ranked ones, in the same
+                   relative order as a sort of the visible ones alone (a stable sort's order restricted
+                   to a subset is the subset's stable order), so one order serves every forward of the
+                   same means and camera z row whatever it culls (OpenCLBackend, "Depth orders").
+     bin_count     per rank r in [0, N]: tiles_touched[r] (0 for r >= V, and for a ranked Gaussian
+                   culled otherwise: its tile rect is empty), ctrl[0] = V (the one r where the ranked
+                   prefix ends; no atomics), and ctrl[2] += the visible ranks (radii > 0; ctrl[2]
+                   zeroed by project_fwd, or by the host for an uploaded projection; one atomic add
+                   per work-group)
+     scan          exclusive scan of tiles_touched[0..N] -> offset_from_rank, offset_from_rank[N] = K:
+                   the ranks culled otherwise add nothing, so a visible rank's emit slots are those
+                   of the visible-only binning, and K is the same
+     (one blocking read of ctrl = (V, K, visible); none in the sync-free mode, below)
      bin_emit      per rank r < V: its tiles row-major (ty outer, tx inner) at emit slots
                    offset_from_rank[r] + i: tile_keys[emit] = tile, emit_vals[emit] = emit,
-                   gid_from_emit[emit] = gid
+                   gid_from_emit[emit] = gid (nothing for an empty rect)
      sort_pairs    stable radix sort of (tile_keys, emit_vals) over ceil(log2(T)) bits: depth order is
                    kept inside a tile -> emit_from_isect
      tile_ranges   per isect i in [0, K]: [start, end) of every tile from the sorted keys (searchsorted
                    semantics; each tile written exactly once, no atomics) and gid_from_isect
 
    Device counts (the sync-free binning, docs/perf_notes.md §8): bin_emit and tile_ranges take
-   (counts, count_at) last. count_at < 0: the scalar count (n_visible, n_isects) is V or K, read
+   (counts, count_at) last. count_at < 0: the scalar count (n_ranked, n_isects) is V or K, read
    back by the host. count_at >= 0: V or K is counts[count_at] (ctrl, written by bin_count and the
    scan), the scalar is only a bound; the host launches bin_emit over all N ranks (ranks >= V emit
    nothing) and tile_ranges for an estimate of K + 1 (a grid-stride loop covers 0..K whatever the
    launch size). The buffers are sized for K <= V * n_tiles (every tile rect lies in the grid).
+
+   V here counts the ranked Gaussians (the sort's prefix), the launch bound of bin_emit and the
+   reduces; the visible count (radii > 0) is ctrl[2], the statistic reported as "visible".
 
    Defines: none (the tile grid arrives as tiles_x / n_tiles). Integers only: no float math here.
 */
@@ -33,28 +47,48 @@
 
 #define DEPTH_KEY_CULLED 0xFFFFFFFFu /* project.cl's key of a culled Gaussian: sorts last */
 
-/* Per rank r in [0, N] (N + 1 work-items): tiles touched by the Gaussian of rank r, and V. */
+#define BIN_WG_MAX 256 /* bin_count's largest work-group (a power of two: the host's launch size) */
+
+/* Per rank r in [0, N] (N + 1 work-items, work-groups of a power of two <= BIN_WG_MAX): tiles
+   touched by the Gaussian of rank r, V, and the visible count (every work-item reaches the
+   barriers: no early return). */
 __kernel void bin_count(const int n,
                         __global const uint *depth_keys_sorted, /* [N] */
-                        __global const uint *gid_from_rank,     /* [N] (entries >= V are culled gids) */
-                        __global const int *tile_rect,          /* [N, 4] by gid */
+                        __global const uint *gid_from_rank,     /* [N] (entries >= V are unranked gids) */
+                        __global const int *tile_rect,          /* [N, 4] by gid (zeros where culled) */
+                        __global const int *radii,              /* [N] by gid (> 0: visible) */
                         __global uint *tiles_touched,           /* [N + 1] */
-                        __global uint *ctrl) {                  /* [2]: ctrl[0] = V */
+                        __global uint *ctrl) {                  /* [3]: ctrl[0] = V, ctrl[2] += visible (zeroed) */
+    __local uint part[BIN_WG_MAX];
     const int r = get_global_id(0);
-    if (r > n) return;
-    const bool vis = r < n && depth_keys_sorted[r] != DEPTH_KEY_CULLED;
-    const bool prev_vis = r == 0 || depth_keys_sorted[r - 1] != DEPTH_KEY_CULLED;
-    if (prev_vis && !vis) ctrl[0] = (uint)r;  /* the visible Gaussians form a prefix: one writer */
-    uint cnt = 0;
-    if (vis) {
-        __global const int *rc = tile_rect + 4 * (size_t)gid_from_rank[r];
-        cnt = (uint)((rc[2] - rc[0]) * (rc[3] - rc[1]));
+    const int lid = get_local_id(0);
+    uint vis = 0;
+    if (r <= n) {
+        const bool ranked = r < n && depth_keys_sorted[r] != DEPTH_KEY_CULLED;
+        const bool prev_ranked = r == 0 || depth_keys_sorted[r - 1] != DEPTH_KEY_CULLED;
+        if (prev_ranked && !ranked) ctrl[0] = (uint)r;  /* the ranked Gaussians form a prefix: one writer */
+        uint cnt = 0;
+        if (ranked) {
+            const uint g = gid_from_rank[r];
+            __global const int *rc = tile_rect + 4 * (size_t)g;
+            cnt = (uint)((rc[2] - rc[0]) * (rc[3] - rc[1]));
+            vis = radii[g] > 0;
+        }
+        tiles_touched[r] = cnt;
     }
-    tiles_touched[r] = cnt;
+    /* the work-group's visible ranks: a tree sum in local memory, then one atomic add */
+    part[lid] = vis;
+    barrier(CLK_LOCAL_MEM_FENCE);
+    for (int s = (int)get_local_size(0) / 2; s > 0; s /= 2) {
+        if (lid < s) part[lid] += part[lid + s];
+        barrier(CLK_LOCAL_MEM_FENCE);
+    }
+    if (lid == 0 && part[0] != 0u) atomic_add(&ctrl[2], part[0]);
+    if (n == 0 && r == 0) ctrl[2] = 0u; /* no Gaussian: project_fwd launched no work-item to zero it */
 }
 
 /* Per rank r < V: write its tiles at its emit slots. */
-__kernel void bin_emit(const int n_visible, const int tiles_x,
+__kernel void bin_emit(const int n_ranked, const int tiles_x,
                        __global const uint *gid_from_rank,    /* [V] */
                        __global const uint *offset_from_rank, /* [V + 1] */
                        __global const int *tile_rect,         /* [N, 4] by gid */
@@ -64,7 +98,7 @@ __kernel void bin_emit(const int n_visible, const int tiles_x,
                        __global const uint *counts,           /* V = counts[count_at] (header) */
                        const int count_at) {
     const int r = get_global_id(0);
-    if (r >= (int)launch_count((uint)n_visible, counts, count_at)) return;
+    if (r >= (int)launch_count((uint)n_ranked, counts, count_at)) return;
     const uint g = gid_from_rank[r];
     __global const int *rc = tile_rect + 4 * (size_t)g;
     const int tx0 = rc[0], ty0 = rc[1], tx1 = rc[2], ty1 = rc[3];

@@ -18,8 +18,11 @@
      o < 1/255: empty rect (all zeros), the Gaussian stays visible (radii unchanged)
 
    Kernels
-     project_fwd   one work-item per Gaussian (gid); writes every output row (culled rows: zeros)
-                   plus the depth sort key (float bits of t_z, or DEPTH_KEY_CULLED) and gid.
+     project_fwd   one work-item per Gaussian (gid); writes every output row (culled rows: zeros),
+                   the depth sort key and gid, and zeroes the binning's visible count (ctrl[2],
+                   kernels/bin.cl). The key is the float bits of t_z wherever t_z > near (finite),
+                   DEPTH_KEY_CULLED elsewhere: the near-plane test only, so it is a function of the
+                   means and the camera's z row (and near) alone.
      project_bwd   one work-item per Gaussian; chains the per-Gaussian cotangents
                    (v_means2d, v_conics, v_colors, v_opacities, v_depths, packed as a [N, 10] record)
                    back to the raw fields (true derivative of project_fwd, clamps included).
@@ -415,8 +418,13 @@ __kernel void project_fwd(const int n,
                           __global float *colors,               /* [N, 3] */
                           __global float *opacities,            /* [N] */
                           __global uint *depth_keys,            /* [N] sort keys */
-                          __global uint *gid_vals) {            /* [N] sort values = gid */
+                          __global uint *gid_vals,              /* [N] sort values = gid */
+                          __global uint *ctrl) {                /* the binning's words: ctrl[2] = 0 here */
     LANES(n);
+    /* bin_count sums the visible Gaussians into ctrl[2] with atomics (kernels/bin.cl); it is zeroed
+       here, in the launch before it in every forward (a fill command would cost one more command
+       per forward, and Oclgrind treats filled memory as uninitialised) */
+    if (g0 == 0) ctrl[2] = 0u;
     proj_t p;
     vi vis = project_one(gid, means, quats, log_scales, opacity_logits, sh, cam, width, height, &p) & lane_ok;
     if (drop_threshold != 0u) { /* DropGaussian: a dropped Gaussian is culled */
@@ -441,8 +449,13 @@ __kernel void project_fwd(const int n,
     for (int i = 0; i < 4; ++i) SCATTER_I(tile_rect, 4, i, select((vi)0, CVT_I(p.rect[i]), vis));
     for (int ch = 0; ch < 3; ++ch) SCATTER_F(colors, 3, ch, select(zero, fmax(p.raw[ch], 0.0f), vis));
     SCATTER_F(opacities, 1, 0, select(zero, op, vis));
-    /* t_z > near > 0: the float bits order like the floats */
-    SCATTER_U(depth_keys, 1, 0, select((vu)DEPTH_KEY_CULLED, AS_U(p.t[2]), vis));
+    /* The sort key depends on t_z and the near plane only: t_z's bits wherever t_z > near (finite),
+       whatever else culls the Gaussian (frustum, det, radius, tile rect, DropGaussian, opacity), so
+       forwards of the same means and camera z row share one depth order (docs/perf_notes.md §9). A
+       Gaussian culled otherwise is ranked with an empty tile rect: bin_count gives it no tile.
+       t_z > near > 0: the float bits order like the floats. */
+    const vi zkey = (p.t[2] > cam[19]) & FINITE(p.t[2]) & lane_ok;
+    SCATTER_U(depth_keys, 1, 0, select((vu)DEPTH_KEY_CULLED, AS_U(p.t[2]), zkey));
 }
 
 /* Backward projection, one work-item per PROJ_VW Gaussians: raw-field gradients from the

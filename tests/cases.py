@@ -10,6 +10,7 @@ where the case does not pin it (e.g. random scenes). All cameras are pinhole wit
     random_scene     seeded random scene of any size
     perf_scene       docs/perf_notes.md §1.7 scenes A/B/C (re-exported from reings.bench_scenes)
     binning(be, mode)   an OpenCL backend's binning mode inside a `with` block (sync / async)
+    depth_order(be, mode)   its depth order mode inside a `with` block (share / sort)
 """
 from __future__ import annotations
 
@@ -427,6 +428,20 @@ def binning(be, mode: str):
     finally:
         be.bin_mode = old
         done.update({k: be.binned[k] - before[k] for k in before})
+
+
+@contextmanager
+def depth_order(be, mode: str):
+    """OpenCLBackend `be` with its depth order mode `mode` ("share" or "sort": OpenCLBackend.depth_order,
+    docs/perf_notes.md §9) inside the block; yields the forwards that sorted / shared an order in it."""
+    old, before = be.depth_order, dict(be.depth_sorts)
+    be.depth_order = mode
+    done: dict = {}
+    try:
+        yield done
+    finally:
+        be.depth_order = old
+        done.update({k: be.depth_sorts[k] - before[k] for k in before})
 
 
 def device_depth_frame(trainer, cam: Camera, depth, alpha):

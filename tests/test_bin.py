@@ -233,9 +233,9 @@ def test_counts_ring_wraps(device):
     ring = CountsRing(h, rows=2)
     hist = deque()
     got = []
-    for i in range(5):
+    for i in range(5):  # ctrl = (V ranked, K, visible): get() gives (visible, K)
         ctrl = cl.Buffer(h.context, cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR,
-                         hostbuf=np.array([i, 10 * i], np.uint32))
+                         hostbuf=np.array([i + 100, 10 * i, i], np.uint32))
         got.append(ring.read(ctrl, hist))
     assert [c.value for c in got[:3]] == [(0, 0), (1, 10), (2, 20)]  # resolved when their rows were reused
     h.queue.finish()

@@ -149,6 +149,36 @@ def test_sort_device_api_and_scratch_reuse(device, schedule, rng, _sorters):
     assert s._keys_tmp.buf is before  # capacity sufficed: no new allocation
 
 
+@pytest.mark.parametrize("schedule", SCHEDULES)
+def test_sort_into_out_leaves_the_inputs(device, schedule, rng, _sorters):
+    """sort_pairs(..., out=): the result lands in `out` whatever the parity of the passes, and the
+    input pair is only read (the backend's depth orders outlive the projection's keys); n <= 1 and
+    an empty bit range copy the pairs."""
+    import pyopencl as cl
+
+    s, _ = _sorter(device, schedule, _sorters)
+    h, mf = s.handle, cl.mem_flags
+    for n, bits in ((5000, 8), (5000, 16), (5000, 24), (5000, 32), (1, 32), (0, 32), (300, 0)):
+        keys = rng.integers(0, 2**32, n, dtype=np.uint64).astype(np.uint32)
+        vals = rng.permutation(n).astype(np.uint32)
+        kb, vb = (cl.Buffer(h.context, mf.READ_WRITE | mf.COPY_HOST_PTR, hostbuf=a) if n else
+                  cl.Buffer(h.context, mf.READ_WRITE, 64) for a in (keys, vals))
+        out = tuple(cl.Buffer(h.context, mf.READ_WRITE, max(4 * n, 64)) for _ in range(2))
+        ko, vo, _ = s.sort_pairs(kb, vb, n, 0, bits, out=out)
+        assert ko is out[0] and vo is out[1]
+        got = [np.empty(n, np.uint32) for _ in range(4)]
+        for a, b in zip(got, (ko, vo, kb, vb)):
+            if n:
+                cl.enqueue_copy(h.queue, a, b)
+        order = np.argsort(_selected(keys, 0, bits), kind="stable") if bits else np.arange(n)
+        np.testing.assert_array_equal(got[0], keys[order], err_msg=f"n={n} bits={bits}")
+        np.testing.assert_array_equal(got[1], vals[order], err_msg=f"n={n} bits={bits}")
+        np.testing.assert_array_equal(got[2], keys, err_msg="input keys written")
+        np.testing.assert_array_equal(got[3], vals, err_msg="input values written")
+    with pytest.raises(ValueError, match="host count"):
+        s.sort_pairs(kb, vb, 2, 0, 8, count=(kb, 0), out=out)
+
+
 @pytest.mark.slow
 def test_sort_large(device, rng, _sorters):
     """One large count (4M + 3) on the device's own schedule, 64-bit (tile, depth) keys, 42 bits."""

@@ -13,7 +13,9 @@ on the device and only materialises these views for tests and debugging.
 
 Index spaces (names follow brush's `x_from_y` rule):
   gid    Gaussian index, 0..N-1 (input order)
-  rank   position of a *visible* Gaussian in (depth t_z, gid) order, 0..V-1
+  rank   position of a *visible* Gaussian in (depth t_z, gid) order, 0..V-1 (the OpenCL backend's
+         device frames also rank the Gaussians that only the near plane does not cull, with no
+         tile: the visible ones keep their relative order and emit slots; opencl/depth_order.py)
   emit   slot of one (Gaussian, tile) intersection in emit order: ranks in order, each Gaussian's
          tiles row-major (ty outer, tx inner); rank r owns slots [offset_from_rank[r], offset_from_rank[r+1])
   isect  position in the list sorted by (tile, depth, gid); tile t owns [tile_ranges[t,0], tile_ranges[t,1])

@@ -8,8 +8,9 @@ Stage methods with the reference's names take and return host numpy (tests, debu
 `project_fwd`, `bin`, `rasterize_fwd`, `rasterize_bwd`, `project_bwd`. The fused `render` /
 `render_vjp` keep every intermediate on the device:
 
-    upload -> project_fwd -> depth sort (all N, culled keys last) -> bin_count -> scan
-      -> ONE blocking read of (V, K) (none sync-free: "Binning" below) -> bin_emit
+    upload -> project_fwd -> depth sort (all N, keys t_z or culled by the near plane, culled last;
+      or a shared order: "Depth orders" below) -> bin_count -> scan
+      -> ONE blocking read of (V, K, visible) (none sync-free: "Binning" below) -> bin_emit
       -> tile sort (ceil(log2 T) bits) -> tile_ranges -> rasterize_fwd -> one final batch of reads
     render_vjp: [forward] -> rasterize_bwd -> isect_reduce -> project_bwd -> one final batch of reads
 
@@ -17,7 +18,7 @@ Device-resident entry points (the device trainer, reings/backends/opencl/trainer
 `forward_device(inp, n, sh_k, cam, ...)` runs the forward on Gaussians already in device buffers and
 returns the frame; `backward_device(fr, v_rgb_buf, v_depth_buf, ...)` returns gradient buffers.
 Nothing goes up per call (the camera record lives in a buffer cached per camera) and nothing but
-the bin stage's (V, K) comes back (without a wait when sync-free). The trainer launches its own
+the bin stage's counts come back (without a wait when sync-free). The trainer launches its own
 kernels with `kernel` + `launch` and folds the stage times with `collect_profile` /
 `pending_events`.
 
@@ -56,17 +57,32 @@ for a multi-command stage (the sorts, the scan, rasterize) the time from the end
 stage to its last command's end. `last_stats` holds the counts (visible, intersections) of the
 last forward.
 
-Frame slots: a frame's buffers (projection outputs, bins and both sorters' ping-pong pairs, the
+Frame slots: a frame's buffers (projection outputs, bins and the tile sorter's ping-pong pair, the
 rasterizer's images and packed records, the backward's v_proj) belong to one of two slots. Every
 call renders into slot 0, except `forward_device(..., keep=True)`, which renders into slot 1, the
 kept frame: only the next forward with keep=True overwrites it, so the virtual view of the
 view_warp term (reings/train.py) is rendered once, read after the training view's forward and
 backpropagated after its backward. The slots share the gradient outputs of a backward and its
-per-intersection records; slot 1's buffers are allocated on its first use.
+per-intersection records; slot 1's buffers are allocated on its first use. A slot's current frame
+is the only one of it that `backward_device` accepts.
+
+Depth orders (docs/perf_notes.md §9; reings/backends/opencl/depth_order.py): the depth key is z
+only (t_z's bits where t_z > near), so the sorted (keys, gid_from_rank) depend on the means, the
+camera's z row, near and N alone. They live in one of three orders shared by the slots (not in the
+slot's key buffers, which every projection rewrites): `forward_device(..., order_key=k)` binds the
+frame to the order sorted under an equal key instead of sorting (`depth_order` "share": the
+argument, else $REINGS_DEPTH_ORDER, else "share"; "sort": every forward sorts). An order is
+re-sorted only when no live frame (a slot's current one) holds it; a backward checks that its
+frame's order was not. V (ctrl[0]) counts the ranked Gaussians (a z key), the launch bound of
+bin_emit and the reduces; the ones culled otherwise have no tile, so K, the emit slots, the images
+and the gradients are those of a visible-only sort. The "visible" statistic (`visible`,
+`last_stats`) stays the visible count (radii > 0): ctrl[2], summed by bin_count. `depth_sorts`
+counts the forwards that sorted and that shared.
 
 Memory: every device buffer comes from `Scratch` (persistent, per index space, grown by >= 1.5x),
-so steady-state calls allocate nothing. Sync-free, the intersection buffers hold N * n_tiles
-entries (93 bytes per entry over both slots: bin_counts.isect_bound_bytes).
+so steady-state calls allocate nothing. Per Gaussian the depth sort takes each slot's key pair
+(8 B), one sorter's scratch pair (8 B) and the three orders (24 B). Sync-free, the intersection
+buffers hold N * n_tiles entries (93 bytes per entry over both slots: bin_counts.isect_bound_bytes).
 
 Not here: input validation (reings/rendering.py), kernel math (kernels/*.cl), sorting/scan
 (sort.py), rasterization (rasterize.py).
@@ -84,8 +100,9 @@ from ...types import FIELDS, Camera, Gaussians, RenderOutput
 from ..base import (CLAMP_GUARD, V_RECORD, Bins, Projected, RasterGrads, RasterOut, tile_grid)
 from ..reference_drop import Drop, drop_args
 from . import quirks
-from .bin_counts import (CountsRing, DeviceCounts, bin_budget_setting, bin_mode_setting, choose_binning,
-                         isect_capacity)
+from .bin_counts import (CTRL_ISECTS, CTRL_RANKED, CTRL_VISIBLE, CTRL_WORDS, CountsRing, DeviceCounts,
+                         bin_budget_setting, bin_mode_setting, choose_binning, isect_capacity)
+from .depth_order import DepthOrders, depth_order_setting
 from .device import open_device
 from .program import library_for, typed_invoker
 from .scratch import Scratch
@@ -142,7 +159,8 @@ class _Frame:
     tiles_x: int
     n_tiles: int
     sh_k: int
-    counts: Any = (0, 0)  # (V, K), or a DeviceCounts of a sync-free forward (resolved when asked)
+    counts: Any = (0, 0)  # (visible, K), or a DeviceCounts of a sync-free forward (resolved when asked)
+    ranks: int = 0  # V, the ranked Gaussians (a z key; sync: read back, the launch bound of emit / reduces)
     cap: int = 0  # the K-sized buffers' capacity: K (sync) or the bound N * n_tiles (sync-free)
     sync_free: bool = False  # V and K live in bufs["ctrl"] (ctrl[0], ctrl[1]); the host never waited
     bufs: dict = field(default_factory=dict)
@@ -150,10 +168,12 @@ class _Frame:
     camera: Camera | None = None  # the camera rendered
     drop: Drop | None = None  # DropGaussian's mask of the projection (its backward uses the same)
     slot: int = 0  # the frame slot owning its buffers (module docstring): 0, or 1 for a kept frame
+    order: Any = None  # the depth_order.Order its (keys, gid_from_rank) are in (None: uploaded bins)
+    order_gen: int = 0  # that order's generation at the forward (module docstring, "Depth orders")
 
     @property
     def visible(self) -> int:
-        """V, the visible Gaussians (a sync-free frame's: read back when first asked)."""
+        """The visible Gaussians, radii > 0 (a sync-free frame's: read back when first asked)."""
         return self.resolved()[0]
 
     @property
@@ -168,14 +188,15 @@ class _Frame:
 
 @dataclass
 class _Slot:
-    """The buffers of one frame slot (module docstring): the scratch names, the two sorters (a
-    sorted result may lie in a sorter's own ping-pong pair) and the rasterizer (the images)."""
+    """The buffers of one frame slot (module docstring): the scratch names, the tile sorter (a
+    sorted result may lie in its own ping-pong pair), the rasterizer (the images) and its current
+    frame (the live one: its depth order is not re-sorted)."""
 
     mem: Any  # the backend's Scratch (slot 0) or its suffixed view (slot 1)
-    depth_sorter: RadixSort
     tile_sorter: RadixSort
     raster: Any = None  # Rasterizer, built on first use (OpenCLBackend._raster)
     isects: deque = field(default_factory=lambda: deque(maxlen=ISECT_HISTORY))  # its last known K's
+    frame: Any = None  # the last frame made in this slot (_new_frame)
 
 
 class OpenCLBackend:
@@ -183,9 +204,11 @@ class OpenCLBackend:
 
     engines = ("device", "host")  # Backend.engines: the device trainer by default
 
-    def __init__(self, device_spec: str = "pocl", bin_mode: str | None = None, bin_budget: float | None = None):
+    def __init__(self, device_spec: str = "pocl", bin_mode: str | None = None, bin_budget: float | None = None,
+                 depth_order: str | None = None):
         self.spec = device_spec
         self.bin_mode = bin_mode_setting(bin_mode)  # "auto" | "sync" | "async" (module docstring, "Binning")
+        self.depth_order = depth_order_setting(depth_order)  # "share" | "sort" ("Depth orders")
         self.bin_budget = bin_budget_setting(bin_budget)  # auto's share of the device memory
         self.handle = open_device(device_spec)
         self.name = f"opencl:{device_spec}"
@@ -196,6 +219,12 @@ class OpenCLBackend:
         self.lib = library_for(self.handle)
         self.scratch = Scratch(self.handle)
         self._slots: list[_Slot] = [self._new_slot(self.scratch)]  # slot 1 (kept frames) on first use
+        with warnings.catch_warnings():  # re-retrieves the slot's sorter kernels, once
+            warnings.simplefilter("ignore")
+            self._depth_sorter = RadixSort(self.handle)  # sorts into an order: its scratch is only a sort's
+            self._depth_sorter.kernels(False)
+        self._orders = DepthOrders(self.scratch)  # the sorted depth orders ("Depth orders")
+        self.depth_sorts = {"sorted": 0, "shared": 0}  # forwards that sorted / that shared an order
         self.scan = ExclusiveScan(self.handle)
         self.wg = 256 if self.cpu else 128  # PoCL: fewer, larger work-groups (dispatch cost ~us each)
         self.proj_vw = 8 if self.cpu else 1  # Gaussians per work-item in project.cl (float8 lanes on CPUs)
@@ -204,19 +233,20 @@ class OpenCLBackend:
         self._frame: _Frame | None = None
         self._keep: list = []  # host arrays referenced by non-blocking copies still in flight
         self._cams: dict = {}  # (K, viewmat, W, H, near) bytes -> read-only camera record buffer
-        self._counts = np.empty(2, _U32)  # the binning's (V, K) readback word pair
+        self._counts = np.empty(CTRL_WORDS, _U32)  # the binning's ctrl readback words (V, K, visible)
         self._ring: CountsRing | None = None  # the sync-free binning's pinned count words, on first use
         self.binned = {"sync": 0, "async": 0}  # forwards binned in each mode
         self._events: list = []  # (stage, event) of the current call
         self.last_profile: dict[str, float] = {}
-        self._last_counts: Any = None  # the last forward's (V, K) or DeviceCounts (last_stats)
+        self._last_counts: Any = None  # the last forward's (visible, K) or DeviceCounts (last_stats)
         self.last_screen = None  # Backend.last_screen: (v_means2d, radii) of the last full render_vjp
         self._photometric = self._depth_loss = self._view_warp = None  # the loss kernels, built on first use
 
     @property
     def last_stats(self) -> dict[str, int]:
-        """The counts of the last forward, {"visible": V, "intersections": K} ({} before any); a
-        sync-free forward's are read back when asked (a wait only if the queue has not passed them)."""
+        """The counts of the last forward, {"visible": radii > 0, "intersections": K} ({} before
+        any); a sync-free forward's are read back when asked (a wait only if the queue has not
+        passed them)."""
         c = self._last_counts
         if c is None:
             return {}
@@ -286,10 +316,9 @@ class OpenCLBackend:
     def _new_slot(self, mem) -> _Slot:
         with warnings.catch_warnings():  # a later sorter re-retrieves the same kernels, once
             warnings.simplefilter("ignore")
-            sorters = RadixSort(self.handle), RadixSort(self.handle)  # each owns its ping-pong scratch
-            for sorter in sorters:
-                sorter.kernels(False)
-        return _Slot(mem, *sorters)
+            sorter = RadixSort(self.handle)  # owns its ping-pong scratch
+            sorter.kernels(False)
+        return _Slot(mem, sorter)
 
     def _slot(self, i: int) -> _Slot:
         """Frame slot `i` (0, or 1: the kept frame's buffers, names suffixed "@kept")."""
@@ -351,12 +380,13 @@ class OpenCLBackend:
         b["opacities"] = s.get("gauss", "opacities", n, 4)
         b["depth_keys"] = s.get("gauss", "depth_keys", n, 4)
         b["gid_vals"] = s.get("gauss", "gid_vals", n, 4)
+        b["ctrl"] = s.get("small", "ctrl", CTRL_WORDS, 4)  # the binning's words (project_fwd zeroes ctrl[2])
         k = self.kernel("project.cl", "project_fwd", SH_K=fr.sh_k, PROJ_VW=self.proj_vw)
         ov = _F32(override if override is not None else 0.0)
         ev = self.launch(k, -(-n // self.proj_vw), _I32(n), inp["means"], inp["quats"], inp["log_scales"],
                           inp["opacity_logits"], inp["sh"], b["cam"], _I32(fr.width), _I32(fr.height), ov,
                           *drop_args(drop), b["means2d"], b["conics"], b["depths"], b["radii"], b["tile_rect"],
-                          b["colors"], b["opacities"], b["depth_keys"], b["gid_vals"], wg=self.proj_wg)
+                          b["colors"], b["opacities"], b["depth_keys"], b["gid_vals"], b["ctrl"], wg=self.proj_wg)
         self._mark("project_fwd", ev)
 
     def _camera_buffer(self, cam: Camera, near: float):
@@ -374,26 +404,26 @@ class OpenCLBackend:
                                               hostbuf=camera_record(cam, near))
         return buf
 
-    def _bin_device(self, fr: _Frame, allow_async: bool = True) -> None:
-        """Depth sort, counts, scan, then (V, K): one blocking read (sync), or left in ctrl on the
-        device (sync-free, when `binning` says so and allow_async), then emit, tile sort, tile
-        ranges (`_bin_emit_ranges`)."""
+    def _bin_device(self, fr: _Frame, allow_async: bool = True, order_key=None) -> None:
+        """The depth order (`_depth_order`: sorted, or shared under `order_key`), counts, scan,
+        then (V, K, visible): one blocking read (sync), or left in ctrl on the device (sync-free,
+        when `binning` says so and allow_async), then emit, tile sort, tile ranges
+        (`_bin_emit_ranges`)."""
         import pyopencl as cl
 
         sl = self._slot(fr.slot)
         n, s, b = fr.n, sl.mem, fr.bufs
-        # (1) depth sort of all N: culled keys (0xFFFFFFFF) sort last, ties keep gid order
-        keys, gfr, ev = sl.depth_sorter.sort_pairs(b["depth_keys"], b["gid_vals"], n, 0, 32)
-        self._mark("sort_depth", ev, span=True)
-        b["depth_keys_sorted"], b["gid_from_rank"] = keys, gfr
-        # (2) tiles touched per rank, V; exclusive scan -> offset_from_rank, total K into ctrl[1]
+        # (1) the depth order of all N: culled keys (0xFFFFFFFF) last, ties in gid order
+        self._depth_order(fr, order_key)
+        keys, gfr = b["depth_keys_sorted"], b["gid_from_rank"]
+        # (2) tiles touched per rank, V, the visible count; exclusive scan -> offset_from_rank, K
         touched = s.get("gauss", "tiles_touched", n + 1, 4)
-        ctrl = b["ctrl"] = s.get("small", "ctrl", 2, 4)
+        ctrl = b["ctrl"]  # its visible count zeroed by project_fwd (or _upload_projected)
         offsets = b["offset_from_rank"] = s.get("gauss", "offset_from_rank", n + 1, 4)
         ev = self.launch(self.kernel("bin.cl", "bin_count"), n + 1, _I32(n), keys, gfr, b["tile_rect"],
-                          touched, ctrl)
+                          b["radii"], touched, ctrl)
         self._mark("bin_count", ev)
-        _, ev = self.scan(touched, offsets, n + 1, total_buf=ctrl, total_at=1, read_total=False)
+        _, ev = self.scan(touched, offsets, n + 1, total_buf=ctrl, total_at=CTRL_ISECTS, read_total=False)
         self._mark("scan", ev, span=True)
         if allow_async and self.binning(n, fr.n_tiles) == "async":
             # sync-free: buffers at the bound, the counts read back without blocking
@@ -402,15 +432,37 @@ class OpenCLBackend:
             fr.sync_free, fr.cap = True, isect_capacity(n, fr.n_tiles)
             fr.counts = self._ring.read(ctrl, sl.isects)
         else:
-            # the one blocking device -> host read of the forward: (V, K) together
+            # the one blocking device -> host read of the forward: (V, K, visible) together
             counts = self._counts
             cl.enqueue_copy(self.queue, counts, ctrl, is_blocking=True)
             self._keep = []
-            fr.counts = int(counts[0]), int(counts[1])
+            fr.ranks = int(counts[CTRL_RANKED])
+            fr.counts = int(counts[CTRL_VISIBLE]), int(counts[CTRL_ISECTS])
             fr.cap = fr.counts[1]
             sl.isects.append(fr.cap)  # the launch estimates of later sync-free forwards, if any
         self.binned["async" if fr.sync_free else "sync"] += 1
         self._bin_emit_ranges(fr, sl)
+
+    def _depth_order(self, fr: _Frame, order_key) -> None:
+        """Bind the frame to its depth order (module docstring, "Depth orders"): with `order_key`
+        (and `depth_order` "share"), the order sorted under the same tag (order_key, N, SH count)
+        if one is kept; else a stable 32-bit sort of the projection's (depth_keys, gid_vals) into
+        an order that no live frame holds."""
+        tag = None if order_key is None or self.depth_order != "share" else (order_key, fr.n, fr.sh_k)
+        o = self._orders.find(tag)
+        if o is not None:
+            self.depth_sorts["shared"] += 1
+        else:
+            held = [sl.frame.order for sl in self._slots if sl.frame is not None]
+            o = self._orders.claim(held, fr.n)
+            b = fr.bufs
+            _, _, ev = self._depth_sorter.sort_pairs(b["depth_keys"], b["gid_vals"], fr.n, 0, 32,
+                                                     out=(o.keys, o.gids))
+            o.tag = tag  # shareable from now on (not if the sort had raised)
+            self._mark("sort_depth", ev, span=True)
+            self.depth_sorts["sorted"] += 1
+        fr.order, fr.order_gen = o, o.gen
+        fr.bufs["depth_keys_sorted"], fr.bufs["gid_from_rank"] = o.keys, o.gids
 
     def _isect_estimate(self, sl: _Slot, fr: _Frame) -> int:
         """The launch size's guess of a sync-free frame's K (kernels loop to the real one): the
@@ -425,10 +477,10 @@ class OpenCLBackend:
         the counts of ctrl (count_at 0: V, 1: K), launched over N ranks and an estimate of K."""
         n, s, b, cap, ctrl = fr.n, sl.mem, fr.bufs, fr.cap, fr.bufs["ctrl"]
         if fr.sync_free:
-            v_launch, at_v, at_k = n, _I32(0), _I32(1)
+            v_launch, at_v, at_k = n, _I32(CTRL_RANKED), _I32(CTRL_ISECTS)
             k_launch = self._isect_estimate(sl, fr)
         else:
-            v_launch, at_v, at_k = fr.visible, _I32(-1), _I32(-1)
+            v_launch, at_v, at_k = fr.ranks, _I32(-1), _I32(-1)
             k_launch = cap
         gfr, offsets = b["gid_from_rank"], b["offset_from_rank"]
         # (3) emit: tile ids row-major per rank at its slots; values = emit slot
@@ -440,7 +492,8 @@ class OpenCLBackend:
         self._mark("bin_emit", ev)
         # (4) stable tile sort over ceil(log2 T) bits: keeps (depth, gid) order inside each tile
         tk, efi, ev = sl.tile_sorter.sort_pairs(tile_keys, emit_vals, cap, 0, tile_bits(fr.n_tiles),
-                                                count=(ctrl, 1) if fr.sync_free else None, estimate=k_launch)
+                                                count=(ctrl, CTRL_ISECTS) if fr.sync_free else None,
+                                                estimate=k_launch)
         self._mark("sort_tile", ev, span=True)
         b["tile_keys_sorted"], b["emit_from_isect"] = tk, efi
         # (5) tile ranges + gid_from_isect, no atomics
@@ -451,16 +504,21 @@ class OpenCLBackend:
         self._mark("tile_ranges", ev)
 
     def _rank_count(self, fr: _Frame) -> tuple:
-        """(n_rank, count) of the per-rank reduces: (V, None), or sync-free (N, (ctrl, 0))."""
-        return (fr.n, (fr.bufs["ctrl"], 0)) if fr.sync_free else (fr.visible, None)
+        """(n_rank, count) of the per-rank reduces: (V, None), or sync-free (N, (ctrl, 0)); V the
+        ranked Gaussians (the culled ones among them reduce empty ranges)."""
+        return (fr.n, (fr.bufs["ctrl"], CTRL_RANKED)) if fr.sync_free else (fr.ranks, None)
 
     def _new_frame(self, n: int, width: int, height: int, sh_k: int, slot: int = 0) -> _Frame:
+        """A frame in `slot`, which becomes the slot's current one (the previous one's buffers and
+        its hold on its depth order are gone)."""
         if slot == 0:
             self._frame = None  # a call into slot 0 invalidates the previous forward's device state
         tiles_x, tiles_y = tile_grid(width, height)
         self._events = []
-        return _Frame(n=n, width=width, height=height, tiles_x=tiles_x, n_tiles=tiles_x * tiles_y, sh_k=sh_k,
-                      slot=slot)
+        fr = _Frame(n=n, width=width, height=height, tiles_x=tiles_x, n_tiles=tiles_x * tiles_y, sh_k=sh_k,
+                    slot=slot)
+        self._slot(slot).frame = fr
+        return fr
 
     def _forward(self, g: Gaussians, cam: Camera, background, near: float, override,
                  want_importance: bool, drop: Drop | None = None) -> _Frame:
@@ -496,14 +554,19 @@ class OpenCLBackend:
 
     def _raster_bwd(self, fr: _Frame, v_rgb, v_depth, v_alpha) -> None:
         """rasterize_bwd (per-emit records) + isect_reduce into v_proj [N, V_RECORD] (rows of
-        culled gids are left unwritten: project_bwd never reads them)."""
+        culled gids are zero or left unwritten: project_bwd never reads them)."""
         vr = None if v_rgb is None else self._upload("pixel", "v_rgb", np.asarray(v_rgb, _F32))
         vd = None if v_depth is None else self._upload("pixel", "v_depth", np.asarray(v_depth, _F32))
         va = None if v_alpha is None else self._upload("pixel", "v_alpha", np.asarray(v_alpha, _F32))
         self._raster_bwd_buffers(fr, vr, vd, va)
 
     def _raster_bwd_buffers(self, fr: _Frame, vr, vd, va) -> None:
-        """_raster_bwd on cotangent images that are already device buffers (or None)."""
+        """_raster_bwd on cotangent images that are already device buffers (or None). Refuses a
+        frame whose depth order was re-sorted since its forward (never, by construction: module
+        docstring, "Depth orders")."""
+        if fr.order is not None and fr.order.gen != fr.order_gen:
+            raise RuntimeError(f"backward: the frame's depth order ({fr.order.name}) was re-sorted since its "
+                               "forward; a frame is backpropagated while it is its slot's current one")
         r, b = self._raster(fr), fr.bufs
         ev = r.bwd(b["tile_ranges"], b["gid_from_isect"], b["emit_from_isect"], fr.cap, fr.width, fr.height,
                    vr, vd, va)
@@ -518,7 +581,7 @@ class OpenCLBackend:
     # ------------------------------------------------------------------------------------------
     def forward_device(self, inp: dict, n: int, sh_k: int, camera: Camera, background=(0.0, 0.0, 0.0),
                        near: float = 0.01, opacity_override: float | None = None,
-                       drop: Drop | None = None, keep: bool = False) -> _Frame:
+                       drop: Drop | None = None, keep: bool = False, order_key=None) -> _Frame:
         """`render`'s forward on Gaussians that already live on the device: `inp` maps each field of
         FIELDS to a buffer ([N,3] means, [N,4] quats, [N,3] log_scales, [N] opacity_logits,
         [N,sh_k,3] sh). Nothing is uploaded (the camera record buffer is cached per camera) and
@@ -528,12 +591,17 @@ class OpenCLBackend:
         backend that renders into the frame's slot (module docstring): any call but a forward with
         keep=True for an ordinary frame, the next forward with keep=True for a kept one; the
         caller must keep `inp` unchanged until `backward_device` has run. drop: DropGaussian's mask
-        (reference_drop.Drop, None: none); `backward_device` of the frame uses the same."""
+        (reference_drop.Drop, None: none); `backward_device` of the frame uses the same.
+        order_key: None (sort), or a hashable promise that the depth order (the means, the camera's
+        viewmat row 2 and near) is that of every earlier forward with an equal key: the frame then
+        shares a kept order instead of sorting (module docstring, "Depth orders"; the device
+        trainer's key: trainer.py). A wrong promise gives a wrong render, so keys must change
+        with the means."""
         fr = self._new_frame(int(n), camera.width, camera.height, int(sh_k), 1 if keep else 0)
         fr.camera = camera
         fr.bufs["in"] = dict(inp)
         self._project_device(fr, fr.bufs["in"], camera, near, opacity_override, drop)
-        self._bin_device(fr)
+        self._bin_device(fr, order_key=order_key)
         self._raster_fwd(fr, background, False)
         self._last_counts = fr.counts
         return fr
@@ -544,9 +612,12 @@ class OpenCLBackend:
         device buffers ([H,W,3], [H,W], [H,W]; None = zero). Returns the gradient buffers
         {field: buffer} ([N,3], [N,4], [N,3], [N], [N,sh_k,3]; fields outside `grad_fields` are
         zeros), valid until the next backward on this backend. fr.bufs["v_proj"] [N, V_RECORD]
-        (rows of culled gids unwritten; the frame slot's, valid as long as the frame) and
+        (rows of culled gids zero or unwritten; the frame slot's, valid as long as the frame) and
         fr.bufs["radii"] feed the densification statistics.
-        The frame's DropGaussian mask (fr.drop, from forward_device) applies."""
+        The frame's DropGaussian mask (fr.drop, from forward_device) applies. The frame must be its
+        slot's current one (no forward into its slot since: RuntimeError otherwise)."""
+        if self._slot(fr.slot).frame is not fr:
+            raise RuntimeError(f"backward_device: a later forward replaced the frame (slot {fr.slot})")
         self._raster_bwd_buffers(fr, v_rgb, v_depth, v_alpha)
         return self._project_bwd_device(fr, opacity_override, grad_fields)
 
@@ -732,8 +803,9 @@ class OpenCLBackend:
                          opacities=self._read(b["opacities"], (n,), _F32))
 
     def _upload_projected(self, fr: _Frame, proj: Projected) -> None:
-        """Host Projected -> the device buffers project_fwd would have written (float32), plus the
-        depth sort keys project_fwd computes (float bits of t_z for visible rows)."""
+        """Host Projected -> the device buffers project_fwd would have written (float32), plus depth
+        sort keys: the float bits of t_z for visible rows (all the reference's Bins rank), the
+        culled key elsewhere."""
         b = fr.bufs
         radii = np.asarray(proj.radii, _I32)
         depths = np.asarray(proj.depths, _F32)
@@ -744,11 +816,12 @@ class OpenCLBackend:
                               ("opacities", proj.opacities, _F32), ("depth_keys", keys, _U32),
                               ("gid_vals", np.arange(fr.n, dtype=_U32), _U32)):
             b[name] = self._upload("gauss", name, np.asarray(arr, dt))
+        b["ctrl"] = self._upload("small", "ctrl", np.zeros(CTRL_WORDS, _U32))  # as project_fwd leaves it
 
     def _upload_bins(self, fr: _Frame, bins: Bins) -> None:
         b = fr.bufs
         fr.counts = len(bins.gid_from_rank), len(bins.gid_from_isect)
-        fr.cap = fr.counts[1]
+        fr.ranks, fr.cap = fr.counts
         b["gid_from_rank"] = self._upload("gauss", "gid_from_rank_in", np.asarray(bins.gid_from_rank, _U32))
         b["offset_from_rank"] = self._upload("gauss", "offset_from_rank_in", np.asarray(bins.offset_from_rank, _U32))
         b["gid_from_isect"] = self._upload("isect", "gid_from_isect_in", np.asarray(bins.gid_from_isect, _I32))
@@ -768,7 +841,7 @@ class OpenCLBackend:
         return out
 
     def _read_bins(self, fr: _Frame) -> Bins:
-        b, v, k = fr.bufs, fr.visible, fr.isects
+        b, v, k = fr.bufs, fr.visible, fr.isects  # an uploaded projection ranks its visible rows only: V
         return Bins(gid_from_rank=self._read(b["gid_from_rank"], (v,), _I32),
                     offset_from_rank=self._read(b["offset_from_rank"], (v + 1,), _I32),
                     gid_from_isect=self._read(b["gid_from_isect"], (k,), _I32),

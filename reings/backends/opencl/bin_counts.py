@@ -1,17 +1,24 @@
-"""The binning's counts (V visible Gaussians, K intersections) and the sync-free binning mode of
-`OpenCLBackend` (docs/perf_notes.md §8).
+"""The binning's counts (V ranked Gaussians, K intersections, the visible count) and the sync-free
+binning mode of `OpenCLBackend` (docs/perf_notes.md §8).
 
     mode = bin_mode_setting(None)          # "sync" (default) | "auto" | "async"; REINGS_BIN overrides
     budget = bin_budget_setting(None)      # auto's share of the device memory; REINGS_BIN_BUDGET
     cap = isect_capacity(n, n_tiles)       # the bound: K <= V * n_tiles <= N * n_tiles
     choose_binning(mode, cpu, cap, max_alloc, global_mem, budget) -> "sync" | "async"
     ring = CountsRing(handle)              # pinned host words that the reads of ctrl land in
-    c = ring.read(ctrl, history)           # non-blocking read of ctrl = (V, K) -> DeviceCounts
-    c.get() -> (V, K)                      # waits for that read only if the queue has not passed it
+    c = ring.read(ctrl, history)           # non-blocking read of ctrl = (V, K, visible) -> DeviceCounts
+    c.get() -> (visible, K)                # waits for that read only if the queue has not passed it
     ring.poll()                            # resolves every read the queue has passed (no wait)
 
-Sync (the default, BIN_DEFAULT): the backend reads (V, K) back with one blocking read per forward
-and sizes the K buffers and launches with them. Async (sync-free): every K-sized buffer of the frame
+The control words of a frame slot (`ctrl`, CTRL_WORDS uint32, kernels/bin.cl): ctrl[CTRL_RANKED] = V,
+the Gaussians with a depth key (t_z > near), a prefix of the depth order and the launch bound of
+bin_emit and the reduces; ctrl[CTRL_ISECTS] = K; ctrl[CTRL_VISIBLE] = the visible Gaussians
+(radii > 0), the statistic reported as "visible" (V counts also the Gaussians culled for another
+reason than the near plane: their z key lets forwards that cull differently share one depth order,
+OpenCLBackend "Depth orders"; they have no tile, so they change neither K nor any output).
+
+Sync (the default, BIN_DEFAULT): the backend reads ctrl back with one blocking read per forward
+and sizes the K buffers and launches with V and K. Async (sync-free): every K-sized buffer of the frame
 is allocated at the bound `isect_capacity`, so nothing can overflow; V and K stay in the ctrl
 buffer, where bin_emit, the tile sort, tile_ranges and the reduces read them (their `counts,
 count_at` arguments); the launch sizes come from an estimate of K (`OpenCLBackend._isect_estimate`:
@@ -45,6 +52,8 @@ SLOT_BYTES = 6 * 4 + 0.5  # per intersection and frame slot: six uint32 arrays +
 IMPORTANCE_BYTES = 4  # raster_imp_emit, slot 0
 SHARED_BYTES = 4 * V_RECORD  # raster_v_emit, shared by the slots
 STATS_ROWS = 256  # rows of the pinned ring (reads in flight at most before the oldest is waited for)
+CTRL_RANKED, CTRL_ISECTS, CTRL_VISIBLE = 0, 1, 2  # the words of a frame slot's ctrl (module docstring)
+CTRL_WORDS = 3
 
 
 def bin_mode_setting(mode: str | None) -> str:
@@ -95,9 +104,9 @@ def choose_binning(mode: str, cpu: bool, cap: int, max_alloc: int, global_mem: i
 
 
 class DeviceCounts:
-    """(V, K) of one sync-free forward: a non-blocking read of ctrl into a row of the pinned ring.
-    `get()` resolves it (waiting only if the queue has not passed the read) and appends K to the
-    frame slot's `history` (the launch estimates of later forwards)."""
+    """(visible, K) of one sync-free forward: a non-blocking read of ctrl into a row of the pinned
+    ring. `get()` resolves it (waiting only if the queue has not passed the read) and appends K to
+    the frame slot's `history` (the launch estimates of later forwards)."""
 
     __slots__ = ("host", "event", "history", "value")
 
@@ -112,14 +121,14 @@ class DeviceCounts:
         if self.value is None:
             if not self.done():
                 self.event.wait()  # an error status raises here
-            self.value = (int(self.host[0]), int(self.host[1]))
+            self.value = (int(self.host[CTRL_VISIBLE]), int(self.host[CTRL_ISECTS]))
             self.host = self.event = None  # the event is complete: dropping it waits for nothing
             self.history.append(self.value[1])
         return self.value
 
 
 class CountsRing:
-    """Rows of two uint32 in pinned host memory (a mapped ALLOC_HOST_PTR buffer: a non-blocking
+    """Rows of CTRL_WORDS uint32 in pinned host memory (a mapped ALLOC_HOST_PTR buffer: a non-blocking
     read into pageable memory is synchronous on some drivers), one per sync-free forward, reused
     cyclically. A row's previous read is resolved before the row is reused; every read's event is
     held until it completes (pyopencl's event of a non-blocking copy waits when it is dropped)."""
@@ -129,15 +138,15 @@ class CountsRing:
 
         self.cl, self.queue = cl, handle.queue
         mf = cl.mem_flags
-        self.buf = cl.Buffer(handle.context, mf.READ_WRITE | mf.ALLOC_HOST_PTR, rows * 8)
+        self.buf = cl.Buffer(handle.context, mf.READ_WRITE | mf.ALLOC_HOST_PTR, rows * 4 * CTRL_WORDS)
         self.host, _ = cl.enqueue_map_buffer(self.queue, self.buf, cl.map_flags.READ | cl.map_flags.WRITE, 0,
-                                             (rows, 2), np.uint32, is_blocking=True)
+                                             (rows, CTRL_WORDS), np.uint32, is_blocking=True)
         self.owner: list[DeviceCounts | None] = [None] * rows
         self.pending: deque[DeviceCounts] = deque()
         self.next = 0
 
     def read(self, ctrl, history: deque) -> DeviceCounts:
-        """Enqueue a non-blocking read of ctrl[0:2] (V, K) into the next row."""
+        """Enqueue a non-blocking read of ctrl[0:CTRL_WORDS] into the next row."""
         i = self.next
         self.next = (i + 1) % len(self.owner)
         old = self.owner[i]

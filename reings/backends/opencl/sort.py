@@ -24,6 +24,9 @@ along untouched. The passes ping-pong between the caller's buffers and scratch b
 object owns (grown geometrically, never reallocated when large enough). **The input buffers are
 clobbered**, and the result lies either in them or in the scratch pair: use the buffers returned,
 and copy them out before the next sort_pairs call on the same RadixSort if they are the scratch pair.
+With `out=(keys_out, vals_out)` the passes ping-pong between that pair and the scratch pair instead:
+the inputs are only read, and the result lies in `out` (the depth order that outlives the
+projection's keys: backend.py, "Depth orders").
 
 Device counts (`count=(buf, index)`): the number of pairs is the uint32 buf[index], written on the
 device by an earlier command of the queue (the binning's K), and n is only the capacity (the
@@ -254,16 +257,18 @@ class RadixSort:
         return max(1, min(-(-estimate // block), cap_blocks)), cap_blocks
 
     def sort_pairs(self, keys_buf, vals_buf, n: int, begin_bit: int = 0, end_bit: int | None = None,
-                   key64: bool = False, wait_for=None, count=None, estimate: int | None = None):
+                   key64: bool = False, wait_for=None, count=None, estimate: int | None = None, out=None):
         """Sort n pairs by key bits [begin_bit, end_bit); returns (keys_out, vals_out, event).
 
-        keys_buf  [n] uint32 (uint64 if key64)   vals_buf [n] uint32   -- both clobbered
+        keys_buf  [n] uint32 (uint64 if key64)   vals_buf [n] uint32   -- both clobbered (unless out)
         count     None, or (buffer, index): the number of pairs is the uint32 buffer[index] on the
                   device, at most n, which is then the capacity (module docstring, "Device counts")
         estimate  with count: the launch geometry's guess of the count (default n)
-        The returned buffers are either the inputs or this object's scratch pair; event is the last
-        enqueued command (None if nothing was enqueued: n <= 1 with a host count, or an empty bit
-        range).
+        out       None, or (keys, vals) buffers of n pairs: the result goes there and the inputs
+                  are only read (module docstring); a host count only
+        The returned buffers are `out`, or either the inputs or this object's scratch pair; event is
+        the last enqueued command (None if nothing was enqueued: n <= 1 with a host count, or an
+        empty bit range, and no `out`).
         """
         import pyopencl as cl
 
@@ -271,15 +276,23 @@ class RadixSort:
             end_bit = 64 if key64 else 32
         if not (0 <= begin_bit <= end_bit <= (64 if key64 else 32)):
             raise ValueError(f"bad bit range [{begin_bit}, {end_bit}) for {'64' if key64 else '32'}-bit keys")
+        if out is not None and count is not None:
+            raise ValueError("sort_pairs: out= takes a host count")
         passes = split_bits(begin_bit, end_bit, self.max_bits)
+        ksize = 8 if key64 else 4
         if (n <= 1 and count is None) or not passes:
+            if out is not None:  # nothing to sort: the pairs as they are
+                ev = None
+                for src, dst, size in ((keys_buf, out[0], ksize), (vals_buf, out[1], 4)):
+                    if n:
+                        ev = cl.enqueue_copy(self.handle.queue, dst, src, byte_count=size * n, wait_for=wait_for)
+                return out[0], out[1], ev
             ev = cl.enqueue_marker(self.handle.queue, wait_for=wait_for) if wait_for else None
             return keys_buf, vals_buf, ev
         if n >= 2**32:
             raise ValueError("n must be < 2^32")
         hist_k, scan_k, scat_k = self.kernels(key64)
         q = self.handle.queue
-        ksize = 8 if key64 else 4
         if count is None:
             nblocks, chunk = self.geometry(n)
             hist_blocks, counts, count_at = nblocks, None, np.int32(-1)
@@ -292,13 +305,17 @@ class RadixSort:
         hist = self._hist.get(4 * maxbins * hist_blocks)
         totals = self._totals.get(4 * maxbins)
         counts = self._no_count.get(4) if counts is None else counts
-        src, dst = (keys_buf, vals_buf), (kt, vt)
+        src = inp = (keys_buf, vals_buf)
         if self.cpu:
             g, l = (nblocks,), (1,)
         else:
             g, l = (nblocks * self.wg,), (self.wg,)
         ev = None
-        for shift, w in passes:
+        for i, (shift, w) in enumerate(passes):
+            if out is None:  # scratch, inputs, scratch, ...
+                dst = (kt, vt) if i % 2 == 0 else inp
+            else:  # ..., out, scratch, out: the last pass writes out, no pass writes the inputs
+                dst = tuple(out) if (len(passes) - 1 - i) % 2 == 0 else (kt, vt)
             nbins = 1 << w
             hist_k(q, g, l, src[0], n, chunk, shift, nbins, hist, counts, count_at, wait_for=wait_for)
             wait_for = None
@@ -306,7 +323,7 @@ class RadixSort:
                 scan_k(q, (nbins * self.wg,), (self.wg,), hist, n, nbins, totals, counts, count_at)
             ev = scat_k(q, g, l, src[0], src[1], dst[0], dst[1], n, chunk, shift, nbins, hist, totals,
                         counts, count_at)
-            src, dst = dst, src
+            src = dst
         return src[0], src[1], ev
 
     def sort_pairs_host(self, keys: np.ndarray, vals: np.ndarray | None = None, begin_bit: int = 0,

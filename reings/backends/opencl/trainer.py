@@ -42,6 +42,14 @@ nothing is allocated or uploaded per step.
 The state goes back to the host (`download`) for densification, checkpoints, eval and the result,
 and comes back (`upload`) after host-side surgery (reings.state.apply_index_op).
 
+Shared depth orders (docs/perf_notes.md §9; backend.py, "Depth orders"): every forward passes the
+backend an order key (geometry version, the camera's viewmat row 2 as float32 bytes, near as
+float32), so forwards of an iteration that see the same camera-space z (the soft depth pass after
+an opacity step, the virtual view, the photometric pass) share one depth sort. The geometry version
+is drawn from a process-wide counter (unique across trainers sharing a backend) at every write of
+the means buffer: `upload` (init, densification, checkpoint restore) and `adam_step` of a "means"
+group; code that writes p_means otherwise must call `means_written`.
+
 Adam location (`adam=`): "kernel" (adam.cl, all state on the device), "numpy"
 (reference_state.adam_update on buffers mapped into host memory: zero-copy on CPU devices, where buffers are
 ALLOC_HOST_PTR), or "auto": the kernel on GPUs, `CPU_DEFAULT_ADAM` on CPU devices (measured on PoCL,
@@ -52,6 +60,7 @@ math (kernels/).
 """
 from __future__ import annotations
 
+import itertools
 import time
 from contextlib import ExitStack, contextmanager
 
@@ -73,6 +82,7 @@ from .scratch import Scratch
 CPU_DEFAULT_ADAM = "kernel"
 ADAM_LOCATIONS = ("auto", "kernel", "numpy")
 REG_VALUE_CHUNK = 256  # Gaussians per work-item of regularize_value (its sums are per chunk)
+_GEOMETRY = itertools.count(1)  # geometry versions, unique in the process (module docstring)
 _F32, _F64, _I32, _U32 = np.float32, np.float64, np.int32, np.uint32
 
 
@@ -160,6 +170,7 @@ class DeviceTrainer:
             cl.enqueue_copy(self.queue, buf, a)
             self.gt.append(buf)
         self.n, self.kmax = 0, 1
+        self.geometry = next(_GEOMETRY)  # the means' version in the depth order key (module docstring)
         self._cols = _columns(1)
         self._bufs: dict = {}  # (kind, name) -> buffer of the current n / kmax (cleared by upload)
         self._sh_k = None  # k of the valid sh_packed, None: stale
@@ -280,6 +291,19 @@ class DeviceTrainer:
         self._write(self.buf("stat", COUNT), np.asarray(state.stats[COUNT], _I32))
         self._write(self.buf("stat", RADII), np.asarray(state.stats[RADII], _F32))
         self._sh_k = None
+        self.means_written()
+
+    def means_written(self) -> None:
+        """The means buffer was (or will be, before the next forward) written: forwards from now
+        on sort their depth order afresh (a new geometry version; module docstring)."""
+        self.geometry = next(_GEOMETRY)
+
+    def order_key(self, cam, near: float) -> tuple:
+        """The backend's depth order key of a forward of `cam` at `near` (module docstring): equal
+        exactly when the projection sees the same camera-space z of every Gaussian (the camera
+        record's z row and near are these float32 values)."""
+        row = np.asarray(cam.viewmat, np.float64)[2, :4].astype(_F32)
+        return self.geometry, row.tobytes(), _F32(near).tobytes()
 
     def download(self, state, params_only: bool = False) -> None:
         """Trainer.download: the device state -> `state` (fresh arrays; step counts and iteration
@@ -324,7 +348,8 @@ class DeviceTrainer:
         inp = {"means": self.buf("p", "means"), "quats": self.buf("p", "quats"),
                "log_scales": self.buf("p", "log_scales"), "opacity_logits": self.buf("p", "opacity_logits"),
                "sh": self.sh_input(k)}
-        fr = self.b.forward_device(inp, self.n, k, cam, background, near, opacity_override, drop, keep)
+        fr = self.b.forward_device(inp, self.n, k, cam, background, near, opacity_override, drop, keep,
+                                   order_key=self.order_key(cam, near))
         self._cw_last = []  # read_cross_warp sums the levels of one frame: those called after this forward
         if self.flush_after_forward:
             self.queue.flush()  # submit the rasterizer now; the host goes on enqueuing loss / backward / Adam
@@ -778,6 +803,8 @@ class DeviceTrainer:
                 self._adam_numpy(name, _shape(name, n, self.kmax), g, gs, go, gc, opt.lr[name], t, opt)
             if name in ("sh_dc", "sh_rest"):
                 self._sh_k = None
+            if name == "means":
+                self.means_written()
 
     def step_l1(self, cam, view: int, opt, groups=None, k: int | None = None, background=(0.0, 0.0, 0.0),
                 near: float = 0.01, w_l1: float = 1.0, read_loss: bool = False):
