@@ -20,6 +20,7 @@ import numpy as np
 a = np.load('/tmp/timing/state_sort.npz'); b = np.load('/tmp/timing/state_share.npz')
 print('arrays', len(a.files), 'different', [k for k in a.files if not np.array_equal(a[k], b[k])])
 PY
+timeout 100 python3 bench/results/issue15_depth_order/device_time.py --device cuda:0 --pairs 2 2>&1 | grep -v "^WARNING: Target" >> $T/bench_host.txt
 run() {  # NAME ORDER [options]
   name=$1; order=$2; shift 2
   REINGS_DEPTH_ORDER=$order timeout 150 bash scripts/lent_gpu.sh eval --dataset llff --root $CARRY/data/llff --scenes fern \
