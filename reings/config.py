@@ -325,7 +325,9 @@ class RunPreset:
     iterations: dict  # method -> iterations per fitting stage (FIT_STAGES order)
     sh_degree: dict  # method -> maximum SH degree
     stereo_seeds: float | None = None  # ReInGSConfig.stereo_seeds where the run leaves it none (None: the auto rule)
-    soft_depth_shared: bool = False  # RunConfig.soft_depth_shared of the reings fits where the run leaves it none
+    # the recipe families whose reings fits share the soft depth render where the run leaves
+    # RunConfig.soft_depth_shared none (docs/results.md §27 for paper's LLFF family)
+    soft_depth_shared: tuple = ()
 
 
 RUN_PRESETS = {
@@ -341,12 +343,19 @@ RUN_PRESETS = {
                       "render (--soft-depth-shared), SH 0, EHPS seeded from the stereo prior at every view count "
                       "(--stereo-seeds 0.1); the baselines as quick",
                       {"3dgs": (600,), "dngaussian": (600,), "reings": (300, 300, 1200)},
-                      {"3dgs": 0, "dngaussian": 0, "reings": 0}, stereo_seeds=0.1, soft_depth_shared=True),
+                      {"3dgs": 0, "dngaussian": 0, "reings": 0}, stereo_seeds=0.1,
+                      soft_depth_shared=("llff", "dtu")),
     # SH 1 for reings from the model-size study (docs/results.md): -61% parameters per Gaussian,
     # test PSNR -0.14..+0.37 dB (mean +0.07) against SH 3; the baselines keep their recipes' 3
-    "paper": RunPreset("6000 iterations per stage (the paper's schedule); SH degree 1 for reings, 3 for the baselines",
+    # the soft depth term on the photometric render for the 'llff' family since session 17 (H100, full schedule,
+    # seeds 0-2: fern + flower 3 views with the stereo prior +0.03 dB, 2 views without a prior 0.00, the held-out
+    # NeX trex + room 0.00; fern 3 views 58.2 -> 55.3 s of training with the shared depth order alone, 53.4 with
+    # both; docs/results.md §27); 'dtu' keeps its own soft depth pass until measured there
+    "paper": RunPreset("6000 iterations per stage (the paper's schedule); SH degree 1 for reings, 3 for the "
+                       "baselines; reings fits of the 'llff' family take the soft depth term on the photometric "
+                       "render (--soft-depth-shared)",
                        {"3dgs": (6000,), "dngaussian": (6000,), "reings": (6000, 6000, 6000)},
-                       {"3dgs": 3, "dngaussian": 3, "reings": 1}),
+                       {"3dgs": 3, "dngaussian": 3, "reings": 1}, soft_depth_shared=("llff",)),
 }
 
 
@@ -651,8 +660,9 @@ class RunConfig:
                                      else f"must lie in [0, 10], got {v}", metavar="L")
     soft_depth_shared: bool | None = opt(None, "every fit with the soft depth term: share the photometric pass's "
                                                 "render with it, and step the opacities once with both gradients "
-                                                "(speed, issue 15); none: the preset's for the reings fits (on for "
-                                                "fast, off otherwise) and off for the baselines")
+                                                "(speed, issue 15); none: the preset's for the reings fits (fast: on; "
+                                                "paper: on for the 'llff' family, off for 'dtu'; quick: off) and off "
+                                                "for the baselines")
     drop_gamma: float | None = opt(None, "reings and dngaussian fits: DropGaussian (Park et al. 2025; docs/method.md "
                                          "§9): each Gaussian is left out of the photometric pass's renders with a rate "
                                          "rising linearly to this at each fit's last iteration, the kept ones' "

@@ -212,7 +212,7 @@ def run_settings(cfg: RunConfig, dataset_kind: str) -> dict:
                 s["cross_warp_blur"] = list(cfg.cross_warp_blur)
     if auto_seeds and (cfg.extent == "stereo" or cfg.holdout != "protocol" or cfg.views <= 2):
         s["stereo_seeds"] = "auto"  # seeds where runs before the option had none (stereo_seeds_of)
-    if soft_depth_shared_of(cfg):
+    if soft_depth_shared_of(cfg, recipe_family(cfg.recipe, dataset_kind)):
         s["soft_depth_shared"] = True
     drop = drop_gamma_of(cfg, recipe_family(cfg.recipe, dataset_kind))
     if drop:  # the value the fits use; absent when off (older folders resume)
@@ -325,13 +325,14 @@ def prune_unseen_of(cfg: RunConfig, family: str) -> bool:
     return PRUNE_UNSEEN_BY_FAMILY[family] if cfg.prune_unseen is None else bool(cfg.prune_unseen)
 
 
-def soft_depth_shared_of(cfg: RunConfig) -> bool:
+def soft_depth_shared_of(cfg: RunConfig, family: str) -> bool:
     """Whether the run's fits take the soft depth term on the photometric render
-    (LossConfig.soft_depth_shared): RunConfig.soft_depth_shared, or for none the preset's
-    (RunPreset.soft_depth_shared: on for fast) for reings and off for the baselines (their recipes)."""
+    (LossConfig.soft_depth_shared): RunConfig.soft_depth_shared, or for none the preset's for the
+    reings fits of the recipe family `family` (RunPreset.soft_depth_shared: fast for both families,
+    paper for 'llff') and off for the baselines (their recipes)."""
     if cfg.soft_depth_shared is not None:
         return bool(cfg.soft_depth_shared)
-    return cfg.method == "reings" and RUN_PRESETS[cfg.preset].soft_depth_shared
+    return cfg.method == "reings" and family in RUN_PRESETS[cfg.preset].soft_depth_shared
 
 
 def depth_metric_of(cfg: RunConfig, family: str) -> float:
@@ -430,7 +431,7 @@ class RunContext:
             recipe = replace(recipe, loss=replace(recipe.loss, depth_confidence=c.depth_confidence))
         if c.lambda_dssim is not None:
             recipe = replace(recipe, loss=replace(recipe.loss, lambda_dssim=c.lambda_dssim))
-        if soft_depth_shared_of(c):
+        if soft_depth_shared_of(c, self.family):
             recipe = replace(recipe, loss=replace(recipe.loss, soft_depth_shared=True))
         drop = drop_gamma_of(c, self.family)
         if drop:

@@ -175,17 +175,25 @@ def test_a_fast_run_seeds_ehps_at_three_views(device):
 
 
 def test_the_fast_preset_shares_the_soft_depth_render_for_reings_only():
-    """RunConfig.soft_depth_shared = none takes the preset's (on for fast) for the reings fits and
-    leaves the baselines' recipes alone; an explicit value wins for every method."""
+    """RunConfig.soft_depth_shared = none takes the preset's for the reings fits of its recipe families
+    (fast: both, paper: 'llff', quick: none) and leaves the baselines' recipes alone; an explicit value
+    wins for every method and family."""
     from reings.config import RUN_PRESETS, RunConfig
     from reings.pipeline import run_settings, soft_depth_shared_of
 
-    assert RUN_PRESETS["fast"].soft_depth_shared and not RUN_PRESETS["quick"].soft_depth_shared
-    assert not RUN_PRESETS["paper"].soft_depth_shared
-    assert soft_depth_shared_of(RunConfig(preset="fast"))
-    assert not soft_depth_shared_of(RunConfig(preset="fast", method="dngaussian"))
-    assert not soft_depth_shared_of(RunConfig(preset="fast", soft_depth_shared=False))
-    assert not soft_depth_shared_of(RunConfig(preset="quick")) and not soft_depth_shared_of(RunConfig(preset="paper"))
-    assert soft_depth_shared_of(RunConfig(preset="paper", method="dngaussian", soft_depth_shared=True))
+    assert RUN_PRESETS["fast"].soft_depth_shared == ("llff", "dtu") and not RUN_PRESETS["quick"].soft_depth_shared
+    assert RUN_PRESETS["paper"].soft_depth_shared == ("llff",)
+    for fam in ("llff", "dtu"):
+        assert soft_depth_shared_of(RunConfig(preset="fast"), fam)
+        assert not soft_depth_shared_of(RunConfig(preset="fast", method="dngaussian"), fam)
+        assert not soft_depth_shared_of(RunConfig(preset="fast", soft_depth_shared=False), fam)
+        assert not soft_depth_shared_of(RunConfig(preset="quick"), fam)
+        assert soft_depth_shared_of(RunConfig(preset="paper", method="dngaussian", soft_depth_shared=True), fam)
+        assert not soft_depth_shared_of(RunConfig(preset="paper", method="dngaussian"), fam)
+        assert not soft_depth_shared_of(RunConfig(preset="paper", soft_depth_shared=False), fam)
+    assert soft_depth_shared_of(RunConfig(preset="paper"), "llff")
+    assert not soft_depth_shared_of(RunConfig(preset="paper"), "dtu")
+    assert run_settings(RunConfig(preset="paper").resolved(), "llff")["soft_depth_shared"] is True
+    assert "soft_depth_shared" not in run_settings(RunConfig(preset="paper").resolved(), "dtu")
     assert run_settings(RunConfig(preset="fast").resolved(), "llff")["soft_depth_shared"] is True
     assert "soft_depth_shared" not in run_settings(RunConfig(preset="quick").resolved(), "llff")

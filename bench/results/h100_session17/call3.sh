@@ -26,13 +26,14 @@ run() {  # NAME ORDER [options]
   REINGS_DEPTH_ORDER=$order timeout 150 bash scripts/lent_gpu.sh eval --dataset llff --root $CARRY/data/llff --scenes fern \
     --views 3 --seeds 0 --methods reings --preset paper --device cuda:0 --no-lpips --out $T/$name "$@" 2>&1 \
     | grep -v "^WARNING: Target" > $T/$name.log
+  f=$T/$name/llff/reings/3views/fern/metrics.json
+  [ -f $f ] && python3 -c "import json; m=json.load(open('$f')); s=m['seconds']; print('$name', round(m['mean']['psnr'],6), {k: round(v,1) for k,v in s.items() if isinstance(v,(int,float))})" >> $T/summary.txt
+  { nvidia-smi --query-gpu=name,driver_version --format=csv,noheader; cat $T/bench_host.txt; cat $T/summary.txt; } > $OUT/timing.txt
 }
 run old_1 sort --soft-depth-shared false
 run new_1 share --soft-depth-shared true
 run share_1 share --soft-depth-shared false
 run old_2 sort --soft-depth-shared false
-run new_2 share --soft-depth-shared true
-for f in $T/*/llff/reings/3views/fern/metrics.json; do python3 -c "import json; m=json.load(open('$f')); s=m['seconds']; print('$f'.split('/')[3], round(m['mean']['psnr'],6), {k: round(v,1) for k,v in s.items() if isinstance(v,(int,float))})"; done > $T/summary.txt
 rm -f $T/state_*.npz
 { nvidia-smi --query-gpu=name,driver_version --format=csv,noheader; cat $T/bench_host.txt; cat $T/summary.txt; } > $OUT/timing.txt
 cat $OUT/timing.txt
