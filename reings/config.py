@@ -654,8 +654,9 @@ class RunConfig:
                                        "DNGaussian; 1 = the confidence alone)",
                                   check=lambda v: None if 0 <= v <= 1 else f"must lie in [0, 1], got {v}",
                                   metavar="A")
-    lambda_dssim: float | None = opt(None, "every fit: the SSIM weight l of the photometric loss L1 + l (1 - SSIM); "
-                                           "none: the recipe family's (DNGaussian: 0.2 for 'llff', 0.6 for 'dtu')",
+    lambda_dssim: float | None = opt(None, "every fit: the SSIM weight l of the photometric loss L1 + l (1 - SSIM) "
+                                           "(the 3dgs baseline's: (1 - l) L1 + l (1 - SSIM), l <= 1); none: the "
+                                           "recipe's (DNGaussian: 0.2 for 'llff', 0.6 for 'dtu'; 3DGS: 0.2)",
                                      check=lambda v: None if v is None or (0 <= v <= 10 and v == v)
                                      else f"must lie in [0, 10], got {v}", metavar="L")
     soft_depth_shared: bool | None = opt(None, "every fit with the soft depth term: share the photometric pass's "
@@ -727,6 +728,9 @@ class RunConfig:
             raise ValueError(f"depth_metric compares the rendered depth with a metric depth prior "
                              f"({', '.join(METRIC_PRIORS)}), but depth_prior is {self.depth_prior!r}: use "
                              f"--depth-prior stereo or --depth-metric 0")
+        if self.method == "3dgs" and self.lambda_dssim is not None and self.lambda_dssim > 1:
+            raise ValueError(f"lambda_dssim: the 3dgs baseline's loss is (1 - l) L1 + l (1 - SSIM), so l must lie in "
+                             f"[0, 1] (above 1 the L1 weight is negative), got {self.lambda_dssim}")
         if self.extent == "stereo" and prior_kind(self.depth_prior) != "stereo":
             raise ValueError(f"extent stereo takes the scene box from the stereo depth prior, but depth_prior is "
                              f"{self.depth_prior!r}: use --depth-prior stereo or another --extent")

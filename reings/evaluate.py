@@ -170,6 +170,8 @@ def _setting_tag(m: dict) -> str:
                       else ""))
     if cfg.get("prune_unseen"):  # absent when off
         tag.append("prune unseen")
+    if cfg.get("lambda_dssim") is not None:  # --lambda-dssim (absent: the recipe's SSIM weight)
+        tag.append(f"ssim {cfg['lambda_dssim']:g}")
     seeds = (cfg.get("reings_config") or {}).get("stereo_seeds")  # absent: none (the preset's or the auto rule)
     if base == "reings" and seeds is not None:
         tag.append(f"seeds {seeds:g}")
@@ -521,10 +523,11 @@ def _prepare(jobs) -> None:
               f"{', cached' if ext.cached else ''}), {time.perf_counter() - t:.1f} s", flush=True)
 
 
-# settings recorded only when on (absent = off; view_warp_start: absent = 2/3): a run that has one and a
-# config that has not differ
+# settings recorded only when on (absent = off; view_warp_start: absent = 2/3; lambda_dssim: absent = the
+# recipe's): a run that has one and a config that has not differ
 _ABSENT_WHEN_OFF = ("drop_gamma", "depth_metric", "prune_unseen", "cross_warp", "cross_warp_start",
-                    "cross_warp_occlusion", "cross_warp_blur", "view_warp_start")
+                    "cross_warp_occlusion", "cross_warp_blur", "view_warp_start", "lambda_dssim",
+                    "soft_depth_shared")
 
 
 def _settings_differ(metrics_path: str, cfg, dataset_kind: str | None = None) -> str:

@@ -406,10 +406,6 @@ def fit(views, config: TrainConfig, device: str = "pocl", init: Gaussians | None
                         sync=lambda params_only: trainer.download(state, params_only=params_only),
                         checkpoint_seconds=checkpoint_seconds, phase=trainer.phase)
     iteration = _Iteration(trainer, cfg, state, opt, rng, extent, images, cameras, depth_targets, book)
-    if cfg.densify.prune_unseen:  # Omega_G (ReInGS Eq. 7) over the training views > 0, for D.prune_unseen
-        from . import rendering
-
-        iteration.seen = lambda g: rendering.gaussian_importance(g, cameras, device, cfg.background, cfg.near) > 0.0
     try:
         for it in range(state.iteration + 1, cfg.iterations + 1):
             iteration(it)
@@ -446,7 +442,6 @@ class _Iteration:
         self.groups = [k for k in PARAM_NAMES if k in opt.lr]
         self.hard_ema = None
         self.k = 1  # active SH coefficients of the current iteration
-        self.seen = None  # Gaussians -> [N] bool, blended by a training view's pixel (DensifyConfig.prune_unseen)
 
     def __call__(self, it: int) -> None:
         from .optim import sh_degree_at
@@ -636,7 +631,11 @@ class _Iteration:
 
     def densify(self, it: int) -> None:
         """Densify / prune / reset opacities when the schedule says so: the state goes to the host
-        for the surgery (reings.densify) and back."""
+        for the surgery (reings.densify) and back. DensifyConfig.prune_unseen: after the surgery (its
+        clones and split children are judged at once) the trainer's Omega_G over the training views
+        (`Trainer.importance`, on the uploaded state: no upload of the Gaussians per view) marks
+        the Gaussians no training pixel blends; when there are some, they are pruned on the host and
+        the state goes up again."""
         from . import densify as D
 
         if not any(D.schedule(self.cfg.densify, it)):
@@ -644,11 +643,12 @@ class _Iteration:
         with self.tr.phase("densify"):
             self.tr.download(self.state)
             dens = D.maybe_densify(self.state, self.cfg.densify, it, self.extent, self.rng)
-            if self.cfg.densify.prune_unseen and D.schedule(self.cfg.densify, it)[0]:
-                # after the surgery: its clones and split children are judged at once
-                dens = dict(dens or {}, unseen=D.prune_unseen(self.state, self.seen(self.state.gaussians(0))),
-                            n=len(self.state))
             self.tr.upload(self.state)
+            if self.cfg.densify.prune_unseen and D.schedule(self.cfg.densify, it)[0]:
+                seen = self.tr.importance(self.cameras, self.bg, self.near) > 0.0
+                dens = dict(dens or {}, unseen=D.prune_unseen(self.state, seen), n=len(self.state))
+                if dens["unseen"]:
+                    self.tr.upload(self.state)
         if dens:
             self.book.history.densify.append((it, dens))
 

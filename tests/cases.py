@@ -417,31 +417,28 @@ def assert_fd_along_random_directions(loss, g, grads, fields, rng, trials: int =
 
 
 @contextmanager
+def _backend_mode(be, attr: str, mode: str, counter: str):
+    """`be.<attr>` = `mode` inside the block; yields the change of the counts `be.<counter>` in it."""
+    old, before = getattr(be, attr), dict(getattr(be, counter))
+    setattr(be, attr, mode)
+    done: dict = {}
+    try:
+        yield done
+    finally:
+        setattr(be, attr, old)
+        done.update({k: getattr(be, counter)[k] - before[k] for k in before})
+
+
 def binning(be, mode: str):
     """OpenCLBackend `be` binning in `mode` ("sync", "async" or "auto": OpenCLBackend.bin_mode,
     docs/perf_notes.md §8) inside the block; yields the counts of forwards binned per mode in it."""
-    old, before = be.bin_mode, dict(be.binned)
-    be.bin_mode = mode
-    done: dict = {}
-    try:
-        yield done
-    finally:
-        be.bin_mode = old
-        done.update({k: be.binned[k] - before[k] for k in before})
+    return _backend_mode(be, "bin_mode", mode, "binned")
 
 
-@contextmanager
 def depth_order(be, mode: str):
     """OpenCLBackend `be` with its depth order mode `mode` ("share" or "sort": OpenCLBackend.depth_order,
     docs/perf_notes.md §9) inside the block; yields the forwards that sorted / shared an order in it."""
-    old, before = be.depth_order, dict(be.depth_sorts)
-    be.depth_order = mode
-    done: dict = {}
-    try:
-        yield done
-    finally:
-        be.depth_order = old
-        done.update({k: be.depth_sorts[k] - before[k] for k in before})
+    return _backend_mode(be, "depth_order", mode, "depth_sorts")
 
 
 def device_depth_frame(trainer, cam: Camera, depth, alpha):

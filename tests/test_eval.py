@@ -93,6 +93,20 @@ def test_table_separates_settings(tmp_path):
     assert names == ["reings [paper]", "reings [quick]"]
 
 
+def test_table_separates_ssim_weights(tmp_path):
+    """Runs that differ only in --lambda-dssim (metrics.json config "lambda_dssim", absent at the recipe's)
+    get rows of their own: not one cell, where one run's seed would replace the other's."""
+    out = tmp_path / "res"
+    _fake_run(out, "llff", "reings", 3, "fern", 20.0, 0.7, 0.2, 0.1)
+    d = _fake_run(out / "ssim", "llff", "reings", 3, "fern", 19.0, 0.7, 0.2, 0.1)
+    m = json.loads((d / "metrics.json").read_text())
+    m["config"]["lambda_dssim"] = 0.3
+    (d / "metrics.json").write_text(json.dumps(m))
+    methods = evaluate.build_table(str(out))["datasets"]["llff"]["methods"]
+    assert {k: v["mean"][3]["psnr"] for k, v in methods.items()} == {"reings [quick]": 20.0,
+                                                                      "reings [quick, ssim 0.3]": 19.0}
+
+
 def test_run_lock_is_exclusive(tmp_path):
     a, b = evaluate.RunLock(str(tmp_path / "r")), evaluate.RunLock(str(tmp_path / "r"))
     assert a.acquire()

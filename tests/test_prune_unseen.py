@@ -179,21 +179,54 @@ def test_fit_with_prune_unseen_resumes_bit_identically(device, case, tmp_path):
     assert_resumes_bit_identically(case, device, tmp_path, stop_at=17)
 
 
-def test_off_never_renders_for_it_and_on_prunes(device, case, monkeypatch):
-    """Off: the importance renders never run (the fit is the one without the option); on: fewer
-    Gaussians than off, and every densify record's n is the model's size after the pruning."""
-    import reings.rendering as R
+@pytest.mark.parametrize("engine", ["device", "host"])
+def test_off_never_renders_for_it_and_on_prunes(device, case, monkeypatch, engine):
+    """Off: the importance renders (Trainer.importance) never run (the fit is the one without the
+    option); on: they run once per densification, fewer Gaussians than off, and every densify
+    record's n is the model's size after the pruning."""
+    from reings.backends.host_trainer import HostTrainer
+    from reings.backends.opencl.trainer import DeviceTrainer
 
     scene, init, cfg = case
-    orig = R.gaussian_importance
-    monkeypatch.setattr(R, "gaussian_importance", lambda *a, **k: pytest.fail("rendered with the option off"))
-    off = fit_case((scene, init, replace(cfg, densify=replace(cfg.densify, prune_unseen=False))), device)
+    cls = DeviceTrainer if engine == "device" else HostTrainer
+    orig = cls.importance
+    monkeypatch.setattr(cls, "importance", lambda *a, **k: pytest.fail("rendered with the option off"))
+    off = fit_case((scene, init, replace(cfg, densify=replace(cfg.densify, prune_unseen=False))), device,
+                   engine=engine)
     assert all("unseen" not in d for _, d in off.history.densify)
     sizes = []
-    monkeypatch.setattr(R, "gaussian_importance", lambda g, *a, **k: (sizes.append(len(g)), orig(g, *a, **k))[1])
-    on = fit_case(case, device)
+
+    def counted(tr, *a, **k):
+        omega = orig(tr, *a, **k)
+        sizes.append(len(omega))
+        return omega
+
+    monkeypatch.setattr(cls, "importance", counted)
+    on = fit_case(case, device, engine=engine)
     assert len(on.state) < len(off.state)
+    assert len(sizes) == len(on.history.densify)
     assert [d["n"] for _, d in on.history.densify] == [n - d["unseen"] for n, (_, d) in zip(sizes, on.history.densify)]
+
+
+@pytest.mark.parametrize("engine", ["device", "host"])
+def test_trainer_importance_is_gaussian_importance(device, engine):
+    """Trainer.importance of an uploaded state (the densification's Omega_G, read on the device
+    without uploading the Gaussians per view) equals rendering.gaussian_importance of the same
+    Gaussians bit for bit, on the analytic cases and two cameras, and its mask is the brute force's."""
+    from reings.backends import get_backend
+    from reings.rendering import gaussian_importance
+    from reings.state import TrainState
+
+    g, want = _cases()
+    cams = [make_camera(W, H), make_camera(W, H, viewmat=np.diag([-1.0, 1.0, -1.0, 1.0]))]
+    st = TrainState.from_gaussians(g)
+    tr = get_backend(device).trainer([np.zeros((H, W, 3), np.float32)] * 2, engine=engine)
+    tr.upload(st)
+    got = tr.importance(cams, (0.0, 0.0, 0.0), 0.01)
+    ref = gaussian_importance(st.gaussians(0), cams, device, (0.0, 0.0, 0.0), 0.01)
+    assert got.dtype == np.float64 and got.shape == (len(g),)
+    np.testing.assert_array_equal(got, ref)
+    np.testing.assert_array_equal(got[:len(want)] > 0, want | _brute_force_seen_turned(g, cams[1]))
 # }}}
 
 

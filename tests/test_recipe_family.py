@@ -148,6 +148,46 @@ def test_lambda_dssim_reaches_every_fit(family, given, want, method):
     r = ctx.run_recipe(baseline_recipe("dngaussian", 600, 0, family))
     assert r.loss.lambda_dssim == want
     assert run_settings(ctx.cfg, family).get("lambda_dssim") == given
+
+
+def test_lambda_dssim_of_the_3dgs_baseline():
+    """The 3dgs baseline's loss is (1 - l) L1 + l (1 - SSIM): --lambda-dssim reaches it, and a weight above 1
+    (a negative L1 weight) is refused; DNGaussian's form L1 + l (1 - SSIM) takes any l in [0, 10]."""
+    from reings.backends.reference_loss import photometric_weights
+
+    ctx, _ = _ctx("llff", method="3dgs", lambda_dssim=0.5)
+    r = ctx.run_recipe(baseline_recipe("3dgs", 600, 0, "llff"))
+    assert photometric_weights(r.loss.lambda_dssim, r.loss.photometric_form) == (0.5, 0.5)
+    for bad in (1.5, 10.0):
+        with pytest.raises(ValueError, match="lambda_dssim.*3dgs"):
+            RunConfig(method="3dgs", lambda_dssim=bad)
+    assert RunConfig(method="3dgs", lambda_dssim=1.0).lambda_dssim == 1.0
+    assert RunConfig(method="dngaussian", lambda_dssim=2.0).lambda_dssim == 2.0
+
+
+def test_eval_flags_other_ssim_weights_and_soft_depth_sharing(tmp_path):
+    """`reings eval` does not take a finished run for the config's when the SSIM weight differs (given on
+    either side: the key is absent at none), nor a paper-preset 'llff' run finished before its reings fits
+    shared the soft depth render (the key is absent when off); the same settings are not flagged."""
+    import json
+
+    from reings.evaluate import _settings_differ
+    from reings.pipeline import run_settings
+
+    for name, run_cfg, grid_cfg, kind, key in (
+            ("ssim_run", RunConfig(lambda_dssim=0.3), RunConfig(), "llff", "lambda_dssim"),
+            ("ssim_grid", RunConfig(), RunConfig(lambda_dssim=0.3), "dtu", "lambda_dssim"),
+            ("soft", RunConfig(preset="paper", soft_depth_shared=False), RunConfig(preset="paper"), "llff",
+             "soft_depth_shared")):
+        p = tmp_path / name / "metrics.json"
+        p.parent.mkdir()
+        p.write_text(json.dumps({"config": run_settings(run_cfg.resolved(), kind)}))
+        assert key in _settings_differ(str(p), grid_cfg, kind), name
+        assert _settings_differ(str(p), run_cfg, kind) == "", name
+    p = tmp_path / "dtu_paper.json"  # DTU keeps its own soft depth pass in the paper preset: no key either side
+    p.write_text(json.dumps({"config": run_settings(RunConfig(preset="paper", soft_depth_shared=False).resolved(),
+                                                    "dtu")}))
+    assert _settings_differ(str(p), RunConfig(preset="paper"), "dtu") == ""
 # }}}
 
 

@@ -148,7 +148,10 @@ class Trainer(Protocol):
         regularize(g, ...); accumulate(fr)                 (photometric pass only)
         adam_step(opt, g, groups)
 
-    and, when densification is due, download -> host surgery (reings.densify) -> upload. With
+    and, when densification is due, download -> host surgery (reings.densify) -> upload; with
+    DensifyConfig.prune_unseen then `importance(cameras, background, near)` (Omega_G of the state
+    the trainer holds, over the training cameras) and, when some Gaussians are unseen, the prune on
+    the host and another upload. With
     DropGaussian on (LossConfig.drop_gamma) the photometric pass's forwards (and the view_warp
     term's virtual ones) take the iteration's mask, `forward(..., drop=)`. The view_warp term
     renders its virtual view once, as a kept frame (`forward(..., keep=True)`), which survives

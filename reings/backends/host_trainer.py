@@ -123,6 +123,17 @@ class HostTrainer:
     def read_params(self, names) -> dict:
         """Trainer.read_params: the state's own arrays (read only)."""
         return {k: self.state.params[k] for k in names}
+
+    def importance(self, cameras, background, near: float) -> np.ndarray:
+        """Trainer.importance: Omega_G (ReInGS Eq. 7) of the held state over `cameras`, float64 [N]:
+        per camera the backend's render with its importance (alpha*T summed over the pixels where each
+        Gaussian blends; colours do not enter, so the SH DC alone is rendered), added in camera order
+        (reings.rendering.gaussian_importance)."""
+        g = self.state.gaussians(0)
+        omega = np.zeros(len(g), np.float64)
+        for cam in cameras:
+            omega += self.b.render(g, cam, tuple(background), float(near), want_importance=True).importance
+        return omega
     # }}}
 
     # {{{ one pass

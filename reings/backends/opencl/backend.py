@@ -227,6 +227,8 @@ class OpenCLBackend:
         self.depth_sorts = {"sorted": 0, "shared": 0}  # forwards that sorted / that shared an order
         self.scan = ExclusiveScan(self.handle)
         self.wg = 256 if self.cpu else 128  # PoCL: fewer, larger work-groups (dispatch cost ~us each)
+        # bin.cl's bin_count sums its visible count by a tree over the work-group: a power of two <= BIN_WG_MAX
+        assert self.wg & (self.wg - 1) == 0 and self.wg <= 256, self.wg
         self.proj_vw = 8 if self.cpu else 1  # Gaussians per work-item in project.cl (float8 lanes on CPUs)
         self.proj_wg = 64 if self.cpu else 128  # project.cl work-group (64 x 8 Gaussians on CPUs)
         self._kernels: dict = {}
@@ -581,7 +583,8 @@ class OpenCLBackend:
     # ------------------------------------------------------------------------------------------
     def forward_device(self, inp: dict, n: int, sh_k: int, camera: Camera, background=(0.0, 0.0, 0.0),
                        near: float = 0.01, opacity_override: float | None = None,
-                       drop: Drop | None = None, keep: bool = False, order_key=None) -> _Frame:
+                       drop: Drop | None = None, keep: bool = False, order_key=None,
+                       importance: bool = False) -> _Frame:
         """`render`'s forward on Gaussians that already live on the device: `inp` maps each field of
         FIELDS to a buffer ([N,3] means, [N,4] quats, [N,3] log_scales, [N] opacity_logits,
         [N,sh_k,3] sh). Nothing is uploaded (the camera record buffer is cached per camera) and
@@ -596,13 +599,14 @@ class OpenCLBackend:
         viewmat row 2 and near) is that of every earlier forward with an equal key: the frame then
         shares a kept order instead of sorting (module docstring, "Depth orders"; the device
         trainer's key: trainer.py). A wrong promise gives a wrong render, so keys must change
-        with the means."""
+        with the means. importance: also the per-Gaussian alpha*T sums, fr.bufs["importance"] [N]
+        float32 (as `render(want_importance=True)`)."""
         fr = self._new_frame(int(n), camera.width, camera.height, int(sh_k), 1 if keep else 0)
         fr.camera = camera
         fr.bufs["in"] = dict(inp)
         self._project_device(fr, fr.bufs["in"], camera, near, opacity_override, drop)
         self._bin_device(fr, order_key=order_key)
-        self._raster_fwd(fr, background, False)
+        self._raster_fwd(fr, background, importance)
         self._last_counts = fr.counts
         return fr
 

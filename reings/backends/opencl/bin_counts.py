@@ -56,14 +56,19 @@ CTRL_RANKED, CTRL_ISECTS, CTRL_VISIBLE = 0, 1, 2  # the words of a frame slot's 
 CTRL_WORDS = 3
 
 
+def choice_setting(value: str | None, name: str, env: str, default: str, choices: tuple) -> str:
+    """A backend's string setting: `value`, else $`env`, else `default`; lower-cased and checked
+    against `choices` (the error names the argument `name` or the variable)."""
+    m = value if value is not None else (os.environ.get(env) or default)
+    m = m.strip().lower()
+    if m not in choices:
+        raise ValueError(f"{name if value is not None else env} must be one of {choices}, got {m!r}")
+    return m
+
+
 def bin_mode_setting(mode: str | None) -> str:
     """The binning mode of a backend: `mode`, else $REINGS_BIN, else BIN_DEFAULT ("sync"); checked."""
-    m = mode if mode is not None else (os.environ.get(BIN_ENV) or BIN_DEFAULT)
-    m = m.strip().lower()
-    if m not in BIN_MODES:
-        src = "bin_mode" if mode is not None else BIN_ENV
-        raise ValueError(f"{src} must be one of {BIN_MODES}, got {m!r}")
-    return m
+    return choice_setting(mode, "bin_mode", BIN_ENV, BIN_DEFAULT, BIN_MODES)
 
 
 def bin_budget_setting(budget: float | None) -> float:

@@ -45,7 +45,6 @@ Sorts per iteration in the training loop, before -> after (view_warp on):
 """
 from __future__ import annotations
 
-import os
 from dataclasses import dataclass
 from typing import Any
 
@@ -59,12 +58,9 @@ def depth_order_setting(mode: str | None) -> str:
     """A backend's depth order mode: `mode`, else $REINGS_DEPTH_ORDER, else "share"; checked.
     "share": a forward with an order key equal to a kept order's binds to it (no sort); "sort":
     every forward sorts (the measurement baseline)."""
-    m = mode if mode is not None else (os.environ.get(DEPTH_ORDER_ENV) or DEPTH_ORDER_DEFAULT)
-    m = m.strip().lower()
-    if m not in DEPTH_ORDERS:
-        src = "depth_order" if mode is not None else DEPTH_ORDER_ENV
-        raise ValueError(f"{src} must be one of {DEPTH_ORDERS}, got {m!r}")
-    return m
+    from .bin_counts import choice_setting
+
+    return choice_setting(mode, "depth_order", DEPTH_ORDER_ENV, DEPTH_ORDER_DEFAULT, DEPTH_ORDERS)
 
 
 @dataclass

@@ -323,6 +323,20 @@ class DeviceTrainer:
     def read_params(self, names) -> dict:
         """Trainer.read_params: blocking reads of the parameter buffers."""
         return {k: self._read(self.buf("p", k), _shape(k, self.n, self.kmax), _F32) for k in names}
+
+    def importance(self, cameras, background, near: float) -> np.ndarray:
+        """Trainer.importance: Omega_G (ReInGS Eq. 7) of the device state over `cameras`, float64 [N]:
+        per camera a forward of the resident parameters with the importance reduce (SH DC only:
+        colours do not enter alpha*T) and one read of its [N] float32 sums, added in camera order on
+        the host, the same bits as reings.rendering.gaussian_importance of the downloaded state
+        (tests/test_prune_unseen.py) without uploading the Gaussians or reading the images back per
+        camera. Frames go to slot 0 (as `forward`)."""
+        omega = np.zeros(self.n, np.float64)
+        for cam in cameras:
+            fr = self.forward(cam, 1, background, near, importance=True)
+            if self.n:
+                omega += self._read(fr.bufs["importance"], (self.n,), _F32)
+        return omega
     # }}}
 
     # {{{ one pass
@@ -338,18 +352,19 @@ class DeviceTrainer:
         return out
 
     def forward(self, cam, k: int, background, near: float, opacity_override: float | None = None,
-                drop=None, keep: bool = False):
+                drop=None, keep: bool = False, importance: bool = False):
         """Trainer.forward: project / bin / sort / rasterize the device parameters (k active SH
         coefficients; drop: DropGaussian's mask, kept by the frame for its backward); the frame is
         the backend's, in its frame slot 0 (valid until the next forward), or with keep=True in
-        its slot 1 (valid until the next forward with keep=True; backend.forward_device)."""
+        its slot 1 (valid until the next forward with keep=True; backend.forward_device).
+        importance: also the per-Gaussian alpha*T sums, fr.bufs["importance"] [N] (`importance`)."""
         if not 1 <= k <= self.kmax:
             raise ValueError(f"active SH coefficients {k} outside [1, {self.kmax}]")
         inp = {"means": self.buf("p", "means"), "quats": self.buf("p", "quats"),
                "log_scales": self.buf("p", "log_scales"), "opacity_logits": self.buf("p", "opacity_logits"),
                "sh": self.sh_input(k)}
         fr = self.b.forward_device(inp, self.n, k, cam, background, near, opacity_override, drop, keep,
-                                   order_key=self.order_key(cam, near))
+                                   order_key=self.order_key(cam, near), importance=importance)
         self._cw_last = []  # read_cross_warp sums the levels of one frame: those called after this forward
         if self.flush_after_forward:
             self.queue.flush()  # submit the rasterizer now; the host goes on enqueuing loss / backward / Adam
