@@ -363,6 +363,11 @@ class Trainer(Protocol):
         """The held parameter groups `names` as host float32 arrays (may be the state's own
         arrays on the host: read only)."""
 
+    def importance(self, cameras: Sequence, background: Sequence[float], near: float) -> np.ndarray:
+        """Omega_G (ReInGS Eq. 7) of the held state over `cameras`, float64 [N]: per camera and
+        Gaussian, alpha*T summed over the pixels where it blends, added in camera order; the same
+        bits as reings.rendering.gaussian_importance of the held Gaussians (DensifyConfig.prune_unseen)."""
+
     def phase(self, name: str) -> AbstractContextManager:
         """A `with` block whose wall seconds are added to profile[name] (a no-op without a
         profile dict); the device trainer finishes its queue around it."""

@@ -333,7 +333,8 @@ class DeviceTrainer:
         camera. Frames go to slot 0 (as `forward`)."""
         omega = np.zeros(self.n, np.float64)
         for cam in cameras:
-            fr = self.forward(cam, 1, background, near, importance=True)
+            fr = self.b.forward_device(self._inputs(1), self.n, 1, cam, background, near,
+                                       order_key=self.order_key(cam, near), importance=True)
             if self.n:
                 omega += self._read(fr.bufs["importance"], (self.n,), _F32)
         return omega
@@ -351,20 +352,22 @@ class DeviceTrainer:
             self._sh_k = k
         return out
 
+    def _inputs(self, k: int) -> dict:
+        """backend.forward_device's parameter buffers at k active SH coefficients."""
+        return {"means": self.buf("p", "means"), "quats": self.buf("p", "quats"),
+                "log_scales": self.buf("p", "log_scales"), "opacity_logits": self.buf("p", "opacity_logits"),
+                "sh": self.sh_input(k)}
+
     def forward(self, cam, k: int, background, near: float, opacity_override: float | None = None,
-                drop=None, keep: bool = False, importance: bool = False):
+                drop=None, keep: bool = False):
         """Trainer.forward: project / bin / sort / rasterize the device parameters (k active SH
         coefficients; drop: DropGaussian's mask, kept by the frame for its backward); the frame is
         the backend's, in its frame slot 0 (valid until the next forward), or with keep=True in
-        its slot 1 (valid until the next forward with keep=True; backend.forward_device).
-        importance: also the per-Gaussian alpha*T sums, fr.bufs["importance"] [N] (`importance`)."""
+        its slot 1 (valid until the next forward with keep=True; backend.forward_device)."""
         if not 1 <= k <= self.kmax:
             raise ValueError(f"active SH coefficients {k} outside [1, {self.kmax}]")
-        inp = {"means": self.buf("p", "means"), "quats": self.buf("p", "quats"),
-               "log_scales": self.buf("p", "log_scales"), "opacity_logits": self.buf("p", "opacity_logits"),
-               "sh": self.sh_input(k)}
-        fr = self.b.forward_device(inp, self.n, k, cam, background, near, opacity_override, drop, keep,
-                                   order_key=self.order_key(cam, near), importance=importance)
+        fr = self.b.forward_device(self._inputs(k), self.n, k, cam, background, near, opacity_override, drop, keep,
+                                   order_key=self.order_key(cam, near))
         self._cw_last = []  # read_cross_warp sums the levels of one frame: those called after this forward
         if self.flush_after_forward:
             self.queue.flush()  # submit the rasterizer now; the host goes on enqueuing loss / backward / Adam
