@@ -60,15 +60,10 @@ def render(gaussians: Gaussians, camera: Camera, device: str = "pocl",
 def gaussian_importance(g, cameras, device, bg, near) -> np.ndarray:
     """Omega_G (Eq. 7): per Gaussian, the sum over `cameras` and their pixels of alpha*T where it
     blends; float64 [N]. The basis of CVPS, of the final prune and of DensifyConfig.prune_unseen
-    (pass training cameras only; reings.reinit re-exports it). `device`: a device string, or a
-    Backend object (the host trainer's `Trainer.importance`)."""
-    from .backends import get_backend
-
-    backend = get_backend(device) if isinstance(device, str) else device
+    (pass training cameras only; reings.reinit re-exports it)."""
     omega = np.zeros(len(g), np.float64)
     for cam in cameras:
-        b = _check_common(g, cam, bg, near)
-        omega += backend.render(g, cam, background=b, near=float(near), want_importance=True).importance
+        omega += render(g, cam, device, bg, near, want_importance=True).importance
     return omega
 
 

@@ -127,11 +127,13 @@ class HostTrainer:
     def importance(self, cameras, background, near: float) -> np.ndarray:
         """Trainer.importance: Omega_G (ReInGS Eq. 7) of the held state over `cameras`, float64 [N]:
         per camera the backend's render with its importance (alpha*T summed over the pixels where each
-        Gaussian blends; colours do not enter, so the SH DC alone is rendered), added in camera order:
-        reings.rendering.gaussian_importance on this trainer's backend."""
-        from ..rendering import gaussian_importance
-
-        return gaussian_importance(self.state.gaussians(0), cameras, self.b, background, near)
+        Gaussian blends; colours do not enter, so the SH DC alone is rendered), added in camera order
+        (reings.rendering.gaussian_importance)."""
+        g = self.state.gaussians(0)
+        omega = np.zeros(len(g), np.float64)
+        for cam in cameras:
+            omega += self.b.render(g, cam, tuple(background), float(near), want_importance=True).importance
+        return omega
     # }}}
 
     # {{{ one pass
