@@ -99,6 +99,22 @@ def parse_iterations(text: str):
     return _checked_list(parts, int, "expected an integer", positive_all)
 
 
+def lambda_dssim_values(v):
+    """None, or why SSIM weights are refused: one or three (one per reings fitting stage) numbers in [0, 10]."""
+    if len(v) not in (1, 3):
+        return f"must be one weight or three (reings: coarse, fine, final), got {len(v)}"
+    bad = [x for x in v if not 0 <= x <= 10]  # refuses nan
+    return f"must lie in [0, 10], got {bad[0]}" if bad else None
+
+
+def parse_lambda_dssim(text: str):
+    """L, or A,B,C (one SSIM weight per reings fitting stage: coarse, fine, final); numbers in [0, 10]."""
+    parts = [p.strip() for p in str(text).split(",")]
+    if len(parts) not in (1, 3):
+        raise ValueError(f"expected L or A,B,C (one SSIM weight per reings stage: coarse, fine, final), got {text!r}")
+    return _checked_list(parts, float, "expected a number", lambda_dssim_values)
+
+
 def blur_sigmas(v):
     """None, or why a tuple of blur sigmas (pixels) is refused: each a finite number > 0 (the sharp
     level, sigma 0, is always taken: a 0 here would count it twice)."""
@@ -654,11 +670,16 @@ class RunConfig:
                                        "DNGaussian; 1 = the confidence alone)",
                                   check=lambda v: None if 0 <= v <= 1 else f"must lie in [0, 1], got {v}",
                                   metavar="A")
-    lambda_dssim: float | None = opt(None, "every fit: the SSIM weight l of the photometric loss L1 + l (1 - SSIM) "
-                                           "(the 3dgs baseline's: (1 - l) L1 + l (1 - SSIM), l <= 1); none: the "
-                                           "recipe's (DNGaussian: 0.2 for 'llff', 0.6 for 'dtu'; 3DGS: 0.2)",
-                                     check=lambda v: None if v is None or (0 <= v <= 10 and v == v)
-                                     else f"must lie in [0, 10], got {v}", metavar="L")
+    lambda_dssim: tuple[float, ...] | None = opt(
+        None, "the SSIM weight l of the photometric loss L1 + l (1 - SSIM) (the 3dgs baseline's: (1 - l) L1 + "
+              "l (1 - SSIM), l <= 1): L for every fit, or A,B,C for reings' coarse, fine, final (the baselines "
+              "take the last); none: the recipe's (DNGaussian: 0.2 for 'llff', 0.6 for 'dtu'; 3DGS: 0.2)",
+        parse=parse_lambda_dssim, check=lambda_dssim_values, metavar="L|A,B,C")
+    grad_threshold_scale: float = opt(1.0, "every fit: multiplies the recipe's densification threshold on the mean "
+                                           "screen-space gradient (DNGaussian: 0.0013 for 'llff', 0.001 for 'dtu'); "
+                                           "1 = the recipe's",
+                                      check=lambda v: None if v > 0 and v == v and v != float("inf")
+                                      else f"must be positive and finite, got {v}", metavar="FACTOR")
     soft_depth_shared: bool | None = opt(None, "every fit with the soft depth term: share the photometric pass's "
                                                 "render with it, and step the opacities once with both gradients "
                                                 "(speed, issue 15); none: the preset's for the reings fits (fast: on; "
@@ -728,9 +749,9 @@ class RunConfig:
             raise ValueError(f"depth_metric compares the rendered depth with a metric depth prior "
                              f"({', '.join(METRIC_PRIORS)}), but depth_prior is {self.depth_prior!r}: use "
                              f"--depth-prior stereo or --depth-metric 0")
-        if self.method == "3dgs" and self.lambda_dssim is not None and self.lambda_dssim > 1:
+        if self.method == "3dgs" and self.lambda_dssim is not None and self.lambda_dssim[-1] > 1:
             raise ValueError(f"lambda_dssim: the 3dgs baseline's loss is (1 - l) L1 + l (1 - SSIM), so l must lie in "
-                             f"[0, 1] (above 1 the L1 weight is negative), got {self.lambda_dssim}")
+                             f"[0, 1] (above 1 the L1 weight is negative), got {self.lambda_dssim[-1]}")
         if self.extent == "stereo" and prior_kind(self.depth_prior) != "stereo":
             raise ValueError(f"extent stereo takes the scene box from the stereo depth prior, but depth_prior is "
                              f"{self.depth_prior!r}: use --depth-prior stereo or another --extent")
@@ -752,6 +773,17 @@ class RunConfig:
         its = its * n if len(its) == 1 else its[-n:]
         sh = p.sh_degree[self.method] if self.sh_degree is None else self.sh_degree
         return replace(self, iterations=its, sh_degree=sh)
+
+    def stage_lambda_dssim(self, stage: str | None) -> float | None:
+        """The SSIM weight of fitting stage `stage`: none (the recipe's), the one weight given, or of
+        three the stage's (FIT_STAGES order; the baselines' single fit, and stage none, take the last)."""
+        v = self.lambda_dssim
+        if v is None:
+            return None
+        if len(v) == 1:
+            return v[0]
+        stages = FIT_STAGES["reings"]
+        return v[stages.index(stage)] if stage in stages else v[-1]
 
     def stage_iterations(self) -> dict:
         """{fitting stage name: iterations} of the resolved config."""

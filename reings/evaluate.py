@@ -170,8 +170,13 @@ def _setting_tag(m: dict) -> str:
                       else ""))
     if cfg.get("prune_unseen"):  # absent when off
         tag.append("prune unseen")
-    if cfg.get("lambda_dssim") is not None:  # --lambda-dssim (absent: the recipe's SSIM weight)
-        tag.append(f"ssim {cfg['lambda_dssim']:g}")
+    lam = cfg.get("lambda_dssim")  # --lambda-dssim (absent: the recipe's SSIM weight; a list: per stage)
+    if lam is not None:
+        tag.append("ssim " + ("/".join(f"{v:g}" for v in lam) if isinstance(lam, list) else f"{lam:g}"))
+    if cfg.get("grad_threshold_scale") is not None:  # absent at 1
+        tag.append(f"grad x{cfg['grad_threshold_scale']:g}")
+    if cfg.get("soft_depth_shared"):  # absent when off
+        tag.append("soft shared")
     seeds = (cfg.get("reings_config") or {}).get("stereo_seeds")  # absent: none (the preset's or the auto rule)
     if base == "reings" and seeds is not None:
         tag.append(f"seeds {seeds:g}")
@@ -527,7 +532,7 @@ def _prepare(jobs) -> None:
 # recipe's): a run that has one and a config that has not differ
 _ABSENT_WHEN_OFF = ("drop_gamma", "depth_metric", "prune_unseen", "cross_warp", "cross_warp_start",
                     "cross_warp_occlusion", "cross_warp_blur", "view_warp_start", "lambda_dssim",
-                    "soft_depth_shared")
+                    "soft_depth_shared", "grad_threshold_scale")
 
 
 def _settings_differ(metrics_path: str, cfg, dataset_kind: str | None = None) -> str:

@@ -39,7 +39,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from .config import RUN_PRESETS, ReInGSConfig, RunConfig, run_config  # noqa: F401 (ReInGSConfig: re-exported)
+from .config import FIT_STAGES, RUN_PRESETS, ReInGSConfig, RunConfig, run_config  # noqa: F401 (ReInGSConfig: re-exported)
 from .data.depth_prior import NO_PRIOR, prior_kind
 from .reinit import (cvps_select, ehps_init, gaussian_importance, ivps_points, prune_keep_indices,
                      stereo_box, stereo_seed_points)
@@ -190,7 +190,10 @@ def run_settings(cfg: RunConfig, dataset_kind: str) -> dict:
     if cfg.depth_confidence:  # absent at 0, the value before the option existed
         s["depth_confidence"] = cfg.depth_confidence
     if cfg.lambda_dssim is not None:  # absent at none (the recipe's), the value before the option existed
-        s["lambda_dssim"] = cfg.lambda_dssim
+        lam = [cfg.stage_lambda_dssim(st) for st in FIT_STAGES[cfg.method]]
+        s["lambda_dssim"] = lam[0] if len(set(lam)) == 1 else lam  # one weight: a number, as before per-stage weights
+    if cfg.grad_threshold_scale != 1:  # absent at 1, the value before the option existed
+        s["grad_threshold_scale"] = cfg.grad_threshold_scale
     if cfg.method == "reings":  # the baselines ignore both; keys absent when off (older folders resume)
         if cfg.view_warp:
             s["view_warp"], s["view_warp_disparity"] = cfg.view_warp, cfg.view_warp_disparity
@@ -417,7 +420,7 @@ class RunContext:
         self.clock = {"train": 0.0, "wall": 0.0, "probe": 0.0}  # cumulative across stages
         self._omega = None
 
-    def run_recipe(self, recipe):
+    def run_recipe(self, recipe, stage: str | None = None):
         """A stage's recipe with the run's settings: its seed, the Gaussian cap, the smoothness
         weight, the binocular terms (reings fits), DropGaussian (reings and dngaussian fits), the
         metric depth term (reings fits), the DTU background rules."""
@@ -429,8 +432,12 @@ class RunContext:
             recipe = replace(recipe, loss=replace(recipe.loss, depth_smooth_weight=self.smooth_w))
         if c.depth_confidence:
             recipe = replace(recipe, loss=replace(recipe.loss, depth_confidence=c.depth_confidence))
-        if c.lambda_dssim is not None:
-            recipe = replace(recipe, loss=replace(recipe.loss, lambda_dssim=c.lambda_dssim))
+        lam = c.stage_lambda_dssim(stage)  # stage none: the one weight, or the last of three
+        if lam is not None:
+            recipe = replace(recipe, loss=replace(recipe.loss, lambda_dssim=lam))
+        if c.grad_threshold_scale != 1:
+            recipe = replace(recipe, densify=replace(
+                recipe.densify, grad_threshold=recipe.densify.grad_threshold * c.grad_threshold_scale))
         if soft_depth_shared_of(c, self.family):
             recipe = replace(recipe, loss=replace(recipe.loss, soft_depth_shared=True))
         drop = drop_gamma_of(c, self.family)
@@ -513,7 +520,7 @@ class RunContext:
         """One fitting stage: `recipe` with the run's seed and overrides, from `init`; its probes
         join the PSNR-vs-seconds series, its seconds (probes excluded) the method clock."""
         c = self.cfg
-        recipe = self.run_recipe(recipe)
+        recipe = self.run_recipe(recipe, name)
         ee = auto_eval_every(recipe.iterations) if c.output.eval_every is None else c.output.eval_every
         if not self.series and ee:  # the starting point of the curve: the initial Gaussians
             self.series.append({"stage": "init", "iteration": 0, "seconds": 0.0, "wall_seconds": 0.0,

@@ -105,6 +105,14 @@ def test_table_separates_ssim_weights(tmp_path):
     methods = evaluate.build_table(str(out))["datasets"]["llff"]["methods"]
     assert {k: v["mean"][3]["psnr"] for k, v in methods.items()} == {"reings [quick]": 20.0,
                                                                       "reings [quick, ssim 0.3]": 19.0}
+    for key, value, tag in (("lambda_dssim", [0.2, 0.2, 0.4], "ssim 0.2/0.2/0.4"),
+                            ("grad_threshold_scale", 1.2, "grad x1.2"), ("soft_depth_shared", True, "soft shared")):
+        m["config"].pop("lambda_dssim", None)
+        m["config"][key] = value
+        (d / "metrics.json").write_text(json.dumps(m))
+        methods = evaluate.build_table(str(out))["datasets"]["llff"]["methods"]
+        assert f"reings [quick, {tag}]" in methods, (key, list(methods))
+        del m["config"][key]
 
 
 def test_run_lock_is_exclusive(tmp_path):

@@ -161,8 +161,52 @@ def test_lambda_dssim_of_the_3dgs_baseline():
     for bad in (1.5, 10.0):
         with pytest.raises(ValueError, match="lambda_dssim.*3dgs"):
             RunConfig(method="3dgs", lambda_dssim=bad)
-    assert RunConfig(method="3dgs", lambda_dssim=1.0).lambda_dssim == 1.0
-    assert RunConfig(method="dngaussian", lambda_dssim=2.0).lambda_dssim == 2.0
+    assert RunConfig(method="3dgs", lambda_dssim=1.0).lambda_dssim == (1.0,)
+    assert RunConfig(method="dngaussian", lambda_dssim=2.0).lambda_dssim == (2.0,)
+    with pytest.raises(ValueError, match="lambda_dssim.*3dgs"):  # its single fit takes the last of three
+        RunConfig(method="3dgs", lambda_dssim=(0.2, 0.2, 1.5))
+
+
+@pytest.mark.parametrize("method", ["reings", "dngaussian"])
+def test_lambda_dssim_per_stage(method):
+    """--lambda-dssim A,B,C: each reings fitting stage takes its own weight (coarse, fine, final); the
+    baselines' single fit takes the last; the resume key is the list of the weights the fits use, a
+    number when they are one."""
+    from reings.config import parse_lambda_dssim
+    from reings.pipeline import run_settings
+
+    assert parse_lambda_dssim("0.2, 0.2,0.4") == (0.2, 0.2, 0.4)
+    assert parse_lambda_dssim("0.3") == (0.3,)
+    for bad, why in (("0.2,0.4", "one SSIM weight per reings stage"), ("0.2,x,0.4", "expected a number"),
+                     ("0.2,0.2,11", r"\[0, 10\]"), ("nan", r"\[0, 10\]")):
+        with pytest.raises(ValueError, match=why):
+            parse_lambda_dssim(bad)
+    with pytest.raises(ValueError, match="one weight or three"):
+        RunConfig(lambda_dssim=(0.2, 0.4))
+    ctx, _ = _ctx("llff", method=method, lambda_dssim=(0.1, 0.2, 0.4))
+    got = {st: ctx.run_recipe(baseline_recipe("dngaussian", 600, 0, "llff"), st).loss.lambda_dssim
+           for st in ("coarse", "fine", "final", method)}
+    assert got == {"coarse": 0.1, "fine": 0.2, "final": 0.4, method: 0.4}
+    want = [0.1, 0.2, 0.4] if method == "reings" else 0.4
+    assert run_settings(ctx.cfg, "llff")["lambda_dssim"] == want
+    same, _ = _ctx("llff", method=method, lambda_dssim=(0.3, 0.3, 0.3))
+    assert run_settings(same.cfg, "llff")["lambda_dssim"] == 0.3
+
+
+@pytest.mark.parametrize("family, recipe_threshold", [("llff", 0.0013), ("dtu", 0.001)])
+def test_grad_threshold_scale(family, recipe_threshold):
+    """--grad-threshold-scale multiplies the recipe family's densification threshold (DNGaussian's
+    0.0013 / 0.001) in every fit; 1 leaves it and is no resume key; bad values are refused."""
+    from reings.pipeline import run_settings
+
+    for scale in (1.0, 1.5, 0.5):
+        ctx, _ = _ctx(family, grad_threshold_scale=scale)
+        r = ctx.run_recipe(baseline_recipe("dngaussian", 600, 0, family), "fine")
+        assert abs(r.densify.grad_threshold - recipe_threshold * scale) < 1e-15
+        assert run_settings(ctx.cfg, family).get("grad_threshold_scale") == (None if scale == 1 else scale)
+    for bad in (0.0, -1.0, float("nan"), float("inf")):
+        with pytest.raises(ValueError, match="grad_threshold_scale"):
+            RunConfig(grad_threshold_scale=bad)
 
 
 def test_eval_flags_other_ssim_weights_and_soft_depth_sharing(tmp_path):
