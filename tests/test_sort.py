@@ -348,6 +348,137 @@ def test_scan_total_into_device_buffer(device, schedule, rng, _sorters):
     np.testing.assert_array_equal(got, [7] + totals)
 
 
+# ------------------------------------------------------------ geometry (docs/perf_notes.md §10)
+
+_GEOM_ENV = ("REINGS_SORT_ITEMS", "REINGS_SORT_WG", "REINGS_SORT_BITS")
+
+
+@pytest.fixture
+def _no_sort_env(monkeypatch):
+    for e in _GEOM_ENV:
+        monkeypatch.delenv(e, raising=False)
+    return monkeypatch
+
+
+def _gpu_sorter(device, **kw):
+    from reings.backends.opencl.device import open_device
+    from reings.backends.opencl.sort import RadixSort
+
+    return RadixSort(open_device(device), cpu_schedule=False, **kw)
+
+
+# (items, max_bits, wg): every items of auto's choices, digits of 4..16 bits (16: 2 passes of a
+# 32-bit key, 65536 bins; a small wg keeps radix_scan's 65536 work-groups cheap on PoCL)
+GEOMETRIES = [(1, 4, 256), (1, 11, 256), (2, 8, 128), (2, 16, 32), (4, 10, 256), (8, 11, 256), (8, 16, 64)]
+GEOM_RANGES = [(np.uint32, 0, 32), (np.uint32, 0, 10), (np.uint64, 32, 42), (np.uint64, 0, 64)]
+
+
+@pytest.mark.parametrize("items,bits,wg", GEOMETRIES)
+def test_sort_geometry_host_and_device_count(device, items, bits, wg, rng, _no_sort_env):
+    """The GPU schedule with other elements per work-item, work-group sizes and digit widths: the
+    same bits as numpy's stable argsort, host count and device count (launched for 1 and the count)."""
+    s = _gpu_sorter(device, items=items, max_bits=bits, wg=wg)
+    assert (s.items, s.max_bits, s.wg) == (items, bits, wg)
+    for dtype, b0, b1 in GEOM_RANGES:
+        keys = _keys(rng, 3001, dtype, "random")
+        keys[::4] = keys[1]  # duplicates: stability
+        _check_sort(s, keys, b0, b1)
+        for est in (1, 2000):
+            _check_sort_device_count(s, keys, 2000, b0, b1, est)
+    _check_sort(s, _keys(rng, 2, np.uint32, "random"))
+
+
+def test_sort_geometry_defaults_and_env(device, rng, _no_sort_env):
+    """Defaults are today's geometry; the environment is read once per RadixSort; arguments win."""
+    s = _gpu_sorter(device)
+    assert (s.items, s.wg, s.max_bits) == (8, 256, 8)
+    assert s.launch_items(10) == 8 and s.geometry(5000) == (3, 2048)
+    mp = _no_sort_env
+    mp.setenv("REINGS_SORT_ITEMS", "2")
+    mp.setenv("REINGS_SORT_WG", "64")
+    mp.setenv("REINGS_SORT_BITS", "11")
+    s = _gpu_sorter(device)
+    assert (s.items, s.wg, s.max_bits) == (2, 64, 11)
+    mp.setenv("REINGS_SORT_ITEMS", "4")  # read once: s keeps 2
+    assert s.items == 2 and s.geometry(5000) == (40, 128)
+    keys = _keys(rng, 5000, np.uint32, "topbit")
+    _check_sort(s, keys)  # 3 passes of 11, 11, 10 bits
+    assert (_gpu_sorter(device, items=8, wg=256, max_bits=8).items, _gpu_sorter(device, items=1).wg) == (8, 64)
+    mp.setenv("REINGS_SORT_ITEMS", " Auto ")
+    assert _gpu_sorter(device).items == "auto"
+    cpu = _sorter_cpu_bits(device)  # the CPU schedule honours REINGS_SORT_BITS too
+    assert cpu.max_bits == 11
+    _check_sort(cpu, keys)
+    _check_sort(cpu, _keys(rng, 5000, np.uint64, "random"), 0, 43)
+
+
+def _sorter_cpu_bits(device):
+    from reings.backends.opencl.device import open_device
+    from reings.backends.opencl.sort import RadixSort
+
+    return RadixSort(open_device(device), cpu_schedule=True)
+
+
+@pytest.mark.parametrize("env,value", [
+    ("REINGS_SORT_ITEMS", "3"), ("REINGS_SORT_ITEMS", "32"), ("REINGS_SORT_ITEMS", "0"),
+    ("REINGS_SORT_ITEMS", "eight"), ("REINGS_SORT_ITEMS", "8.0"),
+    ("REINGS_SORT_BITS", "0"), ("REINGS_SORT_BITS", "17"), ("REINGS_SORT_BITS", "x"),
+    ("REINGS_SORT_WG", "100"), ("REINGS_SORT_WG", "2048"), ("REINGS_SORT_WG", "-256"),
+])
+def test_sort_geometry_env_rejects(device, env, value, _no_sort_env):
+    _no_sort_env.setenv(env, value)
+    with pytest.raises(ValueError, match=f"{env} must be .*got '{value}'"):
+        _gpu_sorter(device)
+
+
+def test_sort_geometry_arguments_rejected(device, _no_sort_env):
+    with pytest.raises(ValueError, match="items must be"):
+        _gpu_sorter(device, items=3)
+    with pytest.raises(ValueError, match="max_bits must be"):
+        _gpu_sorter(device, max_bits=17)
+    with pytest.raises(ValueError, match="wg must be"):
+        _gpu_sorter(device, wg=96)
+    s = _gpu_sorter(device, items=8, max_bits=16, wg=256)
+    s.local_mem = 48 * 1024  # a GPU's local memory: 65536 bins do not fit
+    with pytest.raises(ValueError, match="local memory"):
+        s.kernels(False)
+
+
+def test_auto_items_rule():
+    from reings.backends.opencl.sort import auto_items
+
+    # an H100 (132 CUs) with 256-wide groups: >= 264 blocks wanted
+    assert [auto_items(n, 256, 132) for n in (10_000, 40_000, 80_000, 160_000, 400_000, 1_000_000)] == \
+        [1, 1, 1, 2, 4, 8]
+    assert auto_items(263 * 2048 + 1, 256, 132) == 8 and auto_items(263 * 2048, 256, 132) == 4
+    assert auto_items(67_584, 256, 132) == 1 and auto_items(67_585, 256, 132) == 1  # 264 * 256
+    assert auto_items(67_584 * 2, 256, 132) == 2 and auto_items(40_000, 128, 132) == 1
+    assert auto_items(40_000, 128, 16) == 8 and auto_items(0, 256, 1) == 1
+
+
+@pytest.mark.parametrize("n,want", [(100, 1), (832, 1), (833, 2), (1664, 2), (1665, 4), (3328, 4), (3329, 8),
+                                    (20_000, 8)])
+def test_sort_auto_items_per_call(device, n, want, rng, _no_sort_env):
+    """items="auto" with a fake count of 7 compute units and 32-wide groups (>= 14 blocks wanted):
+    each call builds and uses the chosen items, and sorts exactly; a device count keeps the
+    histogram's bytes per pair (8-bit digits: items 8 at wg 32) and still sorts exactly."""
+    s = _gpu_sorter(device, items="auto", wg=32)
+    s.compute_units = 7
+    assert s.launch_items(n) == want
+    assert s.geometry(n) == (-(-n // (32 * want)), 32 * want)
+    keys = _keys(rng, n, np.uint32, "random")
+    keys[::3] = keys[0]
+    _check_sort(s, keys)
+    assert (False, want, 32, 8) in s._kernels
+    assert s.launch_items(n, device_count=True) == 8
+    assert s.device_geometry(2 * n, n) == (-(-n // 256), -(-(2 * n) // 256))
+    _check_sort_device_count(s, np.concatenate([keys, keys]), n, 0, 32, n)
+    s4 = _gpu_sorter(device, items="auto", wg=32, max_bits=4)  # 16 bins (64 B): blocks of >= 128 pairs
+    s4.compute_units = 7
+    assert s4.launch_items(n, device_count=True) == max(want, 4)
+    _check_sort_device_count(s4, np.concatenate([keys, keys]), n, 0, 10, n)
+
+
 # ------------------------------------------------------------------------------------- Oclgrind
 
 _OCLGRIND_SNIPPET = """

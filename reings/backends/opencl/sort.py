@@ -34,8 +34,24 @@ buffers hold n pairs, the scratch is sized for n). Nothing is read back: the GPU
 work-groups for `estimate` pairs and loops over the virtual blocks of the real count, the CPU
 schedule splits the real count among its usual number of blocks (kernels/sort.cl, "Device
 counts"). The first count pairs come out the same bits as a sort of that many with a host count.
+
+Geometry (docs/perf_notes.md §10), read once per RadixSort from its arguments, else the environment:
+    REINGS_SORT_ITEMS  GPU schedule elements per work-item: 1, 2, 4, 8 (default) or 16, or `auto`:
+                       per sort_pairs call the largest of 8, 4, 2, 1 that launches
+                       >= AUTO_GROUPS_PER_CU work-groups per compute unit for n (host count) or the
+                       estimate (device count), else 1 (`auto_items`); with a device count auto never
+                       makes the histogram (sized for the capacity) larger per pair than the default's
+    REINGS_SORT_WG     GPU schedule work-group size, a power of two 1..1024 (default 256)
+    REINGS_SORT_BITS   widest digit per pass, 1..16 (default 8), both schedules: 11 sorts 32 bits in
+                       3 passes (11, 11, 10) and a 10-bit tile id in one
+Always SORT_WG * SORT_ITEMS <= 65536. The defaults are today's geometry until measured on a GPU.
+Any geometry gives the same bits (a stable sort's output is unique). Explicit REINGS_SORT_ITEMS or
+REINGS_SORT_BITS above 8 enlarge the histogram of a device-count sort (4 * 2^bits bytes per virtual
+block of wg * items pairs of the capacity), beyond what bin_counts' memory bound assumes (0.5 B/pair).
 """
 from __future__ import annotations
+
+import os
 
 import numpy as np
 
@@ -43,6 +59,13 @@ from . import quirks
 from .program import library_for
 
 _U32 = np.uint32
+
+SORT_ITEMS_ENV, SORT_WG_ENV, SORT_BITS_ENV = "REINGS_SORT_ITEMS", "REINGS_SORT_WG", "REINGS_SORT_BITS"
+SORT_ITEMS_DEFAULT, SORT_WG_DEFAULT, SORT_BITS_DEFAULT = 8, 256, 8  # today's geometry (module docstring)
+SORT_ITEMS_CHOICES = (1, 2, 4, 8, 16)
+AUTO_ITEMS = (8, 4, 2, 1)  # auto's candidates, largest first
+AUTO_GROUPS_PER_CU = 2  # auto: work-groups launched per compute unit at least
+HIST_BYTES_PER_PAIR = 0.5  # the default's histogram per pair of capacity (4 * 2^8 B / 2048; bin_counts)
 
 
 _KERNELS: dict[tuple, object] = {}
@@ -109,6 +132,62 @@ def split_bits(begin_bit: int, end_bit: int, max_bits: int) -> list[tuple[int, i
         out.append((shift, w))
         shift += w
     return out
+
+
+def _int_setting(value, name: str, env: str, default: int, ok, what: str) -> int:
+    """`value`, else $env (unset or empty: `default`), as an int passing ok(); else a ValueError."""
+    raw = value if value is not None else (os.environ.get(env) or None)
+    if raw is None:
+        return default
+    try:
+        v = int(str(raw).strip())
+    except ValueError:
+        v = None
+    if v is None or not ok(v):
+        raise ValueError(f"{name if value is not None else env} must be {what}, got {raw!r}")
+    return v
+
+
+def _pow2(v: int) -> bool:
+    return v > 0 and v & (v - 1) == 0
+
+
+def sort_items_setting(items=None) -> int | str:
+    """Elements per work-item of the GPU schedule: `items`, else $REINGS_SORT_ITEMS, else 8; "auto"
+    or one of SORT_ITEMS_CHOICES."""
+    raw = items if items is not None else os.environ.get(SORT_ITEMS_ENV)
+    if isinstance(raw, str) and raw.strip().lower() == "auto":
+        return "auto"
+    return _int_setting(items, "items", SORT_ITEMS_ENV, SORT_ITEMS_DEFAULT, lambda v: v in SORT_ITEMS_CHOICES,
+                        "'auto' or one of " + ", ".join(map(str, SORT_ITEMS_CHOICES)))
+
+
+def sort_wg_setting(wg=None) -> int:
+    """Work-group size of the GPU schedule: `wg`, else $REINGS_SORT_WG, else 256; a power of two <= 1024."""
+    return _int_setting(wg, "wg", SORT_WG_ENV, SORT_WG_DEFAULT, lambda v: _pow2(v) and v <= 1024,
+                        "a power of two in 1..1024")
+
+
+def sort_bits_setting(max_bits=None) -> int:
+    """Widest digit per pass: `max_bits`, else $REINGS_SORT_BITS, else 8; 1..16."""
+    return _int_setting(max_bits, "max_bits", SORT_BITS_ENV, SORT_BITS_DEFAULT, lambda v: 1 <= v <= 16,
+                        "an integer in 1..16")
+
+
+def auto_items(n: int, wg: int, compute_units: int, groups_per_cu: int = AUTO_GROUPS_PER_CU,
+               choices: tuple = AUTO_ITEMS) -> int:
+    """auto's elements per work-item for a sort of about n pairs: the largest of `choices` whose
+    blocks of wg * items pairs number >= groups_per_cu * compute_units, else the smallest choice."""
+    want = groups_per_cu * max(1, int(compute_units))
+    for items in sorted(choices, reverse=True):
+        if -(-int(n) // (wg * items)) >= want:
+            return items
+    return min(choices)
+
+
+def sort_local_bytes(wg: int, items: int, max_bits: int) -> int:
+    """Local memory of the GPU schedule's largest kernel (radix_scatter: ent, tmp, dbase, dstart)."""
+    return 4 * (2 * wg * items + wg + 2 * (1 << max_bits))
 
 
 class ExclusiveScan:
@@ -196,8 +275,10 @@ class RadixSort:
     and uint64 keys are built lazily on first use.
 
     cpu_schedule  None: from the device (REINGS_CPU_SCHEDULE); True/False force a schedule
-    max_bits      widest digit per pass (default: 8 on both schedules)
-    wg, items     GPU schedule work-group size and elements per work-item (block = wg * items)
+    max_bits      widest digit per pass (None: $REINGS_SORT_BITS, else 8; both schedules)
+    wg, items     GPU schedule work-group size and elements per work-item (block = wg * items);
+                  None: $REINGS_SORT_WG / $REINGS_SORT_ITEMS, else 256 / 8; items "auto": chosen
+                  per sort_pairs call (`launch_items`; module docstring, "Geometry")
     blocks_per_core  CPU schedule: blocks (work-items) per compute unit
     """
 
@@ -211,48 +292,77 @@ class RadixSort:
         return s
 
     def __init__(self, handle, cpu_schedule: bool | None = None, max_bits: int | None = None,
-                 wg: int = 256, items: int = 8, blocks_per_core: int = 4):
+                 wg: int | None = None, items: int | str | None = None, blocks_per_core: int = 4):
         self.handle = handle
         self.cpu = _cpu_schedule(handle, cpu_schedule)
-        self.max_bits = int(max_bits or 8)
-        assert 1 <= self.max_bits <= 16
-        assert wg * items <= 65536 and wg & (wg - 1) == 0
-        self.wg, self.items, self.per_core = wg, items, blocks_per_core
-        self._kernels: dict[bool, tuple] = {}
+        self.max_bits = sort_bits_setting(max_bits)
+        self.wg, self.items = sort_wg_setting(wg), sort_items_setting(items)
+        if self.items != "auto" and self.wg * self.items > 65536:
+            raise ValueError(f"sort geometry: wg * items = {self.wg} * {self.items} > 65536")
+        self.per_core = blocks_per_core
+        self.compute_units = max(1, int(handle.device.max_compute_units))  # auto's rule (tests fake it)
+        self.local_mem = int(handle.device.local_mem_size)
+        self._kernels: dict[tuple, tuple] = {}
         ctx = handle.context
         self._keys_tmp, self._vals_tmp = _Scratch(ctx), _Scratch(ctx)
         self._hist, self._totals = _Scratch(ctx), _Scratch(ctx)
         self._no_count = _Scratch(ctx)  # the counts argument of a host-count sort (never read)
 
-    def kernels(self, key64: bool):
-        ks = self._kernels.get(key64)
+    def kernels(self, key64: bool, items: int | None = None):
+        """(radix_hist, radix_scan, radix_scatter), built on first use per (key64, items, wg, max_bits)
+        (the CPU schedule has no items nor wg). items None: the fixed items, under auto the largest."""
+        if self.cpu:
+            key = (bool(key64), None, None, self.max_bits)
+        else:
+            items = int(items or (self.items if self.items != "auto" else max(AUTO_ITEMS)))
+            key = (bool(key64), items, self.wg, self.max_bits)
+        ks = self._kernels.get(key)
         if ks is None:
             defines = {"REINGS_CPU_SCHEDULE": int(self.cpu), "KEY64": int(key64), "RADIX_BITS": self.max_bits}
             if not self.cpu:
-                defines.update(SORT_WG=self.wg, SORT_ITEMS=self.items)
+                need = sort_local_bytes(self.wg, items, self.max_bits)
+                if need > self.local_mem:
+                    raise ValueError(f"sort geometry wg={self.wg} items={items} bits={self.max_bits} needs {need} B "
+                                     f"of local memory, the device has {self.local_mem}: lower {SORT_BITS_ENV} "
+                                     f"or {SORT_ITEMS_ENV}")
+                defines.update(SORT_WG=self.wg, SORT_ITEMS=items)
             u, b, h = np.uint32, None, self.handle  # b: a buffer argument
             i = np.int32  # count_at
-            ks = self._kernels[key64] = (
+            ks = self._kernels[key] = (
                 _kernel(h, "sort.cl", "radix_hist", [b, u, u, u, u, b, b, i], **defines),
                 _kernel(h, "sort.cl", "radix_scan", [b, u, u, b, b, i], **defines),
                 _kernel(h, "sort.cl", "radix_scatter", [b, b, b, b, u, u, u, u, b, b, b, i], **defines),
             )
         return ks
 
-    def geometry(self, n: int) -> tuple[int, int]:
-        """(nblocks, chunk): blocks per pass and elements per block."""
+    def launch_items(self, n: int, device_count: bool = False) -> int:
+        """SORT_ITEMS of a GPU-schedule sort of about n pairs (n: the host count, or a device count's
+        estimate): the fixed items, or auto's rule (`auto_items` on this device's compute units);
+        with a device_count, auto keeps the histogram within HIST_BYTES_PER_PAIR of the capacity
+        (at most the largest auto choice)."""
+        if self.items != "auto":
+            return self.items
+        items = auto_items(n, self.wg, self.compute_units)
+        if device_count:
+            floor = min(max(AUTO_ITEMS), -(-int(4 * (1 << self.max_bits) / HIST_BYTES_PER_PAIR) // self.wg))
+            items = max(items, next(c for c in sorted(AUTO_ITEMS) if c >= floor))
+        return items
+
+    def geometry(self, n: int, items: int | None = None) -> tuple[int, int]:
+        """(nblocks, chunk): blocks per pass and elements per block (items None: `launch_items(n)`)."""
         if self.cpu:
             return _blocks_cpu(self.handle, n, 1024, self.per_core)
-        block = self.wg * self.items
+        block = self.wg * (items or self.launch_items(n))
         return -(-n // block), block
 
-    def device_geometry(self, capacity: int, estimate: int) -> tuple[int, int]:
+    def device_geometry(self, capacity: int, estimate: int, items: int | None = None) -> tuple[int, int]:
         """(blocks launched, virtual blocks the histogram holds) of a sort with a device count of
-        at most `capacity` pairs, launched for `estimate` of them (module docstring)."""
+        at most `capacity` pairs, launched for `estimate` of them (module docstring); items None:
+        `launch_items(estimate, device_count=True)`, as sort_pairs chooses them."""
         if self.cpu:
             nblocks = max(1, int(self.handle.device.max_compute_units)) * self.per_core
             return nblocks, nblocks
-        block = self.wg * self.items
+        block = self.wg * (items or self.launch_items(estimate, device_count=True))
         cap_blocks = max(1, -(-capacity // block))
         return max(1, min(-(-estimate // block), cap_blocks)), cap_blocks
 
@@ -291,13 +401,15 @@ class RadixSort:
             return keys_buf, vals_buf, ev
         if n >= 2**32:
             raise ValueError("n must be < 2^32")
-        hist_k, scan_k, scat_k = self.kernels(key64)
+        est = n if count is None or estimate is None else int(estimate)
+        items = None if self.cpu else self.launch_items(est, device_count=count is not None)  # once per call
+        hist_k, scan_k, scat_k = self.kernels(key64, items)
         q = self.handle.queue
         if count is None:
-            nblocks, chunk = self.geometry(n)
+            nblocks, chunk = self.geometry(n, items)
             hist_blocks, counts, count_at = nblocks, None, np.int32(-1)
         else:
-            nblocks, hist_blocks = self.device_geometry(n, n if estimate is None else int(estimate))
+            nblocks, hist_blocks = self.device_geometry(n, est, items)
             chunk, (counts, count_at) = 0, (count[0], np.int32(count[1]))
         maxbins = 1 << max(w for _, w in passes)
         kt = self._keys_tmp.get(n * ksize)
