@@ -389,9 +389,21 @@ def test_sort_geometry_host_and_device_count(device, items, bits, wg, rng, _no_s
 
 
 def test_sort_geometry_defaults_and_env(device, rng, _no_sort_env):
-    """Defaults are today's geometry; the environment is read once per RadixSort; arguments win."""
+    """The GPU schedule's defaults (docs/perf_notes.md §10): items auto, 11-bit digits where auto's largest
+    block fits the local memory (else 8), wg 256; a device-count sort whose width was defaulted takes 8-bit
+    digits; the CPU schedule's defaults are 8 bits. The environment is read once per RadixSort; arguments win."""
+    from reings.backends.opencl.sort import sort_local_bytes
+
     s = _gpu_sorter(device)
-    assert (s.items, s.wg, s.max_bits) == (8, 256, 8)
+    fits = sort_local_bytes(256, 8, 11) <= s.local_mem
+    assert (s.items, s.wg, s.max_bits) == ("auto", 256, 11 if fits else 8)
+    assert (s.call_bits(False), s.call_bits(True)) == ((11, 8) if fits else (8, 8))
+    keys = _keys(rng, 5000, np.uint32, "topbit")
+    _check_sort(s, keys)
+    _check_sort_device_count(s, keys, 4000, 0, 32, 1000)
+    assert _gpu_sorter(device, max_bits=11).call_bits(True) == 11  # given: kept
+    assert (_sorter_cpu_bits(device).max_bits, _sorter_cpu_bits(device).items) == (8, 8)
+    s = _gpu_sorter(device, items=8, max_bits=8)  # the geometry before §10
     assert s.launch_items(10) == 8 and s.geometry(5000) == (3, 2048)
     mp = _no_sort_env
     mp.setenv("REINGS_SORT_ITEMS", "2")
@@ -462,7 +474,7 @@ def test_sort_auto_items_per_call(device, n, want, rng, _no_sort_env):
     """items="auto" with a fake count of 7 compute units and 32-wide groups (>= 14 blocks wanted):
     each call builds and uses the chosen items, and sorts exactly; a device count keeps the
     histogram's bytes per pair (8-bit digits: items 8 at wg 32) and still sorts exactly."""
-    s = _gpu_sorter(device, items="auto", wg=32)
+    s = _gpu_sorter(device, items="auto", wg=32, max_bits=8)
     s.compute_units = 7
     assert s.launch_items(n) == want
     assert s.geometry(n) == (-(-n // (32 * want)), 32 * want)

@@ -36,18 +36,22 @@ schedule splits the real count among its usual number of blocks (kernels/sort.cl
 counts"). The first count pairs come out the same bits as a sort of that many with a host count.
 
 Geometry (docs/perf_notes.md §10), read once per RadixSort from its arguments, else the environment:
-    REINGS_SORT_ITEMS  GPU schedule elements per work-item: 1, 2, 4, 8 (default) or 16, or `auto`:
-                       per sort_pairs call the largest of 8, 4, 2, 1 that launches
+    REINGS_SORT_ITEMS  GPU schedule elements per work-item: 1, 2, 4, 8 or 16, or `auto` (the GPU
+                       default): per sort_pairs call the largest of 8, 4, 2, 1 that launches
                        >= AUTO_GROUPS_PER_CU work-groups per compute unit for n (host count) or the
                        estimate (device count), else 1 (`auto_items`); with a device count auto never
-                       makes the histogram (sized for the capacity) larger per pair than the default's
+                       makes the histogram (sized for the capacity) larger per pair than 8-bit digits'
     REINGS_SORT_WG     GPU schedule work-group size, a power of two 1..1024 (default 256)
-    REINGS_SORT_BITS   widest digit per pass, 1..16 (default 8), both schedules: 11 sorts 32 bits in
-                       3 passes (11, 11, 10) and a 10-bit tile id in one
-Always SORT_WG * SORT_ITEMS <= 65536. The defaults are today's geometry until measured on a GPU.
-Any geometry gives the same bits (a stable sort's output is unique). Explicit REINGS_SORT_ITEMS or
-REINGS_SORT_BITS above 8 enlarge the histogram of a device-count sort (4 * 2^bits bytes per virtual
-block of wg * items pairs of the capacity), beyond what bin_counts' memory bound assumes (0.5 B/pair).
+    REINGS_SORT_BITS   widest digit per pass, 1..16. Default: 11 on the GPU schedule where its largest
+                       block fits the device's local memory (else 8), 8 on the CPU schedule. 11 sorts
+                       32 bits in 3 passes (11, 11, 10) and a 10-bit tile id in one: on an H100 a pass
+                       costs ~0.055 ms of launch span whatever its width (§10). A device-count sort
+                       whose width was defaulted takes at most 8 bits (its histogram is sized for the
+                       capacity: bin_counts' memory bound assumes 0.5 B per pair)
+Always SORT_WG * SORT_ITEMS <= 65536. Any geometry gives the same bits (a stable sort's output is
+unique). Explicit REINGS_SORT_ITEMS or REINGS_SORT_BITS above 8 enlarge the histogram of a
+device-count sort (4 * 2^bits bytes per virtual block of wg * items pairs of the capacity), beyond
+what bin_counts' memory bound assumes (0.5 B/pair).
 """
 from __future__ import annotations
 
@@ -61,7 +65,10 @@ from .program import library_for
 _U32 = np.uint32
 
 SORT_ITEMS_ENV, SORT_WG_ENV, SORT_BITS_ENV = "REINGS_SORT_ITEMS", "REINGS_SORT_WG", "REINGS_SORT_BITS"
-SORT_ITEMS_DEFAULT, SORT_WG_DEFAULT, SORT_BITS_DEFAULT = 8, 256, 8  # today's geometry (module docstring)
+SORT_ITEMS_DEFAULT, SORT_WG_DEFAULT, SORT_BITS_DEFAULT = 8, 256, 8  # the CPU schedule's; the GPU's before §10
+# the GPU schedule's defaults since docs/perf_notes.md §10 (an H100: a pass costs ~0.055 ms of launch span
+# whatever its width, so fewer passes win): items auto, 11-bit digits where the local memory holds them
+GPU_ITEMS_DEFAULT, GPU_BITS_DEFAULT = "auto", 11
 SORT_ITEMS_CHOICES = (1, 2, 4, 8, 16)
 AUTO_ITEMS = (8, 4, 2, 1)  # auto's candidates, largest first
 AUTO_GROUPS_PER_CU = 2  # auto: work-groups launched per compute unit at least
@@ -152,10 +159,12 @@ def _pow2(v: int) -> bool:
     return v > 0 and v & (v - 1) == 0
 
 
-def sort_items_setting(items=None) -> int | str:
-    """Elements per work-item of the GPU schedule: `items`, else $REINGS_SORT_ITEMS, else 8; "auto"
-    or one of SORT_ITEMS_CHOICES."""
-    raw = items if items is not None else os.environ.get(SORT_ITEMS_ENV)
+def sort_items_setting(items=None, default: int | str = SORT_ITEMS_DEFAULT) -> int | str:
+    """Elements per work-item of the GPU schedule: `items`, else $REINGS_SORT_ITEMS, else `default`;
+    "auto" or one of SORT_ITEMS_CHOICES."""
+    raw = items if items is not None else (os.environ.get(SORT_ITEMS_ENV) or None)
+    if raw is None:
+        return default
     if isinstance(raw, str) and raw.strip().lower() == "auto":
         return "auto"
     return _int_setting(items, "items", SORT_ITEMS_ENV, SORT_ITEMS_DEFAULT, lambda v: v in SORT_ITEMS_CHOICES,
@@ -168,10 +177,15 @@ def sort_wg_setting(wg=None) -> int:
                         "a power of two in 1..1024")
 
 
-def sort_bits_setting(max_bits=None) -> int:
-    """Widest digit per pass: `max_bits`, else $REINGS_SORT_BITS, else 8; 1..16."""
-    return _int_setting(max_bits, "max_bits", SORT_BITS_ENV, SORT_BITS_DEFAULT, lambda v: 1 <= v <= 16,
+def sort_bits_setting(max_bits=None, default: int = SORT_BITS_DEFAULT) -> int:
+    """Widest digit per pass: `max_bits`, else $REINGS_SORT_BITS, else `default`; 1..16."""
+    return _int_setting(max_bits, "max_bits", SORT_BITS_ENV, default, lambda v: 1 <= v <= 16,
                         "an integer in 1..16")
+
+
+def bits_given(max_bits=None) -> bool:
+    """Whether the digit width was chosen (an argument or $REINGS_SORT_BITS) rather than defaulted."""
+    return max_bits is not None or bool(os.environ.get(SORT_BITS_ENV))
 
 
 def auto_items(n: int, wg: int, compute_units: int, groups_per_cu: int = AUTO_GROUPS_PER_CU,
@@ -295,13 +309,22 @@ class RadixSort:
                  wg: int | None = None, items: int | str | None = None, blocks_per_core: int = 4):
         self.handle = handle
         self.cpu = _cpu_schedule(handle, cpu_schedule)
-        self.max_bits = sort_bits_setting(max_bits)
-        self.wg, self.items = sort_wg_setting(wg), sort_items_setting(items)
+        self.local_mem = int(handle.device.local_mem_size)
+        self.wg = sort_wg_setting(wg)
+        self.items = sort_items_setting(items, SORT_ITEMS_DEFAULT if self.cpu else GPU_ITEMS_DEFAULT)
         if self.items != "auto" and self.wg * self.items > 65536:
             raise ValueError(f"sort geometry: wg * items = {self.wg} * {self.items} > 65536")
+        # the default digit: the GPU schedule's 11 bits where its largest block fits the local memory
+        # (auto's largest items), else 8 (e.g. Oclgrind's 32 KiB); the CPU schedule's 8
+        biggest = max(AUTO_ITEMS) if self.items == "auto" else self.items
+        gpu_bits = GPU_BITS_DEFAULT if sort_local_bytes(self.wg, biggest, GPU_BITS_DEFAULT) <= self.local_mem \
+            else SORT_BITS_DEFAULT
+        self.max_bits = sort_bits_setting(max_bits, SORT_BITS_DEFAULT if self.cpu else gpu_bits)
+        # a device-count sort sizes its histogram for the capacity (bin_counts' memory bound assumes the
+        # 8-bit digit's 0.5 B per pair): a defaulted wider digit is cut to 8 bits there
+        self.bits_given = bits_given(max_bits)
         self.per_core = blocks_per_core
         self.compute_units = max(1, int(handle.device.max_compute_units))  # auto's rule (tests fake it)
-        self.local_mem = int(handle.device.local_mem_size)
         self._kernels: dict[tuple, tuple] = {}
         ctx = handle.context
         self._keys_tmp, self._vals_tmp = _Scratch(ctx), _Scratch(ctx)
@@ -335,6 +358,13 @@ class RadixSort:
             )
         return ks
 
+    def call_bits(self, device_count: bool) -> int:
+        """The widest digit of one sort: max_bits, but at most 8 for a device-count sort whose width
+        was defaulted (its histogram is sized for the capacity; module docstring)."""
+        if device_count and not self.bits_given:
+            return min(self.max_bits, SORT_BITS_DEFAULT)
+        return self.max_bits
+
     def launch_items(self, n: int, device_count: bool = False) -> int:
         """SORT_ITEMS of a GPU-schedule sort of about n pairs (n: the host count, or a device count's
         estimate): the fixed items, or auto's rule (`auto_items` on this device's compute units);
@@ -344,7 +374,7 @@ class RadixSort:
             return self.items
         items = auto_items(n, self.wg, self.compute_units)
         if device_count:
-            floor = min(max(AUTO_ITEMS), -(-int(4 * (1 << self.max_bits) / HIST_BYTES_PER_PAIR) // self.wg))
+            floor = min(max(AUTO_ITEMS), -(-int(4 * (1 << self.call_bits(True)) / HIST_BYTES_PER_PAIR) // self.wg))
             items = max(items, next(c for c in sorted(AUTO_ITEMS) if c >= floor))
         return items
 
@@ -388,7 +418,7 @@ class RadixSort:
             raise ValueError(f"bad bit range [{begin_bit}, {end_bit}) for {'64' if key64 else '32'}-bit keys")
         if out is not None and count is not None:
             raise ValueError("sort_pairs: out= takes a host count")
-        passes = split_bits(begin_bit, end_bit, self.max_bits)
+        passes = split_bits(begin_bit, end_bit, self.call_bits(count is not None))
         ksize = 8 if key64 else 4
         if (n <= 1 and count is None) or not passes:
             if out is not None:  # nothing to sort: the pairs as they are
