@@ -366,12 +366,13 @@ RUN_PRESETS = {
     # the soft depth term on the photometric render for the 'llff' family since session 17 (H100, full schedule,
     # seeds 0-2: fern + flower 3 views with the stereo prior +0.03 dB, 2 views without a prior 0.00, the held-out
     # NeX trex + room 0.00; fern 3 views 58.2 -> 55.3 s of training with the shared depth order alone, 53.4 with
-    # both; docs/results.md §27); 'dtu' keeps its own soft depth pass until measured there
+    # both; docs/results.md §27); 'dtu' since session 18 (scan24 3 views, seeds 0-2: 18.54 -> 18.59 dB, SSIM
+    # 0.728 -> 0.733, LPIPS 0.272 -> 0.267; docs/results.md §28)
     "paper": RunPreset("6000 iterations per stage (the paper's schedule); SH degree 1 for reings, 3 for the "
-                       "baselines; reings fits of the 'llff' family take the soft depth term on the photometric "
-                       "render (--soft-depth-shared)",
+                       "baselines; reings fits take the soft depth term on the photometric render "
+                       "(--soft-depth-shared)",
                        {"3dgs": (6000,), "dngaussian": (6000,), "reings": (6000, 6000, 6000)},
-                       {"3dgs": 3, "dngaussian": 3, "reings": 1}, soft_depth_shared=("llff",)),
+                       {"3dgs": 3, "dngaussian": 3, "reings": 1}, soft_depth_shared=("llff", "dtu")),
 }
 
 
@@ -673,7 +674,9 @@ class RunConfig:
     lambda_dssim: tuple[float, ...] | None = opt(
         None, "the SSIM weight l of the photometric loss L1 + l (1 - SSIM) (the 3dgs baseline's: (1 - l) L1 + "
               "l (1 - SSIM), l <= 1): L for every fit, or A,B,C for reings' coarse, fine, final (the baselines "
-              "take the last); none: the recipe's (DNGaussian: 0.2 for 'llff', 0.6 for 'dtu'; 3DGS: 0.2)",
+              "take the last); none: the recipe's (DNGaussian: 0.2 for 'llff', 0.6 for 'dtu'; 3DGS: 0.2), "
+              "except reings fits of the 'llff' family with --depth-prior none: 0.2,0.4,0.4 (docs/results.md "
+              "§28)",
         parse=parse_lambda_dssim, check=lambda_dssim_values, metavar="L|A,B,C")
     grad_threshold_scale: float = opt(1.0, "every fit: multiplies the recipe's densification threshold on the mean "
                                            "screen-space gradient (DNGaussian: 0.0013 for 'llff', 0.001 for 'dtu'); "
@@ -682,8 +685,8 @@ class RunConfig:
                                       else f"must be positive and finite, got {v}", metavar="FACTOR")
     soft_depth_shared: bool | None = opt(None, "every fit with the soft depth term: share the photometric pass's "
                                                 "render with it, and step the opacities once with both gradients "
-                                                "(speed, issue 15); none: the preset's for the reings fits (fast: on; "
-                                                "paper: on for the 'llff' family, off for 'dtu'; quick: off) and off "
+                                                "(speed, issue 15); none: the preset's for the reings fits (fast and "
+                                                "paper: on; quick: off) and off "
                                                 "for the baselines")
     drop_gamma: float | None = opt(None, "reings and dngaussian fits: DropGaussian (Park et al. 2025; docs/method.md "
                                          "§9): each Gaussian is left out of the photometric pass's renders with a rate "

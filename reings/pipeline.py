@@ -189,8 +189,8 @@ def run_settings(cfg: RunConfig, dataset_kind: str) -> dict:
         s["dtu_background"] = True
     if cfg.depth_confidence:  # absent at 0, the value before the option existed
         s["depth_confidence"] = cfg.depth_confidence
-    if cfg.lambda_dssim is not None:  # absent at none (the recipe's), the value before the option existed
-        lam = [cfg.stage_lambda_dssim(st) for st in FIT_STAGES[cfg.method]]
+    lam = [lambda_dssim_of(cfg, recipe_family(cfg.recipe, dataset_kind), st) for st in FIT_STAGES[cfg.method]]
+    if lam[0] is not None:  # absent at none (the recipe's), the value before the option existed
         s["lambda_dssim"] = lam[0] if len(set(lam)) == 1 else lam  # one weight: a number, as before per-stage weights
     if cfg.grad_threshold_scale != 1:  # absent at 1, the value before the option existed
         s["grad_threshold_scale"] = cfg.grad_threshold_scale
@@ -256,7 +256,13 @@ DROP_GAMMA_BY_FAMILY = {"llff": 0.2, "dtu": 0.2}
 # 0.311 -> 0.305, 0.246 -> 0.248, 0.186 -> 0.197). Held-out check on trex and room: §25. DTU has no
 # measured no-prior rules (its prior is worth +1.9 dB, §22), so it keeps its family's.
 # The cross-view term is a no-prior rule only (below): off with any prior, on DTU and for the baselines.
-NO_PRIOR_BY_FAMILY = {"llff": {"cross_warp": 0.15, "drop_gamma": 0.3, "view_warp_start": 1 / 3}, "dtu": {}}
+# "lambda_dssim": the SSIM weight per reings fitting stage (coarse, fine, final) since session 18 (docs/results.md
+# §28): 0.4 in the fine and final fits, the coarse fit (where the geometry forms) keeping the recipe's 0.2;
+# fern + flower, seeds 0-2, LPIPS 0.3045 / 0.2475 / 0.1965 -> 0.2775 / 0.2235 / 0.176 at 2 / 3 / 4 views,
+# PSNR -0.09 / +0.01 / -0.27 dB; the held-out NeX trex and room at 2 views -0.01 / +0.01 dB, LPIPS -0.011 /
+# -0.008. 0.4 in the coarse fit too made trex's densification run away (§27)
+NO_PRIOR_BY_FAMILY = {"llff": {"cross_warp": 0.15, "drop_gamma": 0.3, "view_warp_start": 1 / 3,
+                               "lambda_dssim": (0.2, 0.4, 0.4)}, "dtu": {}}
 VIEW_WARP_START = 2 / 3  # the view_warp term's start (Binocular3DGS: 2/3 of the schedule)
 # RunConfig.prune_unseen = none, reings fits (§20): on for LLFF (no collapse in 27 runs with the
 # drop; alone at 3 views: fern +0.00, flower +0.04 dB, seed 0); not measured on DTU, so off there
@@ -308,6 +314,19 @@ def _no_prior_rule(cfg: RunConfig, family: str, name: str, default):
     if prior_kind(cfg.depth_prior) in NO_PRIOR:
         return NO_PRIOR_BY_FAMILY[family].get(name, default)
     return default
+
+
+def lambda_dssim_of(cfg: RunConfig, family: str, stage: str | None = None) -> float | None:
+    """The SSIM weight of the run's fit `stage` (a FIT_STAGES name; none: the last): RunConfig.lambda_dssim
+    (`RunConfig.stage_lambda_dssim`), or for none the recipe family's no-prior rule for the reings fits
+    (NO_PRIOR_BY_FAMILY, one weight per fitting stage); None: the recipe's."""
+    if cfg.lambda_dssim is not None:
+        return cfg.stage_lambda_dssim(stage)
+    rule = _no_prior_rule(cfg, family, "lambda_dssim", None) if cfg.method == "reings" else None
+    if rule is None:
+        return None
+    stages = FIT_STAGES["reings"]
+    return float(rule[stages.index(stage)] if stage in stages else rule[-1])
 
 
 def view_warp_start_of(cfg: RunConfig, family: str) -> float:
@@ -432,7 +451,7 @@ class RunContext:
             recipe = replace(recipe, loss=replace(recipe.loss, depth_smooth_weight=self.smooth_w))
         if c.depth_confidence:
             recipe = replace(recipe, loss=replace(recipe.loss, depth_confidence=c.depth_confidence))
-        lam = c.stage_lambda_dssim(stage)  # stage none: the one weight, or the last of three
+        lam = lambda_dssim_of(c, self.family, stage)  # stage none: the one weight, or the last of three
         if lam is not None:
             recipe = replace(recipe, loss=replace(recipe.loss, lambda_dssim=lam))
         if c.grad_threshold_scale != 1:

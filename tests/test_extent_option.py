@@ -176,13 +176,13 @@ def test_a_fast_run_seeds_ehps_at_three_views(device):
 
 def test_the_fast_preset_shares_the_soft_depth_render_for_reings_only():
     """RunConfig.soft_depth_shared = none takes the preset's for the reings fits of its recipe families
-    (fast: both, paper: 'llff', quick: none) and leaves the baselines' recipes alone; an explicit value
+    (fast and paper: both since session 18, quick: none) and leaves the baselines' recipes alone; an explicit value
     wins for every method and family."""
     from reings.config import RUN_PRESETS, RunConfig
     from reings.pipeline import run_settings, soft_depth_shared_of
 
     assert RUN_PRESETS["fast"].soft_depth_shared == ("llff", "dtu") and not RUN_PRESETS["quick"].soft_depth_shared
-    assert RUN_PRESETS["paper"].soft_depth_shared == ("llff",)
+    assert RUN_PRESETS["paper"].soft_depth_shared == ("llff", "dtu")
     for fam in ("llff", "dtu"):
         assert soft_depth_shared_of(RunConfig(preset="fast"), fam)
         assert not soft_depth_shared_of(RunConfig(preset="fast", method="dngaussian"), fam)
@@ -192,8 +192,8 @@ def test_the_fast_preset_shares_the_soft_depth_render_for_reings_only():
         assert not soft_depth_shared_of(RunConfig(preset="paper", method="dngaussian"), fam)
         assert not soft_depth_shared_of(RunConfig(preset="paper", soft_depth_shared=False), fam)
     assert soft_depth_shared_of(RunConfig(preset="paper"), "llff")
-    assert not soft_depth_shared_of(RunConfig(preset="paper"), "dtu")
+    assert soft_depth_shared_of(RunConfig(preset="paper"), "dtu")
     assert run_settings(RunConfig(preset="paper").resolved(), "llff")["soft_depth_shared"] is True
-    assert "soft_depth_shared" not in run_settings(RunConfig(preset="paper").resolved(), "dtu")
+    assert run_settings(RunConfig(preset="paper").resolved(), "dtu")["soft_depth_shared"] is True
     assert run_settings(RunConfig(preset="fast").resolved(), "llff")["soft_depth_shared"] is True
     assert "soft_depth_shared" not in run_settings(RunConfig(preset="quick").resolved(), "llff")

@@ -228,10 +228,16 @@ def test_eval_flags_other_ssim_weights_and_soft_depth_sharing(tmp_path):
         p.write_text(json.dumps({"config": run_settings(run_cfg.resolved(), kind)}))
         assert key in _settings_differ(str(p), grid_cfg, kind), name
         assert _settings_differ(str(p), run_cfg, kind) == "", name
-    p = tmp_path / "dtu_paper.json"  # DTU keeps its own soft depth pass in the paper preset: no key either side
+    p = tmp_path / "dtu_paper.json"  # since session 18 DTU's paper runs share it too: an older run is flagged
     p.write_text(json.dumps({"config": run_settings(RunConfig(preset="paper", soft_depth_shared=False).resolved(),
                                                     "dtu")}))
-    assert _settings_differ(str(p), RunConfig(preset="paper"), "dtu") == ""
+    assert "soft_depth_shared" in _settings_differ(str(p), RunConfig(preset="paper"), "dtu")
+    p.write_text(json.dumps({"config": run_settings(RunConfig(preset="quick").resolved(), "dtu")}))
+    assert _settings_differ(str(p), RunConfig(preset="quick", soft_depth_shared=False), "dtu") == ""  # quick: own pass
+    p = tmp_path / "nop.json"  # an LLFF run without a prior from before the no-prior SSIM weights is flagged
+    p.write_text(json.dumps({"config": run_settings(RunConfig(preset="paper", depth_prior="none",
+                                                              lambda_dssim=0.2).resolved(), "llff")}))
+    assert "lambda_dssim" in _settings_differ(str(p), RunConfig(preset="paper", depth_prior="none"), "llff")
 # }}}
 
 
@@ -239,12 +245,13 @@ def test_eval_flags_other_ssim_weights_and_soft_depth_sharing(tmp_path):
 @pytest.mark.parametrize("prior", ["none", "off", "stereo", "exact"])
 def test_no_prior_rules(family, prior):
     """Without a depth prior the 'llff' family's reings fits take NO_PRIOR_BY_FAMILY's rules (the
-    view_warp term from 1/3 of each fit, DropGaussian 0.3); with a prior, on 'dtu' and for the
-    baselines the family's rules stay (2/3; 0.2 for reings, 0 for dngaussian); a value given wins."""
-    from reings.pipeline import NO_PRIOR_BY_FAMILY, drop_gamma_of, run_settings, view_warp_start_of
+    view_warp term from 1/3 of each fit, DropGaussian 0.3, the SSIM weight 0.2 / 0.4 / 0.4 in the coarse /
+    fine / final fits); with a prior, on 'dtu' and for the baselines the family's rules stay (2/3; 0.2 for
+    reings, 0 for dngaussian; the recipe's SSIM weight); a value given wins."""
+    from reings.pipeline import NO_PRIOR_BY_FAMILY, drop_gamma_of, lambda_dssim_of, run_settings, view_warp_start_of
 
-    assert NO_PRIOR_BY_FAMILY == {"llff": {"cross_warp": 0.15, "drop_gamma": 0.3, "view_warp_start": 1 / 3},
-                                  "dtu": {}}
+    assert NO_PRIOR_BY_FAMILY == {"llff": {"cross_warp": 0.15, "drop_gamma": 0.3, "view_warp_start": 1 / 3,
+                                           "lambda_dssim": (0.2, 0.4, 0.4)}, "dtu": {}}
     rule = family == "llff" and prior in ("none", "off")
     ctx, _ = _ctx(family, depth_prior=prior)
     assert view_warp_start_of(ctx.cfg, family) == (1 / 3 if rule else 2 / 3)
@@ -259,6 +266,15 @@ def test_no_prior_rules(family, prior):
     given, _ = _ctx(family, depth_prior=prior, view_warp_start=0.5, drop_gamma=0.1)
     assert view_warp_start_of(given.cfg, family) == 0.5 and drop_gamma_of(given.cfg, family) == 0.1
     assert given.binocular(soft_depth_recipe(600, 0, family)).loss.view_warp_from == 300
+    recipe_w = 0.2 if family == "llff" else 0.6  # DNGaussian's (docs/method.md §2.2)
+    want = {"coarse": 0.2, "fine": 0.4, "final": 0.4} if rule else dict.fromkeys(("coarse", "fine", "final"), recipe_w)
+    got = {st: ctx.run_recipe(soft_depth_recipe(600, 0, family), st).loss.lambda_dssim for st in want}
+    assert got == want
+    assert s.get("lambda_dssim") == ([0.2, 0.4, 0.4] if rule else None)
+    assert lambda_dssim_of(base.cfg, family, "dngaussian") is None  # the baselines keep their recipe's
+    assert base.run_recipe(soft_depth_recipe(600, 0, family), "dngaussian").loss.lambda_dssim == recipe_w
+    given, _ = _ctx(family, depth_prior=prior, lambda_dssim=0.3)
+    assert {st: lambda_dssim_of(given.cfg, family, st) for st in want} == dict.fromkeys(want, 0.3)
 
 
 def test_no_prior_folders_of_before_are_not_taken_for_the_new_rules(tmp_path):
