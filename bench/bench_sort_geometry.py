@@ -18,9 +18,9 @@ numpy.argsort(kind="stable"); then --repeats sorts, each with
     device ms  sum over the sort's launches of (end - start) from OpenCL profiling events
     span ms    first launch's start to last launch's end (launch gaps included)
     wall ms    sort_pairs + queue.finish on the host
-and the medians reported. A table, a per-case summary (the default 8/256/8, the fastest config by
-device ms, and what items=auto picks for this device's compute units), and with --out one JSON line
-per config. Exit status 1 if any result differs from numpy's.
+and the medians reported. A table, a per-case summary (the geometry before docs/perf_notes.md §10,
+wg 256 / items 8 / 8 bits; the fastest config by span; the default since §10: items auto for this
+device's compute units, 11 bits), and with --out one JSON line per config. Exit status 1 if any result differs from numpy's.
 """
 from __future__ import annotations
 
@@ -68,8 +68,8 @@ def _timed_sorter(handle, cpu: bool, wg: int, items: int, bits: int):
             return ev
 
     class TimedRadixSort(RadixSort):
-        def kernels(self, key64, items=None):
-            return tuple(_Rec(k, self.events) for k in super().kernels(key64, items))
+        def kernels(self, key64, items=None, bits=None):
+            return tuple(_Rec(k, self.events) for k in super().kernels(key64, items, bits))
 
     s = TimedRadixSort(handle, cpu_schedule=cpu, wg=wg, items=items, max_bits=bits)
     s.events = []
@@ -160,22 +160,23 @@ def print_table(rows: list[dict]) -> None:
         else:
             print(f"{head} {r['device_ms']:10.4f} {r['span_ms']:9.4f} {r['wall_ms']:9.4f}  "
                   f"{'ok' if r['ok'] else 'MISMATCH'}")
-    print("# summary per case: default (wg 256, items 8, bits 8) | fastest by device ms | items=auto at "
-          "this device's CUs (wg 256, bits 8)")
+    print("# summary per case, device ms / span ms: before §10 (wg 256, items 8, bits 8) | fastest by span | "
+          "the default since §10 (wg 256, items auto at this device's CUs, bits 11)")
     done = [r for r in rows if "skipped" not in r]
     for case, n in dict.fromkeys((r["case"], r["n"]) for r in done):
         rs = [r for r in done if (r["case"], r["n"]) == (case, n)]
-        best = min(rs, key=lambda r: r["device_ms"])
+        best = min(rs, key=lambda r: r["span_ms"])
         gpu = r0["schedule"] == "gpu"
         want_items = auto_pick(r0, n, 256) if gpu else 0
-        pick = {"default": (256 if gpu else 0, 8 if gpu else 0, 8), "auto": (256 if gpu else 0, want_items, 8)}
+        pick = {"before": (256 if gpu else 0, 8 if gpu else 0, 8),
+                "now": (256 if gpu else 0, want_items, 11 if gpu else 8)}
         cell = {}
         for name, key in pick.items():
             m = [r for r in rs if (r["wg"], r["items"], r["max_bits"]) == key]
-            cell[name] = f"{m[0]['device_ms']:.4f} ms" if m else "-"
-        print(f"{case:6s} {n:8d}  default {cell['default']:>11s} | best wg {best['wg']} items {best['items']} "
-              f"bits {best['max_bits']}: {best['device_ms']:.4f} ms | "
-              + (f"auto items {want_items}: {cell['auto']}" if gpu else "auto: no items on the CPU schedule"))
+            cell[name] = f"{m[0]['device_ms']:.4f} / {m[0]['span_ms']:.4f}" if m else "-"
+        print(f"{case:6s} {n:8d}  before {cell['before']:>17s} | best wg {best['wg']} items {best['items']} "
+              f"bits {best['max_bits']}: {best['device_ms']:.4f} / {best['span_ms']:.4f} | "
+              + (f"now (items {want_items}, bits 11): {cell['now']}" if gpu else "now: 8 bits on the CPU schedule"))
 
 
 def main(argv=None) -> int:

@@ -679,7 +679,7 @@ class RunConfig:
               "§28)",
         parse=parse_lambda_dssim, check=lambda_dssim_values, metavar="L|A,B,C")
     grad_threshold_scale: float = opt(1.0, "every fit: multiplies the recipe's densification threshold on the mean "
-                                           "screen-space gradient (DNGaussian: 0.0013 for 'llff', 0.001 for 'dtu'); "
+                                           "screen-space gradient (DNGaussian: 0.0013 for 'llff', 0.001 for 'dtu'; 3DGS: 0.0002); "
                                            "1 = the recipe's",
                                       check=lambda v: None if v > 0 and v == v and v != float("inf")
                                       else f"must be positive and finite, got {v}", metavar="FACTOR")

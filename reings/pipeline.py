@@ -350,8 +350,8 @@ def prune_unseen_of(cfg: RunConfig, family: str) -> bool:
 def soft_depth_shared_of(cfg: RunConfig, family: str) -> bool:
     """Whether the run's fits take the soft depth term on the photometric render
     (LossConfig.soft_depth_shared): RunConfig.soft_depth_shared, or for none the preset's for the
-    reings fits of the recipe family `family` (RunPreset.soft_depth_shared: fast for both families,
-    paper for 'llff') and off for the baselines (their recipes)."""
+    reings fits of the recipe family `family` (RunPreset.soft_depth_shared: fast and paper for both
+    families, quick for none) and off for the baselines (their recipes)."""
     if cfg.soft_depth_shared is not None:
         return bool(cfg.soft_depth_shared)
     return cfg.method == "reings" and family in RUN_PRESETS[cfg.preset].soft_depth_shared
@@ -441,8 +441,9 @@ class RunContext:
 
     def run_recipe(self, recipe, stage: str | None = None):
         """A stage's recipe with the run's settings: its seed, the Gaussian cap, the smoothness
-        weight, the binocular terms (reings fits), DropGaussian (reings and dngaussian fits), the
-        metric depth term (reings fits), the DTU background rules."""
+        weight, the SSIM weight of fitting stage `stage` (`lambda_dssim_of`; none: the last), the
+        densification threshold's scale, the binocular terms (reings fits), DropGaussian (reings and
+        dngaussian fits), the metric depth term (reings fits), the DTU background rules."""
         c = self.cfg
         recipe = replace(recipe, seed=c.seed)
         if c.max_gaussians:

@@ -61,10 +61,13 @@ def gaussian_importance(g, cameras, device, bg, near) -> np.ndarray:
     """Omega_G (Eq. 7): per Gaussian, the sum over `cameras` and their pixels of alpha*T where it
     blends; float64 [N]. The basis of CVPS, of the final prune and of DensifyConfig.prune_unseen
     (pass training cameras only; reings.reinit re-exports it)."""
-    omega = np.zeros(len(g), np.float64)
-    for cam in cameras:
-        omega += render(g, cam, device, bg, near, want_importance=True).importance
-    return omega
+    from .backends import get_backend
+    from .backends.base import render_importance
+
+    cameras = list(cameras)
+    for cam in cameras:  # render's checks, once per camera
+        bg = _check_common(g, cam, bg, near)
+    return render_importance(get_backend(device), g, cameras, bg, near)
 
 
 def render_vjp(gaussians: Gaussians, camera: Camera, v_rgb, v_depth=None, v_alpha=None,

@@ -325,3 +325,25 @@ def test_a_no_prior_run_records_the_rules(device):
         assert len(fits) == 3, prior
         assert [s["config"]["loss"]["view_warp_from"] for s in fits] == [frm] * 3, prior
         assert [s["config"]["loss"]["drop_gamma"] for s in fits] == [drop] * 3, prior
+
+
+@pytest.mark.parametrize("kw, want", [(dict(lambda_dssim=(0.1, 0.2, 0.3)), [0.1, 0.2, 0.3]),
+                                      (dict(depth_prior="none"), [0.2, 0.4, 0.4]),  # the no-prior rule
+                                      (dict(depth_prior="exact"), [0.2, 0.2, 0.2])])  # the recipe's
+def test_each_reings_fit_takes_its_stage_weight(monkeypatch, kw, want):
+    """A whole reings run hands each fitting stage its own SSIM weight (RunContext.fit passes the
+    stage's name to run_recipe): coarse, fine, final in order."""
+    import reings
+
+    got = []
+    import reings.pipeline as P
+
+    fit = P.fit
+
+    def spy_fit(*a, **k):
+        got.append((k.get("desc"), a[1].loss.lambda_dssim))
+        return fit(*a, **k)
+
+    monkeypatch.setattr("reings.pipeline.fit", spy_fit)
+    reings.run(method="reings", iterations=2, quiet=True, with_lpips=False, eval_every=0, **kw)
+    assert got == list(zip(("coarse", "fine", "final"), want))

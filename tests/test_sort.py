@@ -599,3 +599,33 @@ def test_oclgrind_util_catches_errors():
     """
     with pytest.raises(AssertionError, match="Invalid write|data race"):
         run_oclgrind(bad)
+
+
+def test_sort_geometry_defaults_on_a_small_local_memory(device, _no_sort_env):
+    """Where auto's largest block at 11 bits does not fit the local memory (Oclgrind's 32 KiB), the GPU
+    schedule's defaulted digit is 8 bits; auto skips items whose block does not fit; a work-group size over
+    the device's limit is refused. A device-count sort whose width was defaulted builds 8-bit kernels."""
+    from types import SimpleNamespace
+
+    from reings.backends.opencl.device import open_device
+    from reings.backends.opencl.sort import RadixSort, sort_local_bytes
+
+    h = open_device(device)
+
+    def fake(local_mem, max_wg=1024):
+        dev = SimpleNamespace(local_mem_size=local_mem, max_compute_units=4, max_work_group_size=max_wg)
+        return SimpleNamespace(device=dev, context=h.context, queue=h.queue)
+
+    assert sort_local_bytes(256, 8, 11) > 32768 >= sort_local_bytes(256, 8, 8)
+    small = RadixSort(fake(32768), cpu_schedule=False)
+    assert (small.items, small.max_bits) == ("auto", 8)
+    big = RadixSort(fake(1 << 20), cpu_schedule=False)
+    assert big.max_bits == 11 and big.call_bits(True) == 8 and big.call_bits(False) == 11
+    tight = RadixSort(fake(sort_local_bytes(256, 2, 11)), cpu_schedule=False, max_bits=11)
+    assert tight.launch_items(10 ** 7) == 2  # 8 and 4 would not fit at 11 bits
+    with pytest.raises(ValueError, match="work-group size 512 > the device's 256"):
+        RadixSort(fake(1 << 20, max_wg=256), cpu_schedule=False, wg=512)
+    s = _gpu_sorter(device)  # the real device: a device-count sort compiles its own (8-bit) kernels
+    keys = np.random.default_rng(1).integers(0, 2**32, 3000, dtype=np.uint64).astype(np.uint32)
+    _check_sort_device_count(s, keys, 2500, 0, 32, 2500)
+    assert {k[3] for k in s._kernels} == {8}

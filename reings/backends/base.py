@@ -391,6 +391,18 @@ def select_engine(backend: "Backend", engine: str) -> str:
 # }}}
 
 
+def render_importance(backend, gaussians: Gaussians, cameras: Sequence[Camera], background: Sequence[float],
+                      near: float) -> np.ndarray:
+    """Omega_G (ReInGS Eq. 7) through `backend.render`: per Gaussian, the sum over `cameras` (in order)
+    of alpha*T over the pixels where it blends, float64 [N]. The one loop behind
+    reings.rendering.gaussian_importance and the host trainer's Trainer.importance."""
+    omega = np.zeros(len(gaussians), np.float64)
+    for cam in cameras:
+        omega += backend.render(gaussians, cam, tuple(float(x) for x in background), float(near),
+                                want_importance=True).importance
+    return omega
+
+
 class Backend(Protocol):
     """What the package needs from a device; `reings.backends.get_backend(device)` makes one.
 

@@ -26,7 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..types import ACCUM, FIELDS, PARAM_NAMES, Camera, Gaussians, RenderOutput
-from .base import HeldDepth, check_held_depth
+from .base import HeldDepth, check_held_depth, render_importance
 from .reference_drop import Drop
 from .reference_loss import DepthSmoothWeights, mse, regularize_fwd_bwd
 from .reference_state import (adam_update, densify_accumulate, grad_add, ndc_grad_norm, opacity_decay_, sh_pack,
@@ -129,11 +129,7 @@ class HostTrainer:
         per camera the backend's render with its importance (alpha*T summed over the pixels where each
         Gaussian blends; colours do not enter, so the SH DC alone is rendered), added in camera order
         (reings.rendering.gaussian_importance)."""
-        g = self.state.gaussians(0)
-        omega = np.zeros(len(g), np.float64)
-        for cam in cameras:
-            omega += self.b.render(g, cam, tuple(background), float(near), want_importance=True).importance
-        return omega
+        return render_importance(self.b, self.state.gaussians(0), cameras, background, near)
     # }}}
 
     # {{{ one pass

@@ -48,10 +48,11 @@ Geometry (docs/perf_notes.md §10), read once per RadixSort from its arguments, 
                        costs ~0.055 ms of launch span whatever its width (§10). A device-count sort
                        whose width was defaulted takes at most 8 bits (its histogram is sized for the
                        capacity: bin_counts' memory bound assumes 0.5 B per pair)
-Always SORT_WG * SORT_ITEMS <= 65536. Any geometry gives the same bits (a stable sort's output is
-unique). Explicit REINGS_SORT_ITEMS or REINGS_SORT_BITS above 8 enlarge the histogram of a
-device-count sort (4 * 2^bits bytes per virtual block of wg * items pairs of the capacity), beyond
-what bin_counts' memory bound assumes (0.5 B/pair).
+Always SORT_WG * SORT_ITEMS <= 65536, and auto skips items whose block does not fit the local
+memory. Any geometry gives the same bits (a stable sort's output is unique). Explicit
+REINGS_SORT_ITEMS below 8, REINGS_SORT_WG below 256 or REINGS_SORT_BITS above 8 enlarge the
+histogram of a device-count sort (4 * 2^bits bytes per virtual block of wg * items pairs of the
+capacity) beyond what bin_counts' memory bound assumes (0.5 B/pair); so does auto at wg below 256.
 """
 from __future__ import annotations
 
@@ -289,10 +290,11 @@ class RadixSort:
     and uint64 keys are built lazily on first use.
 
     cpu_schedule  None: from the device (REINGS_CPU_SCHEDULE); True/False force a schedule
-    max_bits      widest digit per pass (None: $REINGS_SORT_BITS, else 8; both schedules)
+    max_bits      widest digit per pass (None: $REINGS_SORT_BITS, else the schedule's default: 11 on the
+                  GPU schedule where its largest block fits the local memory, else 8; 8 on the CPU's)
     wg, items     GPU schedule work-group size and elements per work-item (block = wg * items);
-                  None: $REINGS_SORT_WG / $REINGS_SORT_ITEMS, else 256 / 8; items "auto": chosen
-                  per sort_pairs call (`launch_items`; module docstring, "Geometry")
+                  None: $REINGS_SORT_WG / $REINGS_SORT_ITEMS, else 256 / "auto" (chosen per
+                  sort_pairs call: `launch_items`; module docstring, "Geometry")
     blocks_per_core  CPU schedule: blocks (work-items) per compute unit
     """
 
@@ -311,6 +313,10 @@ class RadixSort:
         self.cpu = _cpu_schedule(handle, cpu_schedule)
         self.local_mem = int(handle.device.local_mem_size)
         self.wg = sort_wg_setting(wg)
+        max_wg = int(getattr(handle.device, "max_work_group_size", self.wg))
+        if not self.cpu and self.wg > max_wg:
+            raise ValueError(f"sort geometry: work-group size {self.wg} > the device's {max_wg} "
+                             f"(lower {SORT_WG_ENV})")
         self.items = sort_items_setting(items, SORT_ITEMS_DEFAULT if self.cpu else GPU_ITEMS_DEFAULT)
         if self.items != "auto" and self.wg * self.items > 65536:
             raise ValueError(f"sort geometry: wg * items = {self.wg} * {self.items} > 65536")
@@ -331,21 +337,24 @@ class RadixSort:
         self._hist, self._totals = _Scratch(ctx), _Scratch(ctx)
         self._no_count = _Scratch(ctx)  # the counts argument of a host-count sort (never read)
 
-    def kernels(self, key64: bool, items: int | None = None):
+    def kernels(self, key64: bool, items: int | None = None, bits: int | None = None):
         """(radix_hist, radix_scan, radix_scatter), built on first use per (key64, items, wg, max_bits)
-        (the CPU schedule has no items nor wg). items None: the fixed items, under auto the largest."""
+        (the CPU schedule has no items nor wg). items None: the fixed items, under auto the largest;
+        bits None: max_bits (a device-count sort's kernels take `call_bits`: RADIX_BITS sizes the
+        local histogram)."""
+        bits = int(bits or self.max_bits)
         if self.cpu:
-            key = (bool(key64), None, None, self.max_bits)
+            key = (bool(key64), None, None, bits)
         else:
             items = int(items or (self.items if self.items != "auto" else max(AUTO_ITEMS)))
-            key = (bool(key64), items, self.wg, self.max_bits)
+            key = (bool(key64), items, self.wg, bits)
         ks = self._kernels.get(key)
         if ks is None:
-            defines = {"REINGS_CPU_SCHEDULE": int(self.cpu), "KEY64": int(key64), "RADIX_BITS": self.max_bits}
+            defines = {"REINGS_CPU_SCHEDULE": int(self.cpu), "KEY64": int(key64), "RADIX_BITS": bits}
             if not self.cpu:
-                need = sort_local_bytes(self.wg, items, self.max_bits)
+                need = sort_local_bytes(self.wg, items, bits)
                 if need > self.local_mem:
-                    raise ValueError(f"sort geometry wg={self.wg} items={items} bits={self.max_bits} needs {need} B "
+                    raise ValueError(f"sort geometry wg={self.wg} items={items} bits={bits} needs {need} B "
                                      f"of local memory, the device has {self.local_mem}: lower {SORT_BITS_ENV} "
                                      f"or {SORT_ITEMS_ENV}")
                 defines.update(SORT_WG=self.wg, SORT_ITEMS=items)
@@ -372,10 +381,12 @@ class RadixSort:
         (at most the largest auto choice)."""
         if self.items != "auto":
             return self.items
-        items = auto_items(n, self.wg, self.compute_units)
+        bits = self.call_bits(device_count)
+        fits = tuple(c for c in AUTO_ITEMS if sort_local_bytes(self.wg, c, bits) <= self.local_mem) or (1,)
+        items = auto_items(n, self.wg, self.compute_units, choices=fits)
         if device_count:
-            floor = min(max(AUTO_ITEMS), -(-int(4 * (1 << self.call_bits(True)) / HIST_BYTES_PER_PAIR) // self.wg))
-            items = max(items, next(c for c in sorted(AUTO_ITEMS) if c >= floor))
+            floor = min(max(fits), -(-int(4 * (1 << bits) / HIST_BYTES_PER_PAIR) // self.wg))
+            items = max(items, next(c for c in sorted(fits) if c >= floor))
         return items
 
     def geometry(self, n: int, items: int | None = None) -> tuple[int, int]:
@@ -418,7 +429,8 @@ class RadixSort:
             raise ValueError(f"bad bit range [{begin_bit}, {end_bit}) for {'64' if key64 else '32'}-bit keys")
         if out is not None and count is not None:
             raise ValueError("sort_pairs: out= takes a host count")
-        passes = split_bits(begin_bit, end_bit, self.call_bits(count is not None))
+        bits = self.call_bits(count is not None)
+        passes = split_bits(begin_bit, end_bit, bits)
         ksize = 8 if key64 else 4
         if (n <= 1 and count is None) or not passes:
             if out is not None:  # nothing to sort: the pairs as they are
@@ -433,7 +445,7 @@ class RadixSort:
             raise ValueError("n must be < 2^32")
         est = n if count is None or estimate is None else int(estimate)
         items = None if self.cpu else self.launch_items(est, device_count=count is not None)  # once per call
-        hist_k, scan_k, scat_k = self.kernels(key64, items)
+        hist_k, scan_k, scat_k = self.kernels(key64, items, bits)
         q = self.handle.queue
         if count is None:
             nblocks, chunk = self.geometry(n, items)
