@@ -1,6 +1,6 @@
 """Device time per iteration of bench_host.py's case with the depth order shared and sorted, in one
 process, alternating (a profiled fit: each stage's device time, summed / iterations).
-    python3 bench/results/issue15_depth_order/device_time.py --device cuda --pairs 2   (from the repo root)"""
+    python3 bench/results/issue15_depth_order/device_time.py --device cuda --pairs 2 [--all]   (from the repo root)"""
 import argparse, sys
 import numpy as np
 sys.path.insert(0, "bench")  # bench_fit, bench_host
@@ -14,6 +14,7 @@ ap = argparse.ArgumentParser()
 ap.add_argument("--device", default="pocl")
 ap.add_argument("--iterations", type=int, default=21)
 ap.add_argument("--pairs", type=int, default=2)
+ap.add_argument("--all", action="store_true", help="also print every stage's device time, largest first")
 a = ap.parse_args()
 scene = reings.make_procedural_scene(n_views=3, width=504, height=378)
 init = surface_init(scene, 30000, 1, np.random.default_rng(0))
@@ -39,3 +40,6 @@ for _ in range(a.pairs):
               "  ".join(f"{k} {dm.get(k, 0.0) / n:.3f}" for k in ("sort_depth", "bin_count", "project_fwd", "bin_emit",
                                                                   "isect_reduce", "rasterize_fwd", "rasterize_bwd")),
               flush=True)
+        if a.all:  # every stage, largest first
+            print("      all: " + "  ".join(f"{k} {v / n:.3f}" for k, v in sorted(dm.items(), key=lambda kv: -kv[1])),
+                  flush=True)
