@@ -141,6 +141,39 @@ def test_deterministic(device, cpu):
     assert np.array_equal(g1.v_emit, g2.v_emit)
 
 
+@pytest.mark.parametrize("vec", [8, 16])
+@pytest.mark.parametrize("name", ["random", "size_70x45", "many_in_one_tile", "needles"])
+def test_cpu_lane_widths_match_reference(device, vec, name):
+    """The CPU schedule at both pixel-lane widths (RASTER_VEC 8 and 16; the default follows the device's
+    native float vector, `raster_vec`) against the float64 reference: the same `last`, images and
+    gradients to float rounding; the two widths agree with each other the same way."""
+    from reings.backends.opencl.rasterize import rasterize_bwd_host, rasterize_fwd_host
+
+    proj, bins, w, h = _scene(name)
+    got = rasterize_fwd_host(proj, bins, w, h, BG, True, device=device, cpu_schedule=True, RASTER_VEC=vec)
+    other = rasterize_fwd_host(proj, bins, w, h, BG, True, device=device, cpu_schedule=True,
+                               RASTER_VEC=24 - vec)
+    exp = ref.rasterize_fwd(proj, bins, w, h, BG)
+    assert np.array_equal(got.last, other.last)
+    for f in ("rgb", "depth", "alpha"):
+        assert_close(getattr(got, f), getattr(exp, f), 1e-5, 1e-5, name=f)
+        assert_close(getattr(got, f), getattr(other, f), 1e-5, 1e-5, name=f)
+    vr, vd, va = _cotangents(w, h)
+    g = rasterize_bwd_host(proj, bins, w, h, vr, vd, va, BG, device=device, cpu_schedule=True, RASTER_VEC=vec)
+    e = ref.rasterize_bwd(proj, bins, exp, vr, vd, va, w, h, BG)
+    for f in ("v_means2d", "v_conics", "v_colors", "v_opacities", "v_depths"):
+        assert_grad_close(getattr(g, f), getattr(e, f), f, MIN_COSINE, MAX_REL_L2)
+
+
+def test_raster_vec_follows_the_native_float_width():
+    from types import SimpleNamespace
+
+    from reings.backends.opencl.rasterize import raster_vec
+
+    assert [raster_vec(SimpleNamespace(native_vector_width_float=n)) for n in (1, 4, 8, 16, 32)] == [8, 8, 8, 16, 16]
+    assert raster_vec(SimpleNamespace()) == 8
+
+
 def test_schedules_agree(device):
     """The two schedules are one algorithm: same last, images equal to float rounding."""
     proj, bins, w, h = _scene("size_70x45")
