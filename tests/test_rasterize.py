@@ -165,13 +165,19 @@ def test_cpu_lane_widths_match_reference(device, vec, name):
         assert_grad_close(getattr(g, f), getattr(e, f), f, MIN_COSINE, MAX_REL_L2)
 
 
-def test_raster_vec_follows_the_native_float_width():
+def test_raster_vec_follows_the_native_float_width(monkeypatch):
     from types import SimpleNamespace
 
     from reings.backends.opencl.rasterize import raster_vec
 
+    monkeypatch.delenv("REINGS_RASTER_VEC", raising=False)
     assert [raster_vec(SimpleNamespace(native_vector_width_float=n)) for n in (1, 4, 8, 16, 32)] == [8, 8, 8, 16, 16]
     assert raster_vec(SimpleNamespace()) == 8
+    monkeypatch.setenv("REINGS_RASTER_VEC", "8")
+    assert raster_vec(SimpleNamespace(native_vector_width_float=16)) == 8
+    monkeypatch.setenv("REINGS_RASTER_VEC", "12")
+    with pytest.raises(ValueError, match="REINGS_RASTER_VEC must be 8 or 16, got '12'"):
+        raster_vec(SimpleNamespace(native_vector_width_float=16))
 
 
 def test_schedules_agree(device):

@@ -50,7 +50,15 @@ def raster_vec(device) -> int:
     """The CPU schedule's pixel lanes (RASTER_VEC): 16 where the device's native float vector is 16
     wide (AVX-512 under PoCL), else 8. Measured on a 2-core AVX-512 Xeon with PoCL 3.0
     (docs/results.md §28): scene A forward + backward 144.5 -> 131.8 ms. The widths sum a tile's
-    per-Gaussian records in other orders, so results agree to float rounding, not bit for bit."""
+    per-Gaussian records in other orders, so results agree to float rounding, not bit for bit.
+    $REINGS_RASTER_VEC (8 or 16) overrides the rule."""
+    import os
+
+    env = os.environ.get("REINGS_RASTER_VEC", "").strip()
+    if env:
+        if env not in ("8", "16"):
+            raise ValueError(f"REINGS_RASTER_VEC must be 8 or 16, got {env!r}")
+        return int(env)
     try:
         return 16 if int(device.native_vector_width_float) >= 16 else 8
     except Exception:  # a device that does not say
