@@ -29,7 +29,7 @@
  *
  * Defines (defaults): REINGS_CPU_SCHEDULE (0), REINGS_NV_PTX (0) from quirks.build_defines;
  *   RASTER_IMPORTANCE (0); RASTER_VEC (8, CPU pixel lanes: 8 = AVX2, 16 = AVX-512; the host passes
- *   16 where the device's native float vector is 16 wide, reings.backends.opencl.rasterize.raster_vec);
+ *   $REINGS_RASTER_VEC, else 8: reings.backends.opencl.rasterize.raster_vec);
  *   FWD_BATCH (256) / BWD_BATCH (32): Gaussians staged in local memory per batch (GPU schedule).
  * Schedules (same algorithm, same results up to float rounding of sums):
  *   CPU: one work-item per tile (local size 1), no barriers; the tile's 256 pixels are

@@ -96,7 +96,11 @@ class KernelLibrary:
         return prg
 
     def get(self, filename: str, kernel: str, **defines):
-        return getattr(self.program(filename, **defines), kernel)
+        """A new kernel object of `kernel` (its own argument state; pyopencl warns when the same
+        program's attribute is fetched twice, e.g. by two rasterizers sharing a program)."""
+        import pyopencl as cl
+
+        return cl.Kernel(self.program(filename, **defines), kernel)
 
 
 @contextlib.contextmanager

@@ -47,11 +47,14 @@ PACKED_BYTES = 64  # one float16 record per Gaussian (rasterize_prep)
 
 
 def raster_vec(device) -> int:
-    """The CPU schedule's pixel lanes (RASTER_VEC): 16 where the device's native float vector is 16
-    wide (AVX-512 under PoCL), else 8. Measured on a 2-core AVX-512 Xeon with PoCL 3.0
-    (docs/results.md §28): scene A forward + backward 144.5 -> 131.8 ms. The widths sum a tile's
-    per-Gaussian records in other orders, so results agree to float rounding, not bit for bit.
-    $REINGS_RASTER_VEC (8 or 16) overrides the rule."""
+    """The CPU schedule's pixel lanes (RASTER_VEC): $REINGS_RASTER_VEC (8 or 16), else 8.
+
+    16 suits AVX-512 (the device's native float vector 16 wide under PoCL) and measured faster on
+    the rasterizer alone (2-core AVX-512 Xeon, PoCL 3.0, scene A forward + backward 144.5 -> 131.8 ms)
+    but not on a whole quick run (`make run`: 39.9 / 49.9 s against 39.0 / 50.1 s), where it moved
+    the test PSNR 22.884 -> 22.124 dB: the widths sum a tile's per-Gaussian records in other orders
+    (float rounding), and a few-shot fit with densification amplifies that (docs/results.md §28). So
+    it is opt-in; `device` is kept for a rule once one is measured to pay."""
     import os
 
     env = os.environ.get("REINGS_RASTER_VEC", "").strip()
@@ -59,10 +62,7 @@ def raster_vec(device) -> int:
         if env not in ("8", "16"):
             raise ValueError(f"REINGS_RASTER_VEC must be 8 or 16, got {env!r}")
         return int(env)
-    try:
-        return 16 if int(device.native_vector_width_float) >= 16 else 8
-    except Exception:  # a device that does not say
-        return 8
+    return 8
 
 
 def _nd(n: int, local: int) -> int:
