@@ -99,6 +99,15 @@ def parse_iterations(text: str):
     return _checked_list(parts, int, "expected an integer", positive_all)
 
 
+def stage_value(values, stage: str | None) -> float:
+    """One value of a per-stage setting: the one value given, or of three (one per reings fitting stage,
+    FIT_STAGES order) the stage's; the baselines' single fit, and stage none, take the last."""
+    stages = FIT_STAGES["reings"]
+    if len(values) == 1:
+        return float(values[0])
+    return float(values[stages.index(stage)] if stage in stages else values[-1])
+
+
 def lambda_dssim_values(v):
     """None, or why SSIM weights are refused: one or three (one per reings fitting stage) numbers in [0, 10]."""
     if len(v) not in (1, 3):
@@ -778,15 +787,8 @@ class RunConfig:
         return replace(self, iterations=its, sh_degree=sh)
 
     def stage_lambda_dssim(self, stage: str | None) -> float | None:
-        """The SSIM weight of fitting stage `stage`: none (the recipe's), the one weight given, or of
-        three the stage's (FIT_STAGES order; the baselines' single fit, and stage none, take the last)."""
-        v = self.lambda_dssim
-        if v is None:
-            return None
-        if len(v) == 1:
-            return v[0]
-        stages = FIT_STAGES["reings"]
-        return v[stages.index(stage)] if stage in stages else v[-1]
+        """The SSIM weight of fitting stage `stage`: none (the recipe's), else `stage_value`."""
+        return None if self.lambda_dssim is None else stage_value(self.lambda_dssim, stage)
 
     def stage_iterations(self) -> dict:
         """{fitting stage name: iterations} of the resolved config."""

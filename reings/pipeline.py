@@ -39,7 +39,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from .config import FIT_STAGES, RUN_PRESETS, ReInGSConfig, RunConfig, run_config  # noqa: F401 (ReInGSConfig: re-exported)
+from .config import FIT_STAGES, RUN_PRESETS, ReInGSConfig, RunConfig, run_config, stage_value  # noqa: F401 (ReInGSConfig: re-exported)
 from .data.depth_prior import NO_PRIOR, prior_kind
 from .reinit import (cvps_select, ehps_init, gaussian_importance, ivps_points, prune_keep_indices,
                      stereo_box, stereo_seed_points)
@@ -323,10 +323,7 @@ def lambda_dssim_of(cfg: RunConfig, family: str, stage: str | None = None) -> fl
     if cfg.lambda_dssim is not None:
         return cfg.stage_lambda_dssim(stage)
     rule = _no_prior_rule(cfg, family, "lambda_dssim", None) if cfg.method == "reings" else None
-    if rule is None:
-        return None
-    stages = FIT_STAGES["reings"]
-    return float(rule[stages.index(stage)] if stage in stages else rule[-1])
+    return None if rule is None else stage_value(rule, stage)
 
 
 def view_warp_start_of(cfg: RunConfig, family: str) -> float:

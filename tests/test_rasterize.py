@@ -166,17 +166,17 @@ def test_cpu_lane_widths_match_reference(device, vec, name):
 
 
 def test_raster_vec_is_8_unless_asked(monkeypatch):
-    from types import SimpleNamespace
-
-    from reings.backends.opencl.rasterize import raster_vec
+    from reings.backends.opencl.rasterize import Rasterizer, raster_vec
+    from reings.backends.opencl.device import open_device
 
     monkeypatch.delenv("REINGS_RASTER_VEC", raising=False)
-    assert [raster_vec(SimpleNamespace(native_vector_width_float=n)) for n in (1, 8, 16)] == [8, 8, 8]
+    assert raster_vec() == 8
     monkeypatch.setenv("REINGS_RASTER_VEC", "16")
-    assert raster_vec(SimpleNamespace(native_vector_width_float=8)) == 16
+    assert raster_vec() == 16
+    assert Rasterizer(open_device("pocl"), cpu_schedule=True)._defines["RASTER_VEC"] == 16  # reaches the build
     monkeypatch.setenv("REINGS_RASTER_VEC", "12")
     with pytest.raises(ValueError, match="REINGS_RASTER_VEC must be 8 or 16, got '12'"):
-        raster_vec(SimpleNamespace(native_vector_width_float=16))
+        raster_vec()
 
 
 def test_schedules_agree(device):

@@ -46,7 +46,7 @@ TILE_PIXELS = TILE_SIZE * TILE_SIZE
 PACKED_BYTES = 64  # one float16 record per Gaussian (rasterize_prep)
 
 
-def raster_vec(device) -> int:
+def raster_vec() -> int:
     """The CPU schedule's pixel lanes (RASTER_VEC): $REINGS_RASTER_VEC (8 or 16), else 8.
 
     16 suits AVX-512 (the device's native float vector 16 wide under PoCL) and measured faster on
@@ -54,7 +54,7 @@ def raster_vec(device) -> int:
     but not on a whole quick run (`make run`: 39.9 / 49.9 s against 39.0 / 50.1 s), where it moved
     the test PSNR 22.884 -> 22.124 dB: the widths sum a tile's per-Gaussian records in other orders
     (float rounding), and a few-shot fit with densification amplifies that (docs/results.md §28). So
-    it is opt-in; `device` is kept for a rule once one is measured to pay."""
+    it is opt-in."""
     import os
 
     env = os.environ.get("REINGS_RASTER_VEC", "").strip()
@@ -91,7 +91,7 @@ class Rasterizer:
         self.scratch = scratch
         self.shared = scratch if shared is None else shared
         if self.cpu_schedule and "RASTER_VEC" not in d:
-            d["RASTER_VEC"] = raster_vec(handle.device)
+            d["RASTER_VEC"] = raster_vec()
         self._lib, self._defines = lib, d
         self.k_prep = lib.get(FILE, "rasterize_prep", RASTER_IMPORTANCE=0, **d)
         self.k_fwd = lib.get(FILE, "rasterize_fwd", RASTER_IMPORTANCE=0, **d)
