@@ -557,7 +557,7 @@ class _Iteration:
         with ph("photo_render"):
             fr = tr.forward(cam, self.k, self.bg, self.near, drop=drop)
         with ph("photo_loss"):
-            v_rgb = tr.photometric(fr, vi, self.w_l1, self.w_ssim)
+            v_rgb = tr.photometric(fr, vi, self.w_l1, self.w_ssim, value=log)  # the loss reduction only when logged
         v_depth = None
         if warp:
             with ph("view_warp"):

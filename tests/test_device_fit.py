@@ -194,3 +194,28 @@ def test_shared_soft_depth_steps_the_sum_of_both_gradients(device, case, engine)
     assert any(np.abs(v).max() > 0 for v in r.state.stats.values())
     for k in r.state.stats:
         np.testing.assert_array_equal(r.state.stats[k], r0.state.stats[k], err_msg=k)
+
+
+def test_photometric_value_switch(device, case):
+    """Trainer.photometric(value=False) (the training steps whose loss nobody reads skip the loss's
+    reduction, docs/perf_notes.md §11): the same dL/d rgb bytes as value=True; read_loss refuses
+    after it, and after a value=True pass returns the float64 reference's loss of the read image."""
+    from reings.backends import reference_loss as R
+    from reings.state import TrainState
+
+    scene, init, _ = case
+    tr = get_backend(device).trainer(scene.images, engine="device")
+    tr.upload(TrainState.from_gaussians(init, 1))
+    fr = tr.forward(scene.cameras[0], 1, (0, 0, 0), 0.01)
+    rgb = tr.read_rgb(fr)
+    n = fr.width * fr.height * 3
+    grads = []
+    for value in (False, True):
+        v = tr.photometric(fr, 0, 0.8, 0.2, value=value)
+        grads.append(tr._read(v, (n,), np.float32))
+        if not value:
+            with pytest.raises(RuntimeError, match="computed no loss"):
+                tr.read_loss()
+    np.testing.assert_array_equal(grads[0], grads[1])
+    want, _ = R.weighted_photometric_fwd_bwd(rgb.astype(np.float64), np.asarray(scene.images[0], np.float64), 0.8, 0.2)
+    assert abs(tr.read_loss() - float(want)) <= 1e-5 * abs(float(want)) + 1e-7

@@ -219,10 +219,12 @@ class Trainer(Protocol):
         backend's second frame slot). Either way a frame's `backward` reads the held parameters
         again: it comes before the next `adam_step`, `opacity_decay` or `upload`."""
 
-    def photometric(self, frame: Frame, view: int, w_l1: float, w_ssim: float) -> Any:
+    def photometric(self, frame: Frame, view: int, w_l1: float, w_ssim: float, value: bool = True) -> Any:
         """w_l1 * L1 + w_ssim * (1 - SSIM) of the frame's image against training image `view`
         (reference_loss.weighted_photometric_fwd_bwd; kernels/photometric.cl, or kernels/l1.cl
-        when w_ssim == 0). Returns dL/d rgb for `backward`; the loss waits for `read_loss`."""
+        when w_ssim == 0). Returns dL/d rgb for `backward`; the loss waits for `read_loss`.
+        value=False: a step whose loss nobody reads; a trainer may skip the loss's own reduction
+        (the device trainer does), and then `read_loss` raises until the next pass with value=True."""
 
     def read_loss(self) -> float:
         """The loss of the last `photometric` (a read from the device: call it when logging)."""

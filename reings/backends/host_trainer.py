@@ -153,8 +153,9 @@ class HostTrainer:
     def read_rgb(self, fr: HostFrame) -> np.ndarray:
         return fr.out.rgb
 
-    def photometric(self, fr: HostFrame, view: int, w_l1: float, w_ssim: float) -> np.ndarray:
-        """Trainer.photometric: backend.photometric_loss; returns dL/d rgb [H,W,3]."""
+    def photometric(self, fr: HostFrame, view: int, w_l1: float, w_ssim: float, value: bool = True) -> np.ndarray:
+        """Trainer.photometric: backend.photometric_loss; returns dL/d rgb [H,W,3] (the host computes
+        the loss anyway; `value` is the device trainer's switch)."""
         self._loss, v = self.b.photometric_loss(fr.out.rgb, self.images[view], w_l1, w_ssim)
         return v
 

@@ -68,11 +68,13 @@ class PhotometricCL:
         cl.enqueue_copy(q, v, self.v)
         return self.read_loss(), v
 
-    def enqueue(self, x, y, v, h: int, w: int, w_l1: float, w_ssim: float):
+    def enqueue(self, x, y, v, h: int, w: int, w_l1: float, w_ssim: float, value: bool = True):
         """Device-resident form: x (rendered) and y (ground truth) are [H,W,3] float32 buffers of
         this device's context, dL/dx is written into the buffer v; nothing is read back. The per-row
-        partial sums stay on the device for `read_loss` (valid until the next call). Returns the
-        last kernel's event."""
+        partial sums stay on the device for `read_loss` (valid until the next call). value=False:
+        no loss_row_sums launch (the gradient does not need it: a training step whose loss nobody
+        reads; docs/perf_notes.md §11), and `read_loss` raises until the next call with value=True.
+        Returns the last kernel's event."""
         q = self.handle.queue
         self._alloc(h, w)
         n = h * w * 3
@@ -82,9 +84,10 @@ class PhotometricCL:
         k("ssim_hpass_fwd", q, g2, x, y, self.taps, self.h5, W, H)
         k("ssim_vpass_fwd", q, g2, self.h5, self.taps, self.smap, self.d3, np.float32(-w_ssim / n), W, H)
         k("ssim_hpass_bwd", q, g2, self.d3, self.taps, self.h3, W, H)
-        k("ssim_vpass_bwd", q, g2, self.h3, x, y, self.taps, v, np.float32(w_l1 / n), W, H)
-        ev = k("loss_row_sums", q, (h,), self.smap, x, y, self.partial, W, H)
-        self._weights = (float(w_l1), float(w_ssim))
+        ev = k("ssim_vpass_bwd", q, g2, self.h3, x, y, self.taps, v, np.float32(w_l1 / n), W, H)
+        if value:
+            ev = k("loss_row_sums", q, (h,), self.smap, x, y, self.partial, W, H)
+        self._weights = (float(w_l1), float(w_ssim)) if value else None
         return ev
 
     def _typed(self, name: str, q, gsize, *args):
@@ -98,6 +101,8 @@ class PhotometricCL:
     def read_loss(self) -> float:
         """The loss of the last `enqueue` / call (a blocking read of H x 2 partial sums, added in
         float64 on the host)."""
+        if getattr(self, "_weights", None) is None:
+            raise RuntimeError("PhotometricCL.read_loss: the last enqueue computed no loss (value=False) or there was none")
         h, w = self._shape
         n = h * w * 3
         part = np.empty((h, 2), np.float32)

@@ -82,6 +82,10 @@ from .scratch import Scratch
 CPU_DEFAULT_ADAM = "kernel"
 ADAM_LOCATIONS = ("auto", "kernel", "numpy")
 REG_VALUE_CHUNK = 256  # Gaussians per work-item of regularize_value (its sums are per chunk)
+# Gaussians per work-item of regularize_opacity_count (integer counts: any chunk gives the same
+# result). 256 kept a CPU's cores busy with few items; on a GPU it left ~200 work-items of 256
+# serial exps each, 0.058 ms per step on an H100 (bench/kernel_census.py, docs/perf_notes.md §11)
+REG_COUNT_CHUNK_CPU, REG_COUNT_CHUNK_GPU = 256, 8
 _GEOMETRY = itertools.count(1)  # geometry versions, unique in the process (module docstring)
 _F32, _F64, _I32, _U32 = np.float32, np.float64, np.int32, np.uint32
 
@@ -452,16 +456,16 @@ class DeviceTrainer:
         """Trainer.read_rgb: a blocking read of the frame's image."""
         return self._read(fr.bufs["out_rgb"], (fr.height, fr.width, 3), _F32)
 
-    def photometric(self, fr, view: int, w_l1: float, w_ssim: float):
+    def photometric(self, fr, view: int, w_l1: float, w_ssim: float, value: bool = True):
         """Trainer.photometric: L1 + SSIM of the frame's image against training image `view`
         (PhotometricCL); dL/d rgb goes into the v_rgb buffer (returned); the loss stays on the
-        device (`read_loss`). w_ssim == 0: the L1-only kernels (kernels/l1.cl, two launches, no
-        SSIM pass at all)."""
+        device (`read_loss`); value=False skips the loss's own reduction (PhotometricCL.enqueue).
+        w_ssim == 0: the L1-only kernels (kernels/l1.cl, two launches, no SSIM pass at all)."""
         v = self.mem.get("pixel", "v_rgb", fr.width * fr.height, 12)
         if w_ssim == 0:
             return self.photometric_l1(fr.bufs["out_rgb"], self.gt[view], v, fr.height, fr.width, w_l1)
-        ev = self.photo.enqueue(fr.bufs["out_rgb"], self.gt[view], v, fr.height, fr.width, w_l1, w_ssim)
-        self._loss = ("ssim",)
+        ev = self.photo.enqueue(fr.bufs["out_rgb"], self.gt[view], v, fr.height, fr.width, w_l1, w_ssim, value)
+        self._loss = ("ssim",) if value else None
         if self.profile is not None:
             self._events.append(("photometric_loss", ev))  # last kernel only: a lower bound
         return v
@@ -497,6 +501,8 @@ class DeviceTrainer:
             t = self._scalar
             self.cl.enqueue_copy(self.queue, t, total)  # blocking
             return float(w_l1 * float(t[0]) / max(n, 1))
+        if self._loss is None:
+            raise RuntimeError("read_loss: the last photometric pass computed no loss (value=False) or there was none")
         return self.photo.read_loss()
 
     def backward(self, fr, v_rgb=None, v_depth=None, opacity_override: float | None = None,
@@ -745,7 +751,7 @@ class DeviceTrainer:
         counts = self.mem.get("small", "reg_counts", 2, 4)
         if opa_pena:
             self.cl.enqueue_fill_buffer(self.queue, counts, _I32(0), 0, 8)
-            chunk = 256
+            chunk = REG_COUNT_CHUNK_CPU if self.b.cpu else REG_COUNT_CHUNK_GPU
             self._launch("regularize_opacity_count", self.k_reg_count, -(-self.n // chunk), _I32(self.n),
                          _I32(chunk), self.buf("p", "opacity_logits"), counts)
         r = self.real
