@@ -52,7 +52,8 @@ def surface_init(scene, n, sh_degree, rng):
 
 
 def adam_only(args):
-    """Adam over a full set of groups (one photometric step): kernel vs numpy on mapped buffers."""
+    """Adam over a full set of groups (one photometric step): the kernel (one launch), the kernels
+    launched per group (DeviceTrainer.adam_multi False) and numpy on mapped buffers."""
     from reings import densify as D
     from reings.backends import get_backend
     from reings.optim import Adam
@@ -66,10 +67,11 @@ def adam_only(args):
                   rng.normal(size=(n, k, 3)).astype(np.float32))
     lrs = {name: 1e-3 for name in PARAM_NAMES}
     out = {}
-    for loc in ("kernel", "numpy"):
+    for loc in ("kernel", "kernel-per-group", "numpy"):  # kernel: one adam_step_multi launch per step
         st = TrainState.from_gaussians(g)
         D.init_stats(st)
-        t = get_backend(args.device).trainer([], engine="device", adam=loc)
+        t = get_backend(args.device).trainer([], engine="device", adam=loc.split("-")[0])
+        t.adam_multi = loc == "kernel"
         t.upload(st)
         grads = {}
         for f, shp in (("means", (n, 3)), ("quats", (n, 4)), ("log_scales", (n, 3)), ("opacity_logits", (n,)),
@@ -88,7 +90,7 @@ def adam_only(args):
             t.adam_step(opt, grads, PARAM_NAMES)
         t.finish()
         out[loc] = (time.perf_counter() - t0) / reps * 1e3
-        print(f"adam {loc:6s}: {out[loc]:8.3f} ms per step of all 6 groups (N={n}, SH{args.sh_degree}, "
+        print(f"adam {loc:16s}: {out[loc]:8.3f} ms per step of all 6 groups (N={n}, SH{args.sh_degree}, "
               f"{get_backend(args.device).device_name})", flush=True)
     return out
 

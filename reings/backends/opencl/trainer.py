@@ -23,9 +23,10 @@ uploaded: backend.forward_device) -> a loss (`photometric`: kernels/photometric.
 v_rgb; or `depth_loss`: kernels/depth_loss.cl on the rendered depth buffer and the resident target,
 the depth_smooth term fused in, writing v_depth) -> `backward` (backend.backward_device into the
 backend's gradient buffers) -> `regularize` (kernels/regularize.cl, added into those buffers) ->
-`accumulate` (kernels/densify_accumulate.cl) -> `adam_step` (kernels/adam.cl, or numpy on the
-mapped buffers: the `adam` location). The host keeps what is scalar: learning rates and
-schedules, the per-group step counts (TrainState.adam.step, so checkpoints carry them), N. The
+`accumulate` (kernels/densify_accumulate.cl) -> `adam_step` (kernels/adam.cl, every group of the
+call in one adam_step_multi launch, or numpy on the mapped buffers: the `adam` location). The host
+keeps what is scalar: learning rates and schedules, the per-group step counts (TrainState.adam.step,
+so checkpoints carry them), N. The
 loss kernels' host code is reings/backends/opencl/losses.py (the backend's `photometric_kernels`,
 `depth_loss_kernels`); the per-Gaussian kernels go through the backend's `kernel` / `launch`.
 
@@ -80,6 +81,9 @@ from .scratch import Scratch
 #     N=100k SH3: kernel 21.4, numpy 24.5.
 # (Before the padded 2-D range of the strided adam_step the kernel lost at SH3: 6.2 vs 4.6 ms.)
 CPU_DEFAULT_ADAM = "kernel"
+# kernels/adam.cl adam_step_multi: group slots of one launch, lanes per line (a strided group's
+# columns padded to a multiple of it: PoCL vectorizes along them)
+ADAM_SLOTS, ADAM_LX = 6, 16
 ADAM_LOCATIONS = ("auto", "kernel", "numpy")
 REG_VALUE_CHUNK = 256  # Gaussians per work-item of regularize_value (its sums are per chunk)
 # Gaussians per work-item of regularize_opacity_count (integer counts: any chunk gives the same
@@ -122,6 +126,10 @@ class DeviceTrainer:
     # the step, instead of at the step's final wait. Costs one cheap call; bench/peer_step.py
     # --no-flush measures it off.
     flush_after_forward = True
+    # adam_step (adam="kernel"): all groups of a call in one adam_step_multi launch (a launch costs
+    # ~10 us of queue latency on an H100); False: one launch per group (adam_step / adam_step_flat),
+    # the same bits (tests/test_adam_multi.py)
+    adam_multi = True
 
     def __init__(self, backend, images, adam: str = "auto", profile: dict | None = None):
         import pyopencl as cl
@@ -137,8 +145,10 @@ class DeviceTrainer:
         self.adam = adam if adam != "auto" else (CPU_DEFAULT_ADAM if backend.cpu else "kernel")
         self.profile = profile
         self.photo = backend.photometric_kernels
-        self.k_adam = backend.kernel("adam.cl", "adam_step", ADAM_FP64=int(self.fp64))
-        self.k_adam_flat = backend.kernel("adam.cl", "adam_step_flat", ADAM_FP64=int(self.fp64))
+        adam_defs = {"ADAM_FP64": int(self.fp64), "ADAM_MULTI_SPLIT": int(bool(backend.cpu))}  # one build
+        self.k_adam = backend.kernel("adam.cl", "adam_step", **adam_defs)
+        self.k_adam_flat = backend.kernel("adam.cl", "adam_step_flat", **adam_defs)
+        self.k_adam_multi = backend.kernel("adam.cl", "adam_step_multi", **adam_defs)
         self.k_sh_pack = backend.kernel("sh_pack.cl", "sh_pack")
         self.k_reg_count = backend.kernel("regularize.cl", "regularize_opacity_count", REGULARIZE_FP64=int(self.fp64))
         self.k_reg_grads = backend.kernel("regularize.cl", "regularize_grads", REGULARIZE_FP64=int(self.fp64))
@@ -798,37 +808,99 @@ class DeviceTrainer:
     def adam_step(self, opt, grads: dict, groups) -> None:
         """Trainer.adam_step: one Adam step of each group in `groups` with `opt`'s lrs, betas, eps
         and step counts (the counts are advanced here, as reings.optim.Adam does, including for
-        empty groups): kernels/adam.cl, or adam_update on the mapped buffers."""
+        empty groups): kernels/adam.cl, or adam_update on the mapped buffers. The kernel steps every
+        non-empty group of the call in one launch (`_adam_multi`; a group named twice starts a
+        second launch), or with `adam_multi` False one launch per group (`_adam_group`)."""
         n = self.n
-        for name in groups:
-            if name not in opt.lr:
-                raise KeyError(f"adam_step: {name!r} is not a parameter group ({opt.groups})")
-            t = opt.state.step[name] + 1
-            opt.state.step[name] = t
-            cols = self._cols[name]
-            if n * cols == 0:
-                continue
-            g, gs, go, gc = self._grad_view(grads, name)
-            if self.adam == "kernel":
-                sc = adam_scalars(opt.lr[name], t, opt.beta1, opt.beta2, opt.eps, self.fp64)
-                pmv = (self.buf("p", name), self.buf("m", name), self.buf("v", name))
-                if gs == cols and go == 0 and gc == cols:
-                    self._launch("adam", self.k_adam_flat, n * cols, _U32(n * cols), *pmv, g, *sc)
+        multi = self.adam == "kernel" and self.adam_multi
+        batch: list = []  # the groups of the next adam_step_multi launch
+        try:
+            for name in groups:
+                if name not in opt.lr:
+                    raise KeyError(f"adam_step: {name!r} is not a parameter group ({opt.groups})")
+                if multi and (len(batch) == ADAM_SLOTS or any(b[0] == name for b in batch)):
+                    pending, batch = batch, []
+                    self._adam_multi(opt, pending)  # a repeated group steps after its first step
+                t = opt.state.step[name] + 1
+                opt.state.step[name] = t
+                cols = self._cols[name]
+                if n * cols == 0:
+                    continue
+                view = self._grad_view(grads, name)
+                if multi:
+                    batch.append((name, t, view))
+                elif self.adam == "kernel":
+                    self._adam_group(opt, name, t, view)
                 else:
-                    # columns padded to 16 in a work-group row: PoCL vectorizes along it (4x faster
-                    # than the runtime's choice for 45 columns)
-                    cpad = -(-cols // 16) * 16
-                    ly = max(1, 64 // cpad)
-                    ev = self._call(self.k_adam, (cpad, -(-n // ly) * ly), (cpad, ly), _U32(n), _U32(cols), *pmv, g,
-                                    _U32(gs), _U32(go), _U32(gc), *sc)
-                    if self.profile is not None:
-                        self._events.append(("adam", ev))
+                    self._adam_numpy(name, _shape(name, n, self.kmax), *view, opt.lr[name], t, opt)
+                if name in ("sh_dc", "sh_rest"):
+                    self._sh_k = None
+                if name == "means":
+                    self.means_written()
+        except Exception:
+            pending, batch = batch, []
+            self._adam_multi(opt, pending)  # the groups before the failing one are stepped, as one launch each was
+            raise
+        self._adam_multi(opt, batch)
+
+    def _adam_multi(self, opt, batch: list) -> None:
+        """One kernels/adam.cl adam_step_multi launch stepping the groups of `batch` ((name, step
+        count, gradient view) each, non-empty, distinct, at most ADAM_SLOTS), slots in `batch`'s
+        order, unused slots with the last one's buffers and no work-groups. Work-groups of lx x ly
+        lanes, lx the strided groups' widest row padded to 16 (so one row fits a line: no index
+        division), ly from the backend's work-group size; a strided group narrower than half a line
+        puts several rows in a line (1 << sh lanes each, the row width's next power of two)."""
+        if not batch:
+            return
+        n = self.n
+        views = []
+        wide = 1
+        for name, t, (g, gs, go, gc) in batch:
+            cols = self._cols[name]
+            flat = gs == cols and go == 0 and gc == cols
+            views.append((name, t, g, gs, go, gc, cols, flat))
+            if not flat:
+                wide = max(wide, cols)
+        lx = -(-wide // ADAM_LX) * ADAM_LX
+        ly = max(1, self.b.wg // lx)
+        lanes = ly * lx
+        args: list = []
+        end = 0
+        for name, t, g, gs, go, gc, cols, flat in views:
+            sc = adam_scalars(opt.lr[name], t, opt.beta1, opt.beta2, opt.eps, self.fp64)
+            if flat:  # rows counts elements, lx of them per line
+                rows, rpl, sh = n * cols, 0, 0
+                end += -(-rows // lanes)
             else:
-                self._adam_numpy(name, _shape(name, n, self.kmax), g, gs, go, gc, opt.lr[name], t, opt)
-            if name in ("sh_dc", "sh_rest"):
-                self._sh_k = None
-            if name == "means":
-                self.means_written()
+                sh = max(cols - 1, 0).bit_length()  # 1 << sh >= cols lanes per row
+                rows, rpl = n, max(lx >> sh, 1)
+                end += -(-n // (rpl * ly))
+            args += (self.buf("p", name), self.buf("m", name), self.buf("v", name), g, _U32(end), _U32(rows),
+                     _U32(cols), _U32(rpl), _U32(sh), _U32(gs), _U32(go), _U32(gc), sc[4], sc[6])
+        pad = args[-14:-10] + [_U32(end)] + [_U32(0)] * 7 + [type(sc[4])(0), _F32(0)]
+        args += pad * (ADAM_SLOTS - len(batch))
+        # b1, 1 - b1, b2, 1 - b2, eps: the optimizer's, the same in every group's adam_scalars
+        ev = self._call(self.k_adam_multi, (lx * end, ly), (lx, ly), sc[0], sc[1], sc[2], sc[3], sc[5], *args)
+        if self.profile is not None:
+            self._events.append(("adam", ev))
+
+    def _adam_group(self, opt, name: str, t: int, view) -> None:
+        """One group's Adam step in its own launch (adam_step_flat or the strided adam_step)."""
+        n, cols = self.n, self._cols[name]
+        g, gs, go, gc = view
+        sc = adam_scalars(opt.lr[name], t, opt.beta1, opt.beta2, opt.eps, self.fp64)
+        pmv = (self.buf("p", name), self.buf("m", name), self.buf("v", name))
+        if gs == cols and go == 0 and gc == cols:
+            self._launch("adam", self.k_adam_flat, n * cols, _U32(n * cols), *pmv, g, *sc)
+        else:
+            # columns padded to 16 in a work-group row: PoCL vectorizes along it (4x faster
+            # than the runtime's choice for 45 columns)
+            cpad = -(-cols // 16) * 16
+            ly = max(1, 64 // cpad)
+            ev = self._call(self.k_adam, (cpad, -(-n // ly) * ly), (cpad, ly), _U32(n), _U32(cols), *pmv, g,
+                            _U32(gs), _U32(go), _U32(gc), *sc)
+            if self.profile is not None:
+                self._events.append(("adam", ev))
 
     def step_l1(self, cam, view: int, opt, groups=None, k: int | None = None, background=(0.0, 0.0, 0.0),
                 near: float = 0.01, w_l1: float = 1.0, read_loss: bool = False):
