@@ -2,7 +2,7 @@
 
     python bench/bench_fit.py --device cuda                       # H200: both engines, 100k SH3
     python bench/bench_fit.py --device pocl --gaussians 20000 --sh-degree 0 --iterations 100
-    python bench/bench_fit.py --device cuda --adam-only           # Adam kernel vs numpy, per step
+    python bench/bench_fit.py --device cuda --adam-only           # Adam: one launch, one per group, numpy; per step
     python bench/bench_fit.py --device pocl ... --soft-depth-shared  # the soft depth term on the photometric render
     python bench/bench_fit.py --device pocl ... --view-warp-from 1   # the view_warp term from the first iteration
 

@@ -12,7 +12,9 @@ time, per window the span (first start to last end) and the gaps (the span minus
 time of the kernels in it; copies and fills between kernels count as gaps). The waits make the run
 slightly slower (one per window); the default window of 4096 launches is about 50 iterations of a
 full-schedule fit. The stage of a launch is the `desc` of the `reings.train.fit` call it ran in
-("coarse", "fine", "final", "3dgs", ...), "other" outside fits (priors, probes are inside fits).
+("coarse", "fine", "final", "3dgs", ...), its test-PSNR probes "<fit>/probe", "other" outside fits (the
+IVPS / CVPS renders, the final test renders). Iterations are the fit loop's steps as run (a resumed fit runs
+fewer than its recipe's); stages without steps report totals ("its 0").
 
 Prints, per stage: iterations, wall seconds of the fit, launches / iteration, device busy ms /
 iteration, gap ms / iteration, and the kernels by device time; --out writes the same as JSON.
@@ -69,7 +71,7 @@ class Census:
         self.fold()
         out = {}
         for stage in sorted({s for s, _ in self.count}):
-            its = max(int(self.iterations.get(stage, 0)), 1)
+            its = max(int(self.iterations.get(stage, 0)), 1)  # 0 steps (probes, other): totals
             kern = {n: {"launches_per_it": c / its, "ms_per_it": self.ms[(stage, n)] / its}
                     for (s, n), c in self.count.items() if s == stage}
             out[stage] = {"iterations": int(self.iterations.get(stage, 0)), "wall_s": self.wall.get(stage, 0.0),
@@ -100,32 +102,53 @@ def main(argv=None) -> int:
     census = Census(a.window)
     orig_launch = _cl.enqueue_nd_range_kernel
 
+    orig_fit = train.fit
+    orig_step = train._Iteration.__call__
+    orig_probe = pipeline.RunContext.probe
+    names: dict = {}  # cl.Kernel -> function name (one OpenCL query per kernel, not per launch)
+
     def launch(queue, kernel, *args, **kw):
         ev = orig_launch(queue, kernel, *args, **kw)
-        census.record(kernel.function_name, ev)
+        name = names.get(kernel)
+        if name is None:
+            name = names[kernel] = kernel.function_name
+        census.record(name, ev)
         return ev
-
-    orig_fit = train.fit
 
     def fit(*args, **kw):
         prev, census.stage = census.stage, str(kw.get("desc") or "fit")
         t = time.perf_counter()
         try:
-            r = orig_fit(*args, **kw)
+            return orig_fit(*args, **kw)
         finally:
-            census.fold()
-            census.wall[census.stage] += time.perf_counter() - t
+            try:
+                census.fold()
+            finally:
+                census.wall[census.stage] += time.perf_counter() - t
+                census.stage = prev
+
+    def step(self, it):  # the iterations a fit runs (a resumed fit runs fewer than its recipe's)
+        census.iterations[census.stage] += 1
+        return orig_step(self, it)
+
+    def probe(self, g):  # the test-PSNR probes inside a fit: a stage of their own, "<fit>/probe"
+        prev, census.stage = census.stage, census.stage + "/probe"
+        try:
+            return orig_probe(self, g)
+        finally:
             census.stage = prev
-        census.iterations[kw.get("desc") or "fit"] += int(args[1].iterations if len(args) > 1 else kw["recipe"].iterations)
-        return r
 
     _cl.enqueue_nd_range_kernel = launch
     pipeline.fit = fit
+    train._Iteration.__call__ = step
+    pipeline.RunContext.probe = probe
     try:
         rc = reings_main(cmd)
     finally:
         _cl.enqueue_nd_range_kernel = orig_launch
         pipeline.fit = orig_fit
+        train._Iteration.__call__ = orig_step
+        pipeline.RunContext.probe = orig_probe
     rep = census.report()
     for stage, r in rep.items():
         print(f"{stage:10s} its {r['iterations']:6d}  wall {r['wall_s']:7.2f} s  launches/it {r['launches_per_it']:6.1f}  "

@@ -30,7 +30,13 @@
  * Defines (defaults): REINGS_CPU_SCHEDULE (0), REINGS_NV_PTX (0) from quirks.build_defines;
  *   RASTER_IMPORTANCE (0); RASTER_VEC (8, CPU pixel lanes: 8 = AVX2, 16 = AVX-512; the host passes
  *   $REINGS_RASTER_VEC, else 8: reings.backends.opencl.rasterize.raster_vec);
- *   FWD_BATCH (256) / BWD_BATCH (32): Gaussians staged in local memory per batch (GPU schedule).
+ *   FWD_BATCH (256) / BWD_BATCH (32): Gaussians staged in local memory per batch (GPU schedule);
+ *   RASTER_BWD_OPACITY (0): 1 builds rasterize_bwd for a backward whose only wanted gradient is the
+ *   opacities' (the soft depth term's and the DTU background pass's backward, grad_fields =
+ *   opacity_logits): the same d out / d alpha recursion, but only record field 8 (d/d opacity) is
+ *   summed and written, the other fields are written as 0. Field 8 keeps its bits: the per-field sums
+ *   are independent (the same lanes, the same tree or warp shuffles, the same order).
+ *   (docs/perf_notes.md §11)
  * Schedules (same algorithm, same results up to float rounding of sums):
  *   CPU: one work-item per tile (local size 1), no barriers; the tile's 256 pixels are
  *        RASTER_VEC-wide vectors in private arrays; Gaussians are the outer loop (uniform scalar
@@ -68,6 +74,14 @@
 #endif
 #ifndef BWD_BATCH
 #define BWD_BATCH 32
+#endif
+#ifndef RASTER_BWD_OPACITY
+#define RASTER_BWD_OPACITY 0
+#endif
+#if RASTER_BWD_OPACITY
+#define BWD_FIELDS 1 /* the GPU schedule's per-Gaussian sums: field 8 only */
+#else
+#define BWD_FIELDS V_RECORD
 #endif
 
 /* ------------------------------------------------------------------------------------------ */
@@ -425,19 +439,23 @@ bwd_tile(__global const float16 *packed, __global const int *gid_from_isect, __g
                     const vf vr = VR[c], vg = VG[c], vb = VB[c], vd = VD[c];
                     const vf vc = vr * cr + vg * cg + vb * cb + vd * cz;
                     const vf Rn = R - vc * w;
+#if !RASTER_BWD_OPACITY
                     a_r += vr * w;
                     a_g += vg * w;
                     a_b += vb * w;
                     a_z += vd * w;
+#endif
                     /* d out / d alpha: T c - (behind) / (1 - alpha); alpha <= ALPHA_MAX bounds 1/(1-alpha) */
                     const vf va = select((vf)(0.0f), T * vc - Rn / (1.0f - alpha), ok & (a <= ALPHA_MAX));
                     a_o += va * G;
+#if !RASTER_BWD_OPACITY
                     const vf vp = va * alpha; /* d/d power (alpha = o exp(power) when unclamped) */
                     a_A -= 0.5f * dx * dx * vp;
                     a_B -= dx * dy * vp;
                     a_C -= 0.5f * dy * dy * vp;
                     a_u -= (g.s2 * dx + g.s3 * dy) * vp;
                     a_v -= (g.s3 * dx + g.s4 * dy) * vp;
+#endif
                     Tv[c] = select(T, T * (1.0f - alpha), ok);
                     Rv[c] = select(R, Rn, ok);
                 }
@@ -445,6 +463,11 @@ bwd_tile(__global const float16 *packed, __global const int *gid_from_isect, __g
         }
         /* back to unscaled units: the d/d alpha path carries sv * sk, the colour/depth path sv */
         float o[V_RECORD];
+#if RASTER_BWD_OPACITY
+        for (int f = 0; f < V_RECORD; ++f) o[f] = 0.0f;
+        o[8] = hsum(a_o) * iv * ik;
+        (void)a_u; (void)a_v; (void)a_A; (void)a_B; (void)a_C; (void)a_r; (void)a_g; (void)a_b; (void)a_z;
+#else
         o[0] = hsum(a_u) * iv * ik;
         o[1] = hsum(a_v) * iv * ik;
         o[2] = hsum(a_A) * iv * ik;
@@ -455,6 +478,7 @@ bwd_tile(__global const float16 *packed, __global const int *gid_from_isect, __g
         o[7] = hsum(a_b) * iv;
         o[8] = hsum(a_o) * iv * ik;
         o[9] = hsum(a_z) * iv;
+#endif
         __global float *rec = v_emit + (size_t)emit_from_isect[i] * V_RECORD;
         for (int f = 0; f < V_RECORD; ++f) {
             bad |= !isfinite(o[f]);
@@ -745,8 +769,8 @@ bwd_group(__global const float16 *packed, __global const int *gid_from_isect,
         for (int j = 0; j < nb; ++j) {
             const float16 g = sh[j];
             const int k = b0 - start + j;
-            float vals[V_RECORD];
-            for (int f = 0; f < V_RECORD; ++f) vals[f] = 0.0f;
+            float vals[BWD_FIELDS];
+            for (int f = 0; f < BWD_FIELDS; ++f) vals[f] = 0.0f;
             int nz = 0;
             if (k < last && in_box(g, px, py)) {
                 const float dx = g.s0 - fx, dy = g.s1 - fy;
@@ -759,12 +783,15 @@ bwd_group(__global const float16 *packed, __global const int *gid_from_isect,
                     const float w = alpha * T;
                     const float vc = vr * g.s6 + vg * g.s7 + vb * g.s8 + vd * g.s9;
                     const float Rn = R - vc * w;
+                    /* no gradient through the ALPHA_MAX clamp */
+                    const float va = a <= ALPHA_MAX ? T * vc - Rn / (1.0f - alpha) : 0.0f;
+#if RASTER_BWD_OPACITY
+                    vals[0] = va * G; /* field 8 only */
+#else
                     vals[5] = vr * w;
                     vals[6] = vg * w;
                     vals[7] = vb * w;
                     vals[9] = vd * w;
-                    /* no gradient through the ALPHA_MAX clamp */
-                    const float va = a <= ALPHA_MAX ? T * vc - Rn / (1.0f - alpha) : 0.0f;
                     vals[8] = va * G;
                     const float vp = va * alpha;
                     vals[2] = -0.5f * dx * dx * vp;
@@ -772,13 +799,29 @@ bwd_group(__global const float16 *packed, __global const int *gid_from_isect,
                     vals[4] = -0.5f * dy * dy * vp;
                     vals[0] = -(g.s2 * dx + g.s3 * dy) * vp;
                     vals[1] = -(g.s3 * dx + g.s4 * dy) * vp;
+#endif
                     T *= 1.0f - alpha;
                     R = Rn;
                 }
             }
-            group_sum(vals, V_RECORD, nz, j, BWD_BATCH, part, red, lid);
+            group_sum(vals, BWD_FIELDS, nz, j, BWD_BATCH, part, red, lid);
         }
         barrier(CLK_LOCAL_MEM_FENCE);
+#if RASTER_BWD_OPACITY
+        for (int e = lid; e < nb * V_RECORD; e += TILE_PIXELS) { /* fields other than 8: 0 */
+            const int j = e / V_RECORD, f = e - j * V_RECORD;
+            if (f == 8) continue;
+            v_emit[(size_t)emit_from_isect[b0 + j] * V_RECORD + f] = 0.0f;
+        }
+        for (int j = lid; j < nb; j += TILE_PIXELS) {
+            float s = 0.0f;
+            for (int p = 0; p < NPART; ++p) s += part[p * BWD_BATCH + j];
+            s *= iv;
+            s *= ik;
+            if (!isfinite(s)) atomic_or(bad, 1);
+            v_emit[(size_t)emit_from_isect[b0 + j] * V_RECORD + 8] = s;
+        }
+#else
         for (int e = lid; e < nb * V_RECORD; e += TILE_PIXELS) {
             const int j = e / V_RECORD, f = e - j * V_RECORD;
             float s = 0.0f;
@@ -789,6 +832,7 @@ bwd_group(__global const float16 *packed, __global const int *gid_from_isect,
             if (!isfinite(s)) atomic_or(bad, 1);
             v_emit[(size_t)emit_from_isect[b0 + j] * V_RECORD + f] = s;
         }
+#endif
     }
 }
 

@@ -3,8 +3,8 @@
 
     python scripts/pack_out.py GRID OUT [--max-files 8] [--max-mb 15.5] [--total-mb 62]
 
-Writes OUT/tables_logs.tgz (every metrics.json, results.*, psnr_vs_time.svg, *.log and
-machine.txt under GRID) and then the runs' 8-bit test renders (what scripts/rescore_lpips.py
+Writes OUT/tables_logs.tgz (every metrics.json, results.*, psnr_vs_time.svg, *.log, census*.json
+(bench/kernel_census.py) and machine.txt under GRID) and then the runs' 8-bit test renders (what scripts/rescore_lpips.py
 needs for LPIPS) into OUT/renders_K.tar chunks of at most --max-mb each, run by run in the order
 of GRID's top-level folders as listed in GRID/pack_order.txt (one name per line; folders not
 listed come last, alphabetically). A run whose renders do not fit is left out whole and named in
@@ -49,7 +49,7 @@ def main(argv=None) -> int:
     with tarfile.open(os.path.join(a.out, "tables_logs.tgz"), "w:gz") as tf:
         for root, _dirs, files in sorted(os.walk(a.grid)):
             for f in sorted(files):
-                if f in keep or f.endswith(".log"):
+                if f in keep or f.endswith(".log") or (f.startswith("census") and f.endswith(".json")):
                     p = os.path.join(root, f)
                     tf.add(p, os.path.relpath(p, a.grid))
     used = os.path.getsize(os.path.join(a.out, "tables_logs.tgz"))

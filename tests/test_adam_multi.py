@@ -10,6 +10,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from reings.backends import get_backend
 from reings.backends.opencl.harness import ClCalls
 from reings.optim import Adam
 from reings.state import PARAM_NAMES, TrainState
@@ -102,6 +103,20 @@ def test_adam_multi_builds(device, case, build):
     """Both builds of adam_step_multi (ADAM_MULTI_SPLIT: the GPUs' without the slot barrier, the CPUs'
     with it), whichever the device would get; and the ADAM_FP64=0 builds of all three kernels."""
     _check_case(device, case, {"nosplit": 0, "split": 1, "fp32": None}[build], build != "fp32")
+
+
+@pytest.mark.parametrize("wg", [32, 128])
+@pytest.mark.parametrize("case", ["all_six_full_sh", "mixed_calls"])
+def test_adam_multi_work_group_sizes(device, case, wg):
+    """The backend's work-group size sets the lines per work-group (ly = wg // lx): GPUs run 128, PoCL
+    256; the same bits at other sizes."""
+    be = get_backend(device)
+    old = be.wg
+    be.wg = wg
+    try:
+        _check_case(device, case, None)
+    finally:
+        be.wg = old
 
 
 def _check_case(device, case, split, fp64=True):

@@ -198,9 +198,11 @@ def test_shared_soft_depth_steps_the_sum_of_both_gradients(device, case, engine)
 
 def test_photometric_value_switch(device, case):
     """Trainer.photometric(value=False) (the training steps whose loss nobody reads skip the loss's
-    reduction, docs/perf_notes.md §11): the same dL/d rgb bytes as value=True; read_loss refuses
-    after it, and after a value=True pass returns the float64 reference's loss of the read image."""
+    reduction, docs/perf_notes.md §11): the same dL/d rgb bytes as value=True and one launch fewer;
+    read_loss refuses after it (also after an earlier value=True pass: no stale loss), and after a
+    value=True pass returns the float64 reference's loss of the read image."""
     from reings.backends import reference_loss as R
+    from reings.backends.opencl.harness import ClCalls
     from reings.state import TrainState
 
     scene, init, _ = case
@@ -209,13 +211,39 @@ def test_photometric_value_switch(device, case):
     fr = tr.forward(scene.cameras[0], 1, (0, 0, 0), 0.01)
     rgb = tr.read_rgb(fr)
     n = fr.width * fr.height * 3
-    grads = []
-    for value in (False, True):
-        v = tr.photometric(fr, 0, 0.8, 0.2, value=value)
+    want, _ = R.weighted_photometric_fwd_bwd(rgb.astype(np.float64), np.asarray(scene.images[0], np.float64), 0.8, 0.2)
+    grads, launches = [], []
+    for value in (True, False, True, False):
+        with ClCalls() as calls:
+            v = tr.photometric(fr, 0, 0.8, 0.2, value=value)
+        launches.append(calls.n["launches"])
         grads.append(tr._read(v, (n,), np.float32))
-        if not value:
+        if value:
+            assert abs(tr.read_loss() - float(want)) <= 1e-5 * abs(float(want)) + 1e-7
+        else:
             with pytest.raises(RuntimeError, match="computed no loss"):
                 tr.read_loss()
-    np.testing.assert_array_equal(grads[0], grads[1])
-    want, _ = R.weighted_photometric_fwd_bwd(rgb.astype(np.float64), np.asarray(scene.images[0], np.float64), 0.8, 0.2)
-    assert abs(tr.read_loss() - float(want)) <= 1e-5 * abs(float(want)) + 1e-7
+    for g in grads[1:]:
+        np.testing.assert_array_equal(g, grads[0])
+    assert launches[0] == launches[2] == launches[1] + 1 == launches[3] + 1
+
+
+def test_fit_reduces_the_loss_only_on_logging_iterations(device, case):
+    """The fit passes value=log: loss_row_sums runs once per logging iteration and on no other."""
+    import pyopencl._cl as _cl
+
+    names = []
+    orig = _cl.enqueue_nd_range_kernel
+
+    def launch(queue, kernel, *a, **k):
+        names.append(kernel.function_name)
+        return orig(queue, kernel, *a, **k)
+
+    _cl.enqueue_nd_range_kernel = launch
+    try:
+        res = _fit(case, device, engine="device")
+    finally:
+        _cl.enqueue_nd_range_kernel = orig
+    assert res.history.iteration == [5, 10, 15, 20, 23]
+    assert names.count("loss_row_sums") == len(res.history.iteration)
+    assert names.count("ssim_vpass_bwd") == 23  # every step's gradient

@@ -141,6 +141,28 @@ def test_deterministic(device, cpu):
     assert np.array_equal(g1.v_emit, g2.v_emit)
 
 
+@pytest.mark.parametrize("cpu", SCHEDULES)
+@pytest.mark.parametrize("name", ["random", "saturated", "depth_ties", "size_70x45", "alpha_clamp",
+                                  "many_in_one_tile", "one", "empty", "tile_corner", "needles"])
+def test_bwd_opacity_only_keeps_the_bits(device, name, cpu):
+    """Rasterizer.bwd(opacity_only=True) (RASTER_BWD_OPACITY: the soft depth term's and the DTU background
+    pass's backward, which keep only the opacities' gradient): every record's d/d opacity field has the
+    bytes of the full backward's, the other fields are 0, for depth-only, alpha-only and all cotangents."""
+    from reings.backends.opencl.rasterize import rasterize_bwd_host
+
+    proj, bins, w, h = _scene(name)
+    vr, vd, va = _cotangents(w, h, seed=2)
+    for kw in ({"v_depth": vd}, {"v_alpha": va}, {"v_rgb": vr, "v_depth": vd, "v_alpha": va}):
+        full = rasterize_bwd_host(proj, bins, w, h, background=BG, device=device, cpu_schedule=bool(cpu), **kw)
+        only = rasterize_bwd_host(proj, bins, w, h, background=BG, device=device, cpu_schedule=bool(cpu),
+                                  opacity_only=True, **kw)
+        assert np.array_equal(only.v_emit[:, 8].view(np.uint32), full.v_emit[:, 8].view(np.uint32)), list(kw)
+        assert np.array_equal(only.v_opacities.view(np.uint32), full.v_opacities.view(np.uint32)), list(kw)
+        assert not np.delete(only.v_emit, 8, axis=1).any(), list(kw)
+        if name == "random":
+            assert np.abs(full.v_opacities).max() > 0 and np.abs(full.v_means2d).max() > 0
+
+
 @pytest.mark.parametrize("vec", [8, 16])
 @pytest.mark.parametrize("name", ["random", "size_70x45", "many_in_one_tile", "needles"])
 def test_cpu_lane_widths_match_reference(device, vec, name):
@@ -337,6 +359,9 @@ _OCLGRIND_SCRIPT = """
         g = rasterize_bwd_host(proj, bins, w, h, vr, vd, va, BG, device="oclgrind", cpu_schedule=cpu)
         g = rasterize_bwd_host(proj, bins, w, h, None, None, va, BG, device="oclgrind", cpu_schedule=cpu)
         assert np.all(np.isfinite(o.rgb)) and np.all(np.isfinite(g.v_emit))
+        g = rasterize_bwd_host(proj, bins, w, h, None, vd, None, BG, device="oclgrind", cpu_schedule=cpu,
+                               opacity_only=True)  # RASTER_BWD_OPACITY
+        assert np.all(np.isfinite(g.v_emit))
     # the overflow rerun (pass 1 of rasterize_bwd, the rescaled isect_reduce) on a small case
     from test_rasterize import _overflow_inputs
     proj, bins, w, h = _scene("size_17x15")

@@ -224,7 +224,8 @@ class Trainer(Protocol):
         (reference_loss.weighted_photometric_fwd_bwd; kernels/photometric.cl, or kernels/l1.cl
         when w_ssim == 0). Returns dL/d rgb for `backward`; the loss waits for `read_loss`.
         value=False: a step whose loss nobody reads; a trainer may skip the loss's own reduction
-        (the device trainer does), and then `read_loss` raises until the next pass with value=True."""
+        (the device trainer does on the L1 + SSIM path, and its `read_loss` then raises until the next
+        pass with value=True; the L1-only path and the host trainer compute the loss anyway)."""
 
     def read_loss(self) -> float:
         """The loss of the last `photometric` (a read from the device: call it when logging)."""

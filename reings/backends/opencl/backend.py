@@ -199,6 +199,13 @@ class _Slot:
     frame: Any = None  # the last frame made in this slot (_new_frame)
 
 
+
+def opacity_only_fields(grad_fields) -> bool:
+    """True when a backward wants the opacities' gradient alone (grad_fields == ("opacity_logits",):
+    the soft depth term's and the DTU background pass's backward): the rasterizer's backward then sums
+    only that record field (RASTER_BWD_OPACITY, the same bits for it; docs/perf_notes.md §11)."""
+    return grad_fields is not None and len(grad_fields) > 0 and set(grad_fields) == {"opacity_logits"}
+
 class OpenCLBackend:
     """One OpenCL device (see the module docstring)."""
 
@@ -554,24 +561,25 @@ class OpenCLBackend:
             ev = r.reduce(r.imp_emit, 1, b["offset_from_rank"], b["gid_from_rank"], n_rank, imp, count=count)
             self._mark("importance_reduce", ev)
 
-    def _raster_bwd(self, fr: _Frame, v_rgb, v_depth, v_alpha) -> None:
+    def _raster_bwd(self, fr: _Frame, v_rgb, v_depth, v_alpha, opacity_only: bool = False) -> None:
         """rasterize_bwd (per-emit records) + isect_reduce into v_proj [N, V_RECORD] (rows of
         culled gids are zero or left unwritten: project_bwd never reads them)."""
         vr = None if v_rgb is None else self._upload("pixel", "v_rgb", np.asarray(v_rgb, _F32))
         vd = None if v_depth is None else self._upload("pixel", "v_depth", np.asarray(v_depth, _F32))
         va = None if v_alpha is None else self._upload("pixel", "v_alpha", np.asarray(v_alpha, _F32))
-        self._raster_bwd_buffers(fr, vr, vd, va)
+        self._raster_bwd_buffers(fr, vr, vd, va, opacity_only)
 
-    def _raster_bwd_buffers(self, fr: _Frame, vr, vd, va) -> None:
+    def _raster_bwd_buffers(self, fr: _Frame, vr, vd, va, opacity_only: bool = False) -> None:
         """_raster_bwd on cotangent images that are already device buffers (or None). Refuses a
         frame whose depth order was re-sorted since its forward (never, by construction: module
-        docstring, "Depth orders")."""
+        docstring, "Depth orders"). opacity_only: the records carry d/d opacity only (the other
+        fields 0; `opacity_only_fields`)."""
         if fr.order is not None and fr.order.gen != fr.order_gen:
             raise RuntimeError(f"backward: the frame's depth order ({fr.order.name}) was re-sorted since its "
                                "forward; a frame is backpropagated while it is its slot's current one")
         r, b = self._raster(fr), fr.bufs
         ev = r.bwd(b["tile_ranges"], b["gid_from_isect"], b["emit_from_isect"], fr.cap, fr.width, fr.height,
-                   vr, vd, va)
+                   vr, vd, va, opacity_only=opacity_only)
         self._mark("rasterize_bwd", ev, span=True)
         vp = b["v_proj"] = self._slot(fr.slot).mem.get("gauss", "v_proj", fr.n, 4 * V_RECORD)
         n_rank, count = self._rank_count(fr)
@@ -622,7 +630,7 @@ class OpenCLBackend:
         slot's current one (no forward into its slot since: RuntimeError otherwise)."""
         if self._slot(fr.slot).frame is not fr:
             raise RuntimeError(f"backward_device: a later forward replaced the frame (slot {fr.slot})")
-        self._raster_bwd_buffers(fr, v_rgb, v_depth, v_alpha)
+        self._raster_bwd_buffers(fr, v_rgb, v_depth, v_alpha, opacity_only_fields(grad_fields))
         return self._project_bwd_device(fr, opacity_override, grad_fields)
 
     # ------------------------------------------------------------------------------------------
@@ -747,7 +755,7 @@ class OpenCLBackend:
         if fr is None:
             fr = self._forward(g, camera, background, near, opacity_override, False, drop)
         self._frame = fr  # the backward leaves the forward's buffers intact: a second VJP may reuse it
-        self._raster_bwd(fr, v_rgb, v_depth, v_alpha)
+        self._raster_bwd(fr, v_rgb, v_depth, v_alpha, opacity_only_fields(grad_fields))
         out = self._project_bwd_device(fr, opacity_override, grad_fields)
         n, k = fr.n, fr.sh_k
         res = {f: self._read(out[f], shp, _F32) for f, shp in

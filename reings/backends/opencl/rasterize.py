@@ -11,7 +11,9 @@ Device-level API (buffers in, events out; every call enqueues on `handle.queue`,
     r.bwd(tile_ranges, gid_from_isect, emit_from_isect, n_isect, width, height,
           v_rgb=None, v_depth=None, v_alpha=None)                 -> event
         reads r.packed and r.rgb/depth/final_T/last of the last `fwd` on this Rasterizer (pass
-        `fwd_out=(rgb, depth, final_T, last, packed)` to use others) and writes r.v_emit [K, 10]
+        `fwd_out=(rgb, depth, final_T, last, packed)` to use others) and writes r.v_emit [K, 10];
+        opacity_only=True: only field 8 (d/d opacity) is summed, the others are written as 0, field 8
+        with the bits of the full backward (RASTER_BWD_OPACITY, kernels/rasterize.cl)
     r.reduce(records, width, offset_from_rank, gid_from_rank, n_rank, out, accumulate=False,
              count=None)                                          -> event
         out[gid_from_rank[r], :] (+)= sum of records[offset_from_rank[r]:offset_from_rank[r+1], :];
@@ -104,6 +106,7 @@ class Rasterizer:
         self.k_fwd.set_scalar_arg_dtypes(fwd_types)
         self._fwd_types = fwd_types
         self.k_bwd.set_scalar_arg_dtypes([None] * 4 + [i32] * 4 + [None] * 7 + [i32, None])
+        self._k_bwd_opacity = None  # RASTER_BWD_OPACITY=1, built on first use (bwd(opacity_only=True))
         self.k_reduce.set_scalar_arg_dtypes([None] * 4 + [i32] * 3 + [None, i32])
         self.local = 1 if self.cpu_schedule else TILE_PIXELS
         self._dummy = self.scratch.get("small", "raster_dummy", 16, 4)
@@ -186,8 +189,17 @@ class Rasterizer:
                  gid, emit, np.int32(width), np.int32(height), np.int32(tiles_x), np.int32(n_tiles),
                  *bg, self.rgb, self.depth, self.alpha, self.final_T, self.last, imp, wait_for=wait_for)
 
+    def _bwd_kernel(self, opacity_only: bool):
+        if not opacity_only:
+            return self.k_bwd
+        if self._k_bwd_opacity is None:
+            k = self._lib.get(FILE, "rasterize_bwd", RASTER_IMPORTANCE=0, RASTER_BWD_OPACITY=1, **self._defines)
+            k.set_scalar_arg_dtypes([None] * 4 + [np.int32] * 4 + [None] * 7 + [np.int32, None])
+            self._k_bwd_opacity = k
+        return self._k_bwd_opacity
+
     def bwd(self, tile_ranges, gid_from_isect, emit_from_isect, n_isect: int, width: int, height: int,
-            v_rgb=None, v_depth=None, v_alpha=None, fwd_out=None, wait_for=None):
+            v_rgb=None, v_depth=None, v_alpha=None, fwd_out=None, wait_for=None, opacity_only: bool = False):
         if (int(width), int(height)) != (self.width, self.height) and fwd_out is None:
             raise ValueError("Rasterizer.bwd: image size differs from the last fwd; pass fwd_out")
         self.n_isect = int(n_isect)
@@ -197,7 +209,7 @@ class Rasterizer:
         d = self._dummy
         gid = gid_from_isect if self.n_isect else d
         emit = emit_from_isect if self.n_isect else d
-        return self.k_bwd(self.queue, *self._range(width, height), packed, tile_ranges,
+        return self._bwd_kernel(opacity_only)(self.queue, *self._range(width, height), packed, tile_ranges,
                           gid, emit, np.int32(width), np.int32(height), np.int32(tiles_x), np.int32(n_tiles),
                           rgb, depth, final_T, last, v_rgb if v_rgb is not None else d,
                           v_depth if v_depth is not None else d, v_alpha if v_alpha is not None else d,
@@ -281,14 +293,16 @@ def rasterize_fwd_host(proj: Projected, bins: Bins, width: int, height: int,
 
 def rasterize_bwd_host(proj: Projected, bins: Bins, width: int, height: int, v_rgb=None, v_depth=None,
                        v_alpha=None, background: Sequence[float] = (0.0, 0.0, 0.0), device: str = "pocl",
-                       cpu_schedule: bool | None = None, **defines) -> RasterGrads:
-    """Forward then backward then isect_reduce; cotangents None count as zero."""
+                       cpu_schedule: bool | None = None, opacity_only: bool = False, **defines) -> RasterGrads:
+    """Forward then backward then isect_reduce; cotangents None count as zero; opacity_only: the
+    backward of Rasterizer.bwd(opacity_only=True) (only v_opacities, the rest zero)."""
     r = rasterizer_for(device, cpu_schedule, **defines)
     n, k, b, _ = _run_fwd(r, proj, bins, width, height, background, False)
     vr = _upload(r, "v_rgb", v_rgb, np.float32) if v_rgb is not None else None
     vd = _upload(r, "v_depth", v_depth, np.float32) if v_depth is not None else None
     va = _upload(r, "v_alpha", v_alpha, np.float32) if v_alpha is not None else None
-    r.bwd(b["tile_ranges"], b["gid_from_isect"], b["emit_from_isect"], k, width, height, vr, vd, va)
+    r.bwd(b["tile_ranges"], b["gid_from_isect"], b["emit_from_isect"], k, width, height, vr, vd, va,
+          opacity_only=opacity_only)
     g = r.scratch.get("gauss", "host_grads", max(n, 1), 4 * V_RECORD)
     r.cl.enqueue_fill_buffer(r.queue, g, np.float32(0), 0, max(n, 1) * 4 * V_RECORD)
     r.reduce(r.v_emit, V_RECORD, b["offset_from_rank"], b["gid_from_rank"], len(bins.gid_from_rank), g)

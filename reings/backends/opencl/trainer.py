@@ -149,6 +149,7 @@ class DeviceTrainer:
         self.k_adam = backend.kernel("adam.cl", "adam_step", **adam_defs)
         self.k_adam_flat = backend.kernel("adam.cl", "adam_step_flat", **adam_defs)
         self.k_adam_multi = backend.kernel("adam.cl", "adam_step_multi", **adam_defs)
+        self._adam_multi_wg = None  # its CL_KERNEL_WORK_GROUP_SIZE, queried once
         self.k_sh_pack = backend.kernel("sh_pack.cl", "sh_pack")
         self.k_reg_count = backend.kernel("regularize.cl", "regularize_opacity_count", REGULARIZE_FP64=int(self.fp64))
         self.k_reg_grads = backend.kernel("regularize.cl", "regularize_grads", REGULARIZE_FP64=int(self.fp64))
@@ -175,7 +176,9 @@ class DeviceTrainer:
         self.l1_wg = 1 if backend.cpu else 64  # L1-only loss work-group (kernels/l1.cl)
         self.k_l1_rows = backend.kernel("l1.cl", "l1_rows", L1_WG=self.l1_wg)
         self.k_l1_total = backend.kernel("l1.cl", "l1_total", L1_WG=self.l1_wg)
-        self._loss = None  # ("l1", n, w_l1) after an L1-only photometric pass, ("ssim",) after the full one
+        # ("l1", n, w_l1, rows) after an L1-only photometric pass, ("ssim",) after a full one with value=True,
+        # None after one with value=False (read_loss refuses) or before any
+        self._loss = None
         self.gt = []
         self.images = list(images)  # as given: the blur levels are made from them (cross_warp)
         for i, im in enumerate(self.images):
@@ -862,7 +865,11 @@ class DeviceTrainer:
             if not flat:
                 wide = max(wide, cols)
         lx = -(-wide // ADAM_LX) * ADAM_LX
-        ly = max(1, self.b.wg // lx)
+        if self._adam_multi_wg is None:  # the kernel's own limit (CL_KERNEL_WORK_GROUP_SIZE) bounds lx * ly too
+            cl = self.cl
+            self._adam_multi_wg = int(self.k_adam_multi.get_work_group_info(cl.kernel_work_group_info.WORK_GROUP_SIZE,
+                                                                            self.handle.device))
+        ly = max(1, min(self.b.wg, self._adam_multi_wg) // lx)
         lanes = ly * lx
         args: list = []
         end = 0
