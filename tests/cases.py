@@ -453,3 +453,15 @@ def device_depth_frame(trainer, cam: Camera, depth, alpha):
     return types.SimpleNamespace(width=cam.width, height=cam.height, camera=cam,
                                  bufs={k: cl.Buffer(ctx, mf, hostbuf=np.ascontiguousarray(x, np.float32))
                                        for k, x in (("out_depth", depth), ("out_alpha", alpha))})
+
+
+def load_bench(name: str, as_name: str | None = None):
+    """The module bench/<name>.py (a script, not a package) loaded for a test."""
+    import importlib.util
+    import os
+
+    path = os.path.join(os.path.dirname(__file__), "..", "bench", f"{name}.py")
+    spec = importlib.util.spec_from_file_location(as_name or f"{name}_under_test", path)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod

@@ -3,16 +3,11 @@ events with known start / end times: launches and device ms per (stage, kernel),
 stage, per-iteration division; and that the fold waits for the window's last event."""
 from __future__ import annotations
 
-import importlib.util
-import os
+from cases import load_bench
 
 
 def _census_module():
-    path = os.path.join(os.path.dirname(__file__), "..", "bench", "kernel_census.py")
-    spec = importlib.util.spec_from_file_location("kernel_census", path)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+    return load_bench("kernel_census")
 
 
 class _Prof:

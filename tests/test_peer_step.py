@@ -11,9 +11,6 @@
 """
 from __future__ import annotations
 
-import importlib.util
-import os
-
 import numpy as np
 import pytest
 
@@ -123,11 +120,9 @@ def test_step_host_syncs(device, mode):
 
 
 def _load_peer_step():
-    path = os.path.join(os.path.dirname(__file__), "..", "bench", "peer_step.py")
-    spec = importlib.util.spec_from_file_location("peer_step_under_test", path)
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+    from cases import load_bench
+
+    return load_bench("peer_step")
 
 
 def test_peer_step_runs_without_gsplat(device, capsys, tmp_path):
