@@ -112,7 +112,15 @@ def test_adam_kernel_matches_numpy_adam(device, rng, location):
         np.testing.assert_allclose(st.params[k], ref, rtol=0, atol=2e-6 + 1e-6 * np.abs(ref).max())
 
 
-def test_regularizer_kernel_matches_numpy(device, rng):
+@pytest.mark.parametrize("chunk", [None, 8, 3])
+def test_regularizer_kernel_matches_numpy(device, rng, chunk, monkeypatch):
+    """chunk: regularize_opacity_count's Gaussians per work-item (None: this device's; 8 is the GPUs',
+    3 leaves a partial last chunk of the 1000)."""
+    if chunk is not None:
+        from reings.backends.opencl import trainer as T
+
+        monkeypatch.setattr(T, "REG_COUNT_CHUNK_CPU", chunk)
+        monkeypatch.setattr(T, "REG_COUNT_CHUNK_GPU", chunk)
     n = 1000
     st = _state(rng, n, 1)
     ls = st.params["log_scales"]

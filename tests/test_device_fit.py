@@ -247,3 +247,27 @@ def test_fit_reduces_the_loss_only_on_logging_iterations(device, case):
     assert res.history.iteration == [5, 10, 15, 20, 23]
     assert names.count("loss_row_sums") == len(res.history.iteration)
     assert names.count("ssim_vpass_bwd") == 23  # every step's gradient
+
+
+def test_opacity_only_backward_is_wired(device, case):
+    """backward(grad_fields=("opacity_logits",)) (the soft depth and background passes) runs the
+    rasterizer's opacity-only build: the frame's reduced records carry d/d opacity alone, with the bytes
+    of the full backward's; any other field set runs the full build."""
+    from reings.state import TrainState
+
+    scene, init, _ = case
+    tr = get_backend(device).trainer(scene.images, engine="device")
+    tr.upload(TrainState.from_gaussians(init, 1))
+    rng = np.random.default_rng(5)
+    cam = scene.cameras[0]
+    vd = rng.normal(size=(cam.height, cam.width)).astype(np.float32)
+    recs = {}
+    for fields in (None, ("opacity_logits",), ("opacity_logits", "means")):
+        fr = tr.forward(cam, 1, (0, 0, 0), 0.01)
+        tr.backward(fr, None, vd, None, fields)
+        recs[fields] = tr._read(fr.bufs["v_proj"], (tr.n, 10), np.float32)[tr._read(fr.bufs["radii"], (tr.n,), np.int32) > 0]
+    full, only, two = recs[None], recs[("opacity_logits",)], recs[("opacity_logits", "means")]
+    assert np.abs(full[:, :2]).max() > 0 and np.abs(full[:, 8]).max() > 0
+    np.testing.assert_array_equal(only[:, 8].view(np.uint32), full[:, 8].view(np.uint32))
+    assert not np.delete(only, 8, axis=1).any()
+    np.testing.assert_array_equal(two.view(np.uint32), full.view(np.uint32))

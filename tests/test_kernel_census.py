@@ -48,3 +48,26 @@ def test_census_folds_counts_busy_and_gaps():
     assert abs(co["gap_ms_per_it"] - 3.5) < 1e-9                  # span 11 - busy 4 = 7 ms / 2
     assert list(co["kernels"]) == ["a", "b"]                      # largest device time first
     assert abs(fi["busy_ms_per_it"] - 5.0) < 1e-9 and fi["gap_ms_per_it"] == 0.0
+
+
+def test_census_of_a_run_counts_the_steps_run_and_restores_its_patches(device, tmp_path):
+    """The whole tool on a short `reings run`: each fitting stage's steps, the probes in stages of their
+    own, launches attributed, and pyopencl / reings unpatched after. (A resumed fit's fewer steps are not
+    exercised here: a finished run is not resumed.)"""
+    import json
+
+    import pyopencl._cl as _cl
+
+    import reings.pipeline as pipeline
+    import reings.train as train
+
+    K = _census_module()
+    before = (_cl.enqueue_nd_range_kernel, pipeline.fit, train._Iteration.__call__, pipeline.RunContext.probe)
+    out, run_out = tmp_path / "census.json", tmp_path / "run"
+    cmd = ["run", "--device", device, "--preset", "quick", "--iterations", "2,2,3", "--out", str(run_out)]
+    assert K.main(["--out", str(out), "--window", "64", "--"] + cmd) == 0
+    assert (_cl.enqueue_nd_range_kernel, pipeline.fit, train._Iteration.__call__, pipeline.RunContext.probe) == before
+    st = json.loads(out.read_text())["stages"]
+    assert {k: st[k]["iterations"] for k in ("coarse", "fine", "final")} == {"coarse": 2, "fine": 2, "final": 3}
+    assert "final/probe" in st and st["final/probe"]["iterations"] == 0
+    assert st["coarse"]["kernels"]["rasterize_fwd"]["launches_per_it"] >= 1

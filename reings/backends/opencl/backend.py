@@ -199,12 +199,12 @@ class _Slot:
     frame: Any = None  # the last frame made in this slot (_new_frame)
 
 
-
 def opacity_only_fields(grad_fields) -> bool:
     """True when a backward wants the opacities' gradient alone (grad_fields == ("opacity_logits",):
     the soft depth term's and the DTU background pass's backward): the rasterizer's backward then sums
     only that record field (RASTER_BWD_OPACITY, the same bits for it; docs/perf_notes.md §11)."""
-    return grad_fields is not None and len(grad_fields) > 0 and set(grad_fields) == {"opacity_logits"}
+    return grad_fields is not None and set(grad_fields) == {"opacity_logits"}
+
 
 class OpenCLBackend:
     """One OpenCL device (see the module docstring)."""

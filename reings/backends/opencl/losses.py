@@ -41,6 +41,7 @@ class PhotometricCL:
         self.taps = cl.Buffer(ctx, cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR,
                               hostbuf=gaussian_taps().astype(np.float32))
         self._shape = None
+        self._weights = None  # (w_l1, w_ssim) of the last enqueue with value=True; None: no loss to read
 
     def _alloc(self, h: int, w: int):
         if self._shape == (h, w):
@@ -101,7 +102,7 @@ class PhotometricCL:
     def read_loss(self) -> float:
         """The loss of the last `enqueue` / call (a blocking read of H x 2 partial sums, added in
         float64 on the host)."""
-        if getattr(self, "_weights", None) is None:
+        if self._weights is None:
             raise RuntimeError("PhotometricCL.read_loss: the last enqueue computed no loss (value=False) or there was none")
         h, w = self._shape
         n = h * w * 3

@@ -46,6 +46,7 @@ from .scratch import Scratch
 FILE = "rasterize.cl"
 TILE_PIXELS = TILE_SIZE * TILE_SIZE
 PACKED_BYTES = 64  # one float16 record per Gaussian (rasterize_prep)
+_BWD_TYPES = [None] * 4 + [np.int32] * 4 + [None] * 7 + [np.int32, None]  # rasterize_bwd's scalar arguments
 
 
 def raster_vec() -> int:
@@ -105,7 +106,7 @@ class Rasterizer:
         fwd_types = [None] * 4 + [i32] * 4 + [f32] * 3 + [None] * 6
         self.k_fwd.set_scalar_arg_dtypes(fwd_types)
         self._fwd_types = fwd_types
-        self.k_bwd.set_scalar_arg_dtypes([None] * 4 + [i32] * 4 + [None] * 7 + [i32, None])
+        self.k_bwd.set_scalar_arg_dtypes(_BWD_TYPES)
         self._k_bwd_opacity = None  # RASTER_BWD_OPACITY=1, built on first use (bwd(opacity_only=True))
         self.k_reduce.set_scalar_arg_dtypes([None] * 4 + [i32] * 3 + [None, i32])
         self.local = 1 if self.cpu_schedule else TILE_PIXELS
@@ -194,7 +195,7 @@ class Rasterizer:
             return self.k_bwd
         if self._k_bwd_opacity is None:
             k = self._lib.get(FILE, "rasterize_bwd", RASTER_IMPORTANCE=0, RASTER_BWD_OPACITY=1, **self._defines)
-            k.set_scalar_arg_dtypes([None] * 4 + [np.int32] * 4 + [None] * 7 + [np.int32, None])
+            k.set_scalar_arg_dtypes(_BWD_TYPES)
             self._k_bwd_opacity = k
         return self._k_bwd_opacity
 

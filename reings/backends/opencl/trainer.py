@@ -84,6 +84,7 @@ CPU_DEFAULT_ADAM = "kernel"
 # kernels/adam.cl adam_step_multi: group slots of one launch, lanes per line (a strided group's
 # columns padded to a multiple of it: PoCL vectorizes along them)
 ADAM_SLOTS, ADAM_LX = 6, 16
+_ADAM_SLOT_ARGS = 14  # adam_step_multi's arguments per slot (kernels/adam.cl ADAM_SLOT_ARGS): 4 buffers, 8 uint, 2 scalars
 ADAM_LOCATIONS = ("auto", "kernel", "numpy")
 REG_VALUE_CHUNK = 256  # Gaussians per work-item of regularize_value (its sums are per chunk)
 # Gaussians per work-item of regularize_opacity_count (integer counts: any chunk gives the same
@@ -176,8 +177,8 @@ class DeviceTrainer:
         self.l1_wg = 1 if backend.cpu else 64  # L1-only loss work-group (kernels/l1.cl)
         self.k_l1_rows = backend.kernel("l1.cl", "l1_rows", L1_WG=self.l1_wg)
         self.k_l1_total = backend.kernel("l1.cl", "l1_total", L1_WG=self.l1_wg)
-        # ("l1", n, w_l1, rows) after an L1-only photometric pass, ("ssim",) after a full one with value=True,
-        # None after one with value=False (read_loss refuses) or before any
+        # ("l1", n, w_l1, rows) after an L1-only photometric pass, ("ssim",) after a full one (whose
+        # PhotometricCL refuses read_loss after a value=False pass), None before any
         self._loss = None
         self.gt = []
         self.images = list(images)  # as given: the blur levels are made from them (cross_warp)
@@ -478,7 +479,7 @@ class DeviceTrainer:
         if w_ssim == 0:
             return self.photometric_l1(fr.bufs["out_rgb"], self.gt[view], v, fr.height, fr.width, w_l1)
         ev = self.photo.enqueue(fr.bufs["out_rgb"], self.gt[view], v, fr.height, fr.width, w_l1, w_ssim, value)
-        self._loss = ("ssim",) if value else None
+        self._loss = ("ssim",)
         if self.profile is not None:
             self._events.append(("photometric_loss", ev))  # last kernel only: a lower bound
         return v
@@ -514,9 +515,7 @@ class DeviceTrainer:
             t = self._scalar
             self.cl.enqueue_copy(self.queue, t, total)  # blocking
             return float(w_l1 * float(t[0]) / max(n, 1))
-        if self._loss is None:
-            raise RuntimeError("read_loss: the last photometric pass computed no loss (value=False) or there was none")
-        return self.photo.read_loss()
+        return self.photo.read_loss()  # raises after a value=False pass or before any
 
     def backward(self, fr, v_rgb=None, v_depth=None, opacity_override: float | None = None,
                  grad_fields=None, into: dict | None = None, v_alpha=None) -> dict:
@@ -884,7 +883,9 @@ class DeviceTrainer:
                 end += -(-n // (rpl * ly))
             args += (self.buf("p", name), self.buf("m", name), self.buf("v", name), g, _U32(end), _U32(rows),
                      _U32(cols), _U32(rpl), _U32(sh), _U32(gs), _U32(go), _U32(gc), sc[4], sc[6])
-        pad = args[-14:-10] + [_U32(end)] + [_U32(0)] * 7 + [type(sc[4])(0), _F32(0)]
+        last = args[-_ADAM_SLOT_ARGS:]  # unused slots: the last slot's buffers, no work-groups, zero sizes
+        pad = last[:4] + [_U32(end)] + [_U32(0)] * 7 + [type(sc[4])(0), _F32(0)]
+        assert len(pad) == _ADAM_SLOT_ARGS
         args += pad * (ADAM_SLOTS - len(batch))
         # b1, 1 - b1, b2, 1 - b2, eps: the optimizer's, the same in every group's adam_scalars
         ev = self._call(self.k_adam_multi, (lx * end, ly), (lx, ly), sc[0], sc[1], sc[2], sc[3], sc[5], *args)
