@@ -125,9 +125,12 @@ def main(argv=None):
     import reings
     from dataclasses import replace
 
-    from reings.backends import get_backend
+    from reings.backends import get_backend, set_queue_profiling
     from reings.config import preset
     from reings.train import fit, with_iterations
+
+    if not args.no_breakdown:  # device ms per stage need a profiling queue (its wall is then a profiled queue's)
+        set_queue_profiling(True)
 
     scene = reings.make_procedural_scene(n_views=max(args.views, 3), width=args.width, height=args.height)
     train = scene.subset(list(range(args.views)))

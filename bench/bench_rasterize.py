@@ -55,7 +55,7 @@ def main(argv=None):
     t_setup = time.perf_counter() - t0
     n, k, v = len(g), len(bins.gid_from_isect), len(bins.gid_from_rank)
 
-    h = open_device(args.device)
+    h = open_device(args.device, profiling=True)  # kernel times from events
     defines = dict(d.split("=", 1) for d in args.define)
     sched = None if args.schedule == "auto" else args.schedule == "cpu"
     r = Rasterizer(h, cpu_schedule=sched, **defines)

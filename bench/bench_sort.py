@@ -53,7 +53,7 @@ def run(device: str = "pocl", n: int = 1 << 20, repeats: int = 7, with_pyopencl:
     from reings.backends.opencl.device import open_device
     from reings.backends.opencl.sort import RadixSort
 
-    h = open_device(device)
+    h = open_device(device, profiling=True)  # kernel times from events
     q, ctx = h.queue, h.context
     mf = cl.mem_flags
     ours = RadixSort.for_handle(h)

@@ -105,7 +105,7 @@ def run(device: str, repeats: int, quick: bool, schedule: str, log=sys.stderr) -
     from reings.backends.opencl.device import open_device
     from reings.backends.opencl.sort import _cpu_schedule, split_bits
 
-    h = open_device(device)
+    h = open_device(device, profiling=True)  # kernel times from events
     cpu = _cpu_schedule(h, None if schedule == "device" else schedule == "cpu")
     d = h.device
     base = {"device": d.name.strip(), "platform": h.platform.name.strip(), "driver": d.driver_version.strip(),

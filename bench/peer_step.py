@@ -26,6 +26,9 @@ Gaussians of scene A), where kernel time is negligible: us per step (wall, with 
 us of Python + pyopencl per step with every kernel launch stubbed out (what the host costs before
 the driver), launches and host syncs per step.
 
+Queues profile only when asked (docs/perf_notes.md §12): the wall timings run on the default, unprofiled queue
+and the device breakdown is left out; REINGS_QUEUE_PROFILING=1 adds it (and slows our wall on NVIDIA).
+
 Importable without torch (gsplat's side imports it only when it runs).
 """
 from __future__ import annotations

@@ -215,7 +215,8 @@ def bench_train_step(be, g, cam, target=None, warmup: int = 8, repeats: int = 40
     until the final finish is called ("step_host_enqueue_ms": enqueueing plus, in the sync binning, the
     binning's wait for (V, K)), and with `breakdown` a
     second run with profiling events -> device ms per stage ("dev_<stage>_ms"), their sum, and the
-    device span (first kernel start to last kernel end). The parameters move with every step
+    device span (first kernel start to last kernel end), when the backend's queue profiles
+    (`set_queue_profiling`; `reings bench` turns it on, so its wall is a profiled queue's). The parameters move with every step
     (restore them with trainer.upload if needed)."""
     target = step_target(cam) if target is None else target
     t, opt = make_step_trainer(be, g, target, adam=adam)
@@ -244,7 +245,7 @@ def bench_train_step(be, g, cam, target=None, warmup: int = 8, repeats: int = 40
         rec["per_step"] = cc.as_dict(reps)
         rec["per_step"]["finishes"] -= 1 / reps  # the final finish of the counted block
         rec["per_step"]["syncs"] -= 1 / reps
-    if breakdown:
+    if breakdown and getattr(be.handle, "profiling", False):  # device ms need a profiling queue
         prof: dict = {}
         t.profile = prof
         spans = []
@@ -374,8 +375,9 @@ def main(argv=None) -> int:
     ap.add_argument("--out", default=None, help="write the JSON lines here instead of stdout")
     args = ap.parse_args(argv)
 
-    from .backends import get_backend
+    from .backends import get_backend, set_queue_profiling
 
+    set_queue_profiling(True)  # the stage times are read from the queue's profiling events
     be = get_backend(args.device)  # the registry's instance: kernels and buffers shared with render()
     if "device" not in be.engines:  # the stage timings and the step need a device-resident backend
         raise SystemExit(f"reings bench: {args.device!r} is not an OpenCL device")

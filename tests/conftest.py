@@ -27,6 +27,10 @@ def _lpips_for_tests() -> None:
 
 _lpips_for_tests()
 
+# Queues record profiling timestamps in the tests (several read stage times: last_profile, profile=,
+# kernel_census); the default, off, is tested in test_queue_profiling.py in subprocesses.
+os.environ.setdefault("REINGS_QUEUE_PROFILING", "1")
+
 
 def _devices():
     return [d.strip() for d in os.environ.get("REINGS_TEST_DEVICES", "pocl").split(",") if d.strip()]

@@ -7,7 +7,7 @@ sys.path.insert(0, "bench")  # bench_fit, bench_host
 import reings
 from bench_fit import surface_init
 from bench_host import recipe
-from reings.backends import get_backend
+from reings.backends import get_backend, set_queue_profiling
 from reings.train import fit
 
 ap = argparse.ArgumentParser()
@@ -18,6 +18,7 @@ ap.add_argument("--all", action="store_true", help="also print every stage's dev
 a = ap.parse_args()
 scene = reings.make_procedural_scene(n_views=3, width=504, height=378)
 init = surface_init(scene, 30000, 1, np.random.default_rng(0))
+set_queue_profiling(True)  # the stage times come from profiling events
 be = get_backend(a.device)
 
 

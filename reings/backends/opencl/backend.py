@@ -311,6 +311,8 @@ class OpenCLBackend:
         `finish`."""
         prof: dict[str, float] = {}
         prev = None
+        if not self.handle.profiling:  # no timestamps to read (device.queue_profiling)
+            self._events = []
         for stage, ev, span in self._events:
             try:
                 start, end = ev.profile.start, ev.profile.end
@@ -675,7 +677,7 @@ class OpenCLBackend:
         if self._view_warp is None:
             from .view_warp import ViewWarpCL
 
-            self._view_warp = ViewWarpCL(self.spec)
+            self._view_warp = ViewWarpCL(self.handle)
         return self._view_warp
 
     def view_warp(self, virt, depth, gt, fx: float, baseline: float, weight: float, smooth_weight: float):

@@ -7,6 +7,7 @@
 """
 from __future__ import annotations
 
+import os
 import re
 from dataclasses import dataclass
 
@@ -29,6 +30,7 @@ class DeviceHandle:
     device: object
     context: object
     queue: object
+    profiling: bool = False  # the queue records profiling timestamps (events' .profile is readable)
 
     @property
     def name(self) -> str:
@@ -127,16 +129,42 @@ def _build_probe(platform, device) -> str | None:
 _HANDLES: dict[str, DeviceHandle] = {}
 
 
-def open_device(spec: str, profiling: bool = True) -> DeviceHandle:
-    """A cached context + in-order queue (profiling on: kernel times are read from events)."""
+_PROFILING: bool | None = None  # set_queue_profiling's choice for this process (None: the environment's)
+
+
+def set_queue_profiling(on: bool | None) -> None:
+    """Whether queues opened from now on in this process record profiling timestamps (None: back to
+    REINGS_QUEUE_PROFILING). Callers that read kernel times from events (`reings bench`, `--profile`
+    runs, the bench scripts, kernel_census) turn it on before their first device opens."""
+    global _PROFILING
+    _PROFILING = None if on is None else bool(on)
+
+
+def queue_profiling() -> bool:
+    """Whether a queue opened now records profiling timestamps: set_queue_profiling's choice, else
+    REINGS_QUEUE_PROFILING=1 (on) / 0 (off), else off. [measured] NVIDIA's OpenCL spends host and
+    queue time on every profiled command: a fern run at 3 views on an H100 trains 4.3 s faster
+    without (docs/perf_notes.md §12); the kernels' results are the same bits either way."""
+    if _PROFILING is not None:
+        return _PROFILING
+    return os.environ.get("REINGS_QUEUE_PROFILING", "0").strip().lower() in ("1", "on", "true", "yes")
+
+
+def open_device(spec: str, profiling: bool | None = None) -> DeviceHandle:
+    """A cached context + in-order queue (profiling on: kernel times are read from events; None:
+    `queue_profiling()`). Every caller that leaves `profiling` out under one setting shares one
+    queue; a backend hands its own handle to the objects it builds (their commands must share its
+    in-order queue)."""
     import pyopencl as cl
 
+    if profiling is None:
+        profiling = queue_profiling()
     key = f"{spec}|{profiling}"
     if key not in _HANDLES:
         plat, dev = find_device(spec)
         ctx = cl.Context([dev])
         props = cl.command_queue_properties.PROFILING_ENABLE if profiling else 0
-        _HANDLES[key] = DeviceHandle(spec, plat, dev, ctx, cl.CommandQueue(ctx, dev, properties=props))
+        _HANDLES[key] = DeviceHandle(spec, plat, dev, ctx, cl.CommandQueue(ctx, dev, properties=props), profiling)
     return _HANDLES[key]
 
 

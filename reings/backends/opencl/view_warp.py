@@ -39,7 +39,7 @@ class ViewWarpCL:
     view_warp_bwd_virt's row-scatter form (default: the device's REINGS_CPU_SCHEDULE) instead of
     the per-pixel gather (both give the same bits). The overrides are for tests."""
 
-    def __init__(self, device: str, wg: int | None = None, lwg: int | None = None, cpu_schedule: bool | None = None):
+    def __init__(self, device, wg: int | None = None, lwg: int | None = None, cpu_schedule: bool | None = None):
         import pyopencl as cl
 
         from . import quirks
@@ -48,7 +48,7 @@ class ViewWarpCL:
         from .scratch import Scratch
 
         self.cl = cl
-        self.handle = open_device(device)
+        self.handle = open_device(device) if isinstance(device, str) else device  # a spec or a DeviceHandle
         dev = self.handle.device
         self.wg = int(wg) if wg else (1 if quirks.is_cpu(dev) else 64)
         if self.wg < 1 or self.wg & (self.wg - 1):
