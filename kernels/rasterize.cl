@@ -37,6 +37,14 @@
  *   summed and written, the other fields are written as 0. Field 8 keeps its bits: the per-field sums
  *   are independent (the same lanes, the same tree or warp shuffles, the same order).
  *   (docs/perf_notes.md §11)
+ *   RASTER_BWD_DEPTH_O (0): 1 builds rasterize_bwd with a second depth cotangent v_depth_o whose
+ *   gradient goes to the opacities alone (the shared soft depth term, taken on the photometric
+ *   render): besides the records of (v_rgb, v_depth, v_alpha) in v_emit, the records of v_depth_o
+ *   alone go to v_emit_o, laid out as a RASTER_BWD_OPACITY backward writes them (field 8, the other
+ *   fields 0) and with its bits: per pixel the same T, the same expressions on a cotangent of
+ *   its own (R_o = v_depth_o * out_depth, c_o = v_depth_o * z), summed over the tile the same way.
+ *   (Finite colours assumed: the separate pass multiplies its zero colour cotangents by them.) The
+ *   overflow rerun of a tile scales by the bounds of all four cotangents. (docs/perf_notes.md §13)
  * Schedules (same algorithm, same results up to float rounding of sums):
  *   CPU: one work-item per tile (local size 1), no barriers; the tile's 256 pixels are
  *        RASTER_VEC-wide vectors in private arrays; Gaussians are the outer loop (uniform scalar
@@ -78,8 +86,16 @@
 #ifndef RASTER_BWD_OPACITY
 #define RASTER_BWD_OPACITY 0
 #endif
+#ifndef RASTER_BWD_DEPTH_O
+#define RASTER_BWD_DEPTH_O 0
+#endif
+#if RASTER_BWD_OPACITY && RASTER_BWD_DEPTH_O
+#error "RASTER_BWD_OPACITY and RASTER_BWD_DEPTH_O exclude each other"
+#endif
 #if RASTER_BWD_OPACITY
 #define BWD_FIELDS 1 /* the GPU schedule's per-Gaussian sums: field 8 only */
+#elif RASTER_BWD_DEPTH_O
+#define BWD_FIELDS (V_RECORD + 1) /* + v_depth_o's d/d opacity, written to v_emit_o */
 #else
 #define BWD_FIELDS V_RECORD
 #endif
@@ -157,6 +173,19 @@ inline float pow2_scale_down(float m, int target) {
 /* ------------------------------------------------------------------------------------------ */
 /* isect_reduce: segmented sum of per-emit records into per-Gaussian rows                      */
 
+/* The overflow fallback of one field (rare): the sum overflowed (+inf and -inf records, or partial
+ * sums, would give NaN). Again with +-inf saturated to +-FLT_MAX and every term scaled by one exact
+ * power of two (at most 2^101 each): the result overflows to +-inf, never to NaN; NaN stays NaN. */
+inline float reduce_rescaled(__global const float *records, const int a, const int b, const int width, const int f,
+                             const float s0) {
+    float m = fabs(sat_inf(s0));
+    for (int e = a; e < b; ++e) m = fmax(m, fabs(sat_inf(records[e * width + f]))); /* fmax skips NaN */
+    const float sc = pow2_scale_down(m, 100);
+    float t = sat_inf(s0) * sc;
+    for (int e = a; e < b; ++e) t += sat_inf(records[e * width + f]) * sc;
+    return t * (1.0f / sc);
+}
+
 __kernel void isect_reduce(__global const float *records,       // [K_emit, width]
                            __global const int *offset_from_rank, // [V + 1]
                            __global const int *gid_from_rank,    // [V]
@@ -168,21 +197,29 @@ __kernel void isect_reduce(__global const float *records,       // [K_emit, widt
     if (r >= (int)launch_count((uint)n_rank, counts, count_at)) return;
     const int a = offset_from_rank[r], b = offset_from_rank[r + 1];
     const int gid = gid_from_rank[r];
+    if (width == V_RECORD) {
+        /* gradient records: one pass over the rank's records, the fields in registers. Each field's
+         * sum is s0 + records[a] + records[a + 1] + ... in that order, as in the loop below: the
+         * same bits, one read of each record instead of one strided pass per field. */
+        float s[V_RECORD];
+        for (int f = 0; f < V_RECORD; ++f) s[f] = accumulate ? out[gid * V_RECORD + f] : 0.0f;
+        for (int e = a; e < b; ++e) {
+            __global const float *rec = records + (size_t)e * V_RECORD;
+            for (int f = 0; f < V_RECORD; ++f) s[f] += rec[f];
+        }
+        for (int f = 0; f < V_RECORD; ++f) {
+            float v = s[f];
+            if (!isfinite(v))
+                v = reduce_rescaled(records, a, b, V_RECORD, f, accumulate ? out[gid * V_RECORD + f] : 0.0f);
+            out[gid * V_RECORD + f] = v;
+        }
+        return;
+    }
     for (int f = 0; f < width; ++f) {
         const float s0 = accumulate ? out[gid * width + f] : 0.0f;
         float s = s0;
         for (int e = a; e < b; ++e) s += records[e * width + f];
-        if (!isfinite(s)) {
-            /* rare: the sum overflowed (+inf and -inf records, or partial sums, would give NaN).
-               Again with +-inf saturated to +-FLT_MAX and every term scaled by one exact power of
-               two (at most 2^101 each): the result overflows to +-inf, never to NaN; NaN stays NaN. */
-            float m = fabs(sat_inf(s0));
-            for (int e = a; e < b; ++e) m = fmax(m, fabs(sat_inf(records[e * width + f]))); /* fmax skips NaN */
-            const float sc = pow2_scale_down(m, 100);
-            float t = sat_inf(s0) * sc;
-            for (int e = a; e < b; ++e) t += sat_inf(records[e * width + f]) * sc;
-            s = t * (1.0f / sc);
-        }
+        if (!isfinite(s)) s = reduce_rescaled(records, a, b, width, f, s0);
         out[gid * width + f] = s;
     }
 }
@@ -364,18 +401,27 @@ bwd_tile(__global const float16 *packed, __global const int *gid_from_isect, __g
          const int width, const int height, __global const float *out_rgb, __global const float *out_depth,
          __global const float *out_T, __global const int *out_last, __global const float *v_rgb,
          __global const float *v_depth, __global const float *v_alpha, const int v_mask, __global float *v_emit,
+         __global const float *v_depth_o, __global float *v_emit_o,
          const int x0, const int y0, const int start, int *stop_at, const float sv, const float sk) {
     /* per pixel: T before the current Gaussian; R = v.(output - blended so far) - v_alpha T_final;
      * last (0 outside the image: never valid); the cotangents (all scaled: v by sv, colours by sk) */
     vf Tv[NVEC], Rv[NVEC], VR[NVEC], VG[NVEC], VB[NVEC], VD[NVEC];
+#if RASTER_BWD_DEPTH_O
+    vf RO[NVEC], VO[NVEC]; /* v_depth_o's own R and cotangent */
+#else
+    (void)v_depth_o;
+    (void)v_emit_o;
+#endif
     vi Lv[NVEC];
     vi lmax = (vi)(0);
     for (int c = 0; c < NVEC; ++c) {
         const int py = y0 + (int)((uint)c / CPR), px0 = x0 + (int)((uint)c % CPR) * RASTER_VEC;
         float vr[RASTER_VEC], vg[RASTER_VEC], vb[RASTER_VEC], vd[RASTER_VEC], R[RASTER_VEC];
+        float vo[RASTER_VEC], ro[RASTER_VEC];
         int L[RASTER_VEC];
         for (int l = 0; l < RASTER_VEC; ++l) {
             vr[l] = vg[l] = vb[l] = vd[l] = R[l] = 0.0f;
+            vo[l] = ro[l] = 0.0f;
             L[l] = 0;
         }
         if (py < height) {
@@ -396,6 +442,14 @@ bwd_tile(__global const float16 *packed, __global const int *gid_from_isect, __g
                 }
                 if (v_mask & 4) r -= scaled(v_alpha[p], sv) * scaled(out_T[p], sk);
                 R[l] = r;
+#if RASTER_BWD_DEPTH_O
+                {   /* as a depth-only backward forms its R: 0 + v d */
+                    float q = 0.0f;
+                    vo[l] = scaled(v_depth_o[p], sv);
+                    q += vo[l] * scaled(out_depth[p], sk);
+                    ro[l] = q;
+                }
+#endif
                 L[l] = out_last[p];
             }
         }
@@ -405,6 +459,12 @@ bwd_tile(__global const float16 *packed, __global const int *gid_from_isect, __g
         VG[c] = VLOAD(0, vg);
         VB[c] = VLOAD(0, vb);
         VD[c] = VLOAD(0, vd);
+#if RASTER_BWD_DEPTH_O
+        RO[c] = VLOAD(0, ro);
+        VO[c] = VLOAD(0, vo);
+#endif
+        (void)vo;
+        (void)ro;
         Lv[c] = VLOAD(0, L);
         lmax = max(lmax, Lv[c]);
     }
@@ -419,6 +479,9 @@ bwd_tile(__global const float16 *packed, __global const int *gid_from_isect, __g
         const int k = i - start;
         vf a_u = 0.0f, a_v = 0.0f, a_A = 0.0f, a_B = 0.0f, a_C = 0.0f;
         vf a_r = 0.0f, a_g = 0.0f, a_b = 0.0f, a_o = 0.0f, a_z = 0.0f;
+#if RASTER_BWD_DEPTH_O
+        vf a_oo = 0.0f; /* v_depth_o's d/d opacity */
+#endif
         int r0, r1, c0, c1;
         if (box_in_tile(g, x0, y0, &r0, &r1, &c0, &c1)) {
             for (int r = r0; r <= r1; ++r) {
@@ -448,6 +511,15 @@ bwd_tile(__global const float16 *packed, __global const int *gid_from_isect, __g
                     /* d out / d alpha: T c - (behind) / (1 - alpha); alpha <= ALPHA_MAX bounds 1/(1-alpha) */
                     const vf va = select((vf)(0.0f), T * vc - Rn / (1.0f - alpha), ok & (a <= ALPHA_MAX));
                     a_o += va * G;
+#if RASTER_BWD_DEPTH_O
+                    {   /* the same recursion on v_depth_o alone (its colour cotangents are 0) */
+                        const vf RoV = RO[c], vco = VO[c] * cz;
+                        const vf Ron = RoV - vco * w;
+                        const vf vao = select((vf)(0.0f), T * vco - Ron / (1.0f - alpha), ok & (a <= ALPHA_MAX));
+                        a_oo += vao * G;
+                        RO[c] = select(RoV, Ron, ok);
+                    }
+#endif
 #if !RASTER_BWD_OPACITY
                     const vf vp = va * alpha; /* d/d power (alpha = o exp(power) when unclamped) */
                     a_A -= 0.5f * dx * dx * vp;
@@ -484,6 +556,14 @@ bwd_tile(__global const float16 *packed, __global const int *gid_from_isect, __g
             bad |= !isfinite(o[f]);
             rec[f] = o[f];
         }
+#if RASTER_BWD_DEPTH_O
+        {   /* v_depth_o's record: as a RASTER_BWD_OPACITY backward writes it */
+            const float so = hsum(a_oo) * iv * ik;
+            bad |= !isfinite(so);
+            __global float *ro_rec = v_emit_o + (size_t)emit_from_isect[i] * V_RECORD;
+            for (int f = 0; f < V_RECORD; ++f) ro_rec[f] = f == 8 ? so : 0.0f;
+        }
+#endif
     }
     return bad;
 }
@@ -494,6 +574,7 @@ static inline void bwd_tile_bounds(__global const float16 *packed, __global cons
                                    const int width, const int height, __global const float *out_rgb,
                                    __global const float *out_depth, __global const float *v_rgb,
                                    __global const float *v_depth, __global const float *v_alpha, const int v_mask,
+                                   __global const float *v_depth_o,
                                    const int x0, const int y0, const int start, const int stop_at, float *mv_out,
                                    float *mk_out) {
     float mv = 0.0f, mk = 1.0f;
@@ -510,6 +591,12 @@ static inline void bwd_tile_bounds(__global const float16 *packed, __global cons
                 mk = fmax(mk, fabs(sat_inf(out_depth[p])));
             }
             if (v_mask & 4) mv = fmax(mv, fabs(sat_inf(v_alpha[p])));
+#if RASTER_BWD_DEPTH_O
+            mv = fmax(mv, fabs(sat_inf(v_depth_o[p])));
+            mk = fmax(mk, fabs(sat_inf(out_depth[p])));
+#else
+            (void)v_depth_o;
+#endif
         }
     }
     for (int i = start; i < stop_at; ++i) {
@@ -534,7 +621,9 @@ __kernel void rasterize_bwd(__global const float16 *packed,      // [N] from ras
                             __global const float *v_depth,   // [H, W]    (bit 1)
                             __global const float *v_alpha,   // [H, W]    (bit 2)
                             const int v_mask,
-                            __global float *v_emit) // [K, V_RECORD]
+                            __global float *v_emit,          // [K, V_RECORD]
+                            __global const float *v_depth_o, // [H, W] (RASTER_BWD_DEPTH_O)
+                            __global float *v_emit_o)        // [K, V_RECORD] (RASTER_BWD_DEPTH_O)
 {
     /* a 2D range (tx, ty): no div/rem of the tile id (LLVM's `freeze`, which Oclgrind rejects) */
     const int tx = get_global_id(0), ty = get_global_id(1);
@@ -546,18 +635,23 @@ __kernel void rasterize_bwd(__global const float16 *packed,      // [N] from ras
     /* pass 0 unscaled (exact: the common case ends here); pass 1 only if a record overflowed and the
      * bounds call for scaling (otherwise the non-finite record came from non-finite inputs) */
     if (bwd_tile(packed, gid_from_isect, emit_from_isect, width, height, out_rgb, out_depth, out_T, out_last,
-                 v_rgb, v_depth, v_alpha, v_mask, v_emit, x0, y0, start, &stop_at, 1.0f, 1.0f)) {
+                 v_rgb, v_depth, v_alpha, v_mask, v_emit, v_depth_o, v_emit_o, x0, y0, start, &stop_at, 1.0f,
+                 1.0f)) {
         float mv, mk;
         bwd_tile_bounds(packed, gid_from_isect, width, height, out_rgb, out_depth, v_rgb, v_depth, v_alpha,
-                        v_mask, x0, y0, start, stop_at, &mv, &mk);
+                        v_mask, v_depth_o, x0, y0, start, stop_at, &mv, &mk);
         const float sv = pow2_scale_down(mv, 28), sk = pow2_scale_down(mk, 28); /* below 2^29 */
         if (sv != 1.0f || sk != 1.0f)
             bwd_tile(packed, gid_from_isect, emit_from_isect, width, height, out_rgb, out_depth, out_T, out_last,
-                     v_rgb, v_depth, v_alpha, v_mask, v_emit, x0, y0, start, &stop_at, sv, sk);
+                     v_rgb, v_depth, v_alpha, v_mask, v_emit, v_depth_o, v_emit_o, x0, y0, start, &stop_at, sv, sk);
     }
     for (int i = stop_at; i < end; ++i) {
         __global float *rec = v_emit + (size_t)emit_from_isect[i] * V_RECORD;
         for (int f = 0; f < V_RECORD; ++f) rec[f] = 0.0f;
+#if RASTER_BWD_DEPTH_O
+        __global float *ro_rec = v_emit_o + (size_t)emit_from_isect[i] * V_RECORD;
+        for (int f = 0; f < V_RECORD; ++f) ro_rec[f] = 0.0f;
+#endif
     }
 }
 
@@ -731,7 +825,8 @@ static inline __attribute__((always_inline)) void
 bwd_group(__global const float16 *packed, __global const int *gid_from_isect,
           __global const int *emit_from_isect, __global const float *out_rgb, __global const float *out_depth,
           __global const float *out_T, __global const float *v_rgb, __global const float *v_depth,
-          __global const float *v_alpha, const int v_mask, __global float *v_emit, const int inside, const int pix,
+          __global const float *v_alpha, const int v_mask, __global float *v_emit,
+          __global const float *v_depth_o, __global float *v_emit_o, const int inside, const int pix,
           const int px, const int py, const int last, const int start, const int stop_at, const int lid,
           __local float16 *sh, __local float *part, __local float *red, volatile __local int *bad, const float sv,
           const float sk) {
@@ -753,6 +848,17 @@ bwd_group(__global const float16 *packed, __global const int *gid_from_isect,
         }
         if (v_mask & 4) R -= scaled(v_alpha[pix], sv) * scaled(out_T[pix], sk);
     }
+#if RASTER_BWD_DEPTH_O
+    /* v_depth_o's own cotangent and R, formed as a depth-only backward forms them: 0 + v d */
+    float vo = 0.0f, Ro = 0.0f;
+    if (inside) {
+        vo = scaled(v_depth_o[pix], sv);
+        Ro += vo * scaled(out_depth[pix], sk);
+    }
+#else
+    (void)v_depth_o;
+    (void)v_emit_o;
+#endif
     const float iv = 1.0f / sv, ik = 1.0f / sk; /* exact: powers of two */
     for (int b0 = start; b0 < stop_at; b0 += BWD_BATCH) {
         const int nb = min(BWD_BATCH, stop_at - b0);
@@ -785,6 +891,15 @@ bwd_group(__global const float16 *packed, __global const int *gid_from_isect,
                     const float Rn = R - vc * w;
                     /* no gradient through the ALPHA_MAX clamp */
                     const float va = a <= ALPHA_MAX ? T * vc - Rn / (1.0f - alpha) : 0.0f;
+#if RASTER_BWD_DEPTH_O
+                    {   /* the same recursion on v_depth_o alone (its colour cotangents are 0) */
+                        const float vco = vo * g.s9;
+                        const float Ron = Ro - vco * w;
+                        const float vao = a <= ALPHA_MAX ? T * vco - Ron / (1.0f - alpha) : 0.0f;
+                        vals[V_RECORD] = vao * G;
+                        Ro = Ron;
+                    }
+#endif
 #if RASTER_BWD_OPACITY
                     vals[0] = va * G; /* field 8 only */
 #else
@@ -825,13 +940,29 @@ bwd_group(__global const float16 *packed, __global const int *gid_from_isect,
         for (int e = lid; e < nb * V_RECORD; e += TILE_PIXELS) {
             const int j = e / V_RECORD, f = e - j * V_RECORD;
             float s = 0.0f;
-            for (int p = 0; p < NPART; ++p) s += part[(p * BWD_BATCH + j) * V_RECORD + f];
+            for (int p = 0; p < NPART; ++p) s += part[(p * BWD_BATCH + j) * BWD_FIELDS + f];
             /* back to unscaled units: the colour/depth fields (5, 6, 7, 9) carry sv, the rest sv sk */
             s *= iv;
             if (f < 5 || f == 8) s *= ik;
             if (!isfinite(s)) atomic_or(bad, 1);
             v_emit[(size_t)emit_from_isect[b0 + j] * V_RECORD + f] = s;
         }
+#if RASTER_BWD_DEPTH_O
+        /* v_depth_o's records, as a RASTER_BWD_OPACITY backward writes them */
+        for (int e = lid; e < nb * V_RECORD; e += TILE_PIXELS) {
+            const int j = e / V_RECORD, f = e - j * V_RECORD;
+            if (f == 8) continue;
+            v_emit_o[(size_t)emit_from_isect[b0 + j] * V_RECORD + f] = 0.0f;
+        }
+        for (int j = lid; j < nb; j += TILE_PIXELS) {
+            float s = 0.0f;
+            for (int p = 0; p < NPART; ++p) s += part[(p * BWD_BATCH + j) * BWD_FIELDS + V_RECORD];
+            s *= iv;
+            s *= ik;
+            if (!isfinite(s)) atomic_or(bad, 1);
+            v_emit_o[(size_t)emit_from_isect[b0 + j] * V_RECORD + 8] = s;
+        }
+#endif
 #endif
     }
 }
@@ -850,12 +981,14 @@ rasterize_bwd(__global const float16 *packed,      // [N] from rasterize_prep
               __global const float *v_depth,   // [H, W]    (bit 1)
               __global const float *v_alpha,   // [H, W]    (bit 2)
               const int v_mask,
-              __global float *v_emit) // [K, V_RECORD]
+              __global float *v_emit,          // [K, V_RECORD]
+              __global const float *v_depth_o, // [H, W] (RASTER_BWD_DEPTH_O)
+              __global float *v_emit_o)        // [K, V_RECORD] (RASTER_BWD_DEPTH_O)
 {
     __local float16 sh[BWD_BATCH];
-    __local float part[NPART * BWD_BATCH * V_RECORD];
+    __local float part[NPART * BWD_BATCH * BWD_FIELDS];
 #if !REINGS_NV_PTX
-    __local float red[V_RECORD * TILE_PIXELS];
+    __local float red[BWD_FIELDS * TILE_PIXELS];
 #else
     __local float *red = 0;
 #endif
@@ -885,7 +1018,8 @@ rasterize_bwd(__global const float16 *packed,      // [N] from rasterize_prep
      * bounds call for scaling (otherwise the non-finite record came from non-finite inputs). The
      * branches read local values after a barrier: uniform over the work-group. */
     bwd_group(packed, gid_from_isect, emit_from_isect, out_rgb, out_depth, out_T, v_rgb, v_depth, v_alpha, v_mask,
-              v_emit, inside, pix, px, py, last, start, stop_at, lid, sh, part, red, &bad, 1.0f, 1.0f);
+              v_emit, v_depth_o, v_emit_o, inside, pix, px, py, last, start, stop_at, lid, sh, part, red, &bad, 1.0f,
+              1.0f);
     barrier(CLK_LOCAL_MEM_FENCE); /* bad is final */
     if (bad) {
         /* bounds of |v| and of |colour, depth, output, 1| over the tile; fmax skips NaN */
@@ -901,6 +1035,10 @@ rasterize_bwd(__global const float16 *packed,      // [N] from rasterize_prep
                 mk = fmax(mk, fabs(sat_inf(out_depth[pix])));
             }
             if (v_mask & 4) mv = fmax(mv, fabs(sat_inf(v_alpha[pix])));
+#if RASTER_BWD_DEPTH_O
+            mv = fmax(mv, fabs(sat_inf(v_depth_o[pix])));
+            mk = fmax(mk, fabs(sat_inf(out_depth[pix])));
+#endif
         }
         for (int e = start + lid; e < stop_at; e += TILE_PIXELS) {
             const float16 g = packed[gid_from_isect[e]];
@@ -913,12 +1051,17 @@ rasterize_bwd(__global const float16 *packed,      // [N] from rasterize_prep
         const float sv = pow2_scale_down(as_float(mv_bits), 28), sk = pow2_scale_down(as_float(mk_bits), 28);
         if (sv != 1.0f || sk != 1.0f)
             bwd_group(packed, gid_from_isect, emit_from_isect, out_rgb, out_depth, out_T, v_rgb, v_depth, v_alpha,
-                      v_mask, v_emit, inside, pix, px, py, last, start, stop_at, lid, sh, part, red, &bad, sv, sk);
+                      v_mask, v_emit, v_depth_o, v_emit_o, inside, pix, px, py, last, start, stop_at, lid, sh, part,
+                      red, &bad, sv, sk);
     }
     /* Gaussians at positions >= max(last): zero records */
     for (int e = stop_at + lid; e < end; e += TILE_PIXELS) {
         __global float *rec = v_emit + (size_t)emit_from_isect[e] * V_RECORD;
         for (int f = 0; f < V_RECORD; ++f) rec[f] = 0.0f;
+#if RASTER_BWD_DEPTH_O
+        __global float *ro_rec = v_emit_o + (size_t)emit_from_isect[e] * V_RECORD;
+        for (int f = 0; f < V_RECORD; ++f) ro_rec[f] = 0.0f;
+#endif
     }
 }
 #endif

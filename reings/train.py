@@ -517,7 +517,9 @@ class _Iteration:
 
         soft (`soft_depth_shared`): the soft depth term on this pass's render; after the
         densification statistics are taken, its backward adds the opacities' gradient into the
-        held gradients, so one step takes both.
+        held gradients, so one step takes both. Its cotangent is made before the photometric
+        backward, which announces it (`backward(v_depth_opacity=)`): the device engine then makes
+        the soft backward's records in the photometric pass (the same bits, one rasterize_bwd fewer).
 
         The metric depth term (LossConfig.depth_metric, docs/method.md §10): its depth cotangent
         joins the training render's backward (added into the view_warp term's when both run); so
@@ -573,8 +575,11 @@ class _Iteration:
                     v_depth = tr.cross_warp(fr, vi, j, self.cameras[j], L.cross_warp / len(levels), self.near,
                                             into=v_depth, occlusion=L.cross_warp_occlusion, partner_depth=held,
                                             sigma=sigma)
+        vd_soft = None
+        if soft:  # the soft term's cotangent first: the photometric backward may make its records (below)
+            vd_soft, _ = self.depth_cotangent(it, fr, vi, False)
         with ph("photo_backward"):
-            gr = tr.backward(fr, v_rgb, v_depth)
+            gr = tr.backward(fr, v_rgb, v_depth, v_depth_opacity=vd_soft)
         with ph("regularize"):
             if self.reg_on:  # logging: the penalties' value at the parameters before the step, too
                 tr.regularize(gr, L.shape_pena, L.scale_pena, L.opa_pena, value=log)
@@ -584,9 +589,8 @@ class _Iteration:
             with ph("hold"):
                 gr = tr.hold(gr)
         if soft:  # the frame's depth is this render's; the statistics above came from the photometric backward
-            vd, _ = self.depth_cotangent(it, fr, vi, False)
-            with ph("soft_backward"):
-                tr.backward(fr, None, vd, None, ("opacity_logits",), into=gr)
+            with ph("soft_backward"):  # on the device engine: the records announced above, reduced
+                tr.backward(fr, None, vd_soft, None, ("opacity_logits",), into=gr)
         if warp:
             with ph("warp_backward"):
                 tr.backward(virt, v_virt, into=gr)

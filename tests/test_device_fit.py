@@ -149,6 +149,76 @@ def test_shared_soft_depth_device_matches_host_and_changes_the_fit(device, case)
     assert not np.array_equal(two.state.params["opacity_logits"][:50], dev.state.params["opacity_logits"][:50])
 
 
+def test_fused_soft_backward_keeps_the_bits_and_saves_a_pass(device, case, monkeypatch):
+    """The shared soft depth term's backward made in the photometric pass (backward(v_depth_opacity=),
+    RASTER_BWD_DEPTH_O) against its own pass (DeviceTrainer.fuse_soft_backward = False): the same
+    state bit for bit, and one rasterize_bwd fewer per iteration of the soft term."""
+    from reings.backends.opencl.rasterize import Rasterizer
+    from reings.backends.opencl.trainer import DeviceTrainer
+
+    calls = {"all": 0, "fused": 0}
+    orig = Rasterizer.bwd
+
+    def counting(self, *a, **kw):
+        calls["all"] += 1
+        calls["fused"] += kw.get("v_depth_o") is not None
+        return orig(self, *a, **kw)
+
+    monkeypatch.setattr(Rasterizer, "bwd", counting)
+    sc = _shared(case)
+    got = {}
+    for fuse in (False, True):
+        monkeypatch.setattr(DeviceTrainer, "fuse_soft_backward", fuse)
+        calls.update(all=0, fused=0)
+        got[fuse] = (_fit(sc, device, engine="device"), dict(calls))
+    soft_its = 23 - 3 + 1  # the soft term from iteration 3 of 23
+    (sep, c_sep), (fus, c_fus) = got[False], got[True]
+    assert c_sep["fused"] == 0 and c_fus["fused"] == soft_its, (c_sep, c_fus)
+    assert c_sep["all"] - c_fus["all"] == soft_its, (c_sep, c_fus)
+    _assert_same_state(sep.state, fus.state, True, "fused soft backward")
+    assert sep.history.loss == fus.history.loss
+
+
+def test_fused_soft_records_are_discarded_by_another_backward(device, case):
+    """backward_device(v_depth_opacity=) holds the second records only for the very next backward:
+    one in between (another cotangent, another frame) discards them, and the announced backward then
+    runs its own pass, with the same result."""
+    from reings.state import TrainState
+
+    scene, init, _ = case
+    be = get_backend(device)
+    tr = be.trainer(list(scene.images), engine="device")
+    tr.upload(TrainState.from_gaussians(init))
+    tr.upload_depth_targets(list(scene.depths), [(c.height, c.width) for c in scene.cameras])
+    cam = scene.cameras[0]
+    fr = tr.forward(cam, 1, (0.0, 0.0, 0.0), 0.01)
+    vd = tr.depth_loss(fr, 0, 3, 5, 0.01, 1.0, 1.0)
+    v_rgb = tr.photometric(fr, 0, 0.8, 0.2)
+    want = be._read(tr.backward(fr, None, vd, None, ("opacity_logits",))["opacity_logits"], (tr.n,), np.float32)
+    be._finish()
+    for between in (False, True):
+        tr.backward(fr, v_rgb, None, v_depth_opacity=vd)
+        assert be._pending_o is not None and be._pending_o[1] is vd
+        if between:
+            tr.backward(fr, v_rgb, None)  # discards the held records
+            assert be._pending_o is None
+        g = be._read(tr.backward(fr, None, vd, None, ("opacity_logits",))["opacity_logits"], (tr.n,), np.float32)
+        be._finish()
+        assert be._pending_o is None
+        np.testing.assert_array_equal(g, want, err_msg=f"between={between}")
+    # announced for one cotangent, called with another: that one's own pass
+    vd_host = be._read(vd, (fr.height, fr.width), np.float32)
+    be._finish()
+    other = (vd_host[::-1] * 3.0).copy()
+    want2 = be._read(tr.backward(fr, None, other, None, ("opacity_logits",))["opacity_logits"], (tr.n,), np.float32)
+    be._finish()
+    tr.backward(fr, v_rgb, None, v_depth_opacity=vd)
+    g2 = be._read(tr.backward(fr, None, other, None, ("opacity_logits",))["opacity_logits"], (tr.n,), np.float32)
+    be._finish()
+    np.testing.assert_array_equal(g2, want2)
+    assert not np.array_equal(want2, want)
+
+
 @pytest.mark.parametrize("engine", ["host", "device"])
 def test_shared_soft_depth_steps_the_sum_of_both_gradients(device, case, engine):
     """One iteration with only the soft depth term and the photometric loss, shared: Adam's first

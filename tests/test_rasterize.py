@@ -163,6 +163,35 @@ def test_bwd_opacity_only_keeps_the_bits(device, name, cpu):
             assert np.abs(full.v_opacities).max() > 0 and np.abs(full.v_means2d).max() > 0
 
 
+@pytest.mark.parametrize("cpu", SCHEDULES)
+@pytest.mark.parametrize("name", ["random", "saturated", "depth_ties", "size_70x45", "alpha_clamp",
+                                  "many_in_one_tile", "one", "empty", "tile_corner", "needles"])
+def test_bwd_second_depth_cotangent_keeps_the_bits(device, name, cpu):
+    """Rasterizer.bwd(v_depth_o=) (RASTER_BWD_DEPTH_O: the shared soft depth term's backward folded into
+    the photometric one): its main records have the bytes of the same backward without v_depth_o, and its
+    v_depth_o records the bytes of a separate opacity-only backward of v_depth_o (field 8; the other fields
+    0), reduced gradients too; for photometric cotangents with and without a depth and an alpha part."""
+    from reings.backends.opencl.rasterize import rasterize_bwd_host
+
+    proj, bins, w, h = _scene(name)
+    vr, vd, va = _cotangents(w, h, seed=2)
+    _, vo, _ = _cotangents(w, h, seed=7)
+    on = dict(background=BG, device=device, cpu_schedule=bool(cpu))
+    sep = rasterize_bwd_host(proj, bins, w, h, v_depth=vo, opacity_only=True, **on)
+    for kw in ({"v_rgb": vr}, {"v_rgb": vr, "v_depth": vd}, {"v_rgb": vr, "v_depth": vd, "v_alpha": va}):
+        plain = rasterize_bwd_host(proj, bins, w, h, **kw, **on)
+        both = rasterize_bwd_host(proj, bins, w, h, v_depth_o=vo, **kw, **on)
+        assert np.array_equal(both.v_emit.view(np.uint32), plain.v_emit.view(np.uint32)), list(kw)
+        assert np.array_equal(both.v_emit_o.view(np.uint32), sep.v_emit.view(np.uint32)), list(kw)
+        assert np.array_equal(both.grads_o.v_opacities.view(np.uint32), sep.v_opacities.view(np.uint32))
+        if name == "random":
+            assert np.abs(sep.v_opacities).max() > 0 and np.abs(plain.v_means2d).max() > 0
+    # and against the float64 reference: v_depth_o's opacity gradient is the depth-only backward's
+    if name in ("random", "needles"):
+        e = ref.rasterize_bwd(proj, bins, ref.rasterize_fwd(proj, bins, w, h, BG), None, vo, None, w, h, BG)
+        assert_grad_close(both.grads_o.v_opacities, e.v_opacities, "v_opacities", MIN_COSINE, MAX_REL_L2)
+
+
 @pytest.mark.parametrize("vec", [8, 16])
 @pytest.mark.parametrize("name", ["random", "size_70x45", "many_in_one_tile", "needles"])
 def test_cpu_lane_widths_match_reference(device, vec, name):
@@ -252,32 +281,81 @@ def test_bwd_overflow_never_nan(device, what, cpu):
     if what == "colour":
         # a colour gradient is v * w: bounded by the cotangents, finite whatever the colours
         assert np.all(np.isfinite(got.v_colors)) and np.all(np.isfinite(got.v_depths))
+    # with a second, opacity-only depth cotangent (huge where the test's are): neither record set has NaN
+    vo = (vd * 1e37).astype(np.float32) if what == "cotangent" else vd[::-1].copy()
+    two = rasterize_bwd_host(proj, bins, w, h, vr, vd, va, BG, device=device, cpu_schedule=bool(cpu), v_depth_o=vo)
+    assert not np.isnan(two.v_emit).any() and not np.isnan(two.v_emit_o).any(), "NaN with v_depth_o"
+    assert not np.isnan(two.grads_o.v_opacities).any()
 
 
-def test_isect_reduce_overflow(device):
+@pytest.mark.parametrize("width", [1, V_RECORD])
+def test_isect_reduce_overflow(device, width):
     """isect_reduce: +inf and -inf records of one Gaussian (or huge finite ones whose partial sums
-    overflow both ways) sum to +-inf or a finite value, never NaN; a NaN record stays NaN."""
+    overflow both ways) sum to +-inf or a finite value, never NaN; a NaN record stays NaN. Width
+    V_RECORD (the gradient records, summed in registers in one pass): the overflowing field is
+    field 3, the other fields plain sums that the rerun of field 3 leaves alone."""
     import pyopencl as cl
 
     from reings.backends.opencl.rasterize import rasterizer_for
 
     r = rasterizer_for(device)
     ctx, q = r.handle.context, r.queue
-    rec = np.array([[np.inf], [-np.inf], [1.0],                    # rank 0: inf - inf
+    col = np.array([[np.inf], [-np.inf], [1.0],                    # rank 0: inf - inf
                     [FLT_MAX], [FLT_MAX], [-FLT_MAX], [-FLT_MAX],  # rank 1: partial sums overflow both ways
                     [FLT_MAX], [FLT_MAX], [-1.0],                  # rank 2: truly beyond FLT_MAX
                     [np.nan], [1.0],                               # rank 3: NaN stays NaN
                     [2.0], [3.0]], np.float32)                     # rank 4: plain
+    f = 0 if width == 1 else 3
+    rec = np.tile(np.arange(1, width + 1, dtype=np.float32), (len(col), 1))  # small integers: exact sums
+    rec[:, f] = col[:, 0]
     offs = np.array([0, 3, 7, 10, 12, 14], np.int32)
     gid = np.arange(5, dtype=np.int32)
     mf = cl.mem_flags
     bufs = [cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=a) for a in (rec, offs, gid)]
-    out = cl.Buffer(ctx, mf.READ_WRITE, 5 * 4)
-    r.reduce(bufs[0], 1, bufs[1], bufs[2], 5, out)
-    got = np.empty(5, np.float32)
-    cl.enqueue_copy(q, got, out)
+    out = cl.Buffer(ctx, mf.READ_WRITE, 5 * 4 * width)
+    r.reduce(bufs[0], width, bufs[1], bufs[2], 5, out)
+    full = np.empty((5, width), np.float32)
+    cl.enqueue_copy(q, full, out)
+    got = full[:, f]
     assert not np.isnan(got[[0, 1, 2, 4]]).any(), got
     assert got[1] == 0.0 and got[2] == np.inf and np.isnan(got[3]) and got[4] == 5.0, got
+    others = np.delete(full, f, axis=1)
+    want = np.delete(np.add.reduceat(rec, offs[:-1], axis=0), f, axis=1)
+    np.testing.assert_array_equal(others, want)
+
+
+def test_isect_reduce_sums_in_record_order(device):
+    """Each field of a rank is s0 + records[a] + records[a + 1] + ... in float32, in that order
+    (the register pass of width V_RECORD keeps the order of the per-field loop): bit for bit
+    against a sequential float32 sum, for values whose sums round differently in other orders."""
+    import pyopencl as cl
+
+    from reings.backends.opencl.rasterize import rasterizer_for
+
+    r = rasterizer_for(device)
+    ctx, q = r.handle.context, r.queue
+    rng = np.random.default_rng(11)
+    n = 40
+    counts = rng.integers(0, 40, n)
+    offs = np.concatenate([[0], np.cumsum(counts)]).astype(np.int32)
+    gid = rng.permutation(n).astype(np.int32)
+    mf = cl.mem_flags
+    for width in (1, V_RECORD):
+        rec = (rng.normal(size=(int(offs[-1]), width)) * 10.0 ** rng.integers(-4, 5, (int(offs[-1]), width)))
+        rec = rec.astype(np.float32)
+        init = rng.normal(size=(n, width)).astype(np.float32)
+        want = init.copy()
+        for k in range(n):
+            s = init[gid[k]].copy()
+            for e in range(offs[k], offs[k + 1]):
+                s = (s + rec[e]).astype(np.float32)
+            want[gid[k]] = s
+        bufs = [cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=a) for a in (rec, offs, gid)]
+        out = cl.Buffer(ctx, mf.READ_WRITE | mf.COPY_HOST_PTR, hostbuf=init)
+        r.reduce(bufs[0], width, bufs[1], bufs[2], n, out, accumulate=True)
+        got = np.empty_like(init)
+        cl.enqueue_copy(q, got, out)
+        np.testing.assert_array_equal(got, want, err_msg=f"width {width}")
 
 
 def test_isect_reduce(device):
@@ -362,6 +440,12 @@ _OCLGRIND_SCRIPT = """
         g = rasterize_bwd_host(proj, bins, w, h, None, vd, None, BG, device="oclgrind", cpu_schedule=cpu,
                                opacity_only=True)  # RASTER_BWD_OPACITY
         assert np.all(np.isfinite(g.v_emit))
+        g = rasterize_bwd_host(proj, bins, w, h, vr, vd, None, BG, device="oclgrind", cpu_schedule=cpu,
+                               v_depth_o=vd[::-1].copy())  # RASTER_BWD_DEPTH_O
+        assert np.all(np.isfinite(g.v_emit)) and np.all(np.isfinite(g.v_emit_o))
+    # the width-V_RECORD register pass of isect_reduce in record order
+    from test_rasterize import test_isect_reduce_sums_in_record_order
+    test_isect_reduce_sums_in_record_order("oclgrind")
     # the overflow rerun (pass 1 of rasterize_bwd, the rescaled isect_reduce) on a small case
     from test_rasterize import _overflow_inputs
     proj, bins, w, h = _scene("size_17x15")

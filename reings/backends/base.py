@@ -251,7 +251,7 @@ class Trainer(Protocol):
 
     def backward(self, frame: Frame, v_rgb: Any = None, v_depth: Any = None,
                  opacity_override: float | None = None, grad_fields: Sequence[str] | None = None,
-                 into: Any = None, v_alpha: Any = None) -> Any:
+                 into: Any = None, v_alpha: Any = None, v_depth_opacity: Any = None) -> Any:
         """The VJP of the frame's render (with the DropGaussian mask its `forward` had, if any)
         for the cotangents v_rgb / v_depth (from the loss methods; None: zero) and the frame's
         `opacity_override`, restricted to `grad_fields` (None: every field). Returns the
@@ -260,7 +260,11 @@ class Trainer(Protocol):
         count, holding at least the groups of `grad_fields`): this backward's gradients of those
         groups are added into them (reference_state.grad_add; kernels/grad_add.cl) and `into` is
         returned. v_alpha: a cotangent of the alpha image
-        (from `bg_alpha`), or None."""
+        (from `bg_alpha`), or None. v_depth_opacity: a depth cotangent (from `depth_loss`) whose
+        opacity-only backward of this frame comes next (`backward(frame, None, it, None,
+        ("opacity_logits",), into=...)`); an engine may make that backward's records in this one's
+        pass (the device engine does, with the same bits: docs/perf_notes.md §13) or ignore it. It
+        changes nothing in this call's result."""
 
     def upload_bg_masks(self, masks: Sequence) -> None:
         """The training views' background masks ([H,W] bool each, or None), once per fit

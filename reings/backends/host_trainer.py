@@ -178,11 +178,12 @@ class HostTrainer:
         return self._depth_loss
 
     def backward(self, fr: HostFrame, v_rgb=None, v_depth=None, opacity_override: float | None = None,
-                 grad_fields=None, into: dict | None = None, v_alpha=None) -> dict:
+                 grad_fields=None, into: dict | None = None, v_alpha=None, v_depth_opacity=None) -> dict:
         """Trainer.backward: backend.render_vjp of the frame's Gaussians; returns {group: gradient}
         for the groups of `grad_fields` (SH gradients of inactive coefficients zero), or adds them
         into `into` (reference_state.grad_add) and returns it. The frame's DropGaussian mask
-        applies."""
+        applies. v_depth_opacity is ignored (the next backward computes its own pass)."""
+        del v_depth_opacity
         if v_rgb is None:
             key = (fr.height, fr.width)
             if key not in self._zeros:

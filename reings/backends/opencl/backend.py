@@ -250,6 +250,7 @@ class OpenCLBackend:
         self._last_counts: Any = None  # the last forward's (visible, K) or DeviceCounts (last_stats)
         self.last_screen = None  # Backend.last_screen: (v_means2d, radii) of the last full render_vjp
         self._photometric = self._depth_loss = self._view_warp = None  # the loss kernels, built on first use
+        self._pending_o = None  # (frame, v_depth_opacity buffer) whose opacity-only records r.v_emit_o holds
 
     @property
     def last_stats(self) -> dict[str, int]:
@@ -571,21 +572,31 @@ class OpenCLBackend:
         va = None if v_alpha is None else self._upload("pixel", "v_alpha", np.asarray(v_alpha, _F32))
         self._raster_bwd_buffers(fr, vr, vd, va, opacity_only)
 
-    def _raster_bwd_buffers(self, fr: _Frame, vr, vd, va, opacity_only: bool = False) -> None:
+    def _raster_bwd_buffers(self, fr: _Frame, vr, vd, va, opacity_only: bool = False, vdo=None) -> None:
         """_raster_bwd on cotangent images that are already device buffers (or None). Refuses a
         frame whose depth order was re-sorted since its forward (never, by construction: module
         docstring, "Depth orders"). opacity_only: the records carry d/d opacity only (the other
-        fields 0; `opacity_only_fields`)."""
+        fields 0; `opacity_only_fields`). vdo: a second depth cotangent whose opacity-only records
+        go to r.v_emit_o (`backward_device(v_depth_opacity=)`)."""
+        self._check_order(fr)
+        self._pending_o = None  # a backward replaces or discards any held second records
+        r, b = self._raster(fr), fr.bufs
+        ev = r.bwd(b["tile_ranges"], b["gid_from_isect"], b["emit_from_isect"], fr.cap, fr.width, fr.height,
+                   vr, vd, va, opacity_only=opacity_only, v_depth_o=vdo)
+        self._mark("rasterize_bwd", ev, span=True)
+        self._reduce_records(fr, r.v_emit)
+
+    def _check_order(self, fr: _Frame) -> None:
         if fr.order is not None and fr.order.gen != fr.order_gen:
             raise RuntimeError(f"backward: the frame's depth order ({fr.order.name}) was re-sorted since its "
                                "forward; a frame is backpropagated while it is its slot's current one")
+
+    def _reduce_records(self, fr: _Frame, records) -> None:
+        """isect_reduce of per-emit gradient records into the frame slot's v_proj [N, V_RECORD]."""
         r, b = self._raster(fr), fr.bufs
-        ev = r.bwd(b["tile_ranges"], b["gid_from_isect"], b["emit_from_isect"], fr.cap, fr.width, fr.height,
-                   vr, vd, va, opacity_only=opacity_only)
-        self._mark("rasterize_bwd", ev, span=True)
         vp = b["v_proj"] = self._slot(fr.slot).mem.get("gauss", "v_proj", fr.n, 4 * V_RECORD)
         n_rank, count = self._rank_count(fr)
-        ev = r.reduce(r.v_emit, V_RECORD, b["offset_from_rank"], b["gid_from_rank"], n_rank, vp, count=count)
+        ev = r.reduce(records, V_RECORD, b["offset_from_rank"], b["gid_from_rank"], n_rank, vp, count=count)
         self._mark("isect_reduce", ev)
 
     # ------------------------------------------------------------------------------------------
@@ -621,7 +632,8 @@ class OpenCLBackend:
         return fr
 
     def backward_device(self, fr: _Frame, v_rgb=None, v_depth=None, v_alpha=None,
-                        opacity_override: float | None = None, grad_fields: Sequence[str] | None = None) -> dict:
+                        opacity_override: float | None = None, grad_fields: Sequence[str] | None = None,
+                        v_depth_opacity=None) -> dict:
         """`render_vjp`'s backward for a frame of `forward_device`, with the cotangent images as
         device buffers ([H,W,3], [H,W], [H,W]; None = zero). Returns the gradient buffers
         {field: buffer} ([N,3], [N,4], [N,3], [N], [N,sh_k,3]; fields outside `grad_fields` are
@@ -629,10 +641,26 @@ class OpenCLBackend:
         (rows of culled gids zero or unwritten; the frame slot's, valid as long as the frame) and
         fr.bufs["radii"] feed the densification statistics.
         The frame's DropGaussian mask (fr.drop, from forward_device) applies. The frame must be its
-        slot's current one (no forward into its slot since: RuntimeError otherwise)."""
+        slot's current one (no forward into its slot since: RuntimeError otherwise).
+
+        v_depth_opacity (a device buffer): announces the next backward of this frame, an opacity-only one
+        (grad_fields == ("opacity_logits",)) of that depth cotangent alone; this backward's rasterize_bwd
+        then also makes its records (RASTER_BWD_DEPTH_O, the same bits as its own pass), and that next
+        call only reduces them: one rasterize_bwd fewer (docs/perf_notes.md §13). Any other backward in
+        between discards them; a sync-free frame, or an opacity-only backward here, ignores it."""
         if self._slot(fr.slot).frame is not fr:
             raise RuntimeError(f"backward_device: a later forward replaced the frame (slot {fr.slot})")
-        self._raster_bwd_buffers(fr, v_rgb, v_depth, v_alpha, opacity_only_fields(grad_fields))
+        only = opacity_only_fields(grad_fields)
+        held, self._pending_o = self._pending_o, None
+        if (held is not None and held[0] is fr and held[1] is v_depth and v_depth is not None and v_rgb is None
+                and v_alpha is None and only):
+            self._check_order(fr)  # the records announced by the previous backward: reduce them
+            self._reduce_records(fr, self._raster(fr).v_emit_o)
+            return self._project_bwd_device(fr, opacity_override, grad_fields)
+        fuse = v_depth_opacity is not None and not only and not fr.sync_free
+        self._raster_bwd_buffers(fr, v_rgb, v_depth, v_alpha, only, v_depth_opacity if fuse else None)
+        if fuse:
+            self._pending_o = (fr, v_depth_opacity)
         return self._project_bwd_device(fr, opacity_override, grad_fields)
 
     # ------------------------------------------------------------------------------------------

@@ -46,7 +46,7 @@ from .scratch import Scratch
 FILE = "rasterize.cl"
 TILE_PIXELS = TILE_SIZE * TILE_SIZE
 PACKED_BYTES = 64  # one float16 record per Gaussian (rasterize_prep)
-_BWD_TYPES = [None] * 4 + [np.int32] * 4 + [None] * 7 + [np.int32, None]  # rasterize_bwd's scalar arguments
+_BWD_TYPES = [None] * 4 + [np.int32] * 4 + [None] * 7 + [np.int32] + [None] * 3  # rasterize_bwd's scalar arguments
 
 
 def raster_vec() -> int:
@@ -108,6 +108,7 @@ class Rasterizer:
         self._fwd_types = fwd_types
         self.k_bwd.set_scalar_arg_dtypes(_BWD_TYPES)
         self._k_bwd_opacity = None  # RASTER_BWD_OPACITY=1, built on first use (bwd(opacity_only=True))
+        self._k_bwd_depth_o = None  # RASTER_BWD_DEPTH_O=1, built on first use (bwd(v_depth_o=...))
         self.k_reduce.set_scalar_arg_dtypes([None] * 4 + [i32] * 3 + [None, i32])
         self.local = 1 if self.cpu_schedule else TILE_PIXELS
         self._dummy = self.scratch.get("small", "raster_dummy", 16, 4)
@@ -148,6 +149,12 @@ class Rasterizer:
     @property
     def v_emit(self):
         return self.shared.get("isect", "raster_v_emit", self.n_isect, 4 * V_RECORD)
+
+    @property
+    def v_emit_o(self):
+        """The records of a backward's second, opacity-only depth cotangent (bwd(v_depth_o=)): laid out
+        as r.v_emit, valid until the next bwd with v_depth_o."""
+        return self.shared.get("isect", "raster_v_emit_o", self.n_isect, 4 * V_RECORD)
 
     def _fwd_imp_kernel(self):
         if self._k_fwd_imp is None:
@@ -190,17 +197,26 @@ class Rasterizer:
                  gid, emit, np.int32(width), np.int32(height), np.int32(tiles_x), np.int32(n_tiles),
                  *bg, self.rgb, self.depth, self.alpha, self.final_T, self.last, imp, wait_for=wait_for)
 
-    def _bwd_kernel(self, opacity_only: bool):
-        if not opacity_only:
-            return self.k_bwd
-        if self._k_bwd_opacity is None:
-            k = self._lib.get(FILE, "rasterize_bwd", RASTER_IMPORTANCE=0, RASTER_BWD_OPACITY=1, **self._defines)
-            k.set_scalar_arg_dtypes(_BWD_TYPES)
-            self._k_bwd_opacity = k
-        return self._k_bwd_opacity
+    def _bwd_kernel(self, opacity_only: bool, depth_o: bool = False):
+        if opacity_only and depth_o:
+            raise ValueError("Rasterizer.bwd: opacity_only and v_depth_o exclude each other")
+        if opacity_only:
+            if self._k_bwd_opacity is None:
+                k = self._lib.get(FILE, "rasterize_bwd", RASTER_IMPORTANCE=0, RASTER_BWD_OPACITY=1, **self._defines)
+                k.set_scalar_arg_dtypes(_BWD_TYPES)
+                self._k_bwd_opacity = k
+            return self._k_bwd_opacity
+        if depth_o:
+            if self._k_bwd_depth_o is None:
+                k = self._lib.get(FILE, "rasterize_bwd", RASTER_IMPORTANCE=0, RASTER_BWD_DEPTH_O=1, **self._defines)
+                k.set_scalar_arg_dtypes(_BWD_TYPES)
+                self._k_bwd_depth_o = k
+            return self._k_bwd_depth_o
+        return self.k_bwd
 
     def bwd(self, tile_ranges, gid_from_isect, emit_from_isect, n_isect: int, width: int, height: int,
-            v_rgb=None, v_depth=None, v_alpha=None, fwd_out=None, wait_for=None, opacity_only: bool = False):
+            v_rgb=None, v_depth=None, v_alpha=None, fwd_out=None, wait_for=None, opacity_only: bool = False,
+            v_depth_o=None):
         if (int(width), int(height)) != (self.width, self.height) and fwd_out is None:
             raise ValueError("Rasterizer.bwd: image size differs from the last fwd; pass fwd_out")
         self.n_isect = int(n_isect)
@@ -210,11 +226,14 @@ class Rasterizer:
         d = self._dummy
         gid = gid_from_isect if self.n_isect else d
         emit = emit_from_isect if self.n_isect else d
-        return self._bwd_kernel(opacity_only)(self.queue, *self._range(width, height), packed, tile_ranges,
-                          gid, emit, np.int32(width), np.int32(height), np.int32(tiles_x), np.int32(n_tiles),
-                          rgb, depth, final_T, last, v_rgb if v_rgb is not None else d,
-                          v_depth if v_depth is not None else d, v_alpha if v_alpha is not None else d,
-                          np.int32(mask), self.v_emit, wait_for=wait_for)
+        depth_o = v_depth_o is not None
+        return self._bwd_kernel(opacity_only, depth_o)(
+            self.queue, *self._range(width, height), packed, tile_ranges,
+            gid, emit, np.int32(width), np.int32(height), np.int32(tiles_x), np.int32(n_tiles),
+            rgb, depth, final_T, last, v_rgb if v_rgb is not None else d,
+            v_depth if v_depth is not None else d, v_alpha if v_alpha is not None else d,
+            np.int32(mask), self.v_emit, v_depth_o if depth_o else d, self.v_emit_o if depth_o else d,
+            wait_for=wait_for)
 
     def reduce(self, records, width: int, offset_from_rank, gid_from_rank, n_rank: int, out,
                accumulate: bool = False, wait_for=None, count=None):
@@ -294,21 +313,32 @@ def rasterize_fwd_host(proj: Projected, bins: Bins, width: int, height: int,
 
 def rasterize_bwd_host(proj: Projected, bins: Bins, width: int, height: int, v_rgb=None, v_depth=None,
                        v_alpha=None, background: Sequence[float] = (0.0, 0.0, 0.0), device: str = "pocl",
-                       cpu_schedule: bool | None = None, opacity_only: bool = False, **defines) -> RasterGrads:
+                       cpu_schedule: bool | None = None, opacity_only: bool = False, v_depth_o=None,
+                       **defines) -> RasterGrads:
     """Forward then backward then isect_reduce; cotangents None count as zero; opacity_only: the
-    backward of Rasterizer.bwd(opacity_only=True) (only v_opacities, the rest zero)."""
+    backward of Rasterizer.bwd(opacity_only=True) (only v_opacities, the rest zero); v_depth_o: the
+    backward with a second, opacity-only depth cotangent (Rasterizer.bwd(v_depth_o=)): its records
+    and reduced gradients ride along as `.v_emit_o` and `.grads_o`."""
     r = rasterizer_for(device, cpu_schedule, **defines)
     n, k, b, _ = _run_fwd(r, proj, bins, width, height, background, False)
     vr = _upload(r, "v_rgb", v_rgb, np.float32) if v_rgb is not None else None
     vd = _upload(r, "v_depth", v_depth, np.float32) if v_depth is not None else None
     va = _upload(r, "v_alpha", v_alpha, np.float32) if v_alpha is not None else None
+    vo = _upload(r, "v_depth_o", v_depth_o, np.float32) if v_depth_o is not None else None
     r.bwd(b["tile_ranges"], b["gid_from_isect"], b["emit_from_isect"], k, width, height, vr, vd, va,
-          opacity_only=opacity_only)
-    g = r.scratch.get("gauss", "host_grads", max(n, 1), 4 * V_RECORD)
-    r.cl.enqueue_fill_buffer(r.queue, g, np.float32(0), 0, max(n, 1) * 4 * V_RECORD)
-    r.reduce(r.v_emit, V_RECORD, b["offset_from_rank"], b["gid_from_rank"], len(bins.gid_from_rank), g)
-    a = _read(r, g, (n, V_RECORD), np.float32)
-    out = RasterGrads(v_means2d=a[:, 0:2].copy(), v_conics=a[:, 2:5].copy(), v_colors=a[:, 5:8].copy(),
-                      v_opacities=a[:, 8].copy(), v_depths=a[:, 9].copy())
+          opacity_only=opacity_only, v_depth_o=vo)
+
+    def reduced(records) -> RasterGrads:
+        g = r.scratch.get("gauss", "host_grads", max(n, 1), 4 * V_RECORD)
+        r.cl.enqueue_fill_buffer(r.queue, g, np.float32(0), 0, max(n, 1) * 4 * V_RECORD)
+        r.reduce(records, V_RECORD, b["offset_from_rank"], b["gid_from_rank"], len(bins.gid_from_rank), g)
+        a = _read(r, g, (n, V_RECORD), np.float32)
+        return RasterGrads(v_means2d=a[:, 0:2].copy(), v_conics=a[:, 2:5].copy(), v_colors=a[:, 5:8].copy(),
+                           v_opacities=a[:, 8].copy(), v_depths=a[:, 9].copy())
+
+    out = reduced(r.v_emit)
     out.v_emit = _read(r, r.v_emit, (k, V_RECORD), np.float32)  # type: ignore[attr-defined]
+    if vo is not None:
+        out.grads_o = reduced(r.v_emit_o)  # type: ignore[attr-defined]
+        out.v_emit_o = _read(r, r.v_emit_o, (k, V_RECORD), np.float32)  # type: ignore[attr-defined]
     return out

@@ -131,6 +131,10 @@ class DeviceTrainer:
     # ~10 us of queue latency on an H100); False: one launch per group (adam_step / adam_step_flat),
     # the same bits (tests/test_adam_multi.py)
     adam_multi = True
+    # backward(v_depth_opacity=): the announced opacity-only backward's records made in this pass
+    # (RASTER_BWD_DEPTH_O, the same bits; one rasterize_bwd fewer per step of a shared soft depth
+    # term); False: that backward runs its own pass
+    fuse_soft_backward = True
 
     def __init__(self, backend, images, adam: str = "auto", profile: dict | None = None):
         import pyopencl as cl
@@ -518,18 +522,21 @@ class DeviceTrainer:
         return self.photo.read_loss()  # raises after a value=False pass or before any
 
     def backward(self, fr, v_rgb=None, v_depth=None, opacity_override: float | None = None,
-                 grad_fields=None, into: dict | None = None, v_alpha=None) -> dict:
+                 grad_fields=None, into: dict | None = None, v_alpha=None, v_depth_opacity=None) -> dict:
         """Trainer.backward of `fr` with v_rgb (a device buffer) and/or v_depth (a device buffer,
         e.g. from `depth_loss`, or a host [H,W] array, uploaded). Returns the gradient buffers
         {field: buffer} of backend.backward_device plus "sh_k" (`adam_step` reads the SH groups
         as strided views of the "sh" buffer); with `into` (from `hold`), kernels/grad_add.cl adds
         the `grad_fields` ones (None: all) into its buffers and returns it. The frame's
-        DropGaussian mask (from `forward`) applies."""
+        DropGaussian mask (from `forward`) applies. v_depth_opacity (a device buffer;
+        Trainer.backward): with `fuse_soft_backward`, this pass also makes the records of the
+        announced opacity-only backward of that cotangent (backend.backward_device)."""
         vd = v_depth
         if isinstance(v_depth, np.ndarray):
             vd = self.mem.get("pixel", "v_depth", fr.width * fr.height, 4)
             self._write(vd, np.asarray(v_depth, _F32))
-        g = dict(self.b.backward_device(fr, v_rgb, vd, v_alpha, opacity_override, grad_fields))
+        vdo = v_depth_opacity if self.fuse_soft_backward else None
+        g = dict(self.b.backward_device(fr, v_rgb, vd, v_alpha, opacity_override, grad_fields, v_depth_opacity=vdo))
         g["sh_k"] = fr.sh_k
         if into is None:
             return g
