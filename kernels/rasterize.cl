@@ -31,6 +31,7 @@
  *   RASTER_IMPORTANCE (0); RASTER_VEC (8, CPU pixel lanes: 8 = AVX2, 16 = AVX-512; the host passes
  *   $REINGS_RASTER_VEC, else 8: reings.backends.opencl.rasterize.raster_vec);
  *   FWD_BATCH (256) / BWD_BATCH (32): Gaussians staged in local memory per batch (GPU schedule);
+ *   REDUCE_UNROLL (8): gradient records isect_reduce loads before adding them (the same order);
  *   RASTER_BWD_OPACITY (0): 1 builds rasterize_bwd for a backward whose only wanted gradient is the
  *   opacities' (the soft depth term's and the DTU background pass's backward, grad_fields =
  *   opacity_logits): the same d out / d alpha recursion, but only record field 8 (d/d opacity) is
@@ -88,6 +89,9 @@
 #endif
 #ifndef RASTER_BWD_DEPTH_O
 #define RASTER_BWD_DEPTH_O 0
+#endif
+#ifndef REDUCE_UNROLL
+#define REDUCE_UNROLL 8 /* isect_reduce: gradient records loaded per step of a segment */
 #endif
 #if RASTER_BWD_OPACITY && RASTER_BWD_DEPTH_O
 #error "RASTER_BWD_OPACITY and RASTER_BWD_DEPTH_O exclude each other"
@@ -203,7 +207,18 @@ __kernel void isect_reduce(__global const float *records,       // [K_emit, widt
          * same bits, one read of each record instead of one strided pass per field. */
         float s[V_RECORD];
         for (int f = 0; f < V_RECORD; ++f) s[f] = accumulate ? out[gid * V_RECORD + f] : 0.0f;
-        for (int e = a; e < b; ++e) {
+        int e = a;
+        /* REDUCE_UNROLL records loaded before they are added (in order): a Gaussian over many tiles
+         * makes one work-item walk a long segment, and its loads then overlap instead of each
+         * waiting for the one before (the adds, and so the bits, are unchanged) */
+        for (; e + REDUCE_UNROLL <= b; e += REDUCE_UNROLL) {
+            float x[REDUCE_UNROLL][V_RECORD];
+            for (int u = 0; u < REDUCE_UNROLL; ++u)
+                for (int f = 0; f < V_RECORD; ++f) x[u][f] = records[(size_t)(e + u) * V_RECORD + f];
+            for (int u = 0; u < REDUCE_UNROLL; ++u)
+                for (int f = 0; f < V_RECORD; ++f) s[f] += x[u][f];
+        }
+        for (; e < b; ++e) {
             __global const float *rec = records + (size_t)e * V_RECORD;
             for (int f = 0; f < V_RECORD; ++f) s[f] += rec[f];
         }

@@ -125,17 +125,23 @@ def densify_and_prune(state: TrainState, cfg, extent: float, rng: np.random.Gene
         for name in p:
             if name not in children:
                 children[name] = np.tile(p[name][sel], (k,) + (1,) * (p[name].ndim - 1))
-    apply_index_op(state, keep=~split, duplicate=np.flatnonzero(clone), append=children or None)
+    # prune (over the grown set [kept; clones; children], as 3DGS), applied with the growth in one
+    # index op: the grown set's columns the tests read are assembled without copying every array
+    ki, di = np.flatnonzero(~split), np.flatnonzero(clone)
 
-    # prune (over the grown set, as 3DGS)
-    p = state.params
-    prune = _sigmoid(p["opacity_logits"]) < cfg.prune_opacity
+    def grown(name: str, a: np.ndarray) -> np.ndarray:
+        extra = [children[name]] if children else []
+        return np.concatenate([a[ki], a[di]] + extra, axis=0)
+
+    prune = _sigmoid(grown("opacity_logits", p["opacity_logits"])) < cfg.prune_opacity
     if size_prune:
-        if cfg.max_screen_size is not None:
-            prune |= state.stats[RADII] > cfg.max_screen_size
+        if cfg.max_screen_size is not None:  # the new rows' statistics are zero
+            radii = state.stats[RADII]
+            prune |= np.concatenate([radii[ki], np.zeros(len(prune) - len(ki), radii.dtype)]) > cfg.max_screen_size
         if cfg.max_world_size is not None:
-            prune |= np.exp(p["log_scales"].astype(np.float64)).max(axis=1) > cfg.max_world_size * extent
-    apply_index_op(state, keep=~prune)
+            ls = grown("log_scales", p["log_scales"])
+            prune |= np.exp(ls.astype(np.float64)).max(axis=1) > cfg.max_world_size * extent
+    apply_index_op(state, keep=ki, duplicate=di, append=children or None, then_keep=~prune)
     init_stats(state)
     return {"cloned": int(clone.sum()), "split": int(len(sel)), "pruned": int(prune.sum()), "n": len(state)}
 

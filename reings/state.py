@@ -146,13 +146,16 @@ def _as_index(sel, n: int, what: str) -> np.ndarray:
     return sel
 
 
-def apply_index_op(state: TrainState, keep=None, duplicate=None, append: dict | None = None) -> None:
+def apply_index_op(state: TrainState, keep=None, duplicate=None, append: dict | None = None,
+                   then_keep=None) -> None:
     """Edit the rows of params, Adam moments and stats together (in place on `state`'s dicts).
 
     New rows, in order:  [ rows[keep] ; rows[duplicate] ; append ]
       keep       bool mask [N] or indices: surviving rows, moments and stats kept (default: all)
       duplicate  indices into the *original* rows: copied parameters, zero moments and stats (clone)
       append     name -> new rows for every param (split children, new points): zero moments/stats
+      then_keep  bool mask over those new rows: only its rows stay (a prune of the grown set in the
+                 same pass: the rows of two calls, one copy of each array instead of two)
 
     Examples (N = 4):  keep=[T,F,T,T] -> 3 rows;  duplicate=[0,0] -> 6 rows, rows 4,5 copies of 0;
     split of row 1 into two children: keep=[T,F,T,T], append={name: 2 new rows} -> 5 rows.
@@ -177,13 +180,21 @@ def apply_index_op(state: TrainState, keep=None, duplicate=None, append: dict | 
         n_app = a.shape[0]
     n_app = n_app or 0
     n_new = len(di) + n_app
+    tk_new = None
+    if then_keep is not None:
+        tk = np.asarray(then_keep)
+        if tk.dtype != bool or tk.shape != (len(ki) + n_new,):
+            raise ValueError(f"then_keep: a boolean mask of shape ({len(ki) + n_new},) expected, got {tk.dtype} {tk.shape}")
+        ki, tk_new = ki[tk[:len(ki)]], tk[len(ki):]
+        n_new = int(tk_new.sum())
 
     def rows(a, fresh):  # [a[ki]; fresh]
         return np.ascontiguousarray(np.concatenate([a[ki], fresh], axis=0))
 
     for k, p in state.params.items():
         add = [p[di]] + ([np.asarray(append[k], np.float32)] if n_app else [])
-        state.params[k] = rows(p, np.concatenate(add, axis=0) if add else p[:0])
+        fresh = np.concatenate(add, axis=0) if add else p[:0]
+        state.params[k] = rows(p, fresh if tk_new is None else fresh[tk_new])
         zeros = np.zeros((n_new,) + p.shape[1:], np.float32)
         state.adam.exp_avg[k] = rows(state.adam.exp_avg[k], zeros)
         state.adam.exp_avg_sq[k] = rows(state.adam.exp_avg_sq[k], zeros)

@@ -135,3 +135,37 @@ def test_index_op_errors(rng):
         apply_index_op(st, duplicate=np.array([6]))
     with pytest.raises(ValueError, match="missing"):
         apply_index_op(st, append={"means": np.zeros((1, 3))})
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_then_keep_is_a_second_index_op(seed):
+    """apply_index_op(keep, duplicate, append, then_keep=m) leaves every param, moment and stat as
+    apply_index_op(keep, duplicate, append) followed by apply_index_op(keep=m) (densify_and_prune's
+    growth and prune in one pass), byte for byte, including clones and children that are pruned."""
+    import copy
+
+    rng = np.random.default_rng(seed)
+    n = 40
+    st = _tagged_state(rng, n)
+    for k in st.params:  # distinct values per row and column
+        st.params[k][...] += rng.normal(size=st.params[k].shape).astype(np.float32)
+    keep = rng.uniform(size=n) < 0.7
+    dup = rng.integers(0, n, rng.integers(0, 6))
+    n_app = int(rng.integers(0, 5))
+    append = {k: rng.normal(size=(n_app,) + v.shape[1:]).astype(np.float32) for k, v in st.params.items()} if n_app else None
+    m = rng.uniform(size=int(keep.sum()) + len(dup) + n_app) < 0.6
+    a, b = copy.deepcopy(st), copy.deepcopy(st)
+    apply_index_op(a, keep=keep, duplicate=dup, append=append)
+    apply_index_op(a, keep=m)
+    apply_index_op(b, keep=keep, duplicate=dup, append=append, then_keep=m)
+    assert len(a) == len(b) == int(m.sum())
+    for k in st.params:
+        for x, y in ((a.params[k], b.params[k]), (a.adam.exp_avg[k], b.adam.exp_avg[k]),
+                     (a.adam.exp_avg_sq[k], b.adam.exp_avg_sq[k])):
+            assert x.dtype == y.dtype and x.flags.c_contiguous and y.flags.c_contiguous
+            np.testing.assert_array_equal(x, y, err_msg=k)
+    for k in st.stats:
+        assert a.stats[k].dtype == b.stats[k].dtype
+        np.testing.assert_array_equal(a.stats[k], b.stats[k], err_msg=k)
+    with pytest.raises(ValueError, match="then_keep"):
+        apply_index_op(copy.deepcopy(st), keep=keep, then_keep=np.ones(n + 1, bool))

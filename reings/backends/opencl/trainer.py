@@ -229,6 +229,22 @@ class DeviceTrainer:
             self.cl.enqueue_copy(self.queue, out, buf)  # blocking
         return out
 
+    def _read_async(self, buf, shape, dtype, held: list) -> np.ndarray:
+        """A non-blocking read into a fresh array, valid after the next queue.finish(); its event
+        goes to `held`, to be dropped after that wait (pyopencl waits for a non-blocking copy's
+        event when it is dropped: docs/perf_notes.md §8)."""
+        out = np.empty(shape, dtype)
+        if out.size:
+            held.append(self.cl.enqueue_copy(self.queue, out, buf, is_blocking=False))
+        return out
+
+    def _write_async(self, buf, a: np.ndarray, held: list) -> None:
+        """A non-blocking write; the host array and the event go to `held`, which must live (the
+        array unchanged) until the next queue.finish()."""
+        a = np.ascontiguousarray(a)
+        if a.nbytes:
+            held.append((a, self.cl.enqueue_copy(self.queue, buf, a, is_blocking=False)))
+
     def _launch(self, stage: str, k, n: int, *args):
         ev = self.b.launch(k, n, *args)
         if ev is not None and self.profile is not None:
@@ -305,13 +321,17 @@ class DeviceTrainer:
         self.kmax = 1 + state.params["sh_rest"].shape[1]
         self._cols = _columns(self.kmax)
         self._bufs = {}
+        held: list = []  # the non-blocking writes' host arrays and events, alive until the one wait below
+        wr = self._write_async
         for name in PARAM_NAMES:
-            self._write(self.buf("p", name), np.asarray(state.params[name], _F32))
-            self._write(self.buf("m", name), np.asarray(state.adam.exp_avg[name], _F32))
-            self._write(self.buf("v", name), np.asarray(state.adam.exp_avg_sq[name], _F32))
-        self._write(self.buf("stat", ACCUM), np.asarray(state.stats[ACCUM], _F32))
-        self._write(self.buf("stat", COUNT), np.asarray(state.stats[COUNT], _I32))
-        self._write(self.buf("stat", RADII), np.asarray(state.stats[RADII], _F32))
+            wr(self.buf("p", name), np.asarray(state.params[name], _F32), held)
+            wr(self.buf("m", name), np.asarray(state.adam.exp_avg[name], _F32), held)
+            wr(self.buf("v", name), np.asarray(state.adam.exp_avg_sq[name], _F32), held)
+        wr(self.buf("stat", ACCUM), np.asarray(state.stats[ACCUM], _F32), held)
+        wr(self.buf("stat", COUNT), np.asarray(state.stats[COUNT], _I32), held)
+        wr(self.buf("stat", RADII), np.asarray(state.stats[RADII], _F32), held)
+        self.queue.finish()  # one wait for the 21 copies (the caller may change its arrays after)
+        held.clear()
         self._sh_k = None
         self.means_written()
 
@@ -331,16 +351,20 @@ class DeviceTrainer:
         """Trainer.download: the device state -> `state` (fresh arrays; step counts and iteration
         are the host's)."""
         n, km = self.n, self.kmax
+        held: list = []  # non-blocking reads into fresh arrays, one wait at the end
+        rd = lambda b, shp, dt: self._read_async(b, shp, dt, held)  # noqa: E731
         for name in PARAM_NAMES:
             shp = _shape(name, n, km)
-            state.params[name] = self._read(self.buf("p", name), shp, _F32)
+            state.params[name] = rd(self.buf("p", name), shp, _F32)
             if not params_only:
-                state.adam.exp_avg[name] = self._read(self.buf("m", name), shp, _F32)
-                state.adam.exp_avg_sq[name] = self._read(self.buf("v", name), shp, _F32)
+                state.adam.exp_avg[name] = rd(self.buf("m", name), shp, _F32)
+                state.adam.exp_avg_sq[name] = rd(self.buf("v", name), shp, _F32)
         if not params_only:
-            state.stats[ACCUM] = self._read(self.buf("stat", ACCUM), (n,), _F32)
-            state.stats[COUNT] = self._read(self.buf("stat", COUNT), (n,), _I32)
-            state.stats[RADII] = self._read(self.buf("stat", RADII), (n,), _F32)
+            state.stats[ACCUM] = rd(self.buf("stat", ACCUM), (n,), _F32)
+            state.stats[COUNT] = rd(self.buf("stat", COUNT), (n,), _I32)
+            state.stats[RADII] = rd(self.buf("stat", RADII), (n,), _F32)
+        self.queue.finish()
+        held.clear()
 
     def read_params(self, names) -> dict:
         """Trainer.read_params: blocking reads of the parameter buffers."""
@@ -354,11 +378,17 @@ class DeviceTrainer:
         (tests/test_prune_unseen.py) without uploading the Gaussians or reading the images back per
         camera. Frames go to slot 0 (as `forward`)."""
         omega = np.zeros(self.n, np.float64)
+        held: list = []
+        sums = []  # non-blocking reads (the in-order queue reads each before the next forward), one wait
         for cam in cameras:
             fr = self.b.forward_device(self._inputs(1), self.n, 1, cam, background, near,
                                        order_key=self.order_key(cam, near), importance=True)
             if self.n:
-                omega += self._read(fr.bufs["importance"], (self.n,), _F32)
+                sums.append(self._read_async(fr.bufs["importance"], (self.n,), _F32, held))
+        self.queue.finish()
+        held.clear()
+        for x in sums:
+            omega += x
         return omega
     # }}}
 
