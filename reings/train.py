@@ -639,7 +639,7 @@ class _Iteration:
         clones and split children are judged at once) the trainer's Omega_G over the training views
         (`Trainer.importance`, on the uploaded state: no upload of the Gaussians per view) marks
         the Gaussians no training pixel blends; when there are some, they are pruned on the host and
-        the state goes up again."""
+        the trainer's copy follows (`Trainer.keep_rows`: on the device a gather, not a second upload)."""
         from . import densify as D
 
         if not any(D.schedule(self.cfg.densify, it)):
@@ -651,8 +651,8 @@ class _Iteration:
             if self.cfg.densify.prune_unseen and D.schedule(self.cfg.densify, it)[0]:
                 seen = self.tr.importance(self.cameras, self.bg, self.near) > 0.0
                 dens = dict(dens or {}, unseen=D.prune_unseen(self.state, seen), n=len(self.state))
-                if dens["unseen"]:
-                    self.tr.upload(self.state)
+                if dens["unseen"]:  # the trainer's copy follows (the device gathers its rows: no upload)
+                    self.tr.keep_rows(seen, self.state)
         if dens:
             self.book.history.densify.append((it, dens))
 

@@ -192,6 +192,12 @@ class Trainer(Protocol):
         rows. Missing densification statistics start at zero. Device: copied to the device;
         host: the state's arrays are used in place."""
 
+    def keep_rows(self, keep: Any, state: Any) -> None:
+        """`state` was just cut to the rows `keep` (a bool mask over the trainer's N rows, or
+        ascending indices) on the host, by reings.state.apply_index_op(keep=); bring the trainer's
+        copy along: the same as `upload(state)` (the device trainer gathers its own buffers instead
+        of copying the state up again: the same bits)."""
+
     def download(self, state: Any, params_only: bool = False) -> None:
         """Write the trainer's parameters (and, unless `params_only`, the Adam moments and
         statistics) into `state`, as fresh arrays; step counts and the iteration are the host's.

@@ -91,6 +91,11 @@ class HostTrainer:
             state.stats.update(zero_stats(len(state)))
         self.state = state
 
+    def keep_rows(self, keep, state) -> None:
+        """Trainer.keep_rows: hold the cut `state`'s arrays (the host engine edits them in place of a
+        copy: an upload)."""
+        self.upload(state)
+
     def download(self, state, params_only: bool = False) -> None:
         """Trainer.download: nothing to do into the held state; copies into another one."""
         if state is self.state:

@@ -164,6 +164,7 @@ class DeviceTrainer:
         self.k_mse_rows = backend.kernel("mse.cl", "mse_rows", MSE_FP64=int(self.fp64))
         self._reg_value = None  # (sums buffer, chunks, n, weights) of the last regularize(value=True)
         self.k_grad_add = backend.kernel("grad_add.cl", "grad_add")
+        self.k_gather_rows = backend.kernel("gather_rows.cl", "gather_rows")
         self.k_bg_alpha = backend.kernel("bg_alpha.cl", "bg_alpha_grad")
         self.k_dm_grad = backend.kernel("depth_metric.cl", "depth_metric_grad")
         self.k_dm_rows = backend.kernel("depth_metric.cl", "depth_metric_rows")
@@ -346,6 +347,34 @@ class DeviceTrainer:
         record's z row and near are these float32 values)."""
         row = np.asarray(cam.viewmat, np.float64)[2, :4].astype(_F32)
         return self.geometry, row.tobytes(), _F32(near).tobytes()
+
+    def keep_rows(self, keep, state) -> None:
+        """Trainer.keep_rows: the host `state` was just cut to the rows `keep` (bool [N] or ascending
+        indices; reings.state.apply_index_op(keep=)); the device copy follows by a gather of every
+        parameter, moment and statistic buffer (kernels/gather_rows.cl, then one device copy back per
+        buffer): no upload. `state` is only checked against the new count."""
+        keep = np.asarray(keep)
+        idx = (np.flatnonzero(keep) if keep.dtype == bool else keep.reshape(-1)).astype(_I32)
+        if keep.dtype == bool and keep.shape != (self.n,):
+            raise ValueError(f"keep_rows: mask of shape {keep.shape}, expected ({self.n},)")
+        if len(idx) and (idx.min() < 0 or idx.max() >= self.n or np.any(np.diff(idx) <= 0)):
+            raise ValueError("keep_rows: indices must be ascending, distinct and in [0, N)")
+        n_new = len(idx)
+        if n_new != len(state):
+            raise ValueError(f"keep_rows: the host state has {len(state)} rows, the kept rows are {n_new}")
+        bufs = [(self.buf(k, name), self._cols[name]) for name in PARAM_NAMES for k in ("p", "m", "v")]
+        bufs += [(self.buf("stat", s), 1) for s in (ACCUM, COUNT, RADII)]
+        if n_new:
+            ib = self.mem.get("gauss", "keep_idx", n_new, 4)
+            self._write(ib, idx)
+            tmp = self.mem.get("gauss", "keep_tmp", n_new, 4 * max(w for _, w in bufs))
+            for b, w in bufs:
+                if not w:
+                    continue
+                self._launch("keep_rows", self.k_gather_rows, n_new * w, _U32(n_new * w), _U32(w), ib, b, tmp)
+                self.cl.enqueue_copy(self.queue, b, tmp, byte_count=4 * n_new * w)
+        self.n = n_new
+        self.means_written()
 
     def download(self, state, params_only: bool = False) -> None:
         """Trainer.download: the device state -> `state` (fresh arrays; step counts and iteration
