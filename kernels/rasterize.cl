@@ -93,6 +93,9 @@
 #ifndef REDUCE_UNROLL
 #define REDUCE_UNROLL 8 /* isect_reduce: gradient records loaded per step of a segment */
 #endif
+#if REDUCE_UNROLL < 1
+#error "REDUCE_UNROLL must be at least 1"
+#endif
 #if RASTER_BWD_OPACITY && RASTER_BWD_DEPTH_O
 #error "RASTER_BWD_OPACITY and RASTER_BWD_DEPTH_O exclude each other"
 #endif
@@ -183,10 +186,10 @@ inline float pow2_scale_down(float m, int target) {
 inline float reduce_rescaled(__global const float *records, const int a, const int b, const int width, const int f,
                              const float s0) {
     float m = fabs(sat_inf(s0));
-    for (int e = a; e < b; ++e) m = fmax(m, fabs(sat_inf(records[e * width + f]))); /* fmax skips NaN */
+    for (int e = a; e < b; ++e) m = fmax(m, fabs(sat_inf(records[(size_t)e * width + f]))); /* skips NaN */
     const float sc = pow2_scale_down(m, 100);
     float t = sat_inf(s0) * sc;
-    for (int e = a; e < b; ++e) t += sat_inf(records[e * width + f]) * sc;
+    for (int e = a; e < b; ++e) t += sat_inf(records[(size_t)e * width + f]) * sc;
     return t * (1.0f / sc);
 }
 

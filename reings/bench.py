@@ -379,6 +379,9 @@ def main(argv=None) -> int:
 
     set_queue_profiling(True)  # the stage times are read from the queue's profiling events
     be = get_backend(args.device)  # the registry's instance: kernels and buffers shared with render()
+    if not getattr(getattr(be, "handle", None), "profiling", True):
+        print(f"reings bench: the {args.device!r} queue was opened without profiling earlier in this process: "
+              "device times per stage are not available (wall times are)", file=sys.stderr)
     if "device" not in be.engines:  # the stage timings and the step need a device-resident backend
         raise SystemExit(f"reings bench: {args.device!r} is not an OpenCL device")
     info = device_info(be)

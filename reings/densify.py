@@ -130,7 +130,7 @@ def densify_and_prune(state: TrainState, cfg, extent: float, rng: np.random.Gene
     ki, di = np.flatnonzero(~split), np.flatnonzero(clone)
 
     def grown(name: str, a: np.ndarray) -> np.ndarray:
-        extra = [children[name]] if children else []
+        extra = [np.asarray(children[name], np.float32)] if children else []  # as apply_index_op casts them
         return np.concatenate([a[ki], a[di]] + extra, axis=0)
 
     prune = _sigmoid(grown("opacity_logits", p["opacity_logits"])) < cfg.prune_opacity

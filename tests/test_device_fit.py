@@ -206,17 +206,29 @@ def test_fused_soft_records_are_discarded_by_another_backward(device, case):
         be._finish()
         assert be._pending_o is None
         np.testing.assert_array_equal(g, want, err_msg=f"between={between}")
-    # announced for one cotangent, called with another: that one's own pass
+    # announced for one cotangent (A, the depth loss's buffer), called with another (a host array B): B's
+    # own pass, though B is uploaded after the announcement (into a buffer of its own, never A's)
     vd_host = be._read(vd, (fr.height, fr.width), np.float32)
     be._finish()
     other = (vd_host[::-1] * 3.0).copy()
     want2 = be._read(tr.backward(fr, None, other, None, ("opacity_logits",))["opacity_logits"], (tr.n,), np.float32)
     be._finish()
+    vd = tr.depth_loss(fr, 0, 3, 5, 0.01, 1.0, 1.0)  # A again (the same buffer as before)
     tr.backward(fr, v_rgb, None, v_depth_opacity=vd)
     g2 = be._read(tr.backward(fr, None, other, None, ("opacity_logits",))["opacity_logits"], (tr.n,), np.float32)
     be._finish()
     np.testing.assert_array_equal(g2, want2)
     assert not np.array_equal(want2, want)
+    # the announced buffer rewritten before the announced backward (another depth loss): its own pass
+    tr.backward(fr, v_rgb, None, v_depth_opacity=vd)
+    vd2 = tr.depth_loss(fr, 0, 5, 9, 0.01, 1.0, 1.0)
+    assert vd2 is vd and be._pending_o is None
+    g3 = be._read(tr.backward(fr, None, vd2, None, ("opacity_logits",))["opacity_logits"], (tr.n,), np.float32)
+    be._finish()
+    tr.fuse_soft_backward = False
+    want3 = be._read(tr.backward(fr, None, vd2, None, ("opacity_logits",))["opacity_logits"], (tr.n,), np.float32)
+    be._finish()
+    np.testing.assert_array_equal(g3, want3)
 
 
 @pytest.mark.parametrize("engine", ["host", "device"])

@@ -80,10 +80,16 @@ def test_setting_and_environment():
 
 
 def test_a_backends_objects_share_its_queue(device):
-    """The view_warp kernels get the backend's handle, not one opened from the spec (which, under
-    another profiling setting, would be another queue with no order against the backend's)."""
-    from reings.backends import get_backend
+    """The loss kernels a backend builds get its handle, not one opened from the spec: a fresh backend,
+    the setting flipped before its loss kernels are first built (opened from the spec they would get
+    another context and queue, with no order against the backend's)."""
+    from reings.backends.opencl import device as D
+    from reings.backends.opencl.backend import OpenCLBackend
 
-    be = get_backend(device)
-    assert be.view_warp_kernels.handle is be.handle
-    assert be.photometric_kernels.handle is be.handle and be.depth_loss_kernels.handle is be.handle
+    be = OpenCLBackend(device)
+    D.set_queue_profiling(not be.handle.profiling)
+    try:
+        vw, ph, dl = be.view_warp_kernels, be.photometric_kernels, be.depth_loss_kernels
+    finally:
+        D.set_queue_profiling(None)
+    assert vw.handle is be.handle and ph.handle is be.handle and dl.handle is be.handle

@@ -618,4 +618,7 @@ def _time(device: str = "pocl", reps: int = 30) -> None:
 
 
 if __name__ == "__main__":
+    from reings.backends import set_queue_profiling
+
+    set_queue_profiling(True)  # the kernel times are read from profiling events
     _time(*(sys.argv[1:2] or ["pocl"]))

@@ -35,7 +35,7 @@ def get_backend(device: str = "pocl"):
 
 def set_queue_profiling(on: bool | None) -> None:
     """Whether OpenCL queues opened from now on in this process record profiling timestamps (the
-    kernel times of `reings bench`, `--profile` runs and the bench scripts); off by default, since
+    kernel times of `reings bench` and the bench scripts); off by default, since
     NVIDIA's OpenCL spends time on every profiled command (docs/perf_notes.md §12). None: back to
     REINGS_QUEUE_PROFILING. A backend already made keeps its queue."""
     from .opencl.device import set_queue_profiling as _set

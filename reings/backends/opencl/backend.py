@@ -586,6 +586,12 @@ class OpenCLBackend:
         self._mark("rasterize_bwd", ev, span=True)
         self._reduce_records(fr, r.v_emit)
 
+    def discard_held_records(self) -> None:
+        """Forget the records an announced backward holds (`backward_device(v_depth_opacity=)`): the
+        caller is about to rewrite the announced cotangent's buffer, whose identity is what the next
+        backward matches."""
+        self._pending_o = None
+
     def _check_order(self, fr: _Frame) -> None:
         if fr.order is not None and fr.order.gen != fr.order_gen:
             raise RuntimeError(f"backward: the frame's depth order ({fr.order.name}) was re-sorted since its "

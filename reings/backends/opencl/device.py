@@ -134,8 +134,9 @@ _PROFILING: bool | None = None  # set_queue_profiling's choice for this process 
 
 def set_queue_profiling(on: bool | None) -> None:
     """Whether queues opened from now on in this process record profiling timestamps (None: back to
-    REINGS_QUEUE_PROFILING). Callers that read kernel times from events (`reings bench`, `--profile`
-    runs, the bench scripts, kernel_census) turn it on before their first device opens."""
+    REINGS_QUEUE_PROFILING). Callers that read kernel times from events (`reings bench`, the bench
+    scripts, kernel_census) turn it on before their first device opens; a `--profile` run records
+    wall seconds per phase and needs none."""
     global _PROFILING
     _PROFILING = None if on is None else bool(on)
 

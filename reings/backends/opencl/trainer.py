@@ -374,6 +374,7 @@ class DeviceTrainer:
                 self._launch("keep_rows", self.k_gather_rows, n_new * w, _U32(n_new * w), _U32(w), ib, b, tmp)
                 self.cl.enqueue_copy(self.queue, b, tmp, byte_count=4 * n_new * w)
         self.n = n_new
+        self._sh_k = None  # the packed SH of the old rows is stale (as after `upload`)
         self.means_written()
 
     def download(self, state, params_only: bool = False) -> None:
@@ -513,6 +514,7 @@ class DeviceTrainer:
         (returned, overwritten); the loss stays on the device (`read_depth_loss`). Nothing crosses
         the bus."""
         v = self.mem.get("pixel", "v_depth", fr.width * fr.height, 4)
+        self.b.discard_held_records()  # the buffer an announced backward may hold records of is rewritten
         sm = None
         if w_smooth:
             if self.ds[view] is None:
@@ -591,9 +593,13 @@ class DeviceTrainer:
         Trainer.backward): with `fuse_soft_backward`, this pass also makes the records of the
         announced opacity-only backward of that cotangent (backend.backward_device)."""
         vd = v_depth
-        if isinstance(v_depth, np.ndarray):
-            vd = self.mem.get("pixel", "v_depth", fr.width * fr.height, 4)
+        if isinstance(v_depth, np.ndarray):  # its own buffer: never the depth loss's (an announced cotangent)
+            vd = self.mem.get("pixel", "v_depth_host", fr.width * fr.height, 4)
             self._write(vd, np.asarray(v_depth, _F32))
+        if isinstance(v_depth_opacity, np.ndarray):
+            vdo_buf = self.mem.get("pixel", "v_depth_o_host", fr.width * fr.height, 4)
+            self._write(vdo_buf, np.asarray(v_depth_opacity, _F32))
+            v_depth_opacity = vdo_buf
         vdo = v_depth_opacity if self.fuse_soft_backward else None
         g = dict(self.b.backward_device(fr, v_rgb, vd, v_alpha, opacity_override, grad_fields, v_depth_opacity=vdo))
         g["sh_k"] = fr.sh_k
