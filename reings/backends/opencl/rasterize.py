@@ -107,8 +107,7 @@ class Rasterizer:
         self.k_fwd.set_scalar_arg_dtypes(fwd_types)
         self._fwd_types = fwd_types
         self.k_bwd.set_scalar_arg_dtypes(_BWD_TYPES)
-        self._k_bwd_opacity = None  # RASTER_BWD_OPACITY=1, built on first use (bwd(opacity_only=True))
-        self._k_bwd_depth_o = None  # RASTER_BWD_DEPTH_O=1, built on first use (bwd(v_depth_o=...))
+        self._k_bwd_variants: dict = {}  # RASTER_BWD_OPACITY / RASTER_BWD_DEPTH_O builds, on first use
         self.k_reduce.set_scalar_arg_dtypes([None] * 4 + [i32] * 3 + [None, i32])
         self.local = 1 if self.cpu_schedule else TILE_PIXELS
         self._dummy = self.scratch.get("small", "raster_dummy", 16, 4)
@@ -198,21 +197,18 @@ class Rasterizer:
                  *bg, self.rgb, self.depth, self.alpha, self.final_T, self.last, imp, wait_for=wait_for)
 
     def _bwd_kernel(self, opacity_only: bool, depth_o: bool = False):
+        """The rasterize_bwd build: the full one, RASTER_BWD_OPACITY or RASTER_BWD_DEPTH_O (built on first use)."""
         if opacity_only and depth_o:
             raise ValueError("Rasterizer.bwd: opacity_only and v_depth_o exclude each other")
-        if opacity_only:
-            if self._k_bwd_opacity is None:
-                k = self._lib.get(FILE, "rasterize_bwd", RASTER_IMPORTANCE=0, RASTER_BWD_OPACITY=1, **self._defines)
-                k.set_scalar_arg_dtypes(_BWD_TYPES)
-                self._k_bwd_opacity = k
-            return self._k_bwd_opacity
-        if depth_o:
-            if self._k_bwd_depth_o is None:
-                k = self._lib.get(FILE, "rasterize_bwd", RASTER_IMPORTANCE=0, RASTER_BWD_DEPTH_O=1, **self._defines)
-                k.set_scalar_arg_dtypes(_BWD_TYPES)
-                self._k_bwd_depth_o = k
-            return self._k_bwd_depth_o
-        return self.k_bwd
+        variant = "RASTER_BWD_OPACITY" if opacity_only else "RASTER_BWD_DEPTH_O" if depth_o else None
+        if variant is None:
+            return self.k_bwd
+        k = self._k_bwd_variants.get(variant)
+        if k is None:
+            k = self._lib.get(FILE, "rasterize_bwd", RASTER_IMPORTANCE=0, **{variant: 1}, **self._defines)
+            k.set_scalar_arg_dtypes(_BWD_TYPES)
+            self._k_bwd_variants[variant] = k
+        return k
 
     def bwd(self, tile_ranges, gid_from_isect, emit_from_isect, n_isect: int, width: int, height: int,
             v_rgb=None, v_depth=None, v_alpha=None, fwd_out=None, wait_for=None, opacity_only: bool = False,
