@@ -323,14 +323,8 @@ class DeviceTrainer:
         self._cols = _columns(self.kmax)
         self._bufs = {}
         held: list = []  # the non-blocking writes' host arrays and events, alive until the one wait below
-        wr = self._write_async
-        for name in PARAM_NAMES:
-            wr(self.buf("p", name), np.asarray(state.params[name], _F32), held)
-            wr(self.buf("m", name), np.asarray(state.adam.exp_avg[name], _F32), held)
-            wr(self.buf("v", name), np.asarray(state.adam.exp_avg_sq[name], _F32), held)
-        wr(self.buf("stat", ACCUM), np.asarray(state.stats[ACCUM], _F32), held)
-        wr(self.buf("stat", COUNT), np.asarray(state.stats[COUNT], _I32), held)
-        wr(self.buf("stat", RADII), np.asarray(state.stats[RADII], _F32), held)
+        for b, arrays, key, _, dt in self._state_slots(state):
+            self._write_async(b, np.asarray(arrays[key], dt), held)
         self.queue.finish()  # one wait for the 21 copies (the caller may change its arrays after)
         held.clear()
         self._sh_k = None
@@ -348,6 +342,24 @@ class DeviceTrainer:
         row = np.asarray(cam.viewmat, np.float64)[2, :4].astype(_F32)
         return self.geometry, row.tobytes(), _F32(near).tobytes()
 
+    def _state_slots(self, state, params_only: bool = False) -> list:
+        """(device buffer, the dict of `state` that holds its host array, key, shape at this trainer's
+        N, dtype) of every array the trainer keeps: each group's parameters and both Adam moments,
+        then the three densification statistics (params_only: the parameters alone). The one list
+        upload, download and keep_rows walk."""
+        n, km = self.n, self.kmax
+        out = []
+        for name in PARAM_NAMES:
+            shp = _shape(name, n, km)
+            out.append((self.buf("p", name), state.params, name, shp, _F32))
+            if not params_only:
+                out.append((self.buf("m", name), state.adam.exp_avg, name, shp, _F32))
+                out.append((self.buf("v", name), state.adam.exp_avg_sq, name, shp, _F32))
+        if not params_only:
+            for key, dt in ((ACCUM, _F32), (COUNT, _I32), (RADII, _F32)):
+                out.append((self.buf("stat", key), state.stats, key, (n,), dt))
+        return out
+
     def keep_rows(self, keep, state) -> None:
         """Trainer.keep_rows: the host `state` was just cut to the rows `keep` (bool [N] or ascending
         indices; reings.state.apply_index_op(keep=)); the device copy follows by a gather of every
@@ -362,8 +374,7 @@ class DeviceTrainer:
         n_new = len(idx)
         if n_new != len(state):
             raise ValueError(f"keep_rows: the host state has {len(state)} rows, the kept rows are {n_new}")
-        bufs = [(self.buf(k, name), self._cols[name]) for name in PARAM_NAMES for k in ("p", "m", "v")]
-        bufs += [(self.buf("stat", s), 1) for s in (ACCUM, COUNT, RADII)]
+        bufs = [(b, int(np.prod(shp[1:], dtype=np.int64))) for b, _, _, shp, _ in self._state_slots(state)]
         if n_new:
             ib = self.mem.get("gauss", "keep_idx", n_new, 4)
             self._write(ib, idx)
@@ -380,19 +391,9 @@ class DeviceTrainer:
     def download(self, state, params_only: bool = False) -> None:
         """Trainer.download: the device state -> `state` (fresh arrays; step counts and iteration
         are the host's)."""
-        n, km = self.n, self.kmax
         held: list = []  # non-blocking reads into fresh arrays, one wait at the end
-        rd = lambda b, shp, dt: self._read_async(b, shp, dt, held)  # noqa: E731
-        for name in PARAM_NAMES:
-            shp = _shape(name, n, km)
-            state.params[name] = rd(self.buf("p", name), shp, _F32)
-            if not params_only:
-                state.adam.exp_avg[name] = rd(self.buf("m", name), shp, _F32)
-                state.adam.exp_avg_sq[name] = rd(self.buf("v", name), shp, _F32)
-        if not params_only:
-            state.stats[ACCUM] = rd(self.buf("stat", ACCUM), (n,), _F32)
-            state.stats[COUNT] = rd(self.buf("stat", COUNT), (n,), _I32)
-            state.stats[RADII] = rd(self.buf("stat", RADII), (n,), _F32)
+        for b, arrays, key, shp, dt in self._state_slots(state, params_only):
+            arrays[key] = self._read_async(b, shp, dt, held)
         self.queue.finish()
         held.clear()
 
