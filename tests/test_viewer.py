@@ -9,6 +9,7 @@ import os
 import shutil
 import socket
 import subprocess
+import threading
 import time
 
 import numpy as np
@@ -79,9 +80,23 @@ class _Browser:
             if m:
                 url = m.group(1)
                 break
+        if not url:
+            self.proc.kill()
+            self.proc.wait(timeout=30)
         assert url, "Chromium did not start its DevTools endpoint:\n" + "".join(seen)[-2000:]
-        self.ws = connect(url, max_size=2 ** 28, open_timeout=60)
+        # keep reading Chromium's stderr (a full pipe would block the browser)
+        threading.Thread(target=self._drain, daemon=True).start()
+        try:
+            self.ws = connect(url, max_size=2 ** 28, open_timeout=60)
+        except BaseException:
+            self.proc.kill()
+            self.proc.wait(timeout=30)
+            raise
         self.n, self.session = 0, None
+
+    def _drain(self):
+        for _ in self.proc.stderr:
+            pass
 
     def call(self, method, **params):
         self.n += 1
