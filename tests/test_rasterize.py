@@ -444,7 +444,7 @@ _OCLGRIND_SCRIPT = """
             g = rasterize_bwd_host(proj, bins, w, h, vr, vd, None, BG, device="oclgrind", cpu_schedule=cpu,
                                    v_depth_o=vd[::-1].copy())  # RASTER_BWD_DEPTH_O
             assert np.all(np.isfinite(g.v_emit)) and np.all(np.isfinite(g.v_emit_o))
-    else:
+    elif "{part}" == "reduce":
         # the width-V_RECORD register pass of isect_reduce in record order
         from test_rasterize import test_isect_reduce_sums_in_record_order
         test_isect_reduce_sums_in_record_order("oclgrind")
@@ -457,6 +457,8 @@ _OCLGRIND_SCRIPT = """
         # isect_reduce with the rank count from the host and from the device (sync-free binning)
         from test_rasterize import test_isect_reduce
         test_isect_reduce("oclgrind")
+    else:
+        raise ValueError("unknown part {part}")
 """
 
 

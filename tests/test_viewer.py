@@ -7,7 +7,6 @@ import base64
 import json
 import os
 import shutil
-import socket
 import subprocess
 import threading
 import time
@@ -39,12 +38,6 @@ def test_splat_arrays_match_the_definitions():
         np.testing.assert_allclose(np.linalg.eigvalsh(cov[i]), np.sort(np.diag(S @ S)), rtol=1e-4)
     np.testing.assert_allclose(rgb, np.clip(0.5 + SH_C0 * g.sh[:, 0], 0, 1), atol=1e-6)
     np.testing.assert_allclose(op[:, 0], 1 / (1 + np.exp(-g.opacity_logits)), rtol=1e-6)
-
-
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def _block(colour, n=400, seed=0):
@@ -144,8 +137,8 @@ def test_the_browser_shows_the_scene(tmp_path, colour, channel):
 
     K = np.array([[300.0, 0, 200], [0, 300.0, 150], [0, 0, 1]])
     cam = look_at(np.zeros(3), np.array([0, 0, 4.5]), np.array([0, -1.0, 0]), K, 400, 300)
-    port = _free_port()
-    server = serve(_block(colour), port=port, cameras=[cam])
+    server = serve(_block(colour), port=0, cameras=[cam])  # the OS picks a free port: no race between workers
+    port = server.get_port()
     others = [c for c in range(3) if c != channel]
     browser = None
     try:
