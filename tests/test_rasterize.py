@@ -430,6 +430,17 @@ _OCLGRIND_SCRIPT = """
     from test_rasterize import _scene, _cotangents, BG
     from reings.backends.opencl.rasterize import rasterize_fwd_host, rasterize_bwd_host
     cpu = {cpu}
+
+
+    def overflow_rerun():
+        # the overflow rerun (pass 1 of rasterize_bwd, the rescaled isect_reduce) on a small case
+        from test_rasterize import _overflow_inputs
+        proj, bins, w, h = _scene("size_17x15")
+        proj, vr, vd, va = _overflow_inputs("all_colours", w, h, proj)
+        g = rasterize_bwd_host(proj, bins, w, h, vr, vd, va, BG, device="oclgrind", cpu_schedule=cpu)
+        assert not np.isnan(g.v_emit).any() and not np.isnan(g.v_conics).any()
+
+
     if "{part}" == "rasterize":
         for name in ("size_17x15", "saturated", "many_in_one_tile"):
             proj, bins, w, h = _scene(name)
@@ -444,16 +455,14 @@ _OCLGRIND_SCRIPT = """
             g = rasterize_bwd_host(proj, bins, w, h, vr, vd, None, BG, device="oclgrind", cpu_schedule=cpu,
                                    v_depth_o=vd[::-1].copy())  # RASTER_BWD_DEPTH_O
             assert np.all(np.isfinite(g.v_emit)) and np.all(np.isfinite(g.v_emit_o))
+        # after the larger cases: on the scratch they grew (32x32 pixels, K 48), more than it needs
+        overflow_rerun()
     elif "{part}" == "reduce":
         # the width-V_RECORD register pass of isect_reduce in record order
         from test_rasterize import test_isect_reduce_sums_in_record_order
         test_isect_reduce_sums_in_record_order("oclgrind")
-        # the overflow rerun (pass 1 of rasterize_bwd, the rescaled isect_reduce) on a small case
-        from test_rasterize import _overflow_inputs
-        proj, bins, w, h = _scene("size_17x15")
-        proj, vr, vd, va = _overflow_inputs("all_colours", w, h, proj)
-        g = rasterize_bwd_host(proj, bins, w, h, vr, vd, va, BG, device="oclgrind", cpu_schedule=cpu)
-        assert not np.isnan(g.v_emit).any() and not np.isnan(g.v_conics).any()
+        # on fresh scratch sized for this case alone (a read past a buffer's end is out of bounds)
+        overflow_rerun()
         # isect_reduce with the rank count from the host and from the device (sync-free binning)
         from test_rasterize import test_isect_reduce
         test_isect_reduce("oclgrind")
@@ -472,7 +481,8 @@ def test_oclgrind_checks(cpu, part):
     that one check runs on the GPU schedule, prep and isect_reduce only.
 
     The three cases run in a row on one Rasterizer, so its scratch buffers are reused and grown
-    (17x15 -> 32x32 pixels, K 29 -> 48). On Oclgrind the Rasterizer's scratch keeps replaced
+    (17x15 -> 32x32 pixels, K 29 -> 48); then the small overflow rerun runs on the grown buffers
+    (the reduce part runs it again on freshly sized ones). On Oclgrind the Rasterizer's scratch keeps replaced
     buffers alive (`Scratch.retain`, on Oclgrind): the simulator recycles a released buffer's id together with
     its stale shadow memory, which made fully written grown buffers read as uninitialised.
     The rasterizer's cases and the reduce's run as separate tests (each its own simulator process),

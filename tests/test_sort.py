@@ -510,7 +510,6 @@ import pyopencl as cl
 
 h = open_device("oclgrind")
 PART = "{part}"
-rng = np.random.default_rng(0)
 keep = []  # nothing is ever released in this process: see the note in the test
 
 
@@ -532,6 +531,8 @@ def download(buf, like):
 CONFIGS = {"cpu": (True, dict(wg=32, items=4), (1, 2, 129, 300)),
            "gpu_small_blocks": (False, dict(wg=32, items=4), (1, 2, 129, 300)),
            "gpu_default": (False, dict(wg=256, items=8), (300,))}
+# one stream per part (each runs in its own process): the parts sort and scan different keys
+rng = np.random.default_rng([0, list(CONFIGS).index(PART)])
 for cpu, kw, sizes in [CONFIGS[PART]]:
     s = RadixSort(h, cpu_schedule=cpu, **kw)
     sc = ExclusiveScan(h, cpu_schedule=cpu, **kw)

@@ -4,12 +4,14 @@ both)."""
 from __future__ import annotations
 
 import base64
+import inspect
 import json
 import os
 import shutil
+import signal
 import subprocess
-import threading
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -53,43 +55,85 @@ class _Browser:
     """A headless Chromium driven over the DevTools protocol: the page is screenshotted again and
     again in real time until it shows what is expected or the deadline passes. (A one-shot
     `--screenshot` with a virtual-time budget captured the page before the splats had arrived over
-    the websocket on a loaded 2-core CI machine, three browsers in a row.)"""
+    the websocket on a loaded 2-core CI machine, three browsers in a row.)
+
+    The DevTools endpoint comes from `<user-data-dir>/DevToolsActivePort` (line 1 the port, line 2
+    the browser's path), polled against a deadline, never from a blocking read of Chromium's output:
+    that goes to a file (`<user-data-dir>.log`, quoted when the endpoint does not come). Chromium
+    runs in its own session, and the whole process group (renderer, GPU and utility processes) is
+    killed on close."""
+
+    START_S = 60  # real seconds for Chromium to open its DevTools endpoint
 
     def __init__(self, tmp):
-        import re
         from websockets.sync.client import connect
 
         assert _CHROME, "REINGS_REQUIRE_BROWSER is set but no Chromium is installed"
-        self.proc = subprocess.Popen(
-            [_CHROME, "--headless=new", "--no-sandbox", "--disable-gpu", "--use-angle=swiftshader",
-             "--enable-unsafe-swiftshader", "--no-first-run", "--disable-background-networking",
-             "--disable-component-update", "--disable-sync", f"--user-data-dir={tmp}",
-             "--window-size=800,600", "--remote-debugging-port=0", "about:blank"],
-            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
-        url, seen = None, []
-        for line in self.proc.stderr:  # Chromium announces its DevTools endpoint on stderr
-            seen.append(line)
-            m = re.search(r"DevTools listening on (ws://\S+)", line)
-            if m:
-                url = m.group(1)
-                break
-        if not url:
-            self.proc.kill()
-            self.proc.wait(timeout=30)
-        assert url, "Chromium did not start its DevTools endpoint:\n" + "".join(seen)[-2000:]
-        # keep reading Chromium's stderr (a full pipe would block the browser)
-        threading.Thread(target=self._drain, daemon=True).start()
+        tmp = Path(tmp)
+        tmp.mkdir(parents=True, exist_ok=True)
+        port_file = tmp / "DevToolsActivePort"
+        port_file.unlink(missing_ok=True)
+        self.log_path = tmp.with_name(tmp.name + ".log")
+        self._log = open(self.log_path, "wb")
         try:
-            self.ws = connect(url, max_size=2 ** 28, open_timeout=60)
+            self.proc = subprocess.Popen(
+                [_CHROME, "--headless=new", "--no-sandbox", "--disable-gpu", "--use-angle=swiftshader",
+                 "--enable-unsafe-swiftshader", "--no-first-run", "--disable-background-networking",
+                 "--disable-component-update", "--disable-sync", f"--user-data-dir={tmp}",
+                 "--window-size=800,600", "--remote-debugging-port=0", "about:blank"],
+                stdin=subprocess.DEVNULL, stdout=self._log, stderr=subprocess.STDOUT,
+                start_new_session=True)  # its own process group: close() kills its children too
         except BaseException:
-            self.proc.kill()
-            self.proc.wait(timeout=30)
+            self._log.close()
+            raise
+        self.ws = None
+        try:
+            url = self._endpoint(port_file, time.monotonic() + self.START_S)
+            kw = {}
+            if "proxy" in inspect.signature(connect).parameters:  # websockets >= 15 honours *_proxy
+                kw["proxy"] = None  # variables by default; 127.0.0.1 is never behind a proxy
+            self.ws = connect(url, max_size=2 ** 28, open_timeout=60, **kw)
+        except BaseException:
+            self._kill()
             raise
         self.n, self.session = 0, None
 
-    def _drain(self):
-        for _ in self.proc.stderr:
-            pass
+    def _endpoint(self, port_file, deadline):
+        """ws://127.0.0.1:<port>/devtools/browser/<id> once DevToolsActivePort holds both lines and
+        reads the same twice in a row (it is written in place); fails at the deadline or when
+        Chromium exits first."""
+        last = None
+        while True:
+            try:
+                text = port_file.read_bytes().decode("ascii", errors="replace")
+            except FileNotFoundError:
+                text = None
+            lines = text.splitlines() if text else []
+            if len(lines) >= 2 and lines[0].strip().isdigit() and lines[1].strip().startswith("/devtools/"):
+                if text == last:
+                    return f"ws://127.0.0.1:{int(lines[0])}{lines[1].strip()}"
+                last = text
+            elif self.proc.poll() is not None:
+                raise AssertionError(f"Chromium exited (status {self.proc.returncode}) before it opened "
+                                     f"its DevTools endpoint; its output:\n{self._log_tail()}")
+            if time.monotonic() > deadline:
+                raise AssertionError(f"Chromium did not open its DevTools endpoint within {self.START_S} s "
+                                     f"({port_file}: {text!r}); its output:\n{self._log_tail()}")
+            time.sleep(0.1)
+
+    def _log_tail(self, n=4000):
+        return self.log_path.read_bytes()[-n:].decode("utf-8", errors="replace")
+
+    def _kill(self):
+        """SIGKILL to Chromium's whole process group, then reap it (bounded wait)."""
+        try:
+            os.killpg(self.proc.pid, signal.SIGKILL)
+        except (ProcessLookupError, PermissionError):
+            pass  # the group is gone already
+        try:
+            self.proc.wait(timeout=30)
+        finally:
+            self._log.close()
 
     def call(self, method, **params):
         self.n += 1
@@ -117,10 +161,10 @@ class _Browser:
 
     def close(self):
         try:
-            self.ws.close()
+            if self.ws is not None:
+                self.ws.close()
         finally:
-            self.proc.kill()
-            self.proc.wait(timeout=30)
+            self._kill()
 
 
 _CHROME = shutil.which("chromium") or shutil.which("chromium-browser") or shutil.which("google-chrome")
