@@ -19,12 +19,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from .backends.reference_state import densify_accumulate, ndc_grad_norm, zero_stats
-from .state import TrainState, apply_index_op, reset_moments
-from .types import ACCUM, COUNT, RADII
+from .backends.reference_state import HeldRows, apply_rows, densify_accumulate, ndc_grad_norm, zero_stats
+from .state import TrainState, apply_index_op, index_plan, reset_moments
+from .types import ACCUM, COUNT, RADII, RowPlan
 
 __all__ = ["ACCUM", "COUNT", "RADII", "init_stats", "ndc_grad_norm", "accumulate", "mean_grads",
-           "densify_and_prune", "reset_opacity", "clean_views", "prune_unseen", "schedule", "maybe_densify"]
+           "decision_columns", "densify_plan", "densify_and_prune", "reset_opacity", "clean_views", "unseen_plan",
+           "prune_unseen", "schedule", "maybe_densify", "densify_rows"]
 
 
 def _sigmoid(x):
@@ -65,10 +66,14 @@ def accumulate(state: TrainState, grad_norms: np.ndarray, visible: np.ndarray, r
 
 def mean_grads(state: TrainState) -> np.ndarray:
     """accum / count per Gaussian (0 where never visible, as 3DGS's `grads[grads.isnan()] = 0`)."""
-    if ACCUM not in state.stats:
-        return np.zeros(len(state), np.float32)
-    c = state.stats[COUNT]
-    return np.where(c > 0, state.stats[ACCUM] / np.maximum(c, 1), 0.0).astype(np.float32)
+    return _mean_grads(state.stats, len(state))
+
+
+def _mean_grads(stats: dict, n: int) -> np.ndarray:
+    if ACCUM not in stats:
+        return np.zeros(n, np.float32)
+    c = stats[COUNT]
+    return np.where(c > 0, stats[ACCUM] / np.maximum(c, 1), 0.0).astype(np.float32)
 # }}}
 
 
@@ -85,21 +90,30 @@ def _cap_candidates(grads, cand, cost, budget):
     return out
 
 
-def densify_and_prune(state: TrainState, cfg, extent: float, rng: np.random.Generator,
-                      size_prune: bool = False) -> dict:
-    """One 3DGS `densify_and_prune` with the thresholds of `cfg` (a DensifyConfig):
+def decision_columns(cfg) -> tuple[tuple, tuple]:
+    """(parameters, statistics) that `densify_plan` (and, with cfg.dark_white_rules, the DTU rules
+    before it) read: what a trainer that holds the state elsewhere must bring to the host."""
+    params = ("means", "quats", "log_scales", "opacity_logits") + (("sh_dc",) if cfg.dark_white_rules else ())
+    return params, (ACCUM, COUNT, RADII)
+
+
+def densify_plan(params: dict, stats: dict, cfg, extent: float, rng: np.random.Generator,
+                 size_prune: bool = False) -> tuple[RowPlan, dict]:
+    """One 3DGS `densify_and_prune` decided from the columns `decision_columns` names, as a RowPlan
+    (reings.types) of the old rows, with the thresholds of `cfg` (a DensifyConfig):
 
     grad = accum / count;  candidates: grad >= grad_threshold (and opacity > split_opacity_thresh
     when set, DNGaussian);  clone those with max scale <= percent_dense * extent (a copy, zero
     moments), split the others into split_n children (means sampled from N(0, diag(scale^2))
     rotated by R, plus the mean; scale / (0.8 * split_n); other fields copied; parent removed);
     then prune opacity < prune_opacity (and, when size_prune, screen radius > max_screen_size or
-    max scale > max_world_size * extent).  With max_gaussians set, growth is limited to the
-    highest-gradient candidates that fit.  The statistics are reset afterwards.
-    Returns counts {"cloned", "split", "pruned", "n"}."""
-    n0 = len(state)
-    grads = mean_grads(state)
-    p = state.params
+    max scale > max_world_size * extent) over the grown set [kept; clones; children].  With
+    max_gaussians set, growth is limited to the highest-gradient candidates that fit.
+    Returns (plan, counts {"cloned", "split", "pruned", "n"}); the statistics are reset when the
+    plan is applied (`zero_stats`)."""
+    p = params
+    n0 = len(p["means"])
+    grads = _mean_grads(stats, n0)
     max_scale = np.exp(p["log_scales"].astype(np.float64)).max(axis=1) if n0 else np.zeros(0)
     cand = grads >= cfg.grad_threshold
     if cfg.split_opacity_thresh is not None:
@@ -111,46 +125,47 @@ def densify_and_prune(state: TrainState, cfg, extent: float, rng: np.random.Gene
         keep_c = _cap_candidates(grads, clone | split, cost, max(0, cfg.max_gaussians - n0))
         clone, split = clone & keep_c, split & keep_c
 
-    # split children (3DGS densify_and_split: tensors repeated N times, i.e. tiled [sel; sel])
+    # split children (3DGS densify_and_split: tensors repeated N times, i.e. tiled [sel; sel]): the
+    # parents' rows with new means and scales
     sel = np.flatnonzero(split)
     k = cfg.split_n
-    children = {}
+    fresh = {}
     if len(sel):
         scales = np.exp(p["log_scales"][sel].astype(np.float64))  # [S,3]
         stds = np.tile(scales, (k, 1))
         samples = rng.normal(size=stds.shape) * stds  # [kS,3]
         rots = np.tile(quat_to_rotmat(p["quats"][sel]), (k, 1, 1))
-        children["means"] = (np.einsum("nij,nj->ni", rots, samples) + np.tile(p["means"][sel], (k, 1))).astype(np.float32)
-        children["log_scales"] = np.log(stds / (0.8 * k)).astype(np.float32)
-        for name in p:
-            if name not in children:
-                children[name] = np.tile(p[name][sel], (k,) + (1,) * (p[name].ndim - 1))
-    # prune (over the grown set [kept; clones; children], as 3DGS), applied with the growth in one
-    # index op: the grown set's columns the tests read are assembled without copying every array
+        fresh["means"] = (np.einsum("nij,nj->ni", rots, samples) + np.tile(p["means"][sel], (k, 1))).astype(np.float32)
+        fresh["log_scales"] = np.log(stds / (0.8 * k)).astype(np.float32)
     ki, di = np.flatnonzero(~split), np.flatnonzero(clone)
-
-    def grown(name: str, a: np.ndarray) -> np.ndarray:
-        extra = [np.asarray(children[name], np.float32)] if children else []  # as apply_index_op casts them
-        return np.concatenate([a[ki], a[di]] + extra, axis=0)
-
-    prune = _sigmoid(grown("opacity_logits", p["opacity_logits"])) < cfg.prune_opacity
+    src = np.concatenate([ki, di, np.tile(sel, k)])
+    grown = RowPlan(src, len(ki), len(ki) + len(di), fresh)
+    # prune over the grown set, from the few columns it reads
+    prune = _sigmoid(p["opacity_logits"][src]) < cfg.prune_opacity
     if size_prune:
         if cfg.max_screen_size is not None:  # the new rows' statistics are zero
-            radii = state.stats[RADII]
+            radii = stats[RADII]
             prune |= np.concatenate([radii[ki], np.zeros(len(prune) - len(ki), radii.dtype)]) > cfg.max_screen_size
         if cfg.max_world_size is not None:
-            ls = grown("log_scales", p["log_scales"])
+            ls = p["log_scales"][src]
+            if len(sel):
+                ls[grown.fresh_start:] = fresh["log_scales"]
             prune |= np.exp(ls.astype(np.float64)).max(axis=1) > cfg.max_world_size * extent
-    apply_index_op(state, keep=ki, duplicate=di, append=children or None, then_keep=~prune)
-    init_stats(state)
-    return {"cloned": int(clone.sum()), "split": int(len(sel)), "pruned": int(prune.sum()), "n": len(state)}
+    plan = grown.then_keep(~prune)
+    return plan, {"cloned": int(clone.sum()), "split": int(len(sel)), "pruned": int(prune.sum()), "n": len(plan)}
+
+
+def densify_and_prune(state: TrainState, cfg, extent: float, rng: np.random.Generator,
+                      size_prune: bool = False) -> dict:
+    """`densify_plan` applied to a TrainState (its statistics reset). Returns the counts."""
+    plan, counts = densify_plan(state.params, state.stats, cfg, extent, rng, size_prune)
+    apply_rows(state.params, state.adam.exp_avg, state.adam.exp_avg_sq, state.stats, plan, zero_stats=True)
+    return counts
 
 
 def reset_opacity(state: TrainState, value: float = 0.01) -> None:
     """3DGS `reset_opacity`: opacity = min(opacity, value), Adam moments of the opacities zeroed."""
-    o = state.params["opacity_logits"]
-    np.minimum(o, np.float32(_logit(value)), out=o)
-    reset_moments(state, "opacity_logits")
+    HeldRows(state).reset_opacity(_logit(value))
 
 
 def clean_views(state: TrainState, visible: np.ndarray) -> int:
@@ -167,20 +182,29 @@ def clean_views(state: TrainState, visible: np.ndarray) -> int:
     return removed
 
 
-def prune_unseen(state: TrainState, seen: np.ndarray) -> int:
-    """DensifyConfig.prune_unseen: drop the Gaussians no training pixel blends (`seen`:
-    rendering.gaussian_importance over the training views > 0). No loss term of a fit reaches
-    them through a training view, so only the regularisers (whose gradients Adam normalises into full-size steps) and the virtual views move
-    them; a test view between the training views can still see them (docs/method.md §11).
-    Returns how many went."""
+def unseen_plan(seen: np.ndarray, n: int) -> RowPlan | None:
+    """DensifyConfig.prune_unseen's row plan: keep the Gaussians some training pixel blends (`seen`:
+    rendering.gaussian_importance over the training views > 0), or None when none or every one
+    would go (never empty the model). No loss term of a fit reaches the unseen ones through a
+    training view, so only the regularisers (whose gradients Adam normalises into full-size steps)
+    and the virtual views move them; a test view between the training views can still see them
+    (docs/method.md §11)."""
     seen = np.asarray(seen, bool)
-    if seen.shape != (len(state),):
-        raise ValueError(f"prune_unseen: mask of shape {seen.shape}, expected ({len(state)},)")
+    if seen.shape != (n,):
+        raise ValueError(f"prune_unseen: mask of shape {seen.shape}, expected ({n},)")
     removed = int((~seen).sum())
-    if not removed or removed == len(state):  # nothing to do; never empty the model
+    if not removed or removed == n:
+        return None
+    return index_plan(n, keep=seen)
+
+
+def prune_unseen(state: TrainState, seen: np.ndarray) -> int:
+    """`unseen_plan` applied to a TrainState. Returns how many went."""
+    plan = unseen_plan(seen, len(state))
+    if plan is None:
         return 0
-    apply_index_op(state, keep=seen)
-    return removed
+    HeldRows(state).apply_rows(plan)
+    return len(seen) - len(plan)
 
 
 def schedule(cfg, iteration: int) -> tuple[bool, bool]:
@@ -197,19 +221,41 @@ def schedule(cfg, iteration: int) -> tuple[bool, bool]:
 
 
 def maybe_densify(state: TrainState, cfg, iteration: int, extent: float, rng: np.random.Generator) -> dict | None:
-    """Run what `schedule` says is due (size pruning after size_prune_from). Returns the counts
-    or None."""
-    dens, reset = schedule(cfg, iteration)
-    out = None
-    if dens and cfg.dark_white_rules:  # DTU (reings.background): before densify-and-prune
-        from .background import dark_white_rules
+    """`densify_rows` on a TrainState (without prune_unseen, which needs the training views)."""
+    return densify_rows(HeldRows(state), cfg, iteration, extent, rng)
 
-        out = {"dark_white": dark_white_rules(state)}
+
+def densify_rows(rows, cfg, iteration: int, extent: float, rng: np.random.Generator, importance=None) -> dict | None:
+    """Run what `schedule` says is due after `iteration`, on `rows`: a Trainer (reings/backends/
+    base.py) or reference_state.HeldRows of a TrainState. With dark_white_rules (DTU,
+    reings.background) first the black / white rules; then `densify_plan` from the columns it reads
+    (`read_columns`: on the device ~56 bytes per Gaussian cross the bus, not the state), applied by
+    `apply_rows` (size pruning after size_prune_from); the opacity reset; with
+    cfg.prune_unseen and `importance` (a callable giving Omega_G over the training views of the
+    rows as they are then) the unseen Gaussians' prune. Returns the counts or None."""
+    dens, reset = schedule(cfg, iteration)
+    out = {}
     if dens:
+        params, stats = rows.read_columns(*decision_columns(cfg))
+        if cfg.dark_white_rules:  # edits the accumulators (a decision input) and the opacities
+            from types import SimpleNamespace
+
+            from .background import dark_white_rules
+
+            out["dark_white"] = dark_white_rules(SimpleNamespace(params=params, stats=stats))
+            rows.write_params({"opacity_logits": params["opacity_logits"]})
         size_prune = cfg.size_prune_from is not None and iteration > cfg.size_prune_from
-        out = dict(out or {}, **densify_and_prune(state, cfg, extent, rng, size_prune=size_prune))
+        plan, counts = densify_plan(params, stats, cfg, extent, rng, size_prune=size_prune)
+        rows.apply_rows(plan, zero_stats=True)
+        out.update(counts)
     if reset:
-        reset_opacity(state)
-        out = dict(out or {}, opacity_reset=True)
-    return out
+        rows.reset_opacity(_logit(0.01))
+        out["opacity_reset"] = True
+    if dens and cfg.prune_unseen and importance is not None:
+        n = rows.n
+        plan = unseen_plan(importance() > 0.0, n)
+        if plan is not None:
+            rows.apply_rows(plan)
+        out.update(unseen=n - rows.n, n=rows.n)
+    return out or None
 # }}}

@@ -17,11 +17,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .backends.reference_state import sh_pack
+from .backends.reference_state import apply_rows, sh_pack
 from .optim.adam import AdamState
-from .types import PARAM_NAMES, SH_COUNTS, Gaussians
+from .types import PARAM_NAMES, SH_COUNTS, Gaussians, RowPlan
 
-__all__ = ["PARAM_NAMES", "TrainState", "apply_index_op", "reset_moments"]
+__all__ = ["PARAM_NAMES", "TrainState", "apply_index_op", "index_plan", "reset_moments"]
 
 
 @dataclass
@@ -146,60 +146,50 @@ def _as_index(sel, n: int, what: str) -> np.ndarray:
     return sel
 
 
-def apply_index_op(state: TrainState, keep=None, duplicate=None, append: dict | None = None,
-                   then_keep=None) -> None:
-    """Edit the rows of params, Adam moments and stats together (in place on `state`'s dicts).
+def index_plan(n: int, keep=None, duplicate=None, append: dict | None = None, then_keep=None,
+               names=PARAM_NAMES) -> RowPlan:
+    """The RowPlan (reings.types) of `apply_index_op`'s arguments over a state of n rows with the
+    parameters `names`; ValueError / IndexError naming a bad argument.
 
     New rows, in order:  [ rows[keep] ; rows[duplicate] ; append ]
       keep       bool mask [N] or indices: surviving rows, moments and stats kept (default: all)
       duplicate  indices into the *original* rows: copied parameters, zero moments and stats (clone)
       append     name -> new rows for every param (split children, new points): zero moments/stats
       then_keep  bool mask over those new rows: only its rows stay (a prune of the grown set in the
-                 same pass: the rows of two calls, one copy of each array instead of two)
+                 same pass: the rows of two calls, one copy of each array instead of two)"""
+    ki = np.arange(n) if keep is None else _as_index(keep, n, "keep")
+    di = np.zeros(0, np.int64) if duplicate is None else _as_index(duplicate, n, "duplicate")
+    append = {k: np.asarray(a, np.float32) for k, a in (append or {}).items()}
+    missing = [k for k in names if k not in append] if append else []
+    if missing:
+        raise ValueError(f"append: missing rows for {missing}")
+    n_app = None
+    for k, a in append.items():
+        if k not in names:
+            raise ValueError(f"append: unknown parameter {k!r}")
+        if n_app is not None and a.shape[0] != n_app:
+            raise ValueError("append: every parameter needs the same number of rows")
+        n_app = a.shape[0]
+    n_app = n_app or 0
+    plan = RowPlan(np.concatenate([ki, di, np.full(n_app, -1, np.int64)]), len(ki), len(ki) + len(di), append)
+    return plan if then_keep is None else plan.then_keep(then_keep)
+
+
+def apply_index_op(state: TrainState, keep=None, duplicate=None, append: dict | None = None,
+                   then_keep=None) -> None:
+    """Edit the rows of params, Adam moments and stats together (in place on `state`'s dicts):
+    the RowPlan of `index_plan` (its docstring says which rows come out), applied by the numpy
+    twin of the device trainer's row gather (reference_state.apply_rows).
 
     Examples (N = 4):  keep=[T,F,T,T] -> 3 rows;  duplicate=[0,0] -> 6 rows, rows 4,5 copies of 0;
     split of row 1 into two children: keep=[T,F,T,T], append={name: 2 new rows} -> 5 rows.
     Adam step counts are untouched (3DGS keeps `state["step"]` when it concatenates tensors).
     """
-    n = len(state)
-    ki = np.arange(n) if keep is None else _as_index(keep, n, "keep")
-    di = np.zeros(0, np.int64) if duplicate is None else _as_index(duplicate, n, "duplicate")
-    append = append or {}
-    missing = [k for k in state.params if k not in append] if append else []
-    if missing:
-        raise ValueError(f"append: missing rows for {missing}")
-    n_app = None
-    for k, a in append.items():
-        if k not in state.params:
-            raise ValueError(f"append: unknown parameter {k!r}")
-        a = np.asarray(a, np.float32)
-        if a.shape[1:] != state.params[k].shape[1:]:
-            raise ValueError(f"append[{k!r}]: rows of shape {a.shape[1:]}, expected {state.params[k].shape[1:]}")
-        if n_app is not None and a.shape[0] != n_app:
-            raise ValueError("append: every parameter needs the same number of rows")
-        n_app = a.shape[0]
-    n_app = n_app or 0
-    n_new = len(di) + n_app
-    tk_new = None
-    if then_keep is not None:
-        tk = np.asarray(then_keep)
-        if tk.dtype != bool or tk.shape != (len(ki) + n_new,):
-            raise ValueError(f"then_keep: a boolean mask of shape ({len(ki) + n_new},) expected, got {tk.dtype} {tk.shape}")
-        ki, tk_new = ki[tk[:len(ki)]], tk[len(ki):]
-        n_new = int(tk_new.sum())
-
-    def rows(a, fresh):  # [a[ki]; fresh]
-        return np.ascontiguousarray(np.concatenate([a[ki], fresh], axis=0))
-
-    for k, p in state.params.items():
-        add = [p[di]] + ([np.asarray(append[k], np.float32)] if n_app else [])
-        fresh = np.concatenate(add, axis=0) if add else p[:0]
-        state.params[k] = rows(p, fresh if tk_new is None else fresh[tk_new])
-        zeros = np.zeros((n_new,) + p.shape[1:], np.float32)
-        state.adam.exp_avg[k] = rows(state.adam.exp_avg[k], zeros)
-        state.adam.exp_avg_sq[k] = rows(state.adam.exp_avg_sq[k], zeros)
-    for k, s in state.stats.items():
-        state.stats[k] = rows(s, np.zeros((n_new,) + s.shape[1:], s.dtype))
+    for k, a in (append or {}).items():
+        if k in state.params and np.shape(a)[1:] != state.params[k].shape[1:]:
+            raise ValueError(f"append[{k!r}]: rows of shape {np.shape(a)[1:]}, expected {state.params[k].shape[1:]}")
+    plan = index_plan(len(state), keep, duplicate, append, then_keep, names=tuple(state.params))
+    apply_rows(state.params, state.adam.exp_avg, state.adam.exp_avg_sq, state.stats, plan)
 
 
 def reset_moments(state: TrainState, name: str, rows=None) -> None:

@@ -205,7 +205,7 @@ class _Bookkeeping:
 
     def __init__(self, cfg, state, history, rng, t0, progress, desc, checkpoint, checkpoint_every,
                  eval_fn, eval_every, log_every, sync=None, checkpoint_seconds: float = 0.0,
-                 clock=time.perf_counter, phase=None):
+                 clock=time.perf_counter, phase=None, rows=None):
         self.cfg, self.state, self.history, self.rng, self.t0 = cfg, state, history, rng, t0
         self.desc, self.checkpoint, self.checkpoint_every = desc, checkpoint, checkpoint_every
         self.checkpoint_seconds, self.clock = checkpoint_seconds, clock
@@ -213,6 +213,8 @@ class _Bookkeeping:
         self.checkpoints = 0  # written by this call of fit
         self.eval_fn, self.eval_every, self.log_every = eval_fn, eval_every, log_every
         self.sync = sync or (lambda params_only: None)
+        self.rows = rows or (lambda: len(self.state))  # the trainer's Gaussian count (the host state is
+        # only current after a sync)
         self.phase = phase or (lambda name: nullcontext())  # Trainer.phase: "probe", "checkpoint" in a profile
         self.bar = None
         if progress:
@@ -231,7 +233,7 @@ class _Bookkeeping:
             h.iteration.append(it)
             h.loss.append(float(loss))
             h.train_psnr.append(psnr)
-            h.n_gaussians.append(len(st))
+            h.n_gaussians.append(self.rows())
             h.seconds.append(time.perf_counter() - self.t0)
         if self.eval_fn is not None and self.eval_every and (it % self.eval_every == 0 or last):
             with self.phase("probe"):
@@ -247,7 +249,7 @@ class _Bookkeeping:
             self.bar.update(1)
             if it % self.log_every == 0:
                 el = time.perf_counter() - self.t0
-                self.bar.set_postfix(loss=f"{loss:.4f}", psnr=f"{psnr:.2f}", N=len(st),
+                self.bar.set_postfix(loss=f"{loss:.4f}", psnr=f"{psnr:.2f}", N=self.rows(),
                                      its=f"{it / max(el, 1e-9):.1f}")
 
     def checkpoint_due(self, it: int) -> bool:
@@ -404,7 +406,7 @@ def fit(views, config: TrainConfig, device: str = "pocl", init: Gaussians | None
     book = _Bookkeeping(cfg, state, history, rng, t0, progress, desc, checkpoint, checkpoint_every,
                         eval_fn, eval_every, log_every,
                         sync=lambda params_only: trainer.download(state, params_only=params_only),
-                        checkpoint_seconds=checkpoint_seconds, phase=trainer.phase)
+                        checkpoint_seconds=checkpoint_seconds, phase=trainer.phase, rows=lambda: trainer.n)
     iteration = _Iteration(trainer, cfg, state, opt, rng, extent, images, cameras, depth_targets, book)
     try:
         for it in range(state.iteration + 1, cfg.iterations + 1):
@@ -634,25 +636,19 @@ class _Iteration:
         return loss, psnr
 
     def densify(self, it: int) -> None:
-        """Densify / prune / reset opacities when the schedule says so: the state goes to the host
-        for the surgery (reings.densify) and back. DensifyConfig.prune_unseen: after the surgery (its
-        clones and split children are judged at once) the trainer's Omega_G over the training views
-        (`Trainer.importance`, on the uploaded state: no upload of the Gaussians per view) marks
-        the Gaussians no training pixel blends; when there are some, they are pruned on the host and
-        the trainer's copy follows (`Trainer.keep_rows`: on the device a gather, not a second upload)."""
+        """Densify / prune / reset opacities when the schedule says so (reings.densify.densify_rows
+        on the trainer: the decisions on the host from the few columns they read, the new rows made
+        where the state is: on the device a gather). DensifyConfig.prune_unseen: after the surgery
+        (its clones and split children are judged at once) the trainer's Omega_G over the training
+        views (`Trainer.importance`, on the held state) marks the Gaussians no training pixel
+        blends, which go too."""
         from . import densify as D
 
         if not any(D.schedule(self.cfg.densify, it)):
             return
         with self.tr.phase("densify"):
-            self.tr.download(self.state)
-            dens = D.maybe_densify(self.state, self.cfg.densify, it, self.extent, self.rng)
-            self.tr.upload(self.state)
-            if self.cfg.densify.prune_unseen and D.schedule(self.cfg.densify, it)[0]:
-                seen = self.tr.importance(self.cameras, self.bg, self.near) > 0.0
-                dens = dict(dens or {}, unseen=D.prune_unseen(self.state, seen), n=len(self.state))
-                if dens["unseen"]:  # the trainer's copy follows (the device gathers its rows: no upload)
-                    self.tr.keep_rows(seen, self.state)
+            dens = D.densify_rows(self.tr, self.cfg.densify, it, self.extent, self.rng,
+                                  importance=lambda: self.tr.importance(self.cameras, self.bg, self.near))
         if dens:
             self.book.history.densify.append((it, dens))
 

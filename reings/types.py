@@ -34,6 +34,56 @@ ACCUM, COUNT, RADII = "grad2d_accum", "grad2d_count", "max_radii2d"
 STAT_DTYPES = {ACCUM: np.float32, COUNT: np.int32, RADII: np.float32}
 
 
+@dataclass(frozen=True)
+class RowPlan:
+    """A new row set of the training state, made from its old rows (reings.state.apply_index_op
+    builds one; the trainers apply it: Trainer.apply_rows, on the device kernels/gather_rows.cl,
+    its numpy twin reings.backends.reference_state.apply_rows). New row r:
+
+        parameters  old row src[r] (src[r] < 0: zeros), then, for r >= fresh_start, each
+                    parameter named in `fresh` replaced by fresh[name][r - fresh_start]
+        moments     old row src[r] for r < n_kept (kept rows), zeros after (new rows)
+        statistics  as the moments (every row zero when the trainer is told `zero_stats`)
+
+    src: int64 [n_new]; 0 <= n_kept <= fresh_start <= n_new; fresh: name -> float32 rows
+    [n_new - fresh_start, ...]. A row with src < 0 needs every parameter in `fresh`."""
+
+    src: np.ndarray
+    n_kept: int
+    fresh_start: int
+    fresh: dict
+
+    def __len__(self) -> int:
+        return len(self.src)
+
+    def then_keep(self, mask) -> "RowPlan":
+        """The plan whose rows are this plan's rows where the bool `mask` [len(self)] holds."""
+        m = np.asarray(mask)
+        if m.dtype != bool or m.shape != (len(self),):
+            raise ValueError(f"then_keep: a boolean mask of shape ({len(self)},) expected, got {m.dtype} {m.shape}")
+        tail = m[self.fresh_start:]
+        return RowPlan(np.asarray(self.src)[m], int(m[:self.n_kept].sum()), int(m[:self.fresh_start].sum()),
+                       {k: np.asarray(a)[tail] for k, a in self.fresh.items()})
+
+    def check(self, n_old: int) -> None:
+        """ValueError naming what does not fit a state of `n_old` rows."""
+        src, n_new = np.asarray(self.src), len(self.src)
+        if src.ndim != 1 or src.dtype.kind not in "iu":
+            raise ValueError(f"RowPlan.src: an integer vector expected, got {src.dtype} {src.shape}")
+        if not 0 <= self.n_kept <= self.fresh_start <= n_new:
+            raise ValueError(f"RowPlan: 0 <= n_kept ({self.n_kept}) <= fresh_start ({self.fresh_start}) "
+                             f"<= rows ({n_new}) does not hold")
+        if n_new and (src.max() >= n_old or (src[:self.fresh_start] < 0).any()):
+            raise ValueError(f"RowPlan.src: rows outside [0, {n_old}) (only rows from fresh_start may have none)")
+        for k, a in self.fresh.items():
+            if k not in PARAM_NAMES:
+                raise ValueError(f"RowPlan.fresh: unknown parameter {k!r}")
+            if len(a) != n_new - self.fresh_start:
+                raise ValueError(f"RowPlan.fresh[{k!r}]: {len(a)} rows, expected {n_new - self.fresh_start}")
+        if (src[self.fresh_start:] < 0).any() and set(self.fresh) != set(PARAM_NAMES):
+            raise ValueError("RowPlan: rows without a source need every parameter in `fresh`")
+
+
 def _as_f32(name: str, a) -> np.ndarray:
     try:
         return np.ascontiguousarray(np.asarray(a, dtype=np.float32))

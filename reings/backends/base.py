@@ -148,10 +148,12 @@ class Trainer(Protocol):
         regularize(g, ...); accumulate(fr)                 (photometric pass only)
         adam_step(opt, g, groups)
 
-    and, when densification is due, download -> host surgery (reings.densify) -> upload; with
+    and, when densification is due (reings.densify.densify_rows): `read_columns` of the few
+    columns the decisions need, the decisions on the host, `apply_rows` of the new row set (on the
+    device a gather: the state does not cross the bus), `reset_opacity`; with
     DensifyConfig.prune_unseen then `importance(cameras, background, near)` (Omega_G of the state
-    the trainer holds, over the training cameras) and, when some Gaussians are unseen, the prune on
-    the host and another upload. With
+    the trainer holds, over the training cameras) and, when some Gaussians are unseen, another
+    `apply_rows`. With
     DropGaussian on (LossConfig.drop_gamma) the photometric pass's forwards (and the view_warp
     term's virtual ones) take the iteration's mask, `forward(..., drop=)`. The view_warp term
     renders its virtual view once, as a kept frame (`forward(..., keep=True)`), which survives
@@ -192,11 +194,27 @@ class Trainer(Protocol):
         rows. Missing densification statistics start at zero. Device: copied to the device;
         host: the state's arrays are used in place."""
 
-    def keep_rows(self, keep: Any, state: Any) -> None:
-        """`state` was just cut to the rows `keep` (a bool mask over the trainer's N rows, or
-        ascending indices) on the host, by reings.state.apply_index_op(keep=); bring the trainer's
-        copy along: the same as `upload(state)` (the device trainer gathers its own buffers instead
-        of copying the state up again: the same bits)."""
+    n: int  # the number of Gaussians the trainer holds
+
+    def apply_rows(self, plan: Any, zero_stats: bool = False) -> None:
+        """The trainer's rows become the reings.types.RowPlan `plan` of its rows (parameters from
+        their source rows and the plan's fresh rows, moments and statistics of the kept rows, zeros
+        for new ones; every statistic zero with `zero_stats`): the densification's surgery and the
+        prune of unseen Gaussians. Device: a gather of its own buffers (kernels/gather_rows.cl),
+        only the indices and the fresh rows uploaded; host: reference_state.apply_rows on the held
+        state. The same bits (tests/test_apply_rows.py)."""
+
+    def read_columns(self, params: Sequence[str], stats: Sequence[str] = ()) -> tuple[dict, dict]:
+        """(parameters, statistics): name -> host array of the held state's column, for the
+        densification's decisions (device: fresh copies; host: the held arrays themselves)."""
+
+    def write_params(self, arrays: dict) -> None:
+        """Write host parameter columns (name -> array of the held shape) into the held state
+        (DNGaussian's dark-Gaussian rule edits the opacities before the surgery)."""
+
+    def reset_opacity(self, cap_logit: float) -> None:
+        """3DGS's opacity reset: logits <- min(logits, cap_logit) (reference_state.opacity_cap_),
+        the opacities' Adam moments zeroed."""
 
     def download(self, state: Any, params_only: bool = False) -> None:
         """Write the trainer's parameters (and, unless `params_only`, the Adam moments and

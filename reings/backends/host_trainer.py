@@ -29,8 +29,8 @@ from ..types import ACCUM, FIELDS, PARAM_NAMES, Camera, Gaussians, RenderOutput
 from .base import HeldDepth, check_held_depth, render_importance
 from .reference_drop import Drop
 from .reference_loss import DepthSmoothWeights, mse, regularize_fwd_bwd
-from .reference_state import (adam_update, densify_accumulate, grad_add, ndc_grad_norm, opacity_decay_, sh_pack,
-                              zero_stats)
+from .reference_state import (HeldRows, adam_update, densify_accumulate, grad_add, ndc_grad_norm, opacity_decay_,
+                              sh_pack, zero_stats)
 
 _F32 = np.float32
 
@@ -61,10 +61,11 @@ class HostFrame:
     drop: Drop | None = None  # DropGaussian's mask of the render (reference_drop); its backward's too
 
 
-class HostTrainer:
+class HostTrainer(HeldRows):
     """The training state of one fit on the host (module docstring). backend: any Backend;
     images: the training images [H,W,3], used as given; profile: None or a dict of wall seconds
-    per `phase`."""
+    per `phase`. The row edits of densification (`apply_rows`, `read_columns`, `write_params`,
+    `reset_opacity`, `n`) are reference_state.HeldRows' on the held state."""
 
     def __init__(self, backend, images, profile: dict | None = None):
         self.b = backend
@@ -90,11 +91,6 @@ class HostTrainer:
         if ACCUM not in state.stats:
             state.stats.update(zero_stats(len(state)))
         self.state = state
-
-    def keep_rows(self, keep, state) -> None:
-        """Trainer.keep_rows: hold the cut `state`'s arrays (the host engine edits them in place of a
-        copy: an upload)."""
-        self.upload(state)
 
     def download(self, state, params_only: bool = False) -> None:
         """Trainer.download: nothing to do into the held state; copies into another one."""

@@ -8,6 +8,10 @@
     opacity_decay_      kernels/regularize.cl         logits <- logit(f sigmoid(logits)) in place, the
                         opacity_decay                 float64 twin reference_view_warp.opacity_decay
                                                       rounded to float32
+    gather_rows,        kernels/gather_rows.cl        the rows of a new row set (types.RowPlan): every
+    apply_rows                                        parameter, moment and statistic array gathered
+    opacity_cap_                                      (the densification's surgery, apply_index_op);
+                                                      3DGS's opacity reset, logits <- min(logits, cap)
 
 The state's arrays are named in `reings.types` (PARAM_NAMES; ACCUM, COUNT, RADII). These are the
 arithmetic that both training engines share: the host trainer (reings/backends/host_trainer.py)
@@ -20,7 +24,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..types import ACCUM, COUNT, RADII, STAT_DTYPES
+from ..types import ACCUM, COUNT, RADII, STAT_DTYPES, RowPlan
 
 
 def sh_pack(sh_dc: np.ndarray, sh_rest: np.ndarray, k: int) -> np.ndarray:
@@ -98,3 +102,79 @@ def opacity_decay_(logits: np.ndarray, factor: float) -> None:
     with np.errstate(invalid="ignore"):  # NaN logits stay NaN
         logits[...] = opacity_decay(logits, factor).astype(np.float32)
 
+
+
+def gather_rows(a: np.ndarray, idx: np.ndarray) -> np.ndarray:
+    """out[r] = a[idx[r]], zeros where idx[r] < 0 (kernels/gather_rows.cl: the bits copied); a new
+    C-contiguous array of a's dtype."""
+    idx = np.asarray(idx, np.int64)
+    out = np.zeros((len(idx),) + a.shape[1:], a.dtype)
+    has = idx >= 0
+    out[has] = a[idx[has]]
+    return out
+
+
+def apply_rows(params: dict, exp_avg: dict, exp_avg_sq: dict, stats: dict, plan: RowPlan,
+               zero_stats: bool = False) -> None:
+    """The new row set `plan` (types.RowPlan) of a training state's arrays, in place on the dicts
+    (each array replaced by a fresh one): parameters gathered from plan.src, then plan.fresh written
+    from row plan.fresh_start; moments and statistics gathered for the plan.n_kept kept rows, zero
+    after (every statistic zero with `zero_stats`). The twin of the device trainer's apply_rows."""
+    n_old = len(params["means"])
+    plan.check(n_old)
+    src = np.asarray(plan.src, np.int64)
+    kept = np.concatenate([src[:plan.n_kept], np.full(len(src) - plan.n_kept, -1, np.int64)])
+    for k, p in params.items():
+        out = gather_rows(p, src)
+        if k in plan.fresh:
+            out[plan.fresh_start:] = np.asarray(plan.fresh[k], np.float32).reshape((-1,) + p.shape[1:])
+        params[k] = out
+        exp_avg[k] = gather_rows(exp_avg[k], kept)
+        exp_avg_sq[k] = gather_rows(exp_avg_sq[k], kept)
+    for k, a in stats.items():
+        stats[k] = np.zeros((len(src),) + a.shape[1:], a.dtype) if zero_stats else gather_rows(a, kept)
+
+
+def opacity_cap_(logits: np.ndarray, cap_logit: float) -> None:
+    """3DGS's opacity reset on the float32 logits, in place: logits <- min(logits, float32(cap))
+    (the trainer also zeroes their Adam moments)."""
+    np.minimum(logits, np.float32(cap_logit), out=logits)
+
+
+class HeldRows:
+    """The Trainer contract's row edits (reings/backends/base.py: `n`, `read_columns`,
+    `write_params`, `apply_rows`, `reset_opacity`) on a held TrainState-like `self.state` (params,
+    adam.exp_avg / exp_avg_sq, stats dicts), in numpy, in place: the host trainer's, and the
+    engine's for a bare TrainState (reings.densify.maybe_densify). The device trainer does the same
+    on its buffers."""
+
+    def __init__(self, state=None):
+        self.state = state
+
+    @property
+    def n(self) -> int:
+        """The held state's number of Gaussians."""
+        return len(self.state.params["means"])
+
+    def apply_rows(self, plan: RowPlan, zero_stats: bool = False) -> None:
+        st = self.state
+        apply_rows(st.params, st.adam.exp_avg, st.adam.exp_avg_sq, st.stats, plan, zero_stats)
+
+    def read_columns(self, params, stats=()) -> tuple[dict, dict]:
+        """The held arrays themselves (no copy: an edit of them is an edit of the state, which
+        `write_params` then has nothing to do for)."""
+        return {k: self.state.params[k] for k in params}, {k: self.state.stats[k] for k in stats}
+
+    def write_params(self, arrays: dict) -> None:
+        for k, a in arrays.items():
+            dst = self.state.params[k]
+            if a is not dst:
+                if np.shape(a) != dst.shape:
+                    raise ValueError(f"write_params: {k!r} of shape {np.shape(a)}, expected {dst.shape}")
+                dst[...] = a
+
+    def reset_opacity(self, cap_logit: float) -> None:
+        st = self.state
+        opacity_cap_(st.params["opacity_logits"], cap_logit)
+        st.adam.exp_avg["opacity_logits"][...] = 0.0
+        st.adam.exp_avg_sq["opacity_logits"][...] = 0.0

@@ -71,7 +71,7 @@ from ...types import ACCUM, COUNT, PARAM_NAMES, RADII
 from ..base import HeldDepth, check_held_depth
 from ..reference_cross_warp import CROSS_WARP_ALPHA_MIN, blur_image, cross_warp_args
 from ..reference_loss import REG_VALUE_COLS, DepthSmoothWeights, regularize_value
-from ..reference_state import adam_update, zero_stats
+from ..reference_state import adam_update, opacity_cap_, zero_stats
 from .program import typed_invoker
 from .scratch import Scratch
 
@@ -165,6 +165,7 @@ class DeviceTrainer:
         self._reg_value = None  # (sums buffer, chunks, n, weights) of the last regularize(value=True)
         self.k_grad_add = backend.kernel("grad_add.cl", "grad_add")
         self.k_gather_rows = backend.kernel("gather_rows.cl", "gather_rows")
+        self._none_idx = None  # a one-entry index buffer holding -1 (`_zero`)
         self.k_bg_alpha = backend.kernel("bg_alpha.cl", "bg_alpha_grad")
         self.k_dm_grad = backend.kernel("depth_metric.cl", "depth_metric_grad")
         self.k_dm_rows = backend.kernel("depth_metric.cl", "depth_metric_rows")
@@ -342,51 +343,120 @@ class DeviceTrainer:
         row = np.asarray(cam.viewmat, np.float64)[2, :4].astype(_F32)
         return self.geometry, row.tobytes(), _F32(near).tobytes()
 
-    def _state_slots(self, state, params_only: bool = False) -> list:
-        """(device buffer, the dict of `state` that holds its host array, key, shape at this trainer's
-        N, dtype) of every array the trainer keeps: each group's parameters and both Adam moments,
-        then the three densification statistics (params_only: the parameters alone). The one list
-        upload, download and keep_rows walk."""
+    def _slots(self, params_only: bool = False) -> list:
+        """(kind, key, shape at this trainer's N, dtype) of every array the trainer keeps: each
+        group's parameters ("p") and both Adam moments ("m", "v"), then the three densification
+        statistics ("stat"); params_only: the parameters alone. The one list upload, download and
+        apply_rows walk."""
         n, km = self.n, self.kmax
         out = []
         for name in PARAM_NAMES:
             shp = _shape(name, n, km)
-            out.append((self.buf("p", name), state.params, name, shp, _F32))
-            if not params_only:
-                out.append((self.buf("m", name), state.adam.exp_avg, name, shp, _F32))
-                out.append((self.buf("v", name), state.adam.exp_avg_sq, name, shp, _F32))
+            out += [("p", name, shp, _F32)] + ([] if params_only else [("m", name, shp, _F32), ("v", name, shp, _F32)])
         if not params_only:
-            for key, dt in ((ACCUM, _F32), (COUNT, _I32), (RADII, _F32)):
-                out.append((self.buf("stat", key), state.stats, key, (n,), dt))
+            out += [("stat", key, (n,), dt) for key, dt in ((ACCUM, _F32), (COUNT, _I32), (RADII, _F32))]
         return out
 
-    def keep_rows(self, keep, state) -> None:
-        """Trainer.keep_rows: the host `state` was just cut to the rows `keep` (bool [N] or ascending
-        indices; reings.state.apply_index_op(keep=)); the device copy follows by a gather of every
-        parameter, moment and statistic buffer (kernels/gather_rows.cl, then one device copy back per
-        buffer): no upload. `state` is only checked against the new count."""
-        keep = np.asarray(keep)
-        idx = (np.flatnonzero(keep) if keep.dtype == bool else keep.reshape(-1)).astype(_I32)
-        if keep.dtype == bool and keep.shape != (self.n,):
-            raise ValueError(f"keep_rows: mask of shape {keep.shape}, expected ({self.n},)")
-        if len(idx) and (idx.min() < 0 or idx.max() >= self.n or np.any(np.diff(idx) <= 0)):
-            raise ValueError("keep_rows: indices must be ascending, distinct and in [0, N)")
-        n_new = len(idx)
-        if n_new != len(state):
-            raise ValueError(f"keep_rows: the host state has {len(state)} rows, the kept rows are {n_new}")
-        bufs = [(b, int(np.prod(shp[1:], dtype=np.int64))) for b, _, _, shp, _ in self._state_slots(state)]
+    def _state_slots(self, state, params_only: bool = False) -> list:
+        """(device buffer, the dict of `state` that holds its host array, key, shape, dtype) of
+        `_slots`."""
+        where = {"p": state.params, "m": state.adam.exp_avg, "v": state.adam.exp_avg_sq, "stat": state.stats}
+        return [(self.buf(kind, key), where[kind], key, shp, dt) for kind, key, shp, dt in self._slots(params_only)]
+
+    def apply_rows(self, plan, zero_stats: bool = False) -> None:
+        """Trainer.apply_rows: the trainer's rows become the RowPlan `plan` (reings.types) of its
+        rows, on the device: per parameter, moment and statistic buffer one gather
+        (kernels/gather_rows.cl: source rows for the parameters, the kept rows or zeros for the
+        moments and statistics) into scratch, the plan's fresh rows written over it, and one device
+        copy into the buffer (grown when the plan has more rows). Uploads only the row indices and
+        the fresh rows (the split children's means and scales): the same bits as
+        reference_state.apply_rows on the downloaded state (tests/test_apply_rows.py)."""
+        plan.check(self.n)
+        n_new = len(plan)
+        src = np.asarray(plan.src).astype(_I32)
+        kept = np.concatenate([src[:plan.n_kept], np.full(n_new - plan.n_kept, -1, _I32)])
+        slots = [(kind, key, self.buf(kind, key), int(np.prod(shp[1:], dtype=np.int64)))
+                 for kind, key, shp, _ in self._slots()]
+        held: list = []  # the non-blocking writes' host arrays and events, alive until the one wait below
         if n_new:
-            ib = self.mem.get("gauss", "keep_idx", n_new, 4)
-            self._write(ib, idx)
-            tmp = self.mem.get("gauss", "keep_tmp", n_new, 4 * max(w for _, w in bufs))
-            for b, w in bufs:
-                if not w:
-                    continue
-                self._launch("keep_rows", self.k_gather_rows, n_new * w, _U32(n_new * w), _U32(w), ib, b, tmp)
-                self.cl.enqueue_copy(self.queue, b, tmp, byte_count=4 * n_new * w)
+            ib = {"p": self.mem.get("gauss", "rows_src", n_new, 4)}
+            self._write_async(ib["p"], src, held)
+            if plan.n_kept < n_new:
+                ib["m"] = self.mem.get("gauss", "rows_kept", n_new, 4)
+                self._write_async(ib["m"], kept, held)
+            tmp = self.mem.get("gauss", "rows_tmp", n_new, 4 * max(w for *_, w in slots))
+        gathered = []
+        for kind, key, b, w in slots:
+            if not w:  # sh_rest at SH degree 0: no columns
+                continue
+            if not n_new or (kind == "stat" and zero_stats):
+                gathered.append((kind, key, w, None))
+                continue
+            idx = ib["p"] if kind == "p" else ib.get("m", ib["p"])
+            self._launch("apply_rows", self.k_gather_rows, n_new * w, _U32(n_new * w), _U32(w), idx, b, tmp)
+            if kind == "p" and key in plan.fresh and n_new > plan.fresh_start:
+                rows = np.ascontiguousarray(plan.fresh[key], _F32)
+                held.append((rows, self.cl.enqueue_copy(self.queue, tmp, rows, dst_offset=4 * w * plan.fresh_start,
+                                                        is_blocking=False)))
+            nb = self.mem.get("gauss", f"{kind}_{key}", n_new, 4 * max(w, 1))  # grown if need be (the old
+            # buffer is released once the gather above has read it)
+            self.cl.enqueue_copy(self.queue, nb, tmp, byte_count=4 * n_new * w)
+            gathered.append((kind, key, w, nb))
         self.n = n_new
+        self._bufs = {}
+        for kind, key, w, nb in gathered:
+            if nb is None and n_new:  # zero statistics
+                self._zero(self.buf(kind, key), n_new * w)
+        self.queue.finish()  # one wait (the fresh rows' host arrays may change after)
+        held.clear()
         self._sh_k = None  # the packed SH of the old rows is stale (as after `upload`)
         self.means_written()
+
+    def read_columns(self, params, stats=()) -> tuple[dict, dict]:
+        """Trainer.read_columns: fresh host copies of some parameters and statistics of the device
+        state (non-blocking reads, one wait): the columns the densification decides from."""
+        want = set(params) | set(stats)
+        out: dict = {"p": {}, "stat": {}}
+        held: list = []
+        for kind, key, shp, dt in self._slots():
+            if kind in out and key in want:
+                out[kind][key] = self._read_async(self.buf(kind, key), shp, dt, held)
+        self.queue.finish()
+        held.clear()
+        return out["p"], out["stat"]
+
+    def write_params(self, arrays: dict) -> None:
+        """Trainer.write_params: host parameter columns (name -> [N, ...]) -> the device state."""
+        for k, a in arrays.items():
+            a = np.ascontiguousarray(a, _F32)
+            if a.shape != _shape(k, self.n, self.kmax):
+                raise ValueError(f"write_params: {k!r} of shape {a.shape}, expected {_shape(k, self.n, self.kmax)}")
+            self._write(self.buf("p", k), a)
+        if "means" in arrays:
+            self.means_written()
+        if "sh_dc" in arrays or "sh_rest" in arrays:
+            self._sh_k = None
+
+    def reset_opacity(self, cap_logit: float) -> None:
+        """Trainer.reset_opacity: 3DGS's opacity reset, logits <- min(logits, cap)
+        (reference_state.opacity_cap_ on the read column, written back) and the opacities' Adam
+        moments zeroed on the device."""
+        o = self.read_columns(("opacity_logits",))[0]["opacity_logits"]
+        opacity_cap_(o, cap_logit)
+        self.write_params({"opacity_logits": o})
+        for kind in ("m", "v"):
+            self._zero(self.buf(kind, "opacity_logits"), self.n)
+
+    def _zero(self, buf, n_words: int) -> None:
+        """Zero the first n_words 32-bit words of `buf`: gather_rows of one row of n_words words from
+        source row -1 (a kernel write: Oclgrind's uninitialised-value check does not count a fill
+        buffer's bytes as written)."""
+        if n_words:
+            if self._none_idx is None:
+                self._none_idx = self.mem.get("small", "rows_none", 1, 4)
+                self._write(self._none_idx, np.full(1, -1, _I32))
+            self._launch("apply_rows", self.k_gather_rows, n_words, _U32(n_words), _U32(n_words), self._none_idx,
+                         self._none_idx, buf)  # the source is never read
 
     def download(self, state, params_only: bool = False) -> None:
         """Trainer.download: the device state -> `state` (fresh arrays; step counts and iteration
