@@ -105,6 +105,37 @@
     } while (0)
 
 /* ---------------------------------------------------------------------------------------------
+   SH rows through local memory (PROJ_SH_STAGE, GPU schedule, SH_K > 1; docs/perf_notes.md §15).
+   A Gaussian's SH row is SH_K * 3 consecutive floats, so a work-item per Gaussian reads and writes
+   its coefficients at a stride of SH_K * 12 bytes: every warp-wide access touches 32 cache lines.
+   Staged, a work-group of PROJ_WG Gaussians copies its block of rows (contiguous in memory) into
+   local memory with consecutive work-items on consecutive words, each work-item reads its own row
+   there (row stride SH_LSTRIDE, odd: no bank conflicts), and project_bwd writes v_sh into that
+   row (after its last read of the coefficients) and copies the block out the same way. The same
+   values in the same order: the same bits as the unstaged kernels.
+   --------------------------------------------------------------------------------------------- */
+#ifndef PROJ_SH_STAGE
+#define PROJ_SH_STAGE 0
+#endif
+#if PROJ_SH_STAGE
+#ifndef PROJ_WG
+#error "PROJ_SH_STAGE needs PROJ_WG, the launch's work-group size"
+#endif
+#define SH_LSTRIDE ((SH_K * 3) | 1)
+#define SH_SRC __local const float *
+#define SH_DST __local float *
+#define SH_AT(src, gid, i) ((src)[(i)]) /* src: the work-item's row */
+#define SH_OUT(dst, i, x) ((dst)[(i)] = (x))
+#define PROJ_ATTR __attribute__((reqd_work_group_size(PROJ_WG, 1, 1)))
+#else
+#define SH_SRC __global const float *
+#define SH_DST __global float *
+#define SH_AT(src, gid, i) GATHER(src, (gid) * (SH_K * 3) + (i))
+#define SH_OUT(dst, i, x) SCATTER_F(dst, SH_K * 3, i, x)
+#define PROJ_ATTR
+#endif
+
+/* ---------------------------------------------------------------------------------------------
    lane types: vf / vi hold PROJ_VW Gaussians. Comparisons give masks (scalar 0/1, vector 0/-1);
    masks combine with & | ! and feed select(); ANY() reduces one.
    --------------------------------------------------------------------------------------------- */
@@ -225,7 +256,7 @@ typedef struct {
    lanes that stay visible; culled lanes hold garbage (possibly inf / NaN), never used. */
 PROJ_INLINE vi project_one(vi gid, __global const float *means, __global const float *quats,
                            __global const float *log_scales, __global const float *opacity_logits,
-                           __global const float *sh, __constant const float *cam, int width, int height,
+                           SH_SRC sh, __constant const float *cam, int width, int height,
                            proj_t *p) {
     /* every raw field finite */
     vi ok = FINITE(GATHER(opacity_logits, gid));
@@ -239,7 +270,7 @@ PROJ_INLINE vi project_one(vi gid, __global const float *means, __global const f
         q[i] = GATHER(quats, 4 * gid + i);
         ok &= FINITE(q[i]);
     }
-    for (int i = 0; i < SH_K * 3; ++i) ok &= FINITE(GATHER(sh, gid * (SH_K * 3) + i));
+    for (int i = 0; i < SH_K * 3; ++i) ok &= FINITE(SH_AT(sh, gid, i));
 
     /* camera-space mean and near cull */
     for (int i = 0; i < 3; ++i)
@@ -335,7 +366,7 @@ PROJ_INLINE vi project_one(vi gid, __global const float *means, __global const f
     sh_basis(p->dir[0], p->dir[1], p->dir[2], bas);
     for (int ch = 0; ch < 3; ++ch) {
         vf acc = 0.0f;
-        for (int k = 0; k < SH_K; ++k) acc += bas[k] * GATHER(sh, gid * (SH_K * 3) + (3 * k + ch));
+        for (int k = 0; k < SH_K; ++k) acc += bas[k] * SH_AT(sh, gid, 3 * k + ch);
         p->raw[ch] = acc + 0.5f;
     }
     ok &= FINITE(p->raw[0]) & FINITE(p->raw[1]) & FINITE(p->raw[2]) & FINITE(p->t[0]) & FINITE(p->t[1]);
@@ -395,10 +426,38 @@ PROJ_INLINE void alpha_rect(proj_t *p, vf o) {
     const vi gid = min((vi)g0 + VLANES, (vi)((n) - 1));                 \
     const vi lane_ok = ((vi)g0 + VLANES) < (vi)(n)
 
+#if PROJ_SH_STAGE
+#if PROJ_VW != 1
+#error "PROJ_SH_STAGE needs PROJ_VW 1 (a work-item per Gaussian)"
+#endif
+/* The work-group's block of SH rows -> local memory (row stride SH_LSTRIDE); every work-item calls
+   it (a barrier inside). */
+PROJ_INLINE void sh_stage_in(const int n, __global const float *sh, __local float *rows) {
+    const int lid = (int)get_local_id(0), base = (int)get_group_id(0) * PROJ_WG;
+    const int words = min(PROJ_WG, n - base) * (SH_K * 3);
+    for (int i = lid; i < words; i += PROJ_WG) {
+        const int r = i / (SH_K * 3);
+        rows[r * SH_LSTRIDE + (i - r * (SH_K * 3))] = sh[(size_t)base * (SH_K * 3) + i];
+    }
+    barrier(CLK_LOCAL_MEM_FENCE);
+}
+
+/* The block of rows in local memory -> v_sh; every work-item calls it (a barrier first). */
+PROJ_INLINE void sh_stage_out(const int n, __local const float *rows, __global float *v_sh) {
+    barrier(CLK_LOCAL_MEM_FENCE);
+    const int lid = (int)get_local_id(0), base = (int)get_group_id(0) * PROJ_WG;
+    const int words = min(PROJ_WG, n - base) * (SH_K * 3);
+    for (int i = lid; i < words; i += PROJ_WG) {
+        const int r = i / (SH_K * 3);
+        v_sh[(size_t)base * (SH_K * 3) + i] = rows[r * SH_LSTRIDE + (i - r * (SH_K * 3))];
+    }
+}
+#endif
+
 /* Forward projection, one work-item per PROJ_VW Gaussians. DropGaussian: drop_threshold 0 keeps
    every Gaussian (the host then passes drop_scale 1: the outputs are those without the option);
    the host never combines a drop with opacity_override. */
-__kernel void project_fwd(const int n,
+__kernel PROJ_ATTR void project_fwd(const int n,
                           __global const float *means,          /* [N, 3] */
                           __global const float *quats,          /* [N, 4] (w, x, y, z) */
                           __global const float *log_scales,     /* [N, 3] */
@@ -420,13 +479,20 @@ __kernel void project_fwd(const int n,
                           __global uint *depth_keys,            /* [N] sort keys */
                           __global uint *gid_vals,              /* [N] sort values = gid */
                           __global uint *ctrl) {                /* the binning's words: ctrl[2] = 0 here */
+#if PROJ_SH_STAGE
+    __local float sh_rows[PROJ_WG * SH_LSTRIDE];
+    sh_stage_in(n, sh, sh_rows);
+    SH_SRC sh_src = sh_rows + get_local_id(0) * SH_LSTRIDE;
+#else
+    SH_SRC sh_src = sh;
+#endif
     LANES(n);
     /* bin_count sums the visible Gaussians into ctrl[2] with atomics (kernels/bin.cl); it is zeroed
        here, in the launch before it in every forward (a fill command would cost one more command
        per forward, and Oclgrind treats filled memory as uninitialised) */
     if (g0 == 0) ctrl[2] = 0u;
     proj_t p;
-    vi vis = project_one(gid, means, quats, log_scales, opacity_logits, sh, cam, width, height, &p) & lane_ok;
+    vi vis = project_one(gid, means, quats, log_scales, opacity_logits, sh_src, cam, width, height, &p) & lane_ok;
     if (drop_threshold != 0u) { /* DropGaussian: a dropped Gaussian is culled */
         vu h;
         DROP_HASH(h, AS_U(gid), drop_key);
@@ -462,12 +528,12 @@ __kernel void project_fwd(const int n,
    per-Gaussian cotangents. grad_mask bits: 1 means, 2 quats, 4 log_scales, 8 opacity_logits, 16 sh
    (a field whose bit is clear gets zeros). Culled Gaussians (radii == 0, DropGaussian's dropped ones
    included) get zeros. */
-__kernel void project_bwd(const int n,
+PROJ_INLINE void project_bwd_one(const int n,
                           __global const float *means,          /* [N, 3] */
                           __global const float *quats,          /* [N, 4] */
                           __global const float *log_scales,     /* [N, 3] */
                           __global const float *opacity_logits, /* [N] */
-                          __global const float *sh,             /* [N, SH_K, 3] */
+                          SH_SRC sh,                            /* [N, SH_K, 3] (staged: this row) */
                           __constant const float *cam,          /* [CAM_RECORD] */
                           const int width, const int height,
                           const float opacity_override,         /* > 0: opacity grad is zero */
@@ -479,7 +545,7 @@ __kernel void project_bwd(const int n,
                           __global float *v_quats,              /* [N, 4] */
                           __global float *v_log_scales,         /* [N, 3] */
                           __global float *v_opacity_logits,     /* [N] */
-                          __global float *v_sh) {               /* [N, SH_K, 3] */
+                          SH_DST v_sh) {                        /* [N, SH_K, 3] (staged: this row) */
     LANES(n);
     const vf zero = 0.0f;
     vi vis = (GATHER_I(radii, gid) > 0) & lane_ok;
@@ -487,7 +553,7 @@ __kernel void project_bwd(const int n,
         for (int i = 0; i < 3; ++i) { SCATTER_F(v_means, 3, i, zero); SCATTER_F(v_log_scales, 3, i, zero); }
         for (int i = 0; i < 4; ++i) SCATTER_F(v_quats, 4, i, zero);
         SCATTER_F(v_opacity_logits, 1, 0, zero);
-        for (int i = 0; i < SH_K * 3; ++i) SCATTER_F(v_sh, SH_K * 3, i, zero);
+        for (int i = 0; i < SH_K * 3; ++i) SH_OUT(v_sh, i, zero);
         return;
     }
     proj_t p;
@@ -535,20 +601,23 @@ __kernel void project_bwd(const int n,
     /* colour: zero gradient where the 0 clamp is active */
     vf vc[3];
     for (int ch = 0; ch < 3; ++ch) vc[ch] = select(zero, v_col[ch], p.raw[ch] >= 0.0f);
+#if SH_K > 1
+    /* d colour / d dir, first half: v_b[k] = sum_ch sh[k][ch] vc[ch] (the last read of the
+       coefficients: staged, v_sh is written over them below) */
+    vf vb[SH_K];
+    for (int k = 0; k < SH_K; ++k)
+        vb[k] = SH_AT(sh, gid, 3 * k) * vc[0] + SH_AT(sh, gid, 3 * k + 1) * vc[1] + SH_AT(sh, gid, 3 * k + 2) * vc[2];
+#endif
     vf bas[SH_K];
     sh_basis(p.dir[0], p.dir[1], p.dir[2], bas);
     const vi keep_sh = vis & (vi)((grad_mask & 16) ? -1 : 0);
     for (int k = 0; k < SH_K; ++k)
-        for (int ch = 0; ch < 3; ++ch) SCATTER_F(v_sh, SH_K * 3, 3 * k + ch, select(zero, bas[k] * vc[ch] * vscale, keep_sh));
+        for (int ch = 0; ch < 3; ++ch) SH_OUT(v_sh, 3 * k + ch, select(zero, bas[k] * vc[ch] * vscale, keep_sh));
 
     vf vmu[3] = {0.0f, 0.0f, 0.0f};
 #if SH_K > 1
     {
-        /* d colour / d dir: v_b[k] = sum_ch sh[k][ch] vc[ch], then the basis Jacobian */
-        vf vb[SH_K];
-        for (int k = 0; k < SH_K; ++k)
-            vb[k] = GATHER(sh, gid * (SH_K * 3) + 3 * k) * vc[0] + GATHER(sh, gid * (SH_K * 3) + 3 * k + 1) * vc[1] +
-                    GATHER(sh, gid * (SH_K * 3) + 3 * k + 2) * vc[2];
+        /* second half: the basis Jacobian */
         const vf x = p.dir[0], y = p.dir[1], z = p.dir[2];
         vf gx = -SH_C1 * vb[3], gy = -SH_C1 * vb[1], gz = SH_C1 * vb[2];
 #if SH_K > 4
@@ -656,4 +725,37 @@ __kernel void project_bwd(const int n,
     const vf iq = 1.0f / p.qnorm;
     const vi keep_q = vis & (vi)((grad_mask & 2) ? -1 : 0);
     for (int i = 0; i < 4; ++i) SCATTER_F(v_quats, 4, i, select(zero, (vq[i] - p.qn[i] * dq) * iq * vscale, keep_q));
+}
+
+/* Backward projection kernel: project_bwd_one per work-item (PROJ_SH_STAGE: its SH row in local
+   memory, v_sh written over it and copied out per work-group). */
+__kernel PROJ_ATTR void project_bwd(const int n,
+                          __global const float *means,          /* [N, 3] */
+                          __global const float *quats,          /* [N, 4] */
+                          __global const float *log_scales,     /* [N, 3] */
+                          __global const float *opacity_logits, /* [N] */
+                          __global const float *sh,             /* [N, SH_K, 3] */
+                          __constant const float *cam,          /* [CAM_RECORD] */
+                          const int width, const int height,
+                          const float opacity_override,         /* > 0: opacity grad is zero */
+                          const float drop_scale,               /* project_fwd's (dropped ones have radii 0) */
+                          const int grad_mask,
+                          __global const int *radii,            /* [N] from project_fwd */
+                          __global const float *v_proj,         /* [N, V_PROJ] (rows of culled gids unread) */
+                          __global float *v_means,              /* [N, 3] */
+                          __global float *v_quats,              /* [N, 4] */
+                          __global float *v_log_scales,         /* [N, 3] */
+                          __global float *v_opacity_logits,     /* [N] */
+                          __global float *v_sh) {
+#if PROJ_SH_STAGE
+    __local float sh_rows[PROJ_WG * SH_LSTRIDE];
+    sh_stage_in(n, sh, sh_rows);
+    __local float *row = sh_rows + get_local_id(0) * SH_LSTRIDE;
+    project_bwd_one(n, means, quats, log_scales, opacity_logits, row, cam, width, height, opacity_override, drop_scale,
+                    grad_mask, radii, v_proj, v_means, v_quats, v_log_scales, v_opacity_logits, row);
+    sh_stage_out(n, sh_rows, v_sh);
+#else
+    project_bwd_one(n, means, quats, log_scales, opacity_logits, sh, cam, width, height, opacity_override, drop_scale,
+                    grad_mask, radii, v_proj, v_means, v_quats, v_log_scales, v_opacity_logits, v_sh);
+#endif
 }

@@ -11,6 +11,8 @@ The kernels also run under Oclgrind at a small size (subprocess, every check on)
 """
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -204,13 +206,14 @@ def test_project_bwd_grad_fields(device, grad_fields):
             assert not getattr(dev, f).any()
 
 
-@pytest.mark.parametrize("vw", [1, 8])
+@pytest.mark.parametrize("vw", [1, 8, "1-staged"])
 def test_project_lane_widths(device, vw):
     """project.cl is written once over PROJ_VW lanes (8 on CPUs, 1 on GPUs): both widths on this
-    device, on a scene whose size is not a multiple of 8 and on the culling cases."""
+    device, on a scene whose size is not a multiple of 8 and on the culling cases; width 1 also with
+    the SH rows staged through local memory (PROJ_SH_STAGE, the GPU schedule's default)."""
     be = get_backend(device)
-    old = be.proj_vw
-    be.proj_vw = vw
+    old = be.proj_vw, be.proj_stage
+    be.proj_vw, be.proj_stage = (1, True) if vw == "1-staged" else (vw, False)
     try:
         g, cam = random_scene(203, 64, 48, seed=8, sh_degree=3, scale_median=0.1, viewmat=rotation_viewmat())
         check_project_fwd(device, g, cam, name=f"vw{vw}")
@@ -221,7 +224,39 @@ def test_project_lane_widths(device, vw):
             np.testing.assert_array_equal(dev.radii > 0, c.expect_visible, err_msg=name)
             check_project_bwd(device, c.gaussians, c.camera, name=f"vw{vw} {name}")
     finally:
-        be.proj_vw = old
+        be.proj_vw, be.proj_stage = old
+
+
+@pytest.mark.parametrize("n", [1, 203, 300])
+def test_project_sh_stage_keeps_the_bits(device, n):
+    """PROJ_SH_STAGE (SH rows through local memory, work-groups of proj_wg Gaussians; a partial
+    last group, a culled share and each SH degree above 0) gives the unstaged width-1 kernels'
+    bytes: every forward output and every gradient field, opacity override and field masks too."""
+    be = get_backend(device)
+    old = be.proj_vw, be.proj_stage
+    try:
+        for deg in (1, 2, 3):
+            g, cam = random_scene(n, 64, 48, seed=n + deg, sh_degree=deg, scale_median=0.1)
+            if n > 1:  # every 7th behind the camera: culled rows among the visible ones
+                means = g.means.copy()
+                means[::7, 2] = -5.0
+                g = replace(g, means=means)
+            grads = _random_grads(n, seed=deg)
+            out = {}
+            for stage in (False, True):
+                be.proj_vw, be.proj_stage = 1, stage
+                assert ("PROJ_SH_STAGE" in be._proj_defines(g.sh.shape[1])) == stage
+                p = be.project_fwd(g, cam)
+                res = [getattr(p, f) for f in FLOAT_FIELDS + ("radii", "tile_rect")]
+                for kw in ({}, {"opacity_override": 0.99}, {"grad_fields": ("sh", "means")}, {"grad_fields": ("quats",)}):
+                    vg = be.project_bwd(g, cam, p, grads, **kw)
+                    res += [getattr(vg, f) for f in FIELDS]
+                out[stage] = res
+            assert (out[False][5] > 0).any() and (n == 1 or (out[False][5] == 0).any()), "visible and culled rows"
+            for a, b in zip(out[False], out[True]):
+                assert a.dtype == b.dtype and np.array_equal(a.view(np.uint8), b.view(np.uint8)), f"sh{deg}"
+    finally:
+        be.proj_vw, be.proj_stage = old
 
 
 # ------------------------------------------------------------------------------------------------
@@ -294,8 +329,8 @@ def test_project_oclgrind():
         from reings.backends.reference_drop import Drop
         be = get_backend("oclgrind")
         drop = Drop.at_rate(0.4, 2024)  # DropGaussian's mask (tests/test_drop.py)
-        for vw in (1, 8):  # the GPU (scalar) and CPU (float8) lane widths
-            be.proj_vw = vw
+        for vw, stage in ((1, False), (1, True), (8, False)):  # GPU (scalar; SH rows staged or not), CPU (float8)
+            be.proj_vw, be.proj_stage = vw, stage
             for deg in (0, 3):
                 g, cam = random_scene(21, 40, 24, seed=deg, sh_degree=deg, scale_median=0.1)
                 check_project_fwd("oclgrind", g, cam, name=f"oclgrind vw{vw} sh{deg}")

@@ -89,6 +89,7 @@ Not here: input validation (reings/rendering.py), kernel math (kernels/*.cl), so
 """
 from __future__ import annotations
 
+import os
 import warnings
 from collections import deque
 from dataclasses import dataclass, field
@@ -238,6 +239,12 @@ class OpenCLBackend:
         assert self.wg & (self.wg - 1) == 0 and self.wg <= 256, self.wg
         self.proj_vw = 8 if self.cpu else 1  # Gaussians per work-item in project.cl (float8 lanes on CPUs)
         self.proj_wg = 64 if self.cpu else 128  # project.cl work-group (64 x 8 Gaussians on CPUs)
+        # project.cl's SH rows through local memory on the GPU schedule (_proj_defines); REINGS_PROJ_STAGE=0|1
+        stage = os.environ.get("REINGS_PROJ_STAGE", "")
+        if stage not in ("", "0", "1"):
+            raise ValueError(f"REINGS_PROJ_STAGE must be 0 or 1, got {stage!r}")
+        self.proj_stage = self.proj_vw == 1 and (not self.cpu if stage == "" else stage == "1")
+        self.local_mem = int(self.handle.device.local_mem_size)
         self._kernels: dict = {}
         self._frame: _Frame | None = None
         self._keep: list = []  # host arrays referenced by non-blocking copies still in flight
@@ -393,7 +400,7 @@ class OpenCLBackend:
         b["depth_keys"] = s.get("gauss", "depth_keys", n, 4)
         b["gid_vals"] = s.get("gauss", "gid_vals", n, 4)
         b["ctrl"] = s.get("small", "ctrl", CTRL_WORDS, 4)  # the binning's words (project_fwd zeroes ctrl[2])
-        k = self.kernel("project.cl", "project_fwd", SH_K=fr.sh_k, PROJ_VW=self.proj_vw)
+        k = self.kernel("project.cl", "project_fwd", **self._proj_defines(fr.sh_k))
         ov = _F32(override if override is not None else 0.0)
         ev = self.launch(k, -(-n // self.proj_vw), _I32(n), inp["means"], inp["quats"], inp["log_scales"],
                           inp["opacity_logits"], inp["sh"], b["cam"], _I32(fr.width), _I32(fr.height), ov,
@@ -810,6 +817,16 @@ class OpenCLBackend:
         self._last_counts = fr.counts
         return Gaussians(**res)
 
+    def _proj_defines(self, sh_k: int) -> dict:
+        """project.cl's build defines at sh_k coefficients: the GPU schedule stages SH rows through
+        local memory when there is more than one coefficient (PROJ_SH_STAGE, a work-group of
+        proj_wg Gaussians; the same bits; docs/perf_notes.md §15), unless REINGS_PROJ_STAGE=0 or
+        the device's local memory is too small."""
+        d = dict(SH_K=sh_k, PROJ_VW=self.proj_vw)
+        if self.proj_stage and self.proj_vw == 1 and sh_k > 1 and self.proj_wg * ((3 * sh_k) | 1) * 4 <= self.local_mem:
+            d.update(PROJ_SH_STAGE=1, PROJ_WG=self.proj_wg)
+        return d
+
     def _project_bwd_device(self, fr: _Frame, override, grad_fields) -> dict:
         n, s, b = fr.n, self.scratch, fr.bufs
         mask = 0
@@ -820,7 +837,7 @@ class OpenCLBackend:
                "opacity_logits": s.get("gauss", "v_opacity_logits", n, 4),
                "sh": s.get("gauss", "v_sh", n, 12 * fr.sh_k)}
         inp = b["in"]
-        k = self.kernel("project.cl", "project_bwd", SH_K=fr.sh_k, PROJ_VW=self.proj_vw)
+        k = self.kernel("project.cl", "project_bwd", **self._proj_defines(fr.sh_k))
         ov = _F32(override if override is not None else 0.0)
         ev = self.launch(k, -(-n // self.proj_vw), _I32(n), inp["means"], inp["quats"], inp["log_scales"], inp["opacity_logits"],
                           inp["sh"], b["cam"], _I32(fr.width), _I32(fr.height), ov, drop_args(fr.drop)[2],
