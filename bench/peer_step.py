@@ -20,7 +20,7 @@ Per scene (reings/bench_scenes.py perf scenes, 504x378) x SH degree, the arrays 
     agree: pinhole, pixel centres at +0.5, black background, 3-sigma-style extent differences show
     up as a small max).
 Ratio = ours wall / gsplat wall (< 1: we are faster). With --rounds R > 1 the two sides alternate R times per
-configuration (each round re-creates both steps, 2 warm-up steps, --repeats / --gs-repeats timed): the host's
+configuration (each round re-creates both steps, warmed up and timed as the first): the host's
 drift between the two measurements (up to ~1 ms on an H100 host, docs/results.md §31) then hits both sides;
 the row reports the median of the per-round ratios, the rounds' walls and ratios, and round 1's ratio.
 
@@ -155,14 +155,19 @@ def run_config(be, scene, sh, args, gs_reason, mem=None) -> dict:
         row["ratio_wall"] = row["ours_step_wall_ms"] / row["gsplat_step_wall_ms"]
         row["ratio_vs_event"] = row["ours_step_wall_ms"] / row["gsplat_step_ms"]
         if args.rounds > 1:  # interleaved: ours, gsplat, ours, gsplat, ... (host drift hits both sides alike)
-            ours_r, gs_r = [row["ours_step_wall_ms"]], [row["gsplat_step_wall_ms"]]
-            for _ in range(args.rounds - 1):
-                ours_r.append(ours_step(be, g, cam, target, 2, args.repeats, breakdown=False, count=False)["step_wall_ms"])
-                gs_r.append(gsplat_step(g, cam, sh, target, 2, args.gs_repeats)["gsplat_step_wall_ms"])
+            ours_r, gs_r, gs_ev = [row["ours_step_wall_ms"]], [row["gsplat_step_wall_ms"]], [row["gsplat_step_ms"]]
+            for _ in range(args.rounds - 1):  # each round warmed up as the first
+                ours_r.append(ours_step(be, g, cam, target, args.warmup, args.repeats, breakdown=False,
+                                        count=False)["step_wall_ms"])
+                gr = gsplat_step(g, cam, sh, target, args.gs_warmup, args.gs_repeats)
+                gs_r.append(gr["gsplat_step_wall_ms"])
+                gs_ev.append(gr["gsplat_step_ms"])
             ratios = [o / s for o, s in zip(ours_r, gs_r)]
-            row.update(ours_step_wall_ms_rounds=ours_r, gsplat_step_wall_ms_rounds=gs_r, ratio_wall_rounds=ratios,
-                       ratio_wall_first=row["ratio_wall"], ratio_wall=statistics.median(ratios),
-                       ours_step_wall_ms=statistics.median(ours_r), gsplat_step_wall_ms=statistics.median(gs_r))
+            row.update(ours_step_wall_ms_rounds=ours_r, gsplat_step_wall_ms_rounds=gs_r, gsplat_step_ms_rounds=gs_ev,
+                       ratio_wall_rounds=ratios, ratio_wall_first=row["ratio_wall"], ratio_wall=statistics.median(ratios),
+                       ratio_vs_event=statistics.median(o / e for o, e in zip(ours_r, gs_ev)),
+                       ours_step_wall_ms=statistics.median(ours_r), gsplat_step_wall_ms=statistics.median(gs_r),
+                       gsplat_step_ms=statistics.median(gs_ev))
         d = np.abs(img.astype(np.float64) - gimg.astype(np.float64))
         row["vs_gsplat_mean_abs"], row["vs_gsplat_max_abs"] = float(d.mean()), float(d.max())
     return row
@@ -284,6 +289,8 @@ def main(argv=None) -> int:
     ap.add_argument("--overhead-n", type=int, default=2000)
     ap.add_argument("--json", default=None, help="append one JSON line per row to this file")
     a = ap.parse_args(argv)
+    if a.rounds < 1:
+        ap.error(f"--rounds must be at least 1, got {a.rounds}")
 
     from reings.backends import get_backend
     from reings.backends.opencl.harness import DeviceBytes
@@ -318,7 +325,8 @@ def main(argv=None) -> int:
 
     gs_reason = "--no-gsplat" if a.no_gsplat else gsplat_available()
     if gs_reason is not None:
-        print(f"peer_step: gsplat side skipped ({gs_reason})", flush=True)
+        print(f"peer_step: gsplat side skipped ({gs_reason})" + ("; --rounds needs it: one round" if a.rounds > 1 else ""),
+              flush=True)
     for scene in [s.strip() for s in a.scenes.split(",") if s.strip()]:
         for sh in [int(s) for s in a.sh.split(",") if s.strip()]:
             emit(run_config(be, scene, sh, a, gs_reason, mem))

@@ -117,6 +117,20 @@
 #ifndef PROJ_SH_STAGE
 #define PROJ_SH_STAGE 0
 #endif
+/* Where the SH coefficients are (kernel arguments sh_dc, dc_stride, sh_rest, rest_stride, rest_offset):
+   word c of Gaussian g's row (c < 3 SH_K) is dc[g * dc_stride + c] for c < 3 (the DC coefficient) and
+   rest[g * rest_stride + rest_offset + c - 3] after: the training state's sh_dc [N,1,3] and sh_rest
+   [N,KMAX-1,3] read in place (strides 3 and 3 (KMAX - 1), offset 0: no packed copy per SH step), or one
+   packed [N,SH_K,3] array (both pointers it, strides 3 SH_K, offset 3). */
+typedef struct {
+    __global const float *dc;
+    __global const float *rest;
+    int dc_stride, rest_stride, rest_offset;
+} sh_in_t;
+#define SH_ARGS                                                                              \
+    __global const float *sh_dc, const int dc_stride, __global const float *sh_rest,          \
+        const int rest_stride, const int rest_offset
+#define SH_IN_OF_ARGS {sh_dc, sh_rest, dc_stride, rest_stride, rest_offset}
 #if PROJ_SH_STAGE
 #ifndef PROJ_WG
 #error "PROJ_SH_STAGE needs PROJ_WG, the launch's work-group size"
@@ -128,9 +142,11 @@
 #define SH_OUT(dst, i, x) ((dst)[(i)] = (x))
 #define PROJ_ATTR __attribute__((reqd_work_group_size(PROJ_WG, 1, 1)))
 #else
-#define SH_SRC __global const float *
+#define SH_SRC sh_in_t
 #define SH_DST __global float *
-#define SH_AT(src, gid, i) GATHER(src, (gid) * (SH_K * 3) + (i))
+#define SH_AT(src, gid, i)                                           \
+    ((i) < 3 ? GATHER((src).dc, (gid) * (src).dc_stride + (i))      \
+             : GATHER((src).rest, (gid) * (src).rest_stride + (src).rest_offset + ((i) - 3)))
 #define SH_OUT(dst, i, x) SCATTER_F(dst, SH_K * 3, i, x)
 #define PROJ_ATTR
 #endif
@@ -432,12 +448,13 @@ PROJ_INLINE void alpha_rect(proj_t *p, vf o) {
 #endif
 /* The work-group's block of SH rows -> local memory (row stride SH_LSTRIDE); every work-item calls
    it (a barrier inside). */
-PROJ_INLINE void sh_stage_in(const int n, __global const float *sh, __local float *rows) {
+PROJ_INLINE void sh_stage_in(const int n, const sh_in_t sh, __local float *rows) {
     const int lid = (int)get_local_id(0), base = (int)get_group_id(0) * PROJ_WG;
     const int words = min(PROJ_WG, n - base) * (SH_K * 3);
     for (int i = lid; i < words; i += PROJ_WG) {
-        const int r = i / (SH_K * 3);
-        rows[r * SH_LSTRIDE + (i - r * (SH_K * 3))] = sh[(size_t)base * (SH_K * 3) + i];
+        const int r = i / (SH_K * 3), c = i - r * (SH_K * 3), g = base + r;
+        rows[r * SH_LSTRIDE + c] = c < 3 ? sh.dc[(size_t)g * sh.dc_stride + c]
+                                         : sh.rest[(size_t)g * sh.rest_stride + sh.rest_offset + (c - 3)];
     }
     barrier(CLK_LOCAL_MEM_FENCE);
 }
@@ -462,7 +479,7 @@ __kernel PROJ_ATTR void project_fwd(const int n,
                           __global const float *quats,          /* [N, 4] (w, x, y, z) */
                           __global const float *log_scales,     /* [N, 3] */
                           __global const float *opacity_logits, /* [N] */
-                          __global const float *sh,             /* [N, SH_K, 3] */
+                          SH_ARGS,                              /* the SH coefficients (sh_in_t) */
                           __constant const float *cam,          /* [CAM_RECORD] */
                           const int width, const int height,
                           const float opacity_override,         /* > 0: every opacity is this */
@@ -479,6 +496,7 @@ __kernel PROJ_ATTR void project_fwd(const int n,
                           __global uint *depth_keys,            /* [N] sort keys */
                           __global uint *gid_vals,              /* [N] sort values = gid */
                           __global uint *ctrl) {                /* the binning's words: ctrl[2] = 0 here */
+    const sh_in_t sh = SH_IN_OF_ARGS;
 #if PROJ_SH_STAGE
     __local float sh_rows[PROJ_WG * SH_LSTRIDE];
     sh_stage_in(n, sh, sh_rows);
@@ -533,7 +551,7 @@ PROJ_INLINE void project_bwd_one(const int n,
                           __global const float *quats,          /* [N, 4] */
                           __global const float *log_scales,     /* [N, 3] */
                           __global const float *opacity_logits, /* [N] */
-                          SH_SRC sh,                            /* [N, SH_K, 3] (staged: this row) */
+                          SH_SRC sh,                            /* the SH coefficients (staged: this row) */
                           __constant const float *cam,          /* [CAM_RECORD] */
                           const int width, const int height,
                           const float opacity_override,         /* > 0: opacity grad is zero */
@@ -734,7 +752,7 @@ __kernel PROJ_ATTR void project_bwd(const int n,
                           __global const float *quats,          /* [N, 4] */
                           __global const float *log_scales,     /* [N, 3] */
                           __global const float *opacity_logits, /* [N] */
-                          __global const float *sh,             /* [N, SH_K, 3] */
+                          SH_ARGS,                              /* the SH coefficients (sh_in_t) */
                           __constant const float *cam,          /* [CAM_RECORD] */
                           const int width, const int height,
                           const float opacity_override,         /* > 0: opacity grad is zero */
@@ -747,6 +765,7 @@ __kernel PROJ_ATTR void project_bwd(const int n,
                           __global float *v_log_scales,         /* [N, 3] */
                           __global float *v_opacity_logits,     /* [N] */
                           __global float *v_sh) {
+    const sh_in_t sh = SH_IN_OF_ARGS;
 #if PROJ_SH_STAGE
     __local float sh_rows[PROJ_WG * SH_LSTRIDE];
     sh_stage_in(n, sh, sh_rows);

@@ -7,20 +7,23 @@ returns raw-field gradients only, so the fit loop passes the per-view pixel-spac
 the backend) through `ndc_grad_norm` into `accumulate`, once per photometric backward (DNGaussian:
 only the photometric render feeds the statistics).
 
-Statistics live in `TrainState.stats` (so `apply_index_op` keeps them aligned):
+Statistics live in `TrainState.stats` (so every row edit, a `RowPlan` applied by `apply_rows`, keeps
+them aligned):
     grad2d_accum [N] float32  sum of NDC gradient norms over the views where the Gaussian was visible
     grad2d_count [N] int32    number of those views
     max_radii2d  [N] float32  largest screen radius seen (for 3DGS's screen-size pruning)
 
-The loop calls, per iteration:  `accumulate(...)` after the photometric backward, then
-`maybe_densify(state, cfg, iteration, extent, rng)` (densify + prune + opacity reset on schedule).
+The loop calls, per iteration:  the trainer's `accumulate` after the photometric backward, then, when
+`schedule` says so, `densify_rows(trainer, cfg, iteration, extent, rng, importance)` (densify + prune +
+opacity reset + the unseen prune, on the trainer: the decisions on the host from `decision_columns`, the
+rows edited where the state lives). `maybe_densify` is the same on a bare TrainState.
 """
 from __future__ import annotations
 
 import numpy as np
 
 from .backends.reference_state import HeldRows, apply_rows, densify_accumulate, ndc_grad_norm, zero_stats
-from .state import TrainState, apply_index_op, index_plan, reset_moments
+from .state import TrainState, apply_index_op, index_plan
 from .types import ACCUM, COUNT, RADII, RowPlan
 
 __all__ = ["ACCUM", "COUNT", "RADII", "init_stats", "ndc_grad_norm", "accumulate", "mean_grads",
@@ -158,6 +161,8 @@ def densify_plan(params: dict, stats: dict, cfg, extent: float, rng: np.random.G
 def densify_and_prune(state: TrainState, cfg, extent: float, rng: np.random.Generator,
                       size_prune: bool = False) -> dict:
     """`densify_plan` applied to a TrainState (its statistics reset). Returns the counts."""
+    if ACCUM not in state.stats:
+        init_stats(state)
     plan, counts = densify_plan(state.params, state.stats, cfg, extent, rng, size_prune)
     apply_rows(state.params, state.adam.exp_avg, state.adam.exp_avg_sq, state.stats, plan, zero_stats=True)
     return counts

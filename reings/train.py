@@ -16,8 +16,9 @@ once, as a kept frame (`Trainer.forward(keep=True)`), and backpropagates it into
 The loop (`_Iteration`) calls only the Trainer contract (reings/backends/base.py); the backend makes
 the trainer (`backend.trainer(images, engine=...)`):
     "device"  the state resident on an OpenCL device (reings/backends/opencl/trainer.py): only
-              scalars cross the bus, and only on logging iterations; the state comes back for
-              densification, eval, checkpoints and the result.
+              scalars cross the bus, and only on logging iterations; densification reads its
+              decision columns and edits the rows on the device; the state comes back for eval,
+              checkpoints and the result.
     "host"    numpy state through the backend's render / render_vjp / host losses and the numpy
               twins (reings/backends/host_trainer.py); the only one on device "reference".
 Both compute the same iteration (bit for bit on PoCL: tests/test_device_fit.py).
@@ -213,8 +214,10 @@ class _Bookkeeping:
         self.checkpoints = 0  # written by this call of fit
         self.eval_fn, self.eval_every, self.log_every = eval_fn, eval_every, log_every
         self.sync = sync or (lambda params_only: None)
-        self.rows = rows or (lambda: len(self.state))  # the trainer's Gaussian count (the host state is
-        # only current after a sync)
+        self.rows = rows or (lambda: len(self.state))  # the trainer's Gaussian count: with the device
+        # trainer the host state is current only after a sync, and after a params-only one (the eval
+        # probe) its parameters may have more rows than its moments and statistics until the next
+        # full download; nothing reads those in between
         self.phase = phase or (lambda name: nullcontext())  # Trainer.phase: "probe", "checkpoint" in a profile
         self.bar = None
         if progress:
@@ -428,7 +431,7 @@ class _Iteration:
     (`warp_baseline`), DropGaussian's mask (`drop_at`) and the cross_warp partner
     (`cross_partner`). Values cross from the trainer only when read:
     the loss terms and the train PSNR's error on logging iterations (`logged`: a few words), the hard depth loss when
-    `soft_depth_ema_gate` needs it, the state when densification is due."""
+    `soft_depth_ema_gate` needs it, the decision columns when densification is due."""
 
     def __init__(self, trainer, cfg: TrainConfig, state, opt, rng, extent: float, images, cameras,
                  depth_targets, book: _Bookkeeping):

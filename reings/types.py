@@ -34,7 +34,7 @@ ACCUM, COUNT, RADII = "grad2d_accum", "grad2d_count", "max_radii2d"
 STAT_DTYPES = {ACCUM: np.float32, COUNT: np.int32, RADII: np.float32}
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class RowPlan:
     """A new row set of the training state, made from its old rows (reings.state.apply_index_op
     builds one; the trainers apply it: Trainer.apply_rows, on the device kernels/gather_rows.cl,
@@ -61,12 +61,16 @@ class RowPlan:
         m = np.asarray(mask)
         if m.dtype != bool or m.shape != (len(self),):
             raise ValueError(f"then_keep: a boolean mask of shape ({len(self)},) expected, got {m.dtype} {m.shape}")
+        for k, a in self.fresh.items():
+            if len(a) != len(self) - self.fresh_start:
+                raise ValueError(f"RowPlan.fresh[{k!r}]: {len(a)} rows, expected {len(self) - self.fresh_start}")
         tail = m[self.fresh_start:]
         return RowPlan(np.asarray(self.src)[m], int(m[:self.n_kept].sum()), int(m[:self.fresh_start].sum()),
                        {k: np.asarray(a)[tail] for k, a in self.fresh.items()})
 
-    def check(self, n_old: int) -> None:
-        """ValueError naming what does not fit a state of `n_old` rows."""
+    def check(self, n_old: int, tails: dict | None = None) -> None:
+        """ValueError naming what does not fit a state of `n_old` rows whose parameters have the
+        row shapes `tails` (name -> shape after N; None: not checked)."""
         src, n_new = np.asarray(self.src), len(self.src)
         if src.ndim != 1 or src.dtype.kind not in "iu":
             raise ValueError(f"RowPlan.src: an integer vector expected, got {src.dtype} {src.shape}")
@@ -80,6 +84,8 @@ class RowPlan:
                 raise ValueError(f"RowPlan.fresh: unknown parameter {k!r}")
             if len(a) != n_new - self.fresh_start:
                 raise ValueError(f"RowPlan.fresh[{k!r}]: {len(a)} rows, expected {n_new - self.fresh_start}")
+            if tails is not None and tuple(np.shape(a)[1:]) != tuple(tails[k]):
+                raise ValueError(f"RowPlan.fresh[{k!r}]: rows of shape {np.shape(a)[1:]}, expected {tuple(tails[k])}")
         if (src[self.fresh_start:] < 0).any() and set(self.fresh) != set(PARAM_NAMES):
             raise ValueError("RowPlan: rows without a source need every parameter in `fresh`")
 

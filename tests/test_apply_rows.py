@@ -244,3 +244,72 @@ def test_apply_rows_oclgrind():
         test_apply_rows_matches_the_concatenated_rows("oclgrind", 1, "grow")
         test_columns_and_opacity_reset_match_the_host("oclgrind")
     """)
+
+
+def test_empty_plans_and_growth_from_nothing(device):
+    """A plan of zero rows empties the trainer; a plan of fresh rows only fills it again (every
+    parameter fresh, no source rows): the same as the numpy twin."""
+    rng = np.random.default_rng(11)
+    st = _state(rng, 40, 1)
+    tr = get_backend(device).trainer([np.zeros((4, 4, 3), np.float32)], engine="device")
+    tr.upload(st)
+    host = copy.deepcopy(st)
+    empty = RowPlan(np.zeros(0, np.int64), 0, 0, {})
+    tr.apply_rows(empty, zero_stats=True)
+    HeldRows(host).apply_rows(empty, zero_stats=True)
+    assert tr.n == 0 == len(host)
+    fresh = {k: rng.normal(size=(7,) + st.params[k].shape[1:]).astype(np.float32) for k in PARAM_NAMES}
+    grow = RowPlan(np.full(7, -1, np.int64), 0, 0, fresh)
+    tr.apply_rows(grow)
+    HeldRows(host).apply_rows(grow)
+    got = copy.deepcopy(host)
+    tr.download(got)
+    _assert_bits(got, host, "from nothing")
+    for k in PARAM_NAMES:
+        assert np.array_equal(host.params[k], fresh[k]) and not host.adam.exp_avg[k].any()
+
+
+def test_fresh_rows_of_the_wrong_shape_are_refused(device):
+    rng = np.random.default_rng(12)
+    st = _state(rng, 20, 1)
+    tr = get_backend(device).trainer([np.zeros((4, 4, 3), np.float32)], engine="device")
+    tr.upload(st)
+    plan = RowPlan(np.array([0, 1, 2]), 2, 2, {"means": np.zeros((1, 4), np.float32)})
+    for rows in (tr, HeldRows(copy.deepcopy(st))):
+        with pytest.raises(ValueError, match="rows of shape"):
+            rows.apply_rows(plan)
+    assert tr.n == 20
+    with pytest.raises(ValueError, match="rows, expected"):
+        RowPlan(np.array([0, 1, 2]), 2, 2, {"means": np.zeros((3, 3), np.float32)}).then_keep(np.ones(3, bool))
+    p = RowPlan(np.array([0]), 1, 1, {})
+    assert p == p and p != RowPlan(np.array([0]), 1, 1, {})  # identity, never an ambiguous array comparison
+
+
+def test_dtu_rules_on_the_device_match_the_host(device):
+    """densify_rows with DNGaussian's black / white rules (the accumulators edited on the read copy,
+    the black Gaussians' opacities written back before the surgery) on the device trainer against
+    HeldRows on the same state: the same counts and the same bytes."""
+    from dataclasses import replace
+
+    from reings import densify as D
+    from reings.config import preset
+
+    rng = np.random.default_rng(2)
+    st = _state(rng, 400, 1)
+    st.params["sh_dc"][:100] = -5.0  # black
+    st.params["sh_dc"][100:150] = 5.0  # white
+    st.stats[ACCUM] = (st.stats[ACCUM] * 0.01).astype(np.float32)
+    cfg = replace(preset("dngaussian").densify, dark_white_rules=True, prune_unseen=False)
+    it = next(i for i in range(1, 100000) if D.schedule(cfg, i)[0])
+    tr = get_backend(device).trainer([np.zeros((4, 4, 3), np.float32)], engine="device")
+    tr.upload(st)
+    host = copy.deepcopy(st)
+    a = D.densify_rows(tr, cfg, it, 1.0, np.random.default_rng(0))
+    b = D.densify_rows(HeldRows(host), cfg, it, 1.0, np.random.default_rng(0))
+    assert a == b and a["dark_white"]["black"] == 100 and a["dark_white"]["white"] == 50
+    assert a["split"] + a["cloned"] > 0
+    got = copy.deepcopy(host)
+    tr.download(got)
+    _assert_bits(got, host, "DTU rules")
+    # the black ones' opacities were set before the surgery: the kept rows carry logit(0.1)
+    assert np.isclose(host.params["opacity_logits"][:10], np.log(0.1 / 0.9), atol=1e-6).all()

@@ -148,3 +148,20 @@ def test_schedule():
     st = _state(3, opacity=0.5)
     assert D.maybe_densify(st, dng, 3000, 1.0, rng) == {"cloned": 0, "split": 0, "pruned": 0, "n": 3}
     assert D.maybe_densify(st, dng, 6000, 1.0, rng) is None
+
+
+def test_densify_on_a_state_without_statistics():
+    """maybe_densify / densify_and_prune on a TrainState that never had statistics: they start at
+    zero (nothing is a candidate), and the state comes out with them."""
+    from reings.state import TrainState
+    from reings.train import gaussians_from_points
+
+    rng = np.random.default_rng(0)
+    g = gaussians_from_points(rng.uniform(-1, 1, (30, 3)).astype(np.float32), None, 0, rng)
+    cfg = preset("3dgs").densify  # densification due at iteration 600
+    for f in (lambda st: D.maybe_densify(st, cfg, 600, 1.0, rng), lambda st: D.densify_and_prune(st, CFG, 1.0, rng)):
+        st = TrainState.from_gaussians(g)
+        assert D.ACCUM not in st.stats
+        out = f(st)
+        assert out["cloned"] == out["split"] == 0 and out["n"] == len(st)
+        assert set(st.stats) == {D.ACCUM, D.COUNT, D.RADII} and all(len(v) == len(st) for v in st.stats.values())

@@ -341,3 +341,25 @@ def test_project_oclgrind():
             c = case("quat_tiny")
             check_project_fwd("oclgrind", c.gaussians, c.camera, name="quat_tiny")
     """)
+
+
+def test_project_stage_switch(device, monkeypatch):
+    """REINGS_PROJ_STAGE: 0 / 1 / unset accepted, anything else refused by name; the staged build
+    only where its local memory fits (else the unstaged kernels, the same bits)."""
+    from reings.backends.opencl.backend import OpenCLBackend
+
+    monkeypatch.setenv("REINGS_PROJ_STAGE", "yes")
+    with pytest.raises(ValueError, match="REINGS_PROJ_STAGE"):
+        OpenCLBackend(device)
+    be = get_backend(device)
+    old = be.proj_vw, be.proj_stage, be.local_mem
+    try:
+        be.proj_vw, be.proj_stage = 1, True
+        assert be._proj_defines(16)["PROJ_SH_STAGE"] == 1 and be._proj_defines(16)["PROJ_WG"] == be.proj_wg
+        assert "PROJ_SH_STAGE" not in be._proj_defines(1)  # one coefficient: nothing to stage
+        be.local_mem = be.proj_wg * 49 * 4 - 1  # one byte short of SH 3's rows
+        assert "PROJ_SH_STAGE" not in be._proj_defines(16) and "PROJ_SH_STAGE" in be._proj_defines(9)
+        be.proj_vw = 8
+        assert "PROJ_SH_STAGE" not in be._proj_defines(16)  # float8 lanes are never staged
+    finally:
+        be.proj_vw, be.proj_stage, be.local_mem = old

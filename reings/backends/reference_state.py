@@ -1,6 +1,7 @@
 """numpy references of the stages that update the training state, one function per kernel:
 
-    sh_pack             kernels/sh_pack.cl            the projection's [N,k,3] SH at k active coefficients
+    sh_pack             (no kernel: project.cl reads   the projection's [N,k,3] SH at k active coefficients
+                        sh_dc and sh_rest in place)    (the host trainer's, TrainState.gaussians)
     adam_update         kernels/adam.cl adam_step     one float32 Adam update, numpy's exact op sequence
     ndc_grad_norm,      kernels/densify_accumulate.cl 3DGS `add_densification_stats` for one view
     densify_accumulate
@@ -121,7 +122,7 @@ def apply_rows(params: dict, exp_avg: dict, exp_avg_sq: dict, stats: dict, plan:
     from row plan.fresh_start; moments and statistics gathered for the plan.n_kept kept rows, zero
     after (every statistic zero with `zero_stats`). The twin of the device trainer's apply_rows."""
     n_old = len(params["means"])
-    plan.check(n_old)
+    plan.check(n_old, {k: p.shape[1:] for k, p in params.items()})
     src = np.asarray(plan.src, np.int64)
     kept = np.concatenate([src[:plan.n_kept], np.full(len(src) - plan.n_kept, -1, np.int64)])
     for k, p in params.items():
@@ -162,7 +163,9 @@ class HeldRows:
 
     def read_columns(self, params, stats=()) -> tuple[dict, dict]:
         """The held arrays themselves (no copy: an edit of them is an edit of the state, which
-        `write_params` then has nothing to do for)."""
+        `write_params` then has nothing to do for); missing statistics start at zero."""
+        if any(k not in self.state.stats for k in stats):
+            self.state.stats.update({k: v for k, v in zero_stats(self.n).items() if k not in self.state.stats})
         return {k: self.state.params[k] for k in params}, {k: self.state.stats[k] for k in stats}
 
     def write_params(self, arrays: dict) -> None:

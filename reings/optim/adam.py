@@ -15,7 +15,8 @@ Everything is float32 and in place: `out=` everywhere and one preallocated scrat
 geometrically, reused by every group), which is 1.4-2.9x faster than naive numpy expressions
 (docs/perf_notes.md §6).  The update itself is `adam_update` (reings.backends.reference_state, the numpy
 twin of kernels/adam.cl, shared with the training engines' trainers).  Parameters and moments live in dicts owned by `reings.state.TrainState`; row edits
-(prune/clone/split) go through `reings.state.apply_index_op`, which keeps them aligned.
+(prune/clone/split) are a `reings.types.RowPlan` applied to all of them at once (`reings.state.apply_index_op`,
+`Trainer.apply_rows`), which keeps them aligned.
 """
 from __future__ import annotations
 
@@ -48,7 +49,7 @@ class Adam:
     """numpy Adam over the arrays of `params` (a dict, updated in place; keep passing the same dict).
 
     params: name -> float32 array; the dict is read at every step, so arrays replaced by
-        `apply_index_op` are picked up.
+        a row edit (`apply_index_op`, `Trainer.apply_rows`) are picked up.
     lr: name -> learning rate (groups missing here are never stepped).
     state: the moments (default: zeros); shared with TrainState.
     schedules: name -> f(iteration) -> lr, applied by `update_learning_rate(iteration)`.
@@ -107,7 +108,7 @@ class Adam:
             raise ValueError(f"Adam.step: gradient of {k!r} has shape {g.shape}, parameter has {p.shape}")
         if m.shape != p.shape or v.shape != p.shape:
             raise RuntimeError(f"Adam: moments of {k!r} {m.shape} are out of step with the parameter {p.shape}; "
-                               "edit rows with reings.state.apply_index_op")
+                               "edit rows with reings.state.apply_index_op (a RowPlan)")
         if p.size == 0:
             self.state.step[k] += 1
             return

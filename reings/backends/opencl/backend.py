@@ -113,6 +113,16 @@ CAM_RECORD = 24  # floats, layout in kernels/project.cl
 CAM_CACHE = 256  # camera record buffers kept (OpenCLBackend._camera_buffer)
 DEPTH_KEY_CULLED = 0xFFFFFFFF
 GRAD_BITS = {"means": 1, "quats": 2, "log_scales": 4, "opacity_logits": 8, "sh": 16}
+
+
+def _sh_args(inp: dict, k: int) -> tuple:
+    """project.cl's SH arguments (sh_dc, dc_stride, sh_rest, rest_stride, rest_offset; its sh_in_t) for
+    the inputs `inp` at k coefficients: a packed [N,k,3] "sh" buffer, or, with "sh_rest" (the device
+    trainer: its sh_dc [N,1,3] and sh_rest [N,kmax-1,3] parameter buffers read in place), the two
+    buffers with "sh_rest_stride" floats per sh_rest row."""
+    if "sh_rest" in inp:
+        return inp["sh"], _I32(3), inp["sh_rest"], _I32(inp["sh_rest_stride"]), _I32(0)
+    return inp["sh"], _I32(3 * k), inp["sh"], _I32(3 * k), _I32(3)
 ISECT_GUESS = 8  # sync-free binning: intersections per Gaussian guessed before a slot's first K is known
 ISECT_HISTORY = 8  # ... then the largest of its last ISECT_HISTORY known K's, plus 1/8
 _F32, _I32, _U32 = np.float32, np.int32, np.uint32
@@ -239,7 +249,8 @@ class OpenCLBackend:
         assert self.wg & (self.wg - 1) == 0 and self.wg <= 256, self.wg
         self.proj_vw = 8 if self.cpu else 1  # Gaussians per work-item in project.cl (float8 lanes on CPUs)
         self.proj_wg = 64 if self.cpu else 128  # project.cl work-group (64 x 8 Gaussians on CPUs)
-        # project.cl's SH rows through local memory on the GPU schedule (_proj_defines); REINGS_PROJ_STAGE=0|1
+        # project.cl's SH rows through local memory on the GPU schedule only (_proj_defines, width-1 lanes);
+        # REINGS_PROJ_STAGE=0|1, read when the backend is made
         stage = os.environ.get("REINGS_PROJ_STAGE", "")
         if stage not in ("", "0", "1"):
             raise ValueError(f"REINGS_PROJ_STAGE must be 0 or 1, got {stage!r}")
@@ -403,8 +414,8 @@ class OpenCLBackend:
         k = self.kernel("project.cl", "project_fwd", **self._proj_defines(fr.sh_k))
         ov = _F32(override if override is not None else 0.0)
         ev = self.launch(k, -(-n // self.proj_vw), _I32(n), inp["means"], inp["quats"], inp["log_scales"],
-                          inp["opacity_logits"], inp["sh"], b["cam"], _I32(fr.width), _I32(fr.height), ov,
-                          *drop_args(drop), b["means2d"], b["conics"], b["depths"], b["radii"], b["tile_rect"],
+                          inp["opacity_logits"], *_sh_args(inp, fr.sh_k), b["cam"], _I32(fr.width), _I32(fr.height),
+                          ov, *drop_args(drop), b["means2d"], b["conics"], b["depths"], b["radii"], b["tile_rect"],
                           b["colors"], b["opacities"], b["depth_keys"], b["gid_vals"], b["ctrl"], wg=self.proj_wg)
         self._mark("project_fwd", ev)
 
@@ -840,7 +851,7 @@ class OpenCLBackend:
         k = self.kernel("project.cl", "project_bwd", **self._proj_defines(fr.sh_k))
         ov = _F32(override if override is not None else 0.0)
         ev = self.launch(k, -(-n // self.proj_vw), _I32(n), inp["means"], inp["quats"], inp["log_scales"], inp["opacity_logits"],
-                          inp["sh"], b["cam"], _I32(fr.width), _I32(fr.height), ov, drop_args(fr.drop)[2],
+                          *_sh_args(inp, fr.sh_k), b["cam"], _I32(fr.width), _I32(fr.height), ov, drop_args(fr.drop)[2],
                           _I32(mask), b["radii"],
                           b["v_proj"], out["means"], out["quats"], out["log_scales"], out["opacity_logits"],
                           out["sh"], wg=self.proj_wg)

@@ -24,7 +24,7 @@ import numpy as np
 from . import quirks
 
 
-CORRECTLY_ROUNDED = frozenset({"adam.cl", "regularize.cl", "densify_accumulate.cl", "sh_pack.cl"})
+CORRECTLY_ROUNDED = frozenset({"adam.cl", "regularize.cl", "densify_accumulate.cl"})
 
 
 def has_correctly_rounded_divide_sqrt(device) -> bool:

@@ -15,8 +15,6 @@ Kept on the device for the whole fit (buffers of a private `Scratch`, grown geom
     v_rgb, v_depth                 the cotangent images of the current pass
     held_depth, held_alpha         a render's depth and alpha kept past the next forward (hold_depth: the
                                    cross_warp partner's, for its occlusion test)
-    sh_packed                      [N,k,3] SH at the active degree (kernels/sh_pack.cl, redone only
-                                   after the SH groups were stepped or the degree changed)
 
 One pass is `forward` (project / bin / sort / rasterize on the parameter buffers, nothing
 uploaded: backend.forward_device) -> a loss (`photometric`: kernels/photometric.cl or l1.cl writing
@@ -40,16 +38,18 @@ invoker (program.typed_invoker: the generic one costs ~6.5 us per numpy scalar a
 are looked up once per upload (`buf`), the camera record buffer is cached per camera (backend), and
 nothing is allocated or uploaded per step.
 
-The state goes back to the host (`download`) for densification, checkpoints, eval and the result,
-and comes back (`upload`) after host-side surgery (reings.state.apply_index_op).
+The state goes back to the host (`download`) for checkpoints, eval and the result. Densification
+reads only its decision columns (`read_columns`) and edits the rows on the device (`apply_rows`:
+kernels/gather_rows.cl on a reings.types.RowPlan); `upload` is for the start and a checkpoint restore.
 
 Shared depth orders (docs/perf_notes.md §9; backend.py, "Depth orders"): every forward passes the
 backend an order key (geometry version, the camera's viewmat row 2 as float32 bytes, near as
 float32), so forwards of an iteration that see the same camera-space z (the soft depth pass after
 an opacity step, the virtual view, the photometric pass) share one depth sort. The geometry version
 is drawn from a process-wide counter (unique across trainers sharing a backend) at every write of
-the means buffer: `upload` (init, densification, checkpoint restore) and `adam_step` of a "means"
-group; code that writes p_means otherwise must call `means_written`.
+the means buffer: `upload` (init, checkpoint restore), `apply_rows` (densification), `write_params`
+of "means" and `adam_step` of a "means" group; code that writes p_means otherwise must call
+`means_written`.
 
 Adam location (`adam=`): "kernel" (adam.cl, all state on the device), "numpy"
 (reference_state.adam_update on buffers mapped into host memory: zero-copy on CPU devices, where buffers are
@@ -155,7 +155,6 @@ class DeviceTrainer:
         self.k_adam_flat = backend.kernel("adam.cl", "adam_step_flat", **adam_defs)
         self.k_adam_multi = backend.kernel("adam.cl", "adam_step_multi", **adam_defs)
         self._adam_multi_wg = None  # its CL_KERNEL_WORK_GROUP_SIZE, queried once
-        self.k_sh_pack = backend.kernel("sh_pack.cl", "sh_pack")
         self.k_reg_count = backend.kernel("regularize.cl", "regularize_opacity_count", REGULARIZE_FP64=int(self.fp64))
         self.k_reg_grads = backend.kernel("regularize.cl", "regularize_grads", REGULARIZE_FP64=int(self.fp64))
         self.k_accumulate = backend.kernel("densify_accumulate.cl", "densify_accumulate", DENSIFY_FP64=int(self.fp64))
@@ -197,7 +196,6 @@ class DeviceTrainer:
         self.geometry = next(_GEOMETRY)  # the means' version in the depth order key (module docstring)
         self._cols = _columns(1)
         self._bufs: dict = {}  # (kind, name) -> buffer of the current n / kmax (cleared by upload)
-        self._sh_k = None  # k of the valid sh_packed, None: stale
         self._tmp = np.empty(0, _F32)  # numpy Adam scratch
         self._scalar = np.empty(1, _F32)  # read_loss's host word (no allocation per step)
         self.dloss = None  # the backend's DepthLossCL, set by upload_depth_targets
@@ -316,7 +314,7 @@ class DeviceTrainer:
     # {{{ state transfer
     def upload(self, state) -> None:
         """Trainer.upload: parameters, moments and statistics of `state` (a TrainState) -> the
-        device (after init or host surgery)."""
+        device (at the start, or after a host-side edit of the rows)."""
         if ACCUM not in state.stats:
             state.stats.update(zero_stats(len(state)))
         self.n = len(state)
@@ -328,7 +326,6 @@ class DeviceTrainer:
             self._write_async(b, np.asarray(arrays[key], dt), held)
         self.queue.finish()  # one wait for the 21 copies (the caller may change its arrays after)
         held.clear()
-        self._sh_k = None
         self.means_written()
 
     def means_written(self) -> None:
@@ -371,7 +368,7 @@ class DeviceTrainer:
         copy into the buffer (grown when the plan has more rows). Uploads only the row indices and
         the fresh rows (the split children's means and scales): the same bits as
         reference_state.apply_rows on the downloaded state (tests/test_apply_rows.py)."""
-        plan.check(self.n)
+        plan.check(self.n, {k: _shape(k, 1, self.kmax)[1:] for k in PARAM_NAMES})
         n_new = len(plan)
         src = np.asarray(plan.src).astype(_I32)
         kept = np.concatenate([src[:plan.n_kept], np.full(n_new - plan.n_kept, -1, _I32)])
@@ -409,7 +406,6 @@ class DeviceTrainer:
                 self._zero(self.buf(kind, key), n_new * w)
         self.queue.finish()  # one wait (the fresh rows' host arrays may change after)
         held.clear()
-        self._sh_k = None  # the packed SH of the old rows is stale (as after `upload`)
         self.means_written()
 
     def read_columns(self, params, stats=()) -> tuple[dict, dict]:
@@ -434,8 +430,6 @@ class DeviceTrainer:
             self._write(self.buf("p", k), a)
         if "means" in arrays:
             self.means_written()
-        if "sh_dc" in arrays or "sh_rest" in arrays:
-            self._sh_k = None
 
     def reset_opacity(self, cap_logit: float) -> None:
         """Trainer.reset_opacity: 3DGS's opacity reset, logits <- min(logits, cap)
@@ -494,22 +488,12 @@ class DeviceTrainer:
     # }}}
 
     # {{{ one pass
-    def sh_input(self, k: int):
-        """The [N,k,3] SH buffer for the projection at k active coefficients."""
-        if k == 1:
-            return self.buf("p", "sh_dc")
-        out = self.mem.get("gauss", "sh_packed", self.n, 12 * k)
-        if self._sh_k != k:
-            self._launch("sh_pack", self.k_sh_pack, self.n * 3 * k, _I32(self.n), _I32(k), _I32(self.kmax),
-                         self.buf("p", "sh_dc"), self.buf("p", "sh_rest"), out)
-            self._sh_k = k
-        return out
-
     def _inputs(self, k: int) -> dict:
-        """backend.forward_device's parameter buffers at k active SH coefficients."""
+        """backend.forward_device's parameter buffers: the SH read in place from sh_dc and sh_rest
+        (project.cl's sh_in_t; the first k - 1 rows of sh_rest are the active ones)."""
         return {"means": self.buf("p", "means"), "quats": self.buf("p", "quats"),
                 "log_scales": self.buf("p", "log_scales"), "opacity_logits": self.buf("p", "opacity_logits"),
-                "sh": self.sh_input(k)}
+                "sh": self.buf("p", "sh_dc"), "sh_rest": self.buf("p", "sh_rest"), "sh_rest_stride": 3 * (self.kmax - 1)}
 
     def forward(self, cam, k: int, background, near: float, opacity_override: float | None = None,
                 drop=None, keep: bool = False):
@@ -978,8 +962,6 @@ class DeviceTrainer:
                     self._adam_group(opt, name, t, view)
                 else:
                     self._adam_numpy(name, _shape(name, n, self.kmax), *view, opt.lr[name], t, opt)
-                if name in ("sh_dc", "sh_rest"):
-                    self._sh_k = None
                 if name == "means":
                     self.means_written()
         except Exception:
