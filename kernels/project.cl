@@ -450,12 +450,21 @@ PROJ_INLINE void alpha_rect(proj_t *p, vf o) {
    it (a barrier inside). */
 PROJ_INLINE void sh_stage_in(const int n, const sh_in_t sh, __local float *rows) {
     const int lid = (int)get_local_id(0), base = (int)get_group_id(0) * PROJ_WG;
-    const int words = min(PROJ_WG, n - base) * (SH_K * 3);
-    for (int i = lid; i < words; i += PROJ_WG) {
-        const int r = i / (SH_K * 3), c = i - r * (SH_K * 3), g = base + r;
-        rows[r * SH_LSTRIDE + c] = c < 3 ? sh.dc[(size_t)g * sh.dc_stride + c]
-                                         : sh.rest[(size_t)g * sh.rest_stride + sh.rest_offset + (c - 3)];
+    const int nr = min(PROJ_WG, n - base);
+    /* two branch-free copies, each contiguous in its source (strides 3 and 3 (KMAX - 1)): the DC
+       coefficients, then the others (a per-word choice of source doubled the loads: call 5) */
+    __global const float *dc = sh.dc + (size_t)base * sh.dc_stride; /* the block's first row: 32-bit offsets after */
+    for (int i = lid; i < nr * 3; i += PROJ_WG) {
+        const int r = i / 3, c = i - 3 * r;
+        rows[r * SH_LSTRIDE + c] = dc[r * sh.dc_stride + c];
     }
+#if SH_K > 1
+    __global const float *rest = sh.rest + (size_t)base * sh.rest_stride + sh.rest_offset;
+    for (int i = lid; i < nr * (SH_K * 3 - 3); i += PROJ_WG) {
+        const int r = i / (SH_K * 3 - 3), c = i - r * (SH_K * 3 - 3);
+        rows[r * SH_LSTRIDE + 3 + c] = rest[r * sh.rest_stride + c];
+    }
+#endif
     barrier(CLK_LOCAL_MEM_FENCE);
 }
 
