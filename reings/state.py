@@ -185,9 +185,6 @@ def apply_index_op(state: TrainState, keep=None, duplicate=None, append: dict | 
     split of row 1 into two children: keep=[T,F,T,T], append={name: 2 new rows} -> 5 rows.
     Adam step counts are untouched (3DGS keeps `state["step"]` when it concatenates tensors).
     """
-    for k, a in (append or {}).items():
-        if k in state.params and np.shape(a)[1:] != state.params[k].shape[1:]:
-            raise ValueError(f"append[{k!r}]: rows of shape {np.shape(a)[1:]}, expected {state.params[k].shape[1:]}")
     plan = index_plan(len(state), keep, duplicate, append, then_keep, names=tuple(state.params))
     apply_rows(state.params, state.adam.exp_avg, state.adam.exp_avg_sq, state.stats, plan)
 

@@ -169,3 +169,14 @@ def test_then_keep_is_a_second_index_op(seed):
         np.testing.assert_array_equal(a.stats[k], b.stats[k], err_msg=k)
     with pytest.raises(ValueError, match="then_keep"):
         apply_index_op(copy.deepcopy(st), keep=keep, then_keep=np.ones(n + 1, bool))
+
+
+def test_apply_index_op_refuses_appended_rows_of_the_wrong_shape():
+    """A wrong row shape in `append` is refused by name before any array is replaced."""
+    st = _tagged_state(np.random.default_rng(4), 4)
+    before = {k: v.copy() for k, v in st.params.items()}
+    app = {k: np.zeros((1,) + v.shape[1:], np.float32) for k, v in st.params.items()}
+    app["quats"] = np.zeros((1, 3), np.float32)
+    with pytest.raises(ValueError, match=r"fresh\['quats'\]: rows of shape"):
+        apply_index_op(st, append=app)
+    assert all(np.array_equal(st.params[k], before[k]) for k in before)

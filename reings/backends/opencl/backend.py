@@ -113,6 +113,9 @@ CAM_RECORD = 24  # floats, layout in kernels/project.cl
 CAM_CACHE = 256  # camera record buffers kept (OpenCLBackend._camera_buffer)
 DEPTH_KEY_CULLED = 0xFFFFFFFF
 GRAD_BITS = {"means": 1, "quats": 2, "log_scales": 4, "opacity_logits": 8, "sh": 16}
+ISECT_GUESS = 8  # sync-free binning: intersections per Gaussian guessed before a slot's first K is known
+ISECT_HISTORY = 8  # ... then the largest of its last ISECT_HISTORY known K's, plus 1/8
+_F32, _I32, _U32 = np.float32, np.int32, np.uint32
 
 
 def _sh_args(inp: dict, k: int) -> tuple:
@@ -123,9 +126,6 @@ def _sh_args(inp: dict, k: int) -> tuple:
     if "sh_rest" in inp:
         return inp["sh"], _I32(3), inp["sh_rest"], _I32(inp["sh_rest_stride"]), _I32(0)
     return inp["sh"], _I32(3 * k), inp["sh"], _I32(3 * k), _I32(3)
-ISECT_GUESS = 8  # sync-free binning: intersections per Gaussian guessed before a slot's first K is known
-ISECT_HISTORY = 8  # ... then the largest of its last ISECT_HISTORY known K's, plus 1/8
-_F32, _I32, _U32 = np.float32, np.int32, np.uint32
 
 
 def tile_bits(n_tiles: int) -> int:
@@ -254,7 +254,7 @@ class OpenCLBackend:
         stage = os.environ.get("REINGS_PROJ_STAGE", "")
         if stage not in ("", "0", "1"):
             raise ValueError(f"REINGS_PROJ_STAGE must be 0 or 1, got {stage!r}")
-        self.proj_stage = self.proj_vw == 1 and (not self.cpu if stage == "" else stage == "1")
+        self.proj_stage = not self.cpu if stage == "" else stage == "1"
         self.local_mem = int(self.handle.device.local_mem_size)
         self._kernels: dict = {}
         self._frame: _Frame | None = None
