@@ -14,12 +14,164 @@
  *   ssim_vpass_bwd  h3 -> conv along H, combine with x, y and the L1 sign               (v_x)
  *   loss_row_sums   per-row sums of the SSIM map and |x - y| (one work-item per row; the host
  *                   adds the H partials in float64, so the result is deterministic)
- * Defines: none besides the capability defines.  Not handled: masks, other window sizes.
+ * Defines: REINGS_CPU_SCHEDULE (0, from quirks.build_defines).  Not handled: masks, other window sizes.
+ * Schedules (the same sums in the same order, so the same bits; tests/test_losses.py):
+ *   GPU: the four passes with one work-item per pixel (global size (W, H)).
+ *   CPU: the same four kernels with one work-item per image row (global size H, local size 1).  A row
+ *        of [H, W, 3] is 3W contiguous floats and the tap k of element o (pixel o / 3) sits at o + 3k,
+ *        valid when 0 <= o + 3k < 3W; so the W pass is a stride-3 convolution of a contiguous array
+ *        and the H pass a convolution of whole rows, and the loops over o vectorise (the per-pixel
+ *        kernels' channel loop and stride-3 loads did not: ~47 ms a loss on 2 EPYC cores).  Each
+ *        element keeps its sum's order (taps k = -5..5, the out-of-range ones skipped).
  */
 
 #define SSIM_R 5                      /* window radius: 11 taps */
 #define SSIM_C1 (0.01f * 0.01f)       /* 3DGS constants (data range 1) */
 #define SSIM_C2 (0.03f * 0.03f)
+
+#if REINGS_CPU_SCHEDULE
+/* ---- CPU schedule: one work-item per row, 8 elements of it at a time ----------------------- */
+
+typedef float8 vf;
+#define VW 8
+#ifndef SSIM_ROWS
+#define SSIM_ROWS 16 /* image rows per work-item (the H pass's 11-row window stays in that core's cache) */
+#endif
+
+/* The W pass at element o of a row of n = 3W floats: the sum of w_k a[o + 3k] over the valid
+ * k (0 <= o + 3k < n), in the order k = -5..5 (TAPS_CHECKED), or over all 11 (TAPS_ALL: the
+ * interior, 15 <= o < n - 15); T is float or vf (then o starts 8 elements: LD loads them). */
+#define TAPS_CHECKED(...)                                                                          \
+    for (int k = -SSIM_R; k <= SSIM_R; ++k) {                                                      \
+        const int q = o + 3 * k;                                                                   \
+        if (q < 0 || q >= n) continue;                                                             \
+        const float w = taps[k + SSIM_R];                                                          \
+        __VA_ARGS__                                                                                \
+    }
+#define TAPS_ALL(...)                                                                              \
+    for (int k = -SSIM_R; k <= SSIM_R; ++k) {                                                      \
+        const int q = o + 3 * k;                                                                   \
+        const float w = taps[k + SSIM_R];                                                          \
+        __VA_ARGS__                                                                                \
+    }
+#define LD1(p, i) ((p)[i])
+/* 8 floats at any 4-byte alignment as plain loads and stores (PoCL makes vload8 / vstore8 calls) */
+typedef float8 __attribute__((aligned(4))) vf_u;
+#define LD8(p, i) (*(__global const vf_u *)((p) + (i)))
+#define ST1(v, p, i) ((p)[i] = (v))
+#define ST8(v, p, i) (*(__global vf_u *)((p) + (i)) = (v))
+
+/* one element (T float, LD/ST 1) or eight (T vf, LD/ST 8) of each pass */
+#define HFWD(T, LD, ST, TAPS)                                                                      \
+    {                                                                                              \
+        T sx = 0.0f, sy = 0.0f, sxx = 0.0f, syy = 0.0f, sxy = 0.0f;                                \
+        TAPS(const T a = LD(xr, q); const T b = LD(yr, q);                                         \
+             sx += w * a; sy += w * b; sxx += w * a * a; syy += w * b * b; sxy += w * a * b;)      \
+        ST(sx, out, o); ST(sy, out, plane + o); ST(sxx, out, 2 * plane + o);                       \
+        ST(syy, out, 3 * plane + o); ST(sxy, out, 4 * plane + o);                                  \
+    }
+#define HBWD(T, LD, ST, TAPS)                                                                      \
+    {                                                                                              \
+        T s0 = 0.0f, s1 = 0.0f, s2 = 0.0f;                                                         \
+        TAPS(s0 += w * LD(dr, q); s1 += w * LD(dr, plane + q); s2 += w * LD(dr, 2 * plane + q);)   \
+        ST(s0, out, o); ST(s1, out, plane + o); ST(s2, out, 2 * plane + o);                        \
+    }
+/* the H pass: rows j + k for k in [k_lo, k_hi] (all 11 in the interior: literal bounds) */
+#define VFWD(T, LD, ST, K_LO, K_HI)                                                                \
+    {                                                                                              \
+        T mx = 0.0f, my = 0.0f, exx = 0.0f, eyy = 0.0f, exy = 0.0f;                                \
+        for (int k = K_LO; k <= K_HI; ++k) {                                                       \
+            const float w = taps[k + SSIM_R];                                                      \
+            const int q = (j + k) * n + o;                                                         \
+            mx += w * LD(h5, q); my += w * LD(h5, plane + q); exx += w * LD(h5, 2 * plane + q);    \
+            eyy += w * LD(h5, 3 * plane + q); exy += w * LD(h5, 4 * plane + q);                    \
+        }                                                                                          \
+        const T sx = exx - mx * mx, sy = eyy - my * my, sxy = exy - mx * my;                       \
+        const T a1 = 2.0f * mx * my + SSIM_C1, a2 = 2.0f * sxy + SSIM_C2;                          \
+        const T b1 = mx * mx + my * my + SSIM_C1, b2 = sx + sy + SSIM_C2;                          \
+        const T inv_d = 1.0f / (b1 * b2);                                                          \
+        const T s = a1 * a2 * inv_d;                                                               \
+        const int p = j * n + o;                                                                   \
+        ST(s, smap, p);                                                                            \
+        ST(w_ssim_grad * (2.0f * my * (a2 - a1) - s * 2.0f * mx * (b2 - b1)) * inv_d, d3, p);      \
+        ST(w_ssim_grad * (-s * b1 * inv_d), d3, plane + p);                                        \
+        ST(w_ssim_grad * (2.0f * a1 * inv_d), d3, 2 * plane + p);                                  \
+    }
+#define VBWD(T, LD, ST, K_LO, K_HI, SIGN)                                                          \
+    {                                                                                              \
+        T g0 = 0.0f, g1 = 0.0f, g2 = 0.0f;                                                         \
+        for (int k = K_LO; k <= K_HI; ++k) {                                                       \
+            const float w = taps[k + SSIM_R];                                                      \
+            const int q = (j + k) * n + o;                                                         \
+            g0 += w * LD(h3, q); g1 += w * LD(h3, plane + q); g2 += w * LD(h3, 2 * plane + q);     \
+        }                                                                                          \
+        const int p = j * n + o;                                                                   \
+        const T a = LD(x, p), b = LD(y, p);                                                        \
+        ST(g0 + 2.0f * a * g1 + b * g2 + w_l1_grad * SIGN(a, b), v_x, p);                          \
+    }
+/* torch's sign of a - b: 0 at ties */
+#define SIGN1(a, b) (((a) > (b)) ? 1.0f : (((a) < (b)) ? -1.0f : 0.0f))
+#define SIGN8(a, b) (((a) > (b)) ? (vf)(1.0f) : (((a) < (b)) ? (vf)(-1.0f) : (vf)(0.0f))) /* no select: a call in PoCL */
+
+__kernel void ssim_hpass_fwd(__global const float *x, __global const float *y, __constant float *taps,
+                             __global float *h5, const int W, const int H)
+{
+    const int plane = H * W * 3, n = 3 * W, e = min(3 * SSIM_R, n);
+    for (int j = get_global_id(0) * SSIM_ROWS; j < min((int)(get_global_id(0) + 1) * SSIM_ROWS, H); ++j) {
+        __global const float *xr = x + j * n, *yr = y + j * n;
+        __global float *out = h5 + j * n;
+        int o = 0;
+        for (; o < e; ++o) HFWD(float, LD1, ST1, TAPS_CHECKED)
+        for (; o + VW <= n - 3 * SSIM_R; o += VW) HFWD(vf, LD8, ST8, TAPS_ALL)
+        for (; o < n - 3 * SSIM_R; ++o) HFWD(float, LD1, ST1, TAPS_ALL)
+        for (; o < n; ++o) HFWD(float, LD1, ST1, TAPS_CHECKED)
+    }
+}
+
+__kernel void ssim_vpass_fwd(__global const float *h5, __constant float *taps, __global float *smap,
+                             __global float *d3, const float w_ssim_grad, const int W, const int H)
+{
+    const int plane = H * W * 3, n = 3 * W;
+    for (int j = get_global_id(0) * SSIM_ROWS; j < min((int)(get_global_id(0) + 1) * SSIM_ROWS, H); ++j) {
+        const int k_lo = max(-SSIM_R, -j), k_hi = min(SSIM_R, H - 1 - j); /* the valid rows of j-5..j+5 */
+        int o = 0;
+        if (k_lo == -SSIM_R && k_hi == SSIM_R)
+            for (; o + VW <= n; o += VW) VFWD(vf, LD8, ST8, -SSIM_R, SSIM_R)
+        for (; o < n; ++o) VFWD(float, LD1, ST1, k_lo, k_hi)
+    }
+}
+
+__kernel void ssim_hpass_bwd(__global const float *d3, __constant float *taps, __global float *h3,
+                             const int W, const int H)
+{
+    const int plane = H * W * 3, n = 3 * W, e = min(3 * SSIM_R, n);
+    for (int j = get_global_id(0) * SSIM_ROWS; j < min((int)(get_global_id(0) + 1) * SSIM_ROWS, H); ++j) {
+        __global const float *dr = d3 + j * n;
+        __global float *out = h3 + j * n;
+        int o = 0;
+        for (; o < e; ++o) HBWD(float, LD1, ST1, TAPS_CHECKED)
+        for (; o + VW <= n - 3 * SSIM_R; o += VW) HBWD(vf, LD8, ST8, TAPS_ALL)
+        for (; o < n - 3 * SSIM_R; ++o) HBWD(float, LD1, ST1, TAPS_ALL)
+        for (; o < n; ++o) HBWD(float, LD1, ST1, TAPS_CHECKED)
+    }
+}
+
+__kernel void ssim_vpass_bwd(__global const float *h3, __global const float *x, __global const float *y,
+                             __constant float *taps, __global float *v_x, const float w_l1_grad,
+                             const int W, const int H)
+{
+    const int plane = H * W * 3, n = 3 * W;
+    for (int j = get_global_id(0) * SSIM_ROWS; j < min((int)(get_global_id(0) + 1) * SSIM_ROWS, H); ++j) {
+        const int k_lo = max(-SSIM_R, -j), k_hi = min(SSIM_R, H - 1 - j);
+        int o = 0;
+        if (k_lo == -SSIM_R && k_hi == SSIM_R)
+            for (; o + VW <= n; o += VW) VBWD(vf, LD8, ST8, -SSIM_R, SSIM_R, SIGN8)
+        for (; o < n; ++o) VBWD(float, LD1, ST1, k_lo, k_hi, SIGN1)
+    }
+}
+
+#else
+/* ---- GPU schedule: one work-item per pixel ----------------------------------------------- */
 
 __kernel void ssim_hpass_fwd(__global const float *x,     // [H, W, 3] rendered image
                              __global const float *y,     // [H, W, 3] ground truth
@@ -125,6 +277,8 @@ __kernel void ssim_vpass_bwd(__global const float *h3,    // [3, H, W, 3] from s
         v_x[o] = g0 + 2.0f * a * g1 + b * g2 + w_l1_grad * sgn;
     }
 }
+
+#endif
 
 __kernel void loss_row_sums(__global const float *smap,   // [H, W, 3]
                             __global const float *x,      // [H, W, 3]

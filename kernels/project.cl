@@ -153,7 +153,10 @@ typedef struct {
 
 /* ---------------------------------------------------------------------------------------------
    lane types: vf / vi hold PROJ_VW Gaussians. Comparisons give masks (scalar 0/1, vector 0/-1);
-   masks combine with & | ! and feed select(); ANY() reduces one.
+   masks combine with & | ! and feed SEL() (select); ANY() reduces one.
+   PoCL 3.0 (pocl-binary-distribution) calls its builtins rather than inlining them, spilling every live
+   vector register around each call (docs/perf_notes.md §17): SEL, ANY, FABS and the stores to private
+   arrays are written with plain operators (the same values: masks are 0 / -1 or 0 / 1).
    --------------------------------------------------------------------------------------------- */
 #ifndef PROJ_VW
 #define PROJ_VW 1
@@ -163,7 +166,7 @@ typedef float8 vf;
 typedef int8 vi;
 typedef uint8 vu;
 #define VLANES ((vi)(0, 1, 2, 3, 4, 5, 6, 7))
-#define ANY(m) any(m)
+#define ANY(m) any8(m)
 #define CVT_I(x) convert_int8(x)
 #define AS_U(x) as_uint8(x)
 #define AS_I(x) as_int8(x)
@@ -174,9 +177,19 @@ typedef uint8 vu;
 #define GATHER_I(base, idx)                                                                       \
     ((vi)((base)[(idx).s0], (base)[(idx).s1], (base)[(idx).s2], (base)[(idx).s3], (base)[(idx).s4], \
           (base)[(idx).s5], (base)[(idx).s6], (base)[(idx).s7]))
-#define STORE_F(x, tmp) vstore8((x), 0, (tmp))
-#define STORE_I(x, tmp) vstore8((x), 0, (tmp))
-#define STORE_U(x, tmp) vstore8((x), 0, (tmp))
+#define STORE8(x, tmp)                                                                    \
+    do {                                                                                  \
+        (tmp)[0] = (x).s0; (tmp)[1] = (x).s1; (tmp)[2] = (x).s2; (tmp)[3] = (x).s3;       \
+        (tmp)[4] = (x).s4; (tmp)[5] = (x).s5; (tmp)[6] = (x).s6; (tmp)[7] = (x).s7;       \
+    } while (0)
+#define STORE_F(x, tmp) STORE8(x, tmp)
+#define STORE_I(x, tmp) STORE8(x, tmp)
+#define STORE_U(x, tmp) STORE8(x, tmp)
+inline int any8(int8 m) { /* any(m): a lane's sign bit set */
+    int4 a = m.lo | m.hi;
+    int2 b = a.lo | a.hi;
+    return (b.x | b.y) < 0;
+}
 #elif PROJ_VW == 1
 typedef float vf;
 typedef int vi;
@@ -217,7 +230,9 @@ typedef uint vu;
     } while (0)
 
 /* |x| <= FLT_MAX is false for NaN and +-Inf */
-#define FINITE(x) (fabs(x) <= FLT_MAX)
+#define SEL(a, b, c) ((c) ? (b) : (a)) /* select(a, b, c) */
+#define FABS(x) AS_F(AS_U(x) & 0x7fffffffu) /* fabs(x) */
+#define FINITE(x) (FABS(x) <= FLT_MAX)
 
 /* SH basis values at the unit direction (x, y, z), order of 3DGS (docs/method.md §5.5) */
 PROJ_INLINE void sh_basis(vf x, vf y, vf z, vf *b) {
@@ -296,7 +311,7 @@ PROJ_INLINE vi project_one(vi gid, __global const float *means, __global const f
 
     /* quaternion -> rotation; |q| computed scaled by max |q_i| so that neither huge nor tiny
        (denormal) components overflow or underflow the sum of squares */
-    vf qmax = fmax(fmax(fabs(q[0]), fabs(q[1])), fmax(fabs(q[2]), fabs(q[3])));
+    vf qmax = fmax(fmax(FABS(q[0]), FABS(q[1])), fmax(FABS(q[2]), FABS(q[3])));
     ok &= qmax > 0.0f;
     vf iqm = 1.0f / qmax;
     vf w = q[0] * iqm, x = q[1] * iqm, y = q[2] * iqm, z = q[3] * iqm;
@@ -376,7 +391,7 @@ PROJ_INLINE vi project_one(vi gid, __global const float *means, __global const f
     vf d[3] = {mu[0] - cam[16], mu[1] - cam[17], mu[2] - cam[18]};
     vf dn = sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
     p->dnorm = dn;
-    vf idn = select((vf)0.0f, 1.0f / dn, dn > 0.0f);
+    vf idn = SEL((vf)0.0f, 1.0f / dn, dn > 0.0f);
     for (int i = 0; i < 3; ++i) p->dir[i] = d[i] * idn;
     vf bas[SH_K];
     sh_basis(p->dir[0], p->dir[1], p->dir[2], bas);
@@ -425,13 +440,13 @@ PROJ_INLINE void alpha_rect(proj_t *p, vf o) {
     const vf bx0 = floor(ceil(p->u - ex - 0.5f) * inv_tile), bx1 = floor(floor(p->u + ex - 0.5f) * inv_tile) + 1.0f;
     const vf by0 = floor(ceil(p->v - ey - 0.5f) * inv_tile), by1 = floor(floor(p->v + ey - 0.5f) * inv_tile) + 1.0f;
     vf r[4];
-    r[0] = select(p->rect[0], fmax(p->rect[0], bx0), box);
-    r[1] = select(p->rect[1], fmax(p->rect[1], by0), box);
-    r[2] = select(p->rect[2], fmin(p->rect[2], bx1), box);
-    r[3] = select(p->rect[3], fmin(p->rect[3], by1), box);
+    r[0] = SEL(p->rect[0], fmax(p->rect[0], bx0), box);
+    r[1] = SEL(p->rect[1], fmax(p->rect[1], by0), box);
+    r[2] = SEL(p->rect[2], fmin(p->rect[2], bx1), box);
+    r[3] = SEL(p->rect[3], fmin(p->rect[3], by1), box);
     /* empty: o < 1/255, or the box misses the 3-sigma tiles (lo NaN or inf: no box, rect kept) */
     const vi empty = (lo < 1.0f) | !((r[2] > r[0]) & (r[3] > r[1]));
-    for (int i = 0; i < 4; ++i) p->rect[i] = select(r[i], (vf)0.0f, empty);
+    for (int i = 0; i < 4; ++i) p->rect[i] = SEL(r[i], (vf)0.0f, empty);
 }
 
 /* Lanes of work-item `wi`: g0 = first gid, nl = how many are real, gid = clamped lane gids */
@@ -530,25 +545,25 @@ __kernel PROJ_ATTR void project_fwd(const int n,
                                           : (1.0f / (1.0f + exp(-GATHER(opacity_logits, gid)))) * drop_scale;
     alpha_rect(&p, op); /* the opacity the rasterizer blends with */
     SCATTER_U(gid_vals, 1, 0, AS_U((vi)g0 + VLANES));
-    SCATTER_F(means2d, 2, 0, select(zero, p.u, vis));
-    SCATTER_F(means2d, 2, 1, select(zero, p.v, vis));
-    SCATTER_F(conics, 3, 0, select(zero, p.A, vis));
-    SCATTER_F(conics, 3, 1, select(zero, p.B, vis));
-    SCATTER_F(conics, 3, 2, select(zero, p.C, vis));
-    SCATTER_F(depths, 1, 0, select(zero, p.t[2], vis));
+    SCATTER_F(means2d, 2, 0, SEL(zero, p.u, vis));
+    SCATTER_F(means2d, 2, 1, SEL(zero, p.v, vis));
+    SCATTER_F(conics, 3, 0, SEL(zero, p.A, vis));
+    SCATTER_F(conics, 3, 1, SEL(zero, p.B, vis));
+    SCATTER_F(conics, 3, 2, SEL(zero, p.C, vis));
+    SCATTER_F(depths, 1, 0, SEL(zero, p.t[2], vis));
     /* radius saturates like the reference's int32 cast */
-    const vi rad = select(CVT_I(fmin(p.radius, 2147483520.0f)), (vi)INT_MAX, p.radius >= 2147483648.0f);
-    SCATTER_I(radii, 1, 0, select((vi)0, rad, vis));
-    for (int i = 0; i < 4; ++i) SCATTER_I(tile_rect, 4, i, select((vi)0, CVT_I(p.rect[i]), vis));
-    for (int ch = 0; ch < 3; ++ch) SCATTER_F(colors, 3, ch, select(zero, fmax(p.raw[ch], 0.0f), vis));
-    SCATTER_F(opacities, 1, 0, select(zero, op, vis));
+    const vi rad = SEL(CVT_I(fmin(p.radius, 2147483520.0f)), (vi)INT_MAX, p.radius >= 2147483648.0f);
+    SCATTER_I(radii, 1, 0, SEL((vi)0, rad, vis));
+    for (int i = 0; i < 4; ++i) SCATTER_I(tile_rect, 4, i, SEL((vi)0, CVT_I(p.rect[i]), vis));
+    for (int ch = 0; ch < 3; ++ch) SCATTER_F(colors, 3, ch, SEL(zero, fmax(p.raw[ch], 0.0f), vis));
+    SCATTER_F(opacities, 1, 0, SEL(zero, op, vis));
     /* The sort key depends on t_z and the near plane only: t_z's bits wherever t_z > near (finite),
        whatever else culls the Gaussian (frustum, det, radius, tile rect, DropGaussian, opacity), so
        forwards of the same means and camera z row share one depth order (docs/perf_notes.md §9). A
        Gaussian culled otherwise is ranked with an empty tile rect: bin_count gives it no tile.
        t_z > near > 0: the float bits order like the floats. */
     const vi zkey = (p.t[2] > cam[19]) & FINITE(p.t[2]) & lane_ok;
-    SCATTER_U(depth_keys, 1, 0, select((vu)DEPTH_KEY_CULLED, AS_U(p.t[2]), zkey));
+    SCATTER_U(depth_keys, 1, 0, SEL((vu)DEPTH_KEY_CULLED, AS_U(p.t[2]), zkey));
 }
 
 /* Backward projection, one work-item per PROJ_VW Gaussians: raw-field gradients from the
@@ -591,26 +606,28 @@ PROJ_INLINE void project_bwd_one(const int n,
        scaled values and the results are scaled back: they may overflow to +-inf, never to
        inf - inf = NaN. +-inf cotangents saturate at +-FLT_MAX first. NaN stays NaN. The rows of
        culled lanes are never read (isect_reduce does not write them): such lanes use 0. */
-    const vi vgid = select(gid, (vi)(-1), !vis);  /* -1 marks a lane whose row must not be read */
+    const vi vgid = SEL(gid, (vi)(-1), !vis);  /* -1 marks a lane whose row must not be read */
     vf vin[V_PROJ], vmax = 0.0f;
     for (int i = 0; i < V_PROJ; ++i) {
 #if PROJ_VW == 8
         float tmp[8];
         int idx[8];
-        vstore8(vgid, 0, idx);
+        STORE8(vgid, idx);
         for (int l = 0; l < 8; ++l) tmp[l] = idx[l] >= 0 ? v_proj[(size_t)idx[l] * V_PROJ + i] : 0.0f;
-        vf x = vload8(0, tmp);
+        vf x = (vf)(tmp[0], tmp[1], tmp[2], tmp[3], tmp[4], tmp[5], tmp[6], tmp[7]);
 #else
         vf x = vgid >= 0 ? v_proj[(size_t)vgid * V_PROJ + i] : 0.0f;
 #endif
-        x = select(x, copysign((vf)FLT_MAX, x), isinf(x));
-        vmax = fmax(vmax, fabs(x));
+        /* +-inf -> +-FLT_MAX (copysign(FLT_MAX, x) where isinf(x)); vmax = fmax(vmax, |x|) (|x| NaN: vmax) */
+        x = SEL(x, AS_F((AS_U(x) & 0x80000000u) | 0x7f7fffffu), (AS_U(x) & 0x7fffffffu) == 0x7f800000u);
+        const vf ax = FABS(x);
+        vmax = SEL(vmax, ax, ax > vmax);
         vin[i] = x;
     }
     /* vmax in [2^E, 2^(E+1)) (normal when > 2^60): vscale = 2^(E-1) <= 2^126 (finite), built from the
        exponent bits (Oclgrind cannot check a vector frexp); vmax / vscale in [2, 4) */
     const vi ebits = (AS_I(vmax) >> 23) & 0xff;
-    const vf vscale = select((vf)1.0f, AS_F((ebits - 1) << 23), vmax > 0x1p60f);
+    const vf vscale = SEL((vf)1.0f, AS_F((ebits - 1) << 23), vmax > 0x1p60f);
     for (int i = 0; i < V_PROJ; ++i) vin[i] /= vscale;
     const vf v_u = vin[0], v_v = vin[1], v_A = vin[2], v_B = vin[3], v_C = vin[4];
     const vf v_col[3] = {vin[5], vin[6], vin[7]};
@@ -623,11 +640,11 @@ PROJ_INLINE void project_bwd_one(const int n,
         vlogit = v_op * op * (1.0f - op) * drop_scale; /* opacity = sigmoid(logit) * drop_scale */
     }
     const vi keep_op = vis & (vi)((grad_mask & 8) ? -1 : 0);
-    SCATTER_F(v_opacity_logits, 1, 0, select(zero, vlogit * vscale, keep_op));
+    SCATTER_F(v_opacity_logits, 1, 0, SEL(zero, vlogit * vscale, keep_op));
 
     /* colour: zero gradient where the 0 clamp is active */
     vf vc[3];
-    for (int ch = 0; ch < 3; ++ch) vc[ch] = select(zero, v_col[ch], p.raw[ch] >= 0.0f);
+    for (int ch = 0; ch < 3; ++ch) vc[ch] = SEL(zero, v_col[ch], p.raw[ch] >= 0.0f);
 #if SH_K > 1
     /* d colour / d dir, first half: v_b[k] = sum_ch sh[k][ch] vc[ch] (the last read of the
        coefficients: staged, v_sh is written over them below) */
@@ -639,7 +656,7 @@ PROJ_INLINE void project_bwd_one(const int n,
     sh_basis(p.dir[0], p.dir[1], p.dir[2], bas);
     const vi keep_sh = vis & (vi)((grad_mask & 16) ? -1 : 0);
     for (int k = 0; k < SH_K; ++k)
-        for (int ch = 0; ch < 3; ++ch) SH_OUT(v_sh, 3 * k + ch, select(zero, bas[k] * vc[ch] * vscale, keep_sh));
+        for (int ch = 0; ch < 3; ++ch) SH_OUT(v_sh, 3 * k + ch, SEL(zero, bas[k] * vc[ch] * vscale, keep_sh));
 
     vf vmu[3] = {0.0f, 0.0f, 0.0f};
 #if SH_K > 1
@@ -667,7 +684,7 @@ PROJ_INLINE void project_bwd_one(const int n,
 #endif
         /* through dir = d / |d| (no gradient where |d| == 0) */
         const vf dot = x * gx + y * gy + z * gz;
-        const vf idn = select(zero, 1.0f / p.dnorm, p.dnorm > 0.0f);
+        const vf idn = SEL(zero, 1.0f / p.dnorm, p.dnorm > 0.0f);
         vmu[0] += (gx - x * dot) * idn;
         vmu[1] += (gy - y * dot) * idn;
         vmu[2] += (gz - z * dot) * idn;
@@ -706,14 +723,14 @@ PROJ_INLINE void project_bwd_one(const int n,
     vt[2] = -fx * p.t[0] * rz2 * v_u - fy * p.t[1] * rz2 * v_v + v_depth;
     /* J00 = fx/tz, J02 = -fx txc/tz^2 (txc = tx unclamped, tz*L clamped) */
     vt[2] += -fx * rz2 * vJ[0] - fy * rz2 * vJ[4];
-    vt[0] += select(-fx * rz2 * vJ[2], zero, p.clx);
-    vt[2] += select(2.0f * fx * p.t[0] * rz3 * vJ[2], fx * p.txc * rz3 * vJ[2], p.clx);
-    vt[1] += select(-fy * rz2 * vJ[5], zero, p.cly);
-    vt[2] += select(2.0f * fy * p.t[1] * rz3 * vJ[5], fy * p.tyc * rz3 * vJ[5], p.cly);
+    vt[0] += SEL(-fx * rz2 * vJ[2], zero, p.clx);
+    vt[2] += SEL(2.0f * fx * p.t[0] * rz3 * vJ[2], fx * p.txc * rz3 * vJ[2], p.clx);
+    vt[1] += SEL(-fy * rz2 * vJ[5], zero, p.cly);
+    vt[2] += SEL(2.0f * fy * p.t[1] * rz3 * vJ[5], fy * p.tyc * rz3 * vJ[5], p.cly);
     /* t = Rc mu + tc */
     for (int j = 0; j < 3; ++j) vmu[j] += cam[j] * vt[0] + cam[3 + j] * vt[1] + cam[6 + j] * vt[2];
     const vi keep_mu = vis & (vi)((grad_mask & 1) ? -1 : 0);
-    for (int j = 0; j < 3; ++j) SCATTER_F(v_means, 3, j, select(zero, vmu[j] * vscale, keep_mu));
+    for (int j = 0; j < 3; ++j) SCATTER_F(v_means, 3, j, SEL(zero, vmu[j] * vscale, keep_mu));
 
     /* Sc = Rc Sigma Rc^T: v_Sigma = Rc^T v_Sc Rc */
     vf T1[9], vS[9];
@@ -735,7 +752,7 @@ PROJ_INLINE void project_bwd_one(const int n,
     const vi keep_ls = vis & (vi)((grad_mask & 4) ? -1 : 0);
     for (int j = 0; j < 3; ++j) {
         vf vs = p.R[j] * vM[j] + p.R[3 + j] * vM[3 + j] + p.R[6 + j] * vM[6 + j];
-        SCATTER_F(v_log_scales, 3, j, select(zero, vs * p.s[j] * vscale, keep_ls));
+        SCATTER_F(v_log_scales, 3, j, SEL(zero, vs * p.s[j] * vscale, keep_ls));
     }
     vf G[9];
     for (int i = 0; i < 3; ++i)
@@ -751,7 +768,7 @@ PROJ_INLINE void project_bwd_one(const int n,
     const vf dq = w * vq[0] + x * vq[1] + y * vq[2] + z * vq[3];
     const vf iq = 1.0f / p.qnorm;
     const vi keep_q = vis & (vi)((grad_mask & 2) ? -1 : 0);
-    for (int i = 0; i < 4; ++i) SCATTER_F(v_quats, 4, i, select(zero, (vq[i] - p.qn[i] * dq) * iq * vscale, keep_q));
+    for (int i = 0; i < 4; ++i) SCATTER_F(v_quats, 4, i, SEL(zero, (vq[i] - p.qn[i] * dq) * iq * vscale, keep_q));
 }
 
 /* Backward projection kernel: project_bwd_one per work-item (PROJ_SH_STAGE: its SH row in local

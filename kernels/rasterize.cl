@@ -72,6 +72,9 @@
  */
 #include "common.h"
 
+/* isfinite(x) as plain integer operations (PoCL 3.0 makes isfinite a call; see the CPU schedule) */
+#define FINITE(x) ((as_uint(x) & 0x7f800000u) != 0x7f800000u)
+
 #ifndef RASTER_IMPORTANCE
 #define RASTER_IMPORTANCE 0
 #endif
@@ -90,11 +93,17 @@
 #ifndef RASTER_BWD_DEPTH_O
 #define RASTER_BWD_DEPTH_O 0
 #endif
+#ifndef RASTER_BWD_TRANSPOSE
+#define RASTER_BWD_TRANSPOSE 1 /* NVIDIA: the backward's per-field warp sums in one transposed sum */
+#endif
 #ifndef REDUCE_UNROLL
 #define REDUCE_UNROLL 8 /* isect_reduce: gradient records loaded per step of a segment */
 #endif
 #if REDUCE_UNROLL < 1
 #error "REDUCE_UNROLL must be at least 1"
+#endif
+#if V_RECORD + 1 > 16
+#error "the transposed warp sum holds at most 16 fields"
 #endif
 #if RASTER_BWD_OPACITY && RASTER_BWD_DEPTH_O
 #error "RASTER_BWD_OPACITY and RASTER_BWD_DEPTH_O exclude each other"
@@ -227,7 +236,7 @@ __kernel void isect_reduce(__global const float *records,       // [K_emit, widt
         }
         for (int f = 0; f < V_RECORD; ++f) {
             float v = s[f];
-            if (!isfinite(v))
+            if (!FINITE(v))
                 v = reduce_rescaled(records, a, b, V_RECORD, f, accumulate ? out[gid * V_RECORD + f] : 0.0f);
             out[gid * V_RECORD + f] = v;
         }
@@ -237,7 +246,7 @@ __kernel void isect_reduce(__global const float *records,       // [K_emit, widt
         const float s0 = accumulate ? out[gid * width + f] : 0.0f;
         float s = s0;
         for (int e = a; e < b; ++e) s += records[e * width + f];
-        if (!isfinite(s)) s = reduce_rescaled(records, a, b, width, f, s0);
+        if (!FINITE(s)) s = reduce_rescaled(records, a, b, width, f, s0);
         out[gid * width + f] = s;
     }
 }
@@ -245,6 +254,17 @@ __kernel void isect_reduce(__global const float *records,       // [K_emit, widt
 #if REINGS_CPU_SCHEDULE
 /* ========================================================================================== */
 /* CPU schedule                                                                                */
+
+/* PoCL 3.0 (pocl-binary-distribution) calls its builtins rather than inlining them: in the pixel loops
+ * every select / any / fmin / min / max was a call, around which every live vector register is spilled
+ * (objdump of PoCL's kernel cache; docs/perf_notes.md §17). The CPU schedule writes them with plain
+ * operators instead, the same value for every input: VSEL(a, b, c) is select(a, b, c) for masks from
+ * comparisons (0 or -1), VMIN(x, a) is fmin(a, x) (a NaN x gives a), vany(m) is any(m), FINITE (above)
+ * is isfinite. exp stays a call. */
+#define VSEL(a, b, c) ((c) ? (b) : (a))
+#define VMIN(x, a) ((x) < (a) ? (x) : (a))
+#define IMIN(a, b) ((a) < (b) ? (a) : (b))
+#define IMAX(a, b) ((a) > (b) ? (a) : (b))
 
 #if RASTER_VEC == 8
 typedef float8 vf;
@@ -264,9 +284,14 @@ inline int hcount(vi m) {
     return b.x + b.y;
 }
 inline int hmax(vi x) {
-    int4 a = max(x.lo, x.hi);
-    int2 b = max(a.lo, a.hi);
-    return max(b.x, b.y);
+    int4 a = IMAX(x.lo, x.hi);
+    int2 b = IMAX(a.lo, a.hi);
+    return IMAX(b.x, b.y);
+}
+inline int vany(vi m) { /* any(m): a lane's sign bit set */
+    int4 a = m.lo | m.hi;
+    int2 b = a.lo | a.hi;
+    return (b.x | b.y) < 0;
 }
 #elif RASTER_VEC == 16
 typedef float16 vf;
@@ -288,10 +313,16 @@ inline int hcount(vi m) {
     return b.x + b.y;
 }
 inline int hmax(vi x) {
-    int8 a8 = max(x.lo, x.hi);
-    int4 a = max(a8.lo, a8.hi);
-    int2 b = max(a.lo, a.hi);
-    return max(b.x, b.y);
+    int8 a8 = IMAX(x.lo, x.hi);
+    int4 a = IMAX(a8.lo, a8.hi);
+    int2 b = IMAX(a.lo, a.hi);
+    return IMAX(b.x, b.y);
+}
+inline int vany(vi m) { /* any(m): a lane's sign bit set */
+    int8 a8 = m.lo | m.hi;
+    int4 a = a8.lo | a8.hi;
+    int2 b = a.lo | a.hi;
+    return (b.x | b.y) < 0;
 }
 #else
 #error "RASTER_VEC must be 8 or 16"
@@ -304,10 +335,10 @@ inline int hmax(vi x) {
  * returns 0 when the box misses the tile. */
 inline int box_in_tile(float16 g, int x0, int y0, int *r0, int *r1, int *c0, int *c1) {
     const int xlo = (int)g.sa - x0, xhi = (int)g.sb - x0, ylo = (int)g.sc - y0, yhi = (int)g.sd - y0;
-    *r0 = max(ylo, 0);
-    *r1 = min(yhi, TILE_SIZE - 1);
-    *c0 = max(xlo, 0) / RASTER_VEC;
-    *c1 = min(xhi, TILE_SIZE - 1);
+    *r0 = IMAX(ylo, 0);
+    *r1 = IMIN(yhi, TILE_SIZE - 1);
+    *c0 = IMAX(xlo, 0) / RASTER_VEC;
+    *c1 = IMIN(xhi, TILE_SIZE - 1);
     if (xhi < xlo || *c1 < 0 || *r1 < *r0 || xlo > TILE_SIZE - 1) return 0;
     *c1 /= RASTER_VEC;
     return 1;
@@ -338,7 +369,7 @@ __kernel void rasterize_fwd(__global const float16 *packed,      // [N] from ras
     for (int c = 0; c < NVEC; ++c) {
         const int py = y0 + (int)((uint)c / CPR), px = x0 + (int)((uint)c % CPR) * RASTER_VEC;
         const vi inside = (ILANES + px < width) & (vi)(py < height ? -1 : 0);
-        Tv[c] = select((vf)(-1.0f), (vf)(1.0f), inside);
+        Tv[c] = VSEL((vf)(-1.0f), (vf)(1.0f), inside);
         Rv[c] = Gv[c] = Bv[c] = Dv[c] = (vf)(0.0f);
         Lv[c] = (vi)(0);
         n_active += hcount(inside);
@@ -358,21 +389,21 @@ __kernel void rasterize_fwd(__global const float16 *packed,      // [N] from ras
                     const vf T = Tv[c];
                     const vf dx = (vf)(g.s0 - (float)(x0 + cc * RASTER_VEC)) - LANES;
                     const vf power = -0.5f * (g.s2 * dx * dx + g.s4 * dy * dy) - g.s3 * dx * dy;
-                    const vf alpha = fmin((vf)(ALPHA_MAX), g.s5 * exp(power));
+                    const vf alpha = VMIN(g.s5 * exp(power), (vf)(ALPHA_MAX));
                     const vi ok = (T > 0.0f) & (power <= 0.0f) & (alpha >= ALPHA_MIN);
-                    if (!any(ok)) continue;
+                    if (!vany(ok)) continue;
                     const vf Tn = T * (1.0f - alpha);
                     const vi stop = ok & (Tn < T_MIN);
                     const vi blend = ok & ~stop;
-                    const vf w = select((vf)(0.0f), alpha * T, blend);
+                    const vf w = VSEL((vf)(0.0f), alpha * T, blend);
                     Rv[c] += w * g.s6;
                     Gv[c] += w * g.s7;
                     Bv[c] += w * g.s8;
                     Dv[c] += w * g.s9;
                     imp += w;
-                    Tv[c] = select(select(T, -T, stop), Tn, blend);
-                    Lv[c] = select(Lv[c], (vi)(kk), blend);
-                    if (any(stop)) n_active -= hcount(stop);
+                    Tv[c] = VSEL(VSEL(T, -T, stop), Tn, blend);
+                    Lv[c] = VSEL(Lv[c], (vi)(kk), blend);
+                    if (vany(stop)) n_active -= hcount(stop);
                 }
             }
         }
@@ -484,7 +515,7 @@ bwd_tile(__global const float16 *packed, __global const int *gid_from_isect, __g
         (void)vo;
         (void)ro;
         Lv[c] = VLOAD(0, L);
-        lmax = max(lmax, Lv[c]);
+        lmax = IMAX(lmax, Lv[c]);
     }
     /* Gaussians at positions >= max(last) touch no pixel: their records are 0 */
     *stop_at = start + hmax(lmax);
@@ -507,16 +538,16 @@ bwd_tile(__global const float16 *packed, __global const int *gid_from_isect, __g
                 for (int cc = c0; cc <= c1; ++cc) {
                     const int c = r * CPR + cc;
                     const vi valid = (vi)(k) < Lv[c];
-                    if (!any(valid)) continue;
+                    if (!vany(valid)) continue;
                     const vf dx = (vf)(g.s0 - (float)(x0 + cc * RASTER_VEC)) - LANES;
                     const vf power = -0.5f * (g.s2 * dx * dx + g.s4 * dy * dy) - g.s3 * dx * dy;
                     const vf G = exp(power);
                     const vf a = g.s5 * G;
-                    const vf alpha = fmin((vf)(ALPHA_MAX), a);
+                    const vf alpha = VMIN(a, (vf)(ALPHA_MAX));
                     const vi ok = valid & (power <= 0.0f) & (alpha >= ALPHA_MIN);
-                    if (!any(ok)) continue;
+                    if (!vany(ok)) continue;
                     const vf T = Tv[c], R = Rv[c];
-                    const vf w = select((vf)(0.0f), alpha * T, ok);
+                    const vf w = VSEL((vf)(0.0f), alpha * T, ok);
                     const vf vr = VR[c], vg = VG[c], vb = VB[c], vd = VD[c];
                     const vf vc = vr * cr + vg * cg + vb * cb + vd * cz;
                     const vf Rn = R - vc * w;
@@ -527,15 +558,15 @@ bwd_tile(__global const float16 *packed, __global const int *gid_from_isect, __g
                     a_z += vd * w;
 #endif
                     /* d out / d alpha: T c - (behind) / (1 - alpha); alpha <= ALPHA_MAX bounds 1/(1-alpha) */
-                    const vf va = select((vf)(0.0f), T * vc - Rn / (1.0f - alpha), ok & (a <= ALPHA_MAX));
+                    const vf va = VSEL((vf)(0.0f), T * vc - Rn / (1.0f - alpha), ok & (a <= ALPHA_MAX));
                     a_o += va * G;
 #if RASTER_BWD_DEPTH_O
                     {   /* the same recursion on v_depth_o alone (its colour cotangents are 0) */
                         const vf RoV = RO[c], vco = VO[c] * cz;
                         const vf Ron = RoV - vco * w;
-                        const vf vao = select((vf)(0.0f), T * vco - Ron / (1.0f - alpha), ok & (a <= ALPHA_MAX));
+                        const vf vao = VSEL((vf)(0.0f), T * vco - Ron / (1.0f - alpha), ok & (a <= ALPHA_MAX));
                         a_oo += vao * G;
-                        RO[c] = select(RoV, Ron, ok);
+                        RO[c] = VSEL(RoV, Ron, ok);
                     }
 #endif
 #if !RASTER_BWD_OPACITY
@@ -546,8 +577,8 @@ bwd_tile(__global const float16 *packed, __global const int *gid_from_isect, __g
                     a_u -= (g.s2 * dx + g.s3 * dy) * vp;
                     a_v -= (g.s3 * dx + g.s4 * dy) * vp;
 #endif
-                    Tv[c] = select(T, T * (1.0f - alpha), ok);
-                    Rv[c] = select(R, Rn, ok);
+                    Tv[c] = VSEL(T, T * (1.0f - alpha), ok);
+                    Rv[c] = VSEL(R, Rn, ok);
                 }
             }
         }
@@ -571,13 +602,13 @@ bwd_tile(__global const float16 *packed, __global const int *gid_from_isect, __g
 #endif
         __global float *rec = v_emit + (size_t)emit_from_isect[i] * V_RECORD;
         for (int f = 0; f < V_RECORD; ++f) {
-            bad |= !isfinite(o[f]);
+            bad |= !FINITE(o[f]);
             rec[f] = o[f];
         }
 #if RASTER_BWD_DEPTH_O
         {   /* v_depth_o's record: as a RASTER_BWD_OPACITY backward writes it */
             const float so = hsum(a_oo) * iv * ik;
-            bad |= !isfinite(so);
+            bad |= !FINITE(so);
             __global float *ro_rec = v_emit_o + (size_t)emit_from_isect[i] * V_RECORD;
             for (int f = 0; f < V_RECORD; ++f) ro_rec[f] = f == 8 ? so : 0.0f;
         }
@@ -696,6 +727,23 @@ inline float warp_sum(float x) {
     for (int m = WARP / 2; m >= 1; m >>= 1) x += shfl_xor(x, m);
     return x;
 }
+/* The warp sums of 16 values per lane with 16 shuffles instead of 16 butterflies (80): at each
+ * step a lane keeps half of its values and receives its partner's copy of them (the other half
+ * goes to the partner), so after the steps 16, 8, 4, 2 a lane holds one value, field
+ * warp_field(lane), and step 1 completes it. Every partial is the butterfly's own pair sum
+ * (x_l + x_(l^m), the same tree), so the result has warp_sum's bits (docs/perf_notes.md §16). */
+inline int warp_field(int lane) {
+    return (lane >> 1) & 15; /* bits 4, 3, 2, 1 of the lane: the halves kept at steps 16, 8, 4, 2 */
+}
+inline float warp_sum16(const float *x, const int lane) {
+    float a[8], b[4], c[2];
+    const int h16 = lane & 16, h8 = lane & 8, h4 = lane & 4, h2 = lane & 2;
+    for (int i = 0; i < 8; ++i) a[i] = (h16 ? x[8 + i] : x[i]) + shfl_xor(h16 ? x[i] : x[8 + i], 16);
+    for (int i = 0; i < 4; ++i) b[i] = (h8 ? a[4 + i] : a[i]) + shfl_xor(h8 ? a[i] : a[4 + i], 8);
+    for (int i = 0; i < 2; ++i) c[i] = (h4 ? b[2 + i] : b[i]) + shfl_xor(h4 ? b[i] : b[2 + i], 4);
+    float d = (h2 ? c[1] : c[0]) + shfl_xor(h2 ? c[0] : c[1], 2);
+    return d + shfl_xor(d, 1);
+}
 #else
 #define NPART 1
 #endif
@@ -709,6 +757,16 @@ inline void group_sum(const float *vals, const int NF, const int any_nz, const i
 #if REINGS_NV_PTX
     const int w = lid / WARP, lane = lid % WARP;
     (void)red;
+#if RASTER_BWD_TRANSPOSE
+    if (NF > 1) { /* one transposed sum of all fields (at most 16); lanes 2f write field f */
+        float x[16];
+        for (int f = 0; f < 16; ++f) x[f] = f < NF ? vals[f] : 0.0f;
+        const float s = warp_any(any_nz) ? warp_sum16(x, lane) : 0.0f;
+        const int f = warp_field(lane);
+        if (!(lane & 1) && f < NF) part[(w * batch + j) * NF + f] = s;
+        return;
+    }
+#endif
     if (warp_any(any_nz)) {
         for (int f = 0; f < NF; ++f) {
             const float s = warp_sum(vals[f]);

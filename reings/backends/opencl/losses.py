@@ -25,17 +25,23 @@ def _handle(device):
     return open_device(device) if isinstance(device, str) else device
 
 
+SSIM_ROWS = 16  # photometric.cl's CPU schedule: image rows per work-item
+
+
 class PhotometricCL:
     """The photometric loss on an OpenCL device (a DeviceHandle or a device string); buffers are
-    kept per image size and reused."""
+    kept per image size and reused. `cpu_schedule` overrides the device's REINGS_CPU_SCHEDULE (the
+    SSIM passes a work-item per row on CPUs, per pixel on GPUs: the same bits; tests run both)."""
 
-    def __init__(self, device):
+    def __init__(self, device, cpu_schedule: bool | None = None):
         import pyopencl as cl
 
         self.cl = cl
         self.handle = _handle(device)
         lib = library_for(self.handle)
-        self.k = {n: lib.get("photometric.cl", n) for n in
+        d = {} if cpu_schedule is None else {"REINGS_CPU_SCHEDULE": int(bool(cpu_schedule))}
+        self.cpu_schedule = bool(d.get("REINGS_CPU_SCHEDULE", lib.base_defines["REINGS_CPU_SCHEDULE"]))
+        self.k = {n: lib.get("photometric.cl", n, **d) for n in
                   ("ssim_hpass_fwd", "ssim_vpass_fwd", "ssim_hpass_bwd", "ssim_vpass_bwd", "loss_row_sums")}
         ctx = self.handle.context
         self.taps = cl.Buffer(ctx, cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR,
@@ -80,24 +86,25 @@ class PhotometricCL:
         self._alloc(h, w)
         n = h * w * 3
         W, H = np.int32(w), np.int32(h)
-        g2 = (w, h)
+        # a work-item per SSIM_ROWS rows / per pixel
+        g2 = ((-(-h // SSIM_ROWS),), (1,)) if self.cpu_schedule else ((w, h), None)
         k = self._typed
         k("ssim_hpass_fwd", q, g2, x, y, self.taps, self.h5, W, H)
         k("ssim_vpass_fwd", q, g2, self.h5, self.taps, self.smap, self.d3, np.float32(-w_ssim / n), W, H)
         k("ssim_hpass_bwd", q, g2, self.d3, self.taps, self.h3, W, H)
         ev = k("ssim_vpass_bwd", q, g2, self.h3, x, y, self.taps, v, np.float32(w_l1 / n), W, H)
         if value:
-            ev = k("loss_row_sums", q, (h,), self.smap, x, y, self.partial, W, H)
+            ev = k("loss_row_sums", q, ((h,), None), self.smap, x, y, self.partial, W, H)
         self._weights = (float(w_l1), float(w_ssim)) if value else None
         return ev
 
-    def _typed(self, name: str, q, gsize, *args):
-        """Launch kernel `name` through pyopencl's typed invoker (set once per kernel: the generic
-        one costs ~6.5 us per scalar argument, see program.typed_invoker)."""
+    def _typed(self, name: str, q, sizes, *args):
+        """Launch kernel `name` on (global, local) sizes through pyopencl's typed invoker (set once per
+        kernel: the generic one costs ~6.5 us per scalar argument, see program.typed_invoker)."""
         kern = self.k[name]
         if not getattr(kern, "_reings_typed", False):
             typed_invoker(kern, args)
-        return kern(q, gsize, None, *args)
+        return kern(q, *sizes, *args)
 
     def read_loss(self) -> float:
         """The loss of the last `enqueue` / call (a blocking read of H x 2 partial sums, added in
