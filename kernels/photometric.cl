@@ -14,10 +14,13 @@
  *   ssim_vpass_bwd  h3 -> conv along H, combine with x, y and the L1 sign               (v_x)
  *   loss_row_sums   per-row sums of the SSIM map and |x - y| (one work-item per row; the host
  *                   adds the H partials in float64, so the result is deterministic)
- * Defines: REINGS_CPU_SCHEDULE (0, from quirks.build_defines).  Not handled: masks, other window sizes.
+ * Defines: REINGS_CPU_SCHEDULE (from quirks.build_defines: 1 on CPU devices), SSIM_ROWS (the CPU schedule's
+ * rows per work-item: the host passes it, reings.backends.opencl.losses.SSIM_ROWS).  Not handled: masks,
+ * other window sizes.
  * Schedules (the same sums in the same order, so the same bits; tests/test_losses.py):
  *   GPU: the four passes with one work-item per pixel (global size (W, H)).
- *   CPU: the same four kernels with one work-item per image row (global size H, local size 1).  A row
+ *   CPU: the same four kernels with one work-item per SSIM_ROWS image rows (global size ceil(H / SSIM_ROWS),
+ *        local size 1: the H pass's 11-row window stays in that core's cache).  A row
  *        of [H, W, 3] is 3W contiguous floats and the tap k of element o (pixel o / 3) sits at o + 3k,
  *        valid when 0 <= o + 3k < 3W; so the W pass is a stride-3 convolution of a contiguous array
  *        and the H pass a convolution of whole rows, and the loops over o vectorise (the per-pixel
@@ -35,7 +38,7 @@
 typedef float8 vf;
 #define VW 8
 #ifndef SSIM_ROWS
-#define SSIM_ROWS 16 /* image rows per work-item (the H pass's 11-row window stays in that core's cache) */
+#error "the CPU schedule needs SSIM_ROWS (rows per work-item; the host's global size depends on it)"
 #endif
 
 /* The W pass at element o of a row of n = 3W floats: the sum of w_k a[o + 3k] over the valid

@@ -212,20 +212,23 @@ typedef uint vu;
 /* out[(g0 + l) * stride + off] = lane l of x, for the lanes that are real Gaussians */
 #define SCATTER_F(out, stride, off, x)                                                   \
     do {                                                                                 \
+        const vf x_ = (x); /* once: STORE8 names its argument eight times */             \
         float tmp_[PROJ_VW];                                                             \
-        STORE_F((x), tmp_);                                                              \
+        STORE_F(x_, tmp_);                                                               \
         for (int l_ = 0; l_ < nl; ++l_) (out)[(size_t)(g0 + l_) * (stride) + (off)] = tmp_[l_]; \
     } while (0)
 #define SCATTER_I(out, stride, off, x)                                                   \
     do {                                                                                 \
+        const vi x_ = (x); /* once: STORE8 names its argument eight times */             \
         int tmp_[PROJ_VW];                                                               \
-        STORE_I((x), tmp_);                                                              \
+        STORE_I(x_, tmp_);                                                               \
         for (int l_ = 0; l_ < nl; ++l_) (out)[(size_t)(g0 + l_) * (stride) + (off)] = tmp_[l_]; \
     } while (0)
 #define SCATTER_U(out, stride, off, x)                                                   \
     do {                                                                                 \
+        const vu x_ = (x); /* once: STORE8 names its argument eight times */             \
         uint tmp_[PROJ_VW];                                                              \
-        STORE_U((x), tmp_);                                                              \
+        STORE_U(x_, tmp_);                                                               \
         for (int l_ = 0; l_ < nl; ++l_) (out)[(size_t)(g0 + l_) * (stride) + (off)] = tmp_[l_]; \
     } while (0)
 

@@ -389,7 +389,8 @@ __kernel void rasterize_fwd(__global const float16 *packed,      // [N] from ras
                     const vf T = Tv[c];
                     const vf dx = (vf)(g.s0 - (float)(x0 + cc * RASTER_VEC)) - LANES;
                     const vf power = -0.5f * (g.s2 * dx * dx + g.s4 * dy * dy) - g.s3 * dx * dy;
-                    const vf alpha = VMIN(g.s5 * exp(power), (vf)(ALPHA_MAX));
+                    const vf a = g.s5 * exp(power); /* once: VMIN names its argument twice */
+                    const vf alpha = VMIN(a, (vf)(ALPHA_MAX));
                     const vi ok = (T > 0.0f) & (power <= 0.0f) & (alpha >= ALPHA_MIN);
                     if (!vany(ok)) continue;
                     const vf Tn = T * (1.0f - alpha);

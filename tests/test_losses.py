@@ -226,6 +226,7 @@ def test_photometric_schedules_keep_the_bits(device, shape, rng):
     x = rng.uniform(size=(h, w, 3)).astype(np.float32)
     y = np.clip(x + rng.normal(scale=0.1, size=x.shape), 0, 1).astype(np.float32)
     x[0, 0] = y[0, 0]  # a tie: sign 0
+    x[h // 2, 1:] = y[h // 2, 1:]  # ties in an interior row too (the CPU schedule's vector path when h >= 11)
     if h > SSIM_ROWS:
         assert h % SSIM_ROWS, "a partial last block of rows"
     out = {cpu: PhotometricCL(device, cpu_schedule=cpu)(x, y, 0.8, 0.2) for cpu in (False, True)}

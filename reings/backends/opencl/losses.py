@@ -25,7 +25,7 @@ def _handle(device):
     return open_device(device) if isinstance(device, str) else device
 
 
-SSIM_ROWS = 16  # photometric.cl's CPU schedule: image rows per work-item
+SSIM_ROWS = 16  # photometric.cl's CPU schedule: image rows per work-item (passed to the build)
 
 
 class PhotometricCL:
@@ -39,7 +39,9 @@ class PhotometricCL:
         self.cl = cl
         self.handle = _handle(device)
         lib = library_for(self.handle)
-        d = {} if cpu_schedule is None else {"REINGS_CPU_SCHEDULE": int(bool(cpu_schedule))}
+        d = {"SSIM_ROWS": SSIM_ROWS}
+        if cpu_schedule is not None:
+            d["REINGS_CPU_SCHEDULE"] = int(bool(cpu_schedule))
         self.cpu_schedule = bool(d.get("REINGS_CPU_SCHEDULE", lib.base_defines["REINGS_CPU_SCHEDULE"]))
         self.k = {n: lib.get("photometric.cl", n, **d) for n in
                   ("ssim_hpass_fwd", "ssim_vpass_fwd", "ssim_hpass_bwd", "ssim_vpass_bwd", "loss_row_sums")}
