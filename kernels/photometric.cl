@@ -112,6 +112,18 @@ typedef float8 __attribute__((aligned(4))) vf_u;
         const T a = LD(x, p), b = LD(y, p);                                                        \
         ST(g0 + 2.0f * a * g1 + b * g2 + w_l1_grad * SIGN(a, b), v_x, p);                          \
     }
+/* the rows j of this work-item's block */
+#define FOR_ROWS(j) for (int j = (int)get_global_id(0) * SSIM_ROWS; j < min((int)(get_global_id(0) + 1) * SSIM_ROWS, H); ++j)
+/* the W pass over a row's elements o: the border (tap tests), the interior 8 at a time, its remainder, the border */
+#define W_PASS(ELEM)                                                                               \
+    {                                                                                              \
+        const int e = min(3 * SSIM_R, n);                                                          \
+        int o = 0;                                                                                 \
+        for (; o < e; ++o) ELEM(float, LD1, ST1, TAPS_CHECKED)                                     \
+        for (; o + VW <= n - 3 * SSIM_R; o += VW) ELEM(vf, LD8, ST8, TAPS_ALL)                     \
+        for (; o < n - 3 * SSIM_R; ++o) ELEM(float, LD1, ST1, TAPS_ALL)                            \
+        for (; o < n; ++o) ELEM(float, LD1, ST1, TAPS_CHECKED)                                     \
+    }
 /* torch's sign of a - b: 0 at ties */
 #define SIGN1(a, b) (((a) > (b)) ? 1.0f : (((a) < (b)) ? -1.0f : 0.0f))
 #define SIGN8(a, b) (((a) > (b)) ? (vf)(1.0f) : (((a) < (b)) ? (vf)(-1.0f) : (vf)(0.0f))) /* no select: a call in PoCL */
@@ -119,15 +131,11 @@ typedef float8 __attribute__((aligned(4))) vf_u;
 __kernel void ssim_hpass_fwd(__global const float *x, __global const float *y, __constant float *taps,
                              __global float *h5, const int W, const int H)
 {
-    const int plane = H * W * 3, n = 3 * W, e = min(3 * SSIM_R, n);
-    for (int j = get_global_id(0) * SSIM_ROWS; j < min((int)(get_global_id(0) + 1) * SSIM_ROWS, H); ++j) {
+    const int plane = H * W * 3, n = 3 * W;
+    FOR_ROWS(j) {
         __global const float *xr = x + j * n, *yr = y + j * n;
         __global float *out = h5 + j * n;
-        int o = 0;
-        for (; o < e; ++o) HFWD(float, LD1, ST1, TAPS_CHECKED)
-        for (; o + VW <= n - 3 * SSIM_R; o += VW) HFWD(vf, LD8, ST8, TAPS_ALL)
-        for (; o < n - 3 * SSIM_R; ++o) HFWD(float, LD1, ST1, TAPS_ALL)
-        for (; o < n; ++o) HFWD(float, LD1, ST1, TAPS_CHECKED)
+        W_PASS(HFWD)
     }
 }
 
@@ -135,7 +143,7 @@ __kernel void ssim_vpass_fwd(__global const float *h5, __constant float *taps, _
                              __global float *d3, const float w_ssim_grad, const int W, const int H)
 {
     const int plane = H * W * 3, n = 3 * W;
-    for (int j = get_global_id(0) * SSIM_ROWS; j < min((int)(get_global_id(0) + 1) * SSIM_ROWS, H); ++j) {
+    FOR_ROWS(j) {
         const int k_lo = max(-SSIM_R, -j), k_hi = min(SSIM_R, H - 1 - j); /* the valid rows of j-5..j+5 */
         int o = 0;
         if (k_lo == -SSIM_R && k_hi == SSIM_R)
@@ -147,15 +155,11 @@ __kernel void ssim_vpass_fwd(__global const float *h5, __constant float *taps, _
 __kernel void ssim_hpass_bwd(__global const float *d3, __constant float *taps, __global float *h3,
                              const int W, const int H)
 {
-    const int plane = H * W * 3, n = 3 * W, e = min(3 * SSIM_R, n);
-    for (int j = get_global_id(0) * SSIM_ROWS; j < min((int)(get_global_id(0) + 1) * SSIM_ROWS, H); ++j) {
+    const int plane = H * W * 3, n = 3 * W;
+    FOR_ROWS(j) {
         __global const float *dr = d3 + j * n;
         __global float *out = h3 + j * n;
-        int o = 0;
-        for (; o < e; ++o) HBWD(float, LD1, ST1, TAPS_CHECKED)
-        for (; o + VW <= n - 3 * SSIM_R; o += VW) HBWD(vf, LD8, ST8, TAPS_ALL)
-        for (; o < n - 3 * SSIM_R; ++o) HBWD(float, LD1, ST1, TAPS_ALL)
-        for (; o < n; ++o) HBWD(float, LD1, ST1, TAPS_CHECKED)
+        W_PASS(HBWD)
     }
 }
 
@@ -164,7 +168,7 @@ __kernel void ssim_vpass_bwd(__global const float *h3, __global const float *x, 
                              const int W, const int H)
 {
     const int plane = H * W * 3, n = 3 * W;
-    for (int j = get_global_id(0) * SSIM_ROWS; j < min((int)(get_global_id(0) + 1) * SSIM_ROWS, H); ++j) {
+    FOR_ROWS(j) {
         const int k_lo = max(-SSIM_R, -j), k_hi = min(SSIM_R, H - 1 - j);
         int o = 0;
         if (k_lo == -SSIM_R && k_hi == SSIM_R)
