@@ -31,7 +31,8 @@ SSIM_ROWS = 16  # photometric.cl's CPU schedule: image rows per work-item (passe
 class PhotometricCL:
     """The photometric loss on an OpenCL device (a DeviceHandle or a device string); buffers are
     kept per image size and reused. `cpu_schedule` overrides the device's REINGS_CPU_SCHEDULE (the
-    SSIM passes a work-item per row on CPUs, per pixel on GPUs: the same bits; tests run both)."""
+    SSIM passes a work-item per SSIM_ROWS image rows on CPUs, per pixel on GPUs: the same bits; tests run
+    both)."""
 
     def __init__(self, device, cpu_schedule: bool | None = None):
         import pyopencl as cl
