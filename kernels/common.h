@@ -76,4 +76,15 @@ inline void atomic_add_f32(volatile __global float *p, float v) {
 }
 #endif
 
+/* PoCL 3.0 (pocl-binary-distribution) calls OpenCL's builtins rather than inlining them, spilling every live
+ * vector register around each call (docs/perf_notes.md §17). Plain-operator forms with the same value:
+ * SEL(a, b, c) is select(a, b, c) (a vector condition selects by its sign bit, as select; a scalar one by
+ * != 0), any8(m) is any(m) of an int8. */
+#define SEL(a, b, c) ((c) ? (b) : (a))
+inline int any8(int8 m) {
+    int4 a = m.lo | m.hi;
+    int2 b = a.lo | a.hi;
+    return (b.x | b.y) < 0;
+}
+
 #endif /* REINGS_COMMON_H */

@@ -155,8 +155,8 @@ typedef struct {
    lane types: vf / vi hold PROJ_VW Gaussians. Comparisons give masks (scalar 0/1, vector 0/-1);
    masks combine with & | ! and feed SEL() (select); ANY() reduces one.
    PoCL 3.0 (pocl-binary-distribution) calls its builtins rather than inlining them, spilling every live
-   vector register around each call (docs/perf_notes.md §17): SEL, ANY, FABS and the stores to private
-   arrays are written with plain operators (the same values: masks are 0 / -1 or 0 / 1).
+   vector register around each call (docs/perf_notes.md §17): SEL and any8 (common.h), FABS and the stores
+   to private arrays are written with plain operators (the same values: masks are 0 / -1 or 0 / 1).
    --------------------------------------------------------------------------------------------- */
 #ifndef PROJ_VW
 #define PROJ_VW 1
@@ -185,11 +185,6 @@ typedef uint8 vu;
 #define STORE_F(x, tmp) STORE8(x, tmp)
 #define STORE_I(x, tmp) STORE8(x, tmp)
 #define STORE_U(x, tmp) STORE8(x, tmp)
-inline int any8(int8 m) { /* any(m): a lane's sign bit set */
-    int4 a = m.lo | m.hi;
-    int2 b = a.lo | a.hi;
-    return (b.x | b.y) < 0;
-}
 #elif PROJ_VW == 1
 typedef float vf;
 typedef int vi;
@@ -233,7 +228,6 @@ typedef uint vu;
     } while (0)
 
 /* |x| <= FLT_MAX is false for NaN and +-Inf */
-#define SEL(a, b, c) ((c) ? (b) : (a)) /* select(a, b, c) */
 #define FABS(x) AS_F(AS_U(x) & 0x7fffffffu) /* fabs(x) */
 #define FINITE(x) (FABS(x) <= FLT_MAX)
 

@@ -258,10 +258,8 @@ __kernel void isect_reduce(__global const float *records,       // [K_emit, widt
 /* PoCL 3.0 (pocl-binary-distribution) calls its builtins rather than inlining them: in the pixel loops
  * every select / any / fmin / min / max was a call, around which every live vector register is spilled
  * (objdump of PoCL's kernel cache; docs/perf_notes.md §17). The CPU schedule writes them with plain
- * operators instead, the same value for every input: VSEL(a, b, c) is select(a, b, c) for masks from
- * comparisons (0 or -1), VMIN(x, a) is fmin(a, x) (a NaN x gives a), vany(m) is any(m), FINITE (above)
- * is isfinite. exp stays a call. */
-#define VSEL(a, b, c) ((c) ? (b) : (a))
+ * operators instead, the same value for every input: SEL(a, b, c) and any8 (common.h) are select and any,
+ * VMIN(x, a) is fmin(a, x) (a NaN x gives a), FINITE (above) is isfinite. exp stays a call. */
 #define VMIN(x, a) ((x) < (a) ? (x) : (a))
 #define IMIN(a, b) ((a) < (b) ? (a) : (b))
 #define IMAX(a, b) ((a) > (b) ? (a) : (b))
@@ -288,11 +286,7 @@ inline int hmax(vi x) {
     int2 b = IMAX(a.lo, a.hi);
     return IMAX(b.x, b.y);
 }
-inline int vany(vi m) { /* any(m): a lane's sign bit set */
-    int4 a = m.lo | m.hi;
-    int2 b = a.lo | a.hi;
-    return (b.x | b.y) < 0;
-}
+inline int vany(vi m) { return any8(m); } /* any(m) */
 #elif RASTER_VEC == 16
 typedef float16 vf;
 typedef int16 vi;
@@ -318,12 +312,7 @@ inline int hmax(vi x) {
     int2 b = IMAX(a.lo, a.hi);
     return IMAX(b.x, b.y);
 }
-inline int vany(vi m) { /* any(m): a lane's sign bit set */
-    int8 a8 = m.lo | m.hi;
-    int4 a = a8.lo | a8.hi;
-    int2 b = a.lo | a.hi;
-    return (b.x | b.y) < 0;
-}
+inline int vany(vi m) { return any8(m.lo | m.hi); } /* any(m) */
 #else
 #error "RASTER_VEC must be 8 or 16"
 #endif
@@ -369,7 +358,7 @@ __kernel void rasterize_fwd(__global const float16 *packed,      // [N] from ras
     for (int c = 0; c < NVEC; ++c) {
         const int py = y0 + (int)((uint)c / CPR), px = x0 + (int)((uint)c % CPR) * RASTER_VEC;
         const vi inside = (ILANES + px < width) & (vi)(py < height ? -1 : 0);
-        Tv[c] = VSEL((vf)(-1.0f), (vf)(1.0f), inside);
+        Tv[c] = SEL((vf)(-1.0f), (vf)(1.0f), inside);
         Rv[c] = Gv[c] = Bv[c] = Dv[c] = (vf)(0.0f);
         Lv[c] = (vi)(0);
         n_active += hcount(inside);
@@ -396,14 +385,14 @@ __kernel void rasterize_fwd(__global const float16 *packed,      // [N] from ras
                     const vf Tn = T * (1.0f - alpha);
                     const vi stop = ok & (Tn < T_MIN);
                     const vi blend = ok & ~stop;
-                    const vf w = VSEL((vf)(0.0f), alpha * T, blend);
+                    const vf w = SEL((vf)(0.0f), alpha * T, blend);
                     Rv[c] += w * g.s6;
                     Gv[c] += w * g.s7;
                     Bv[c] += w * g.s8;
                     Dv[c] += w * g.s9;
                     imp += w;
-                    Tv[c] = VSEL(VSEL(T, -T, stop), Tn, blend);
-                    Lv[c] = VSEL(Lv[c], (vi)(kk), blend);
+                    Tv[c] = SEL(SEL(T, -T, stop), Tn, blend);
+                    Lv[c] = SEL(Lv[c], (vi)(kk), blend);
                     if (vany(stop)) n_active -= hcount(stop);
                 }
             }
@@ -548,7 +537,7 @@ bwd_tile(__global const float16 *packed, __global const int *gid_from_isect, __g
                     const vi ok = valid & (power <= 0.0f) & (alpha >= ALPHA_MIN);
                     if (!vany(ok)) continue;
                     const vf T = Tv[c], R = Rv[c];
-                    const vf w = VSEL((vf)(0.0f), alpha * T, ok);
+                    const vf w = SEL((vf)(0.0f), alpha * T, ok);
                     const vf vr = VR[c], vg = VG[c], vb = VB[c], vd = VD[c];
                     const vf vc = vr * cr + vg * cg + vb * cb + vd * cz;
                     const vf Rn = R - vc * w;
@@ -559,15 +548,15 @@ bwd_tile(__global const float16 *packed, __global const int *gid_from_isect, __g
                     a_z += vd * w;
 #endif
                     /* d out / d alpha: T c - (behind) / (1 - alpha); alpha <= ALPHA_MAX bounds 1/(1-alpha) */
-                    const vf va = VSEL((vf)(0.0f), T * vc - Rn / (1.0f - alpha), ok & (a <= ALPHA_MAX));
+                    const vf va = SEL((vf)(0.0f), T * vc - Rn / (1.0f - alpha), ok & (a <= ALPHA_MAX));
                     a_o += va * G;
 #if RASTER_BWD_DEPTH_O
                     {   /* the same recursion on v_depth_o alone (its colour cotangents are 0) */
                         const vf RoV = RO[c], vco = VO[c] * cz;
                         const vf Ron = RoV - vco * w;
-                        const vf vao = VSEL((vf)(0.0f), T * vco - Ron / (1.0f - alpha), ok & (a <= ALPHA_MAX));
+                        const vf vao = SEL((vf)(0.0f), T * vco - Ron / (1.0f - alpha), ok & (a <= ALPHA_MAX));
                         a_oo += vao * G;
-                        RO[c] = VSEL(RoV, Ron, ok);
+                        RO[c] = SEL(RoV, Ron, ok);
                     }
 #endif
 #if !RASTER_BWD_OPACITY
@@ -578,8 +567,8 @@ bwd_tile(__global const float16 *packed, __global const int *gid_from_isect, __g
                     a_u -= (g.s2 * dx + g.s3 * dy) * vp;
                     a_v -= (g.s3 * dx + g.s4 * dy) * vp;
 #endif
-                    Tv[c] = VSEL(T, T * (1.0f - alpha), ok);
-                    Rv[c] = VSEL(R, Rn, ok);
+                    Tv[c] = SEL(T, T * (1.0f - alpha), ok);
+                    Rv[c] = SEL(R, Rn, ok);
                 }
             }
         }

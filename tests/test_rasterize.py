@@ -197,8 +197,9 @@ def test_bwd_second_depth_cotangent_keeps_the_bits(device, name, cpu):
 def test_bwd_transposed_warp_sum_keeps_the_bits(device, name):
     """NVIDIA's GPU schedule (REINGS_NV_PTX): the backward's per-Gaussian sums over a warp taken as one
     transposed sum of all fields (RASTER_BWD_TRANSPOSE=1, the default: 16 shuffles) give the bytes of one
-    butterfly per field (0: 50 shuffles): every record of the full backward, of the opacity-only one and of
-    the one with a second depth cotangent (both record sets). Elsewhere the sums go through local memory and
+    butterfly per field (0: 50 shuffles): every record of the full backward (10 fields) and of the one with a
+    second depth cotangent (11 fields, both record sets); the opacity-only backward (one field) keeps the plain
+    butterfly in both builds and is compared too. Elsewhere the sums go through local memory and
     the define is not read, so the test runs on NVIDIA devices only."""
     from reings.backends.opencl.rasterize import rasterize_bwd_host, rasterizer_for
 
