@@ -152,6 +152,34 @@ def test_backward_into_is_the_sum(device, case):
             assert np.abs(parts[1][k]).max() > 0
 
 
+def test_backward_hold_is_hold_of_the_backward(device, case):
+    """backward(hold=True) gives hold(backward()) bit for bit, survives the next backward, and a later
+    opacity-only backward into it adds that field alone (grad_add_multi, one launch on the device)."""
+    scene, init, cfg = case
+    for engine in ("host", "device"):
+        be = get_backend(device)
+        tr = be.trainer(scene.images, engine=engine)
+        tr.upload(TrainState.from_gaussians(init, 1))
+        fr = tr.forward(scene.cameras[0], 1, (0, 0, 0), 0.01)
+        want = tr.hold(tr.backward(fr, tr.photometric(fr, 0, 0.8, 0.2)))
+        want = {k: _read(tr, want, k) for k in ("means", "quats", "log_scales", "opacity_logits", "sh_dc")}
+        fr2 = tr.forward(scene.cameras[1], 1, (0, 0, 0), 0.01)
+        alone = _read(tr, tr.backward(fr2, tr.photometric(fr2, 1, 0.8, 0.2), grad_fields=("opacity_logits",)),
+                      "opacity_logits")
+        fr = tr.forward(scene.cameras[0], 1, (0, 0, 0), 0.01)
+        held = tr.backward(fr, tr.photometric(fr, 0, 0.8, 0.2), hold=True)
+        for k, w in want.items():
+            np.testing.assert_array_equal(_read(tr, held, k), w, err_msg=f"{engine} {k}")
+        fr2 = tr.forward(scene.cameras[1], 1, (0, 0, 0), 0.01)
+        both = tr.backward(fr2, tr.photometric(fr2, 1, 0.8, 0.2), grad_fields=("opacity_logits",), into=held)
+        for k, w in want.items():
+            if k == "opacity_logits":
+                w = w.copy()
+                grad_add(w, alone)
+                assert np.abs(alone).max() > 0
+            np.testing.assert_array_equal(_read(tr, both, k), w, err_msg=f"{engine} {k} after into")
+
+
 def _read(tr, grads, name):
     """A gradient group of either trainer as a host float32 array."""
     if isinstance(grads[name if name in grads else "sh"], np.ndarray):

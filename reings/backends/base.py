@@ -275,7 +275,7 @@ class Trainer(Protocol):
 
     def backward(self, frame: Frame, v_rgb: Any = None, v_depth: Any = None,
                  opacity_override: float | None = None, grad_fields: Sequence[str] | None = None,
-                 into: Any = None, v_alpha: Any = None, v_depth_opacity: Any = None) -> Any:
+                 into: Any = None, v_alpha: Any = None, v_depth_opacity: Any = None, hold: bool = False) -> Any:
         """The VJP of the frame's render (with the DropGaussian mask its `forward` had, if any)
         for the cotangents v_rgb / v_depth (from the loss methods; None: zero) and the frame's
         `opacity_override`, restricted to `grad_fields` (None: every field). Returns the
@@ -288,7 +288,9 @@ class Trainer(Protocol):
         opacity-only backward of this frame comes next (`backward(frame, None, it, None,
         ("opacity_logits",), into=...)`); an engine may make that backward's records in this one's
         pass (the device engine does, with the same bits: docs/perf_notes.md §13) or ignore it. It
-        changes nothing in this call's result."""
+        changes nothing in this call's result. hold (without `into`): return the gradients as `hold`
+        would (a handle that survives the next backward); the device engine writes them there
+        directly, with no copy."""
 
     def upload_bg_masks(self, masks: Sequence) -> None:
         """The training views' background masks ([H,W] bool each, or None), once per fit

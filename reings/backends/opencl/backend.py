@@ -657,7 +657,7 @@ class OpenCLBackend:
 
     def backward_device(self, fr: _Frame, v_rgb=None, v_depth=None, v_alpha=None,
                         opacity_override: float | None = None, grad_fields: Sequence[str] | None = None,
-                        v_depth_opacity=None) -> dict:
+                        v_depth_opacity=None, out: dict | None = None) -> dict:
         """`render_vjp`'s backward for a frame of `forward_device`, with the cotangent images as
         device buffers ([H,W,3], [H,W], [H,W]; None = zero). Returns the gradient buffers
         {field: buffer} ([N,3], [N,4], [N,3], [N], [N,sh_k,3]; fields outside `grad_fields` are
@@ -671,7 +671,11 @@ class OpenCLBackend:
         (grad_fields == ("opacity_logits",)) of that depth cotangent alone; this backward's rasterize_bwd
         then also makes its records (RASTER_BWD_DEPTH_O, the same bits as its own pass), and that next
         call only reduces them: one rasterize_bwd fewer (docs/perf_notes.md §13). Any other backward in
-        between discards them; a sync-free frame, or an opacity-only backward here, ignores it."""
+        between discards them; a sync-free frame, or an opacity-only backward here, ignores it.
+
+        out: {field: buffer} (every field of FIELDS, each at least the rows above) that project_bwd writes
+        the gradients into instead of this backend's own buffers (returned, then: the device trainer's
+        held gradients, so that the next backward leaves them alone with no copy)."""
         if self._slot(fr.slot).frame is not fr:
             raise RuntimeError(f"backward_device: a later forward replaced the frame (slot {fr.slot})")
         only = opacity_only_fields(grad_fields)
@@ -680,12 +684,12 @@ class OpenCLBackend:
                 and v_alpha is None and only):
             self._check_order(fr)  # the records announced by the previous backward: reduce them
             self._reduce_records(fr, self._raster(fr).v_emit_o)
-            return self._project_bwd_device(fr, opacity_override, grad_fields)
+            return self._project_bwd_device(fr, opacity_override, grad_fields, out)
         fuse = v_depth_opacity is not None and not only and not fr.sync_free
         self._raster_bwd_buffers(fr, v_rgb, v_depth, v_alpha, only, v_depth_opacity if fuse else None)
         if fuse:
             self._pending_o = (fr, v_depth_opacity)
-        return self._project_bwd_device(fr, opacity_override, grad_fields)
+        return self._project_bwd_device(fr, opacity_override, grad_fields, out)
 
     # ------------------------------------------------------------------------------------------
     # training: the trainer factory and the loss kernels (reings/backends/opencl/losses.py)
@@ -838,15 +842,21 @@ class OpenCLBackend:
             d.update(PROJ_SH_STAGE=1, PROJ_WG=self.proj_wg)
         return d
 
-    def _project_bwd_device(self, fr: _Frame, override, grad_fields) -> dict:
+    def _project_bwd_device(self, fr: _Frame, override, grad_fields, out: dict | None = None) -> dict:
         n, s, b = fr.n, self.scratch, fr.bufs
         mask = 0
         for f in (FIELDS if grad_fields is None else grad_fields):
             mask |= GRAD_BITS[f]
-        out = {"means": s.get("gauss", "v_means", n, 12), "quats": s.get("gauss", "v_quats", n, 16),
-               "log_scales": s.get("gauss", "v_log_scales", n, 12),
-               "opacity_logits": s.get("gauss", "v_opacity_logits", n, 4),
-               "sh": s.get("gauss", "v_sh", n, 12 * fr.sh_k)}
+        if out is None:
+            out = {"means": s.get("gauss", "v_means", n, 12), "quats": s.get("gauss", "v_quats", n, 16),
+                   "log_scales": s.get("gauss", "v_log_scales", n, 12),
+                   "opacity_logits": s.get("gauss", "v_opacity_logits", n, 4),
+                   "sh": s.get("gauss", "v_sh", n, 12 * fr.sh_k)}
+        else:
+            need = {"means": 12, "quats": 16, "log_scales": 12, "opacity_logits": 4, "sh": 12 * fr.sh_k}
+            short = [f for f, row in need.items() if f not in out or out[f].size < n * row]
+            if short:
+                raise ValueError(f"backward_device: out= lacks room for {short} ({n} rows, SH count {fr.sh_k})")
         inp = b["in"]
         k = self.kernel("project.cl", "project_bwd", **self._proj_defines(fr.sh_k))
         ov = _F32(override if override is not None else 0.0)

@@ -162,7 +162,7 @@ class DeviceTrainer:
         self.k_reg_value = backend.kernel("regularize.cl", "regularize_value", REGULARIZE_FP64=int(self.fp64))
         self.k_mse_rows = backend.kernel("mse.cl", "mse_rows", MSE_FP64=int(self.fp64))
         self._reg_value = None  # (sums buffer, chunks, n, weights) of the last regularize(value=True)
-        self.k_grad_add = backend.kernel("grad_add.cl", "grad_add")
+        self.k_grad_add = backend.kernel("grad_add.cl", "grad_add_multi")
         self.k_gather_rows = backend.kernel("gather_rows.cl", "gather_rows")
         self._none_idx = None  # a one-entry index buffer holding -1 (`_zero`)
         self.k_bg_alpha = backend.kernel("bg_alpha.cl", "bg_alpha_grad")
@@ -638,12 +638,15 @@ class DeviceTrainer:
         return self.photo.read_loss()  # raises after a value=False pass or before any
 
     def backward(self, fr, v_rgb=None, v_depth=None, opacity_override: float | None = None,
-                 grad_fields=None, into: dict | None = None, v_alpha=None, v_depth_opacity=None) -> dict:
+                 grad_fields=None, into: dict | None = None, v_alpha=None, v_depth_opacity=None,
+                 hold: bool = False) -> dict:
         """Trainer.backward of `fr` with v_rgb (a device buffer) and/or v_depth (a device buffer,
         e.g. from `depth_loss`, or a host [H,W] array, uploaded). Returns the gradient buffers
         {field: buffer} of backend.backward_device plus "sh_k" (`adam_step` reads the SH groups
-        as strided views of the "sh" buffer); with `into` (from `hold`), kernels/grad_add.cl adds
-        the `grad_fields` ones (None: all) into its buffers and returns it. The frame's
+        as strided views of the "sh" buffer); with `into` (from `hold`, or a backward with hold),
+        kernels/grad_add.cl's grad_add_multi adds the `grad_fields` ones (None: all) into its buffers
+        in one launch and returns it. hold (without `into`): project_bwd writes the gradients
+        straight into the held buffers `hold` would copy them into (no copy). The frame's
         DropGaussian mask (from `forward`) applies. v_depth_opacity (a device buffer;
         Trainer.backward): with `fuse_soft_backward`, this pass also makes the records of the
         announced opacity-only backward of that cotangent (backend.backward_device)."""
@@ -656,15 +659,23 @@ class DeviceTrainer:
             self._write(vdo_buf, np.asarray(v_depth_opacity, _F32))
             v_depth_opacity = vdo_buf
         vdo = v_depth_opacity if self.fuse_soft_backward else None
-        g = dict(self.b.backward_device(fr, v_rgb, vd, v_alpha, opacity_override, grad_fields, v_depth_opacity=vdo))
+        out = self._held(fr.sh_k) if hold and into is None else None
+        g = dict(self.b.backward_device(fr, v_rgb, vd, v_alpha, opacity_override, grad_fields, v_depth_opacity=vdo,
+                                        out=None if out is None else {f: out[f] for f in self._grad_columns(fr.sh_k)}))
         g["sh_k"] = fr.sh_k
         if into is None:
             return g
         if into.get("sh_k") != fr.sh_k or set(into) != set(g):
             raise ValueError("backward into: the held gradients are of another SH count or field set")
+        slots = []
         for f, cols in self._grad_columns(fr.sh_k).items():  # only the fields asked for are added
             if self.n * cols and (grad_fields is None or f in grad_fields):
-                self._launch("grad_add", self.k_grad_add, self.n * cols, _U32(self.n * cols), into[f], g[f])
+                slots += [_U32(self.n * cols), into[f], g[f]]
+        if slots:
+            size = max(int(x) for x in slots[0::3])
+            dummy = self.mem.get("small", "grad_add_dummy", 1, 4)
+            slots += [_U32(0), dummy, dummy] * (5 - len(slots) // 3)
+            self._launch("grad_add", self.k_grad_add, size, *slots)
         return into
 
     def _grad_columns(self, sh_k: int) -> dict:
@@ -834,11 +845,17 @@ class DeviceTrainer:
     def hold(self, grads: dict) -> dict:
         """Trainer.hold: device copies of the gradient buffers (trainer-owned, so the next
         backward, which reuses the backend's, leaves them alone)."""
-        out = {"sh_k": grads["sh_k"]}
+        out = self._held(grads["sh_k"])
         for f, cols in self._grad_columns(grads["sh_k"]).items():
-            b = out[f] = self.mem.get("gauss", f"held_{f}", self.n, 4 * cols)
             if self.n * cols:
-                self.cl.enqueue_copy(self.queue, b, grads[f], byte_count=4 * cols * self.n)
+                self.cl.enqueue_copy(self.queue, out[f], grads[f], byte_count=4 * cols * self.n)
+        return out
+
+    def _held(self, sh_k: int) -> dict:
+        """The trainer-owned gradient buffers of `hold` and `backward(hold=True)` ({field: buffer, "sh_k"})."""
+        out = {"sh_k": sh_k}
+        for f, cols in self._grad_columns(sh_k).items():
+            out[f] = self.mem.get("gauss", f"held_{f}", self.n, 4 * cols)
         return out
 
     def view_warp(self, virt, fr, view: int, baseline: float, weight: float, smooth_weight: float):
