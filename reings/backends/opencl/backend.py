@@ -257,6 +257,7 @@ class OpenCLBackend:
         self.proj_stage = not self.cpu if stage == "" else stage == "1"
         self.local_mem = int(self.handle.device.local_mem_size)
         self._kernels: dict = {}
+        self._proj_kernels: dict = {}  # (kernel name, sh_k, schedule) -> project.cl kernel (_proj_kernel)
         self._frame: _Frame | None = None
         self._keep: list = []  # host arrays referenced by non-blocking copies still in flight
         self._cams: dict = {}  # (K, viewmat, W, H, near) bytes -> read-only camera record buffer
@@ -411,7 +412,7 @@ class OpenCLBackend:
         b["depth_keys"] = s.get("gauss", "depth_keys", n, 4)
         b["gid_vals"] = s.get("gauss", "gid_vals", n, 4)
         b["ctrl"] = s.get("small", "ctrl", CTRL_WORDS, 4)  # the binning's words (project_fwd zeroes ctrl[2])
-        k = self.kernel("project.cl", "project_fwd", **self._proj_defines(fr.sh_k))
+        k = self._proj_kernel("project_fwd", fr.sh_k)
         ov = _F32(override if override is not None else 0.0)
         ev = self.launch(k, -(-n // self.proj_vw), _I32(n), inp["means"], inp["quats"], inp["log_scales"],
                           inp["opacity_logits"], *_sh_args(inp, fr.sh_k), b["cam"], _I32(fr.width), _I32(fr.height),
@@ -832,6 +833,15 @@ class OpenCLBackend:
         self._last_counts = fr.counts
         return Gaussians(**res)
 
+    def _proj_kernel(self, name: str, sh_k: int):
+        """`kernel("project.cl", name, **_proj_defines(sh_k))`, looked up once per (name, sh_k) and schedule
+        (proj_vw, proj_stage, proj_wg: tests switch them on a live backend)."""
+        key = (name, sh_k, self.proj_vw, self.proj_stage, self.proj_wg)
+        k = self._proj_kernels.get(key)
+        if k is None:
+            k = self._proj_kernels[key] = self.kernel("project.cl", name, **self._proj_defines(sh_k))
+        return k
+
     def _proj_defines(self, sh_k: int) -> dict:
         """project.cl's build defines at sh_k coefficients: the GPU schedule stages SH rows through
         local memory when there is more than one coefficient (PROJ_SH_STAGE, a work-group of
@@ -858,7 +868,7 @@ class OpenCLBackend:
             if short:
                 raise ValueError(f"backward_device: out= lacks room for {short} ({n} rows, SH count {fr.sh_k})")
         inp = b["in"]
-        k = self.kernel("project.cl", "project_bwd", **self._proj_defines(fr.sh_k))
+        k = self._proj_kernel("project_bwd", fr.sh_k)
         ov = _F32(override if override is not None else 0.0)
         ev = self.launch(k, -(-n // self.proj_vw), _I32(n), inp["means"], inp["quats"], inp["log_scales"], inp["opacity_logits"],
                           *_sh_args(inp, fr.sh_k), b["cam"], _I32(fr.width), _I32(fr.height), ov, drop_args(fr.drop)[2],

@@ -184,8 +184,9 @@ class Rasterizer:
             background: Sequence[float] = (0.0, 0.0, 0.0), importance: bool = False,
             prepared: bool = False, wait_for=None):
         self.width, self.height, self.n_isect = int(width), int(height), int(n_isect)
-        if not prepared:
-            wait_for = [self.prep(means2d, conics, colors, opacities, depths, n, wait_for)]
+        if not prepared:  # the one in-order queue runs it first: no wait list
+            self.prep(means2d, conics, colors, opacities, depths, n, wait_for)
+            wait_for = None
         tiles_x, n_tiles = self._tiles(width, height)
         bg = [np.float32(b) for b in background]
         k = self._fwd_imp_kernel() if importance else self.k_fwd

@@ -61,7 +61,9 @@ math (kernels/).
 """
 from __future__ import annotations
 
+import functools
 import itertools
+import math
 import time
 from contextlib import ExitStack, contextmanager
 
@@ -105,14 +107,19 @@ def _columns(kmax: int) -> dict:
     return {"means": 3, "quats": 4, "log_scales": 3, "opacity_logits": 1, "sh_dc": 3, "sh_rest": 3 * (kmax - 1)}
 
 
+@functools.lru_cache(maxsize=16)
+def _adam_constants(b1: float, b2: float, eps: float) -> tuple:
+    return _F32(b1), _F32(1.0 - b1), _F32(b2), _F32(1.0 - b2), _F32(eps)
+
+
 def adam_scalars(lr: float, t: int, b1: float, b2: float, eps: float, fp64: bool) -> tuple:
     """The adam_step scalar arguments for step count t, rounded as numpy rounds them in
-    `adam_update` (Python floats become float32 operands; 1/sqrt(bc2) is a float64 scalar)."""
+    `adam_update` (Python floats become float32 operands; 1/sqrt(bc2) is a float64 scalar: math.sqrt
+    and np.sqrt are both the correctly rounded square root). The optimizer's constants are made once."""
     bc1 = 1.0 - b1 ** t
-    bc2 = 1.0 - b2 ** t
-    inv = 1.0 / np.sqrt(bc2)
-    return (_F32(b1), _F32(1.0 - b1), _F32(b2), _F32(1.0 - b2), (_F64 if fp64 else _F32)(inv), _F32(eps),
-            _F32(-lr / bc1))
+    inv = 1.0 / math.sqrt(1.0 - b2 ** t)
+    c = _adam_constants(b1, b2, eps)
+    return c[0], c[1], c[2], c[3], (_F64 if fp64 else _F32)(inv), c[4], _F32(-lr / bc1)
 
 
 class DeviceTrainer:
