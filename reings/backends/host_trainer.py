@@ -20,7 +20,7 @@ rounded to float32, contiguous float32 cotangents, a zero colour cotangent in th
 from __future__ import annotations
 
 import time
-from contextlib import contextmanager
+from contextlib import contextmanager, nullcontext
 from dataclasses import dataclass
 
 import numpy as np
@@ -418,12 +418,13 @@ class HostTrainer(HeldRows):
     # }}}
 
     # {{{ profiling
-    @contextmanager
     def phase(self, name: str):
-        """Trainer.phase: wall seconds of the block into profile[name] (every call here blocks)."""
-        if self.profile is None:
-            yield
-            return
+        """Trainer.phase: wall seconds of the block into profile[name] (every call here blocks); without
+        profiling a shared no-op context."""
+        return nullcontext() if self.profile is None else self._phase(name)
+
+    @contextmanager
+    def _phase(self, name: str):
         t = time.perf_counter()
         try:
             yield

@@ -65,7 +65,7 @@ import functools
 import itertools
 import math
 import time
-from contextlib import ExitStack, contextmanager
+from contextlib import ExitStack, contextmanager, nullcontext
 
 import numpy as np
 
@@ -95,6 +95,9 @@ REG_VALUE_CHUNK = 256  # Gaussians per work-item of regularize_value (its sums a
 REG_COUNT_CHUNK_CPU, REG_COUNT_CHUNK_GPU = 256, 8
 _GEOMETRY = itertools.count(1)  # geometry versions, unique in the process (module docstring)
 _F32, _F64, _I32, _U32 = np.float32, np.float64, np.int32, np.uint32
+
+
+_NO_PHASE = nullcontext()  # DeviceTrainer.phase without profiling
 
 
 def _shape(name: str, n: int, kmax: int) -> tuple:
@@ -302,13 +305,14 @@ class DeviceTrainer:
         except Exception:  # profiling unavailable
             return None
 
-    @contextmanager
     def phase(self, name: str):
         """Trainer.phase: wall time of a block into profile[name] (queue finished before and
-        after); a no-op without profiling."""
-        if self.profile is None:
-            yield
-            return
+        after); without profiling a shared no-op context (a generator context costs ~2.5 us per
+        block, a dozen blocks per iteration)."""
+        return _NO_PHASE if self.profile is None else self._phase(name)
+
+    @contextmanager
+    def _phase(self, name: str):
         self.finish()
         t = time.perf_counter()
         try:
