@@ -41,6 +41,7 @@ import numpy as np
 from .backends.reference_drop import Drop
 from .backends.reference_view_warp import draw_baseline, virtual_camera
 from .config import TrainConfig, blur_sigmas
+from .seeding import IterationDraws
 from .types import Camera, Gaussians
 
 SH_C0 = 0.28209479177387814
@@ -159,21 +160,31 @@ def _load_checkpoint(path: str):
                          "or rerun with --overwrite") from None
 
 
-def warp_baseline(seed: int, it: int, max_baseline: float) -> float:
+def warp_baseline(seed: int, it: int, max_baseline: float, draws=None) -> float:
     """The signed baseline of iteration `it`'s virtual view (view_warp): |b| ~ U[0, max), random sign
-    (reference_view_warp.draw_baseline), from a generator of its own per iteration, so the term
-    shifts no other draw and a resumed fit draws the same baselines."""
-    return draw_baseline(np.random.default_rng([seed, 1, it]), max_baseline)
+    (reference_view_warp.draw_baseline), from a generator of its own per iteration
+    (numpy.random.default_rng([seed, 1, it])), so the term shifts no other draw and a resumed fit draws
+    the same baselines. draws: a reings.seeding.IterationDraws of `seed`, which gives the same two
+    doubles without building the generator (the fit's loop passes one)."""
+    if draws is None:
+        return draw_baseline(np.random.default_rng([seed, 1, it]), max_baseline)
+    u_mag, u_sign = draws.randoms(1, it, 2)  # draw_baseline's two draws, in its order
+    mag = u_mag * float(max_baseline)
+    return (1.0 if u_sign < 0.5 else -1.0) * mag
 
 
-def drop_at(gamma: float, seed: int, it: int, iterations: int) -> Drop | None:
+def drop_at(gamma: float, seed: int, it: int, iterations: int, draws=None) -> Drop | None:
     """DropGaussian's mask of iteration `it` (1-based) of a fit of `iterations` (docs/method.md
     §9): drop rate gamma * it / iterations, the key a uint32 of its own per iteration
     (numpy.random.SeedSequence([seed, 2, it])), so the term shifts no other draw, and a resumed fit
-    drops the same Gaussians. None when gamma is 0 (off: every render as without the option)."""
+    drops the same Gaussians. None when gamma is 0 (off: every render as without the option).
+    draws: a reings.seeding.IterationDraws of `seed` (the same key, computed a block at a time)."""
     if not gamma:
         return None
-    key = int(np.random.SeedSequence([seed, 2, it]).generate_state(1, np.uint32)[0])
+    if draws is None:
+        key = int(np.random.SeedSequence([seed, 2, it]).generate_state(1, np.uint32)[0])
+    else:
+        key = draws.uint32_key(2, it)
     return Drop.at_rate(gamma * it / iterations, key)
 
 
@@ -447,6 +458,8 @@ class _Iteration:
         self.groups = [k for k in PARAM_NAMES if k in opt.lr]
         self.hard_ema = None
         self.k = 1  # active SH coefficients of the current iteration
+        # the per-iteration draws of drop_at / warp_baseline, a block of iterations at a time (the same numbers)
+        self.draws = IterationDraws(cfg.seed) if IterationDraws.supports(cfg.seed) else None
 
     def __call__(self, it: int) -> None:
         from .optim import sh_degree_at
@@ -549,10 +562,10 @@ class _Iteration:
         (`drop_at`); the shared soft depth term, taken on this pass's render, sees the dropped
         model too, and the occlusion test compares depths of the one dropped model."""
         tr, L, D, ph = self.tr, self.L, self.cfg.densify, self.tr.phase
-        drop = drop_at(L.drop_gamma, self.cfg.seed, it, self.cfg.iterations)
+        drop = drop_at(L.drop_gamma, self.cfg.seed, it, self.cfg.iterations, self.draws)
         warp = L.view_warp_weight > 0 and it >= L.view_warp_from
         if warp:
-            b = warp_baseline(self.cfg.seed, it, L.view_warp_baseline)
+            b = warp_baseline(self.cfg.seed, it, L.view_warp_baseline, self.draws)
             with ph("warp_render"):
                 virt = tr.forward(virtual_camera(cam, b), self.k, self.bg, self.near, drop=drop, keep=True)
         cross = L.cross_warp > 0 and it >= L.cross_warp_from and len(self.cameras) > 1

@@ -335,7 +335,7 @@ def test_gamma_zero_and_a_noop_mask_give_the_fit_without_the_option(device, case
     scene, init, cfg = case
     off = (scene, init, replace(cfg, loss=replace(cfg.loss, drop_gamma=0.0)))
     plain = _fit(off, device, engine="device")
-    monkeypatch.setattr(T, "drop_at", lambda gamma, seed, it, its: Drop(key=it * 7919, threshold=0, scale=1.0))
+    monkeypatch.setattr(T, "drop_at", lambda gamma, seed, it, its, draws=None: Drop(key=it * 7919, threshold=0, scale=1.0))
     noop = _fit(off, device, engine="device")
     monkeypatch.undo()
     _same_state(plain.state, noop.state, True, "no-op mask vs no mask")
