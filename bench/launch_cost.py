@@ -62,12 +62,15 @@ def enqueue_no_event():
     import pyopencl._cl  # noqa: F401  (loads the library)
 
     path = None
-    with open("/proc/self/maps") as f:  # Linux: the loader pyopencl is linked to
-        for line in f:
-            p = line.split()[-1]
-            if "libOpenCL" in os.path.basename(p) and os.path.isfile(p):
-                path = p
-                break
+    try:
+        with open("/proc/self/maps") as f:  # Linux: the loader pyopencl is linked to
+            for line in f:
+                p = line.split()[-1]
+                if "libOpenCL" in os.path.basename(p) and os.path.isfile(p):
+                    path = p
+                    break
+    except OSError:  # no /proc: the system's loader
+        pass
     fn = ctypes.PyDLL(path or ctypes.util.find_library("OpenCL")).clEnqueueNDRangeKernel
     fn.argtypes = [ctypes.c_void_p, ctypes.c_void_p, ctypes.c_uint, ctypes.c_void_p, ctypes.c_char_p,
                    ctypes.c_char_p, ctypes.c_uint, ctypes.c_void_p, ctypes.c_void_p]
