@@ -465,3 +465,19 @@ def load_bench(name: str, as_name: str | None = None):
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)
     return mod
+
+
+def run_tool(main, argv) -> int:
+    """A bench tool's `main(argv)` that runs a `reings` command in this process, with the logging the CLI
+    configures for its process undone after (and its warnings kept out of the test's)."""
+    import logging
+    import warnings
+
+    log = logging.getLogger("reings")
+    handlers, level = list(log.handlers), log.level
+    try:
+        with warnings.catch_warnings():
+            return main(argv)
+    finally:
+        log.handlers[:] = handlers
+        log.setLevel(level)

@@ -4,10 +4,8 @@ steps, launches and blocking calls counted, the seconds consistent, pyopencl unp
 from __future__ import annotations
 
 import json
-import logging
-import warnings
 
-from cases import load_bench
+from cases import load_bench, run_tool
 
 
 def test_host_wait_of_a_run_counts_steps_launches_and_waits_and_restores_its_patches(device, tmp_path):
@@ -22,14 +20,7 @@ def test_host_wait_of_a_run_counts_steps_launches_and_waits_and_restores_its_pat
               cl.Event.wait, cl.wait_for_events, pipeline.fit, train._Iteration.__call__)
     out, run_out = tmp_path / "wait.json", tmp_path / "run"
     cmd = ["run", "--device", device, "--preset", "quick", "--iterations", "2,2,3", "--out", str(run_out)]
-    log = logging.getLogger("reings")  # the CLI configures logging for its process: undo it for the tests after
-    handlers, level = list(log.handlers), log.level
-    try:
-        with warnings.catch_warnings():
-            assert H.main(["--out", str(out), "--"] + cmd) == 0
-    finally:
-        log.handlers[:] = handlers
-        log.setLevel(level)
+    assert run_tool(H.main, ["--out", str(out), "--"] + cmd) == 0
     assert (_cl.enqueue_nd_range_kernel, cl.enqueue_copy, cl.enqueue_map_buffer, cl.CommandQueue.finish,
             cl.Event.wait, cl.wait_for_events, pipeline.fit, train._Iteration.__call__) == before
     rep = json.loads(out.read_text())

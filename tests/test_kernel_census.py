@@ -3,7 +3,7 @@ events with known start / end times: launches and device ms per (stage, kernel),
 stage, per-iteration division; and that the fold waits for the window's last event."""
 from __future__ import annotations
 
-from cases import load_bench
+from cases import load_bench, run_tool
 
 
 def _census_module():
@@ -61,21 +61,11 @@ def test_census_of_a_run_counts_the_steps_run_and_restores_its_patches(device, t
     import reings.pipeline as pipeline
     import reings.train as train
 
-    import logging
-    import warnings
-
     K = _census_module()
     before = (_cl.enqueue_nd_range_kernel, pipeline.fit, train._Iteration.__call__, pipeline.RunContext.probe)
     out, run_out = tmp_path / "census.json", tmp_path / "run"
     cmd = ["run", "--device", device, "--preset", "quick", "--iterations", "2,2,3", "--out", str(run_out)]
-    log = logging.getLogger("reings")  # the CLI configures logging for its process: undo it for the tests after
-    handlers, level = list(log.handlers), log.level
-    try:
-        with warnings.catch_warnings():
-            assert K.main(["--out", str(out), "--window", "64", "--"] + cmd) == 0
-    finally:
-        log.handlers[:] = handlers
-        log.setLevel(level)
+    assert run_tool(K.main, ["--out", str(out), "--window", "64", "--"] + cmd) == 0
     assert (_cl.enqueue_nd_range_kernel, pipeline.fit, train._Iteration.__call__, pipeline.RunContext.probe) == before
     st = json.loads(out.read_text())["stages"]
     assert {k: st[k]["iterations"] for k in ("coarse", "fine", "final")} == {"coarse": 2, "fine": 2, "final": 3}
