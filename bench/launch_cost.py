@@ -4,7 +4,7 @@
     python bench/launch_cost.py --device pocl --launches 500
 
 A do-nothing kernel with 16 arguments (12 buffers, 4 scalars, as a typical reings stage) is enqueued
---launches times into one in-order queue, in three ways:
+--launches times into one in-order queue, in four ways:
 
     invoker   k(queue, global, local, *args) through pyopencl's typed invoker (every argument set on
               every launch; an event made and dropped per launch)
@@ -121,13 +121,17 @@ def main(argv=None) -> int:
                     for _ in range(a.launches):
                         cl.enqueue_nd_range_kernel(q, k, g, l)
                 elif way == "noevent":
+                    bad = 0
                     for _ in range(a.launches):
                         k.set_args(*args)
-                        raw(qp, k.int_ptr, 1, None, gb, lb, 0, None, None)
+                        bad |= raw(qp, k.int_ptr, 1, None, gb, lb, 0, None, None)
                 else:
+                    bad = 0
                     for _ in range(a.launches):
-                        raw(qp, k.int_ptr, 1, None, gb, lb, 0, None, None)
+                        bad |= raw(qp, k.int_ptr, 1, None, gb, lb, 0, None, None)
                 t1 = time.perf_counter()
+                if way.startswith("noevent") and bad:
+                    raise SystemExit(f"launch_cost: clEnqueueNDRangeKernel failed in way {way} (status bits {bad})")
                 q.finish()
                 t2 = time.perf_counter()
                 if r:

@@ -168,6 +168,8 @@ def warp_baseline(seed: int, it: int, max_baseline: float, draws=None) -> float:
     doubles without building the generator (the fit's loop passes one)."""
     if draws is None:
         return draw_baseline(np.random.default_rng([seed, 1, it]), max_baseline)
+    if draws.seed != seed:
+        raise ValueError(f"warp_baseline: draws of seed {draws.seed} for seed {seed}")
     u_mag, u_sign = draws.randoms(1, it, 2)  # draw_baseline's two draws, in its order
     mag = u_mag * float(max_baseline)
     return (1.0 if u_sign < 0.5 else -1.0) * mag
@@ -183,6 +185,8 @@ def drop_at(gamma: float, seed: int, it: int, iterations: int, draws=None) -> Dr
         return None
     if draws is None:
         key = int(np.random.SeedSequence([seed, 2, it]).generate_state(1, np.uint32)[0])
+    elif draws.seed != seed:
+        raise ValueError(f"drop_at: draws of seed {draws.seed} for seed {seed}")
     else:
         key = draws.uint32_key(2, it)
     return Drop.at_rate(gamma * it / iterations, key)

@@ -9,7 +9,7 @@ from reings.train import drop_at, warp_baseline
 
 RNG = np.random.default_rng(20261127)
 CASES = [[int(RNG.integers(0, 2**40)) if i % 3 else int(RNG.integers(0, 10)), int(RNG.integers(0, 5)),
-          int(RNG.integers(0, 100_000))] for i in range(600)]
+          int(RNG.integers(0, 100_000))] for i in range(300)]
 
 
 @pytest.mark.parametrize("entropy", CASES[:300] + [0, 17, 2**70, [1, 2, 3, 4, 5, 6], [2**32 - 1, 2**32, 0]])
@@ -54,3 +54,11 @@ def test_fit_draws_are_numpys(seed):
         assert warp_baseline(seed, it, 0.4) == warp_baseline(seed, it, 0.4, d), it
         assert warp_baseline(seed, it, 0.05) == warp_baseline(seed, it, 0.05, d), it
     assert drop_at(0.0, seed, 5, 10, d) is None
+
+
+def test_fit_draws_of_another_seed_are_refused():
+    d = IterationDraws(3)
+    with pytest.raises(ValueError):
+        drop_at(0.2, 4, 10, 100, d)
+    with pytest.raises(ValueError):
+        warp_baseline(4, 10, 0.4, d)

@@ -178,6 +178,37 @@ def test_backward_hold_is_hold_of_the_backward(device, case):
                 grad_add(w, alone)
                 assert np.abs(alone).max() > 0
             np.testing.assert_array_equal(_read(tr, both, k), w, err_msg=f"{engine} {k} after into")
+        assert tr.hold(held) is not None  # holding held gradients again: nothing to copy (no overlap error)
+
+
+@pytest.mark.parametrize("k", [1, 4])
+def test_backward_into_adds_every_field(device, case, k):
+    """backward(hold=True) then a full backward into it: every field (means, quats, log_scales, opacities and
+    both SH groups at k coefficients) is the float32 sum of the two backwards, on both engines (the device
+    engine's one grad_add_multi launch, every slot)."""
+    scene, init, cfg = case
+    rng = np.random.default_rng(5)  # anisotropic scales and SH colours: every field has a gradient
+    init = replace(init, log_scales=(init.log_scales + rng.normal(0, 0.4, init.log_scales.shape)).astype(np.float32),
+                   sh=(init.sh + rng.normal(0, 0.2, init.sh.shape)).astype(np.float32))
+    fields = ("means", "quats", "log_scales", "opacity_logits", "sh_dc") + (("sh_rest",) if k > 1 else ())
+    for engine in ("host", "device"):
+        be = get_backend(device)
+        tr = be.trainer(scene.images, engine=engine)
+        tr.upload(TrainState.from_gaussians(init, 1))
+        parts = []
+        for i in (0, 1):
+            fr = tr.forward(scene.cameras[i], k, (0, 0, 0), 0.01)
+            g = tr.backward(fr, tr.photometric(fr, i, 0.8, 0.2))
+            parts.append({f: _read(tr, g, f) for f in fields})
+        fr = tr.forward(scene.cameras[0], k, (0, 0, 0), 0.01)
+        held = tr.backward(fr, tr.photometric(fr, 0, 0.8, 0.2), hold=True)
+        fr = tr.forward(scene.cameras[1], k, (0, 0, 0), 0.01)
+        both = tr.backward(fr, tr.photometric(fr, 1, 0.8, 0.2), into=held)
+        for f in fields:
+            want = parts[0][f].copy()
+            grad_add(want, parts[1][f])
+            assert np.abs(parts[1][f]).max() > 0, f
+            np.testing.assert_array_equal(_read(tr, both, f), want, err_msg=f"{engine} k={k} {f}")
 
 
 def _read(tr, grads, name):

@@ -289,8 +289,8 @@ class Trainer(Protocol):
         ("opacity_logits",), into=...)`); an engine may make that backward's records in this one's
         pass (the device engine does, with the same bits: docs/perf_notes.md §13) or ignore it. It
         changes nothing in this call's result. hold (without `into`): return the gradients as `hold`
-        would (a handle that survives the next backward); the device engine writes them there
-        directly, with no copy."""
+        would (a handle that survives the next backward, until the next `hold` or backward with hold,
+        which reuse it); the device engine writes them there directly, with no copy."""
 
     def upload_bg_masks(self, masks: Sequence) -> None:
         """The training views' background masks ([H,W] bool each, or None), once per fit

@@ -679,6 +679,11 @@ class OpenCLBackend:
         held gradients, so that the next backward leaves them alone with no copy)."""
         if self._slot(fr.slot).frame is not fr:
             raise RuntimeError(f"backward_device: a later forward replaced the frame (slot {fr.slot})")
+        if out is not None:  # before anything is enqueued or announced
+            need = {"means": 12, "quats": 16, "log_scales": 12, "opacity_logits": 4, "sh": 12 * fr.sh_k}
+            short = [f for f, row in need.items() if f not in out or out[f].size < fr.n * row]
+            if short:
+                raise ValueError(f"backward_device: out= lacks room for {short} ({fr.n} rows, SH count {fr.sh_k})")
         only = opacity_only_fields(grad_fields)
         held, self._pending_o = self._pending_o, None
         if (held is not None and held[0] is fr and held[1] is v_depth and v_depth is not None and v_rgb is None
@@ -835,8 +840,9 @@ class OpenCLBackend:
 
     def _proj_kernel(self, name: str, sh_k: int):
         """`kernel("project.cl", name, **_proj_defines(sh_k))`, looked up once per (name, sh_k) and schedule
-        (proj_vw, proj_stage, proj_wg: tests switch them on a live backend)."""
-        key = (name, sh_k, self.proj_vw, self.proj_stage, self.proj_wg)
+        (proj_vw, proj_stage, proj_wg, local_mem: everything _proj_defines reads; tests switch them on a live
+        backend)."""
+        key = (name, sh_k, self.proj_vw, self.proj_stage, self.proj_wg, self.local_mem)
         k = self._proj_kernels.get(key)
         if k is None:
             k = self._proj_kernels[key] = self.kernel("project.cl", name, **self._proj_defines(sh_k))
@@ -857,16 +863,11 @@ class OpenCLBackend:
         mask = 0
         for f in (FIELDS if grad_fields is None else grad_fields):
             mask |= GRAD_BITS[f]
-        if out is None:
+        if out is None:  # else backward_device has checked the caller's buffers
             out = {"means": s.get("gauss", "v_means", n, 12), "quats": s.get("gauss", "v_quats", n, 16),
                    "log_scales": s.get("gauss", "v_log_scales", n, 12),
                    "opacity_logits": s.get("gauss", "v_opacity_logits", n, 4),
                    "sh": s.get("gauss", "v_sh", n, 12 * fr.sh_k)}
-        else:
-            need = {"means": 12, "quats": 16, "log_scales": 12, "opacity_logits": 4, "sh": 12 * fr.sh_k}
-            short = [f for f, row in need.items() if f not in out or out[f].size < n * row]
-            if short:
-                raise ValueError(f"backward_device: out= lacks room for {short} ({n} rows, SH count {fr.sh_k})")
         inp = b["in"]
         k = self._proj_kernel("project_bwd", fr.sh_k)
         ov = _F32(override if override is not None else 0.0)

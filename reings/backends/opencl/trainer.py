@@ -110,7 +110,7 @@ def _columns(kmax: int) -> dict:
     return {"means": 3, "quats": 4, "log_scales": 3, "opacity_logits": 1, "sh_dc": 3, "sh_rest": 3 * (kmax - 1)}
 
 
-@functools.lru_cache(maxsize=16)
+@functools.lru_cache(maxsize=16, typed=True)  # typed: a numpy beta keeps its own arithmetic
 def _adam_constants(b1: float, b2: float, eps: float) -> tuple:
     return _F32(b1), _F32(1.0 - b1), _F32(b2), _F32(1.0 - b2), _F32(eps)
 
@@ -120,7 +120,8 @@ def adam_scalars(lr: float, t: int, b1: float, b2: float, eps: float, fp64: bool
     `adam_update` (Python floats become float32 operands; 1/sqrt(bc2) is a float64 scalar: math.sqrt
     and np.sqrt are both the correctly rounded square root). The optimizer's constants are made once."""
     bc1 = 1.0 - b1 ** t
-    inv = 1.0 / math.sqrt(1.0 - b2 ** t)
+    bc2 = 1.0 - b2 ** t
+    inv = 1.0 / (math.sqrt(bc2) if type(bc2) is float else np.sqrt(bc2))  # numpy scalars keep numpy's rules
     c = _adam_constants(b1, b2, eps)
     return c[0], c[1], c[2], c[3], (_F64 if fp64 else _F32)(inv), c[4], _F32(-lr / bc1)
 
@@ -855,10 +856,11 @@ class DeviceTrainer:
 
     def hold(self, grads: dict) -> dict:
         """Trainer.hold: device copies of the gradient buffers (trainer-owned, so the next
-        backward, which reuses the backend's, leaves them alone)."""
+        backward, which reuses the backend's, leaves them alone); gradients already held (a backward
+        with hold=True) are returned as they are."""
         out = self._held(grads["sh_k"])
         for f, cols in self._grad_columns(grads["sh_k"]).items():
-            if self.n * cols:
+            if self.n * cols and grads[f] is not out[f]:
                 self.cl.enqueue_copy(self.queue, out[f], grads[f], byte_count=4 * cols * self.n)
         return out
 
