@@ -1,20 +1,24 @@
-"""numpy's SeedSequence and PCG64 for one short draw, in plain Python integers (issue 15: host time per step).
+"""numpy's SeedSequence and PCG64 for the fit's per-iteration draws, without numpy objects per iteration
+(issue 15: host time per step).
 
 The fit draws a few numbers per iteration from generators of their own (`reings.train.drop_at`: DropGaussian's
 key, `numpy.random.SeedSequence([seed, 2, it]).generate_state(1, uint32)`; `warp_baseline`: the virtual view's
 baseline, two `random()` draws of `numpy.random.default_rng([seed, 1, it])`), so that a resumed fit draws the same.
-Building those numpy objects costs ~20-30 us per iteration, a few percent of a GPU step whose time is the host's
-(docs/perf_notes.md §18). The functions here compute the same numbers from the published algorithms:
+Building those numpy objects costs ~25-30 us per iteration, a few percent of a GPU step whose time is the host's
+(docs/perf_notes.md §18). `IterationDraws` computes the same numbers from the published algorithms:
 
-- SeedSequence (numpy.random.bit_generator, NumPy's documented seeding: the entropy coerced to uint32 words, a
-  pool of 4 words mixed with `hashmix` / `mix`, `generate_state` hashing the pool cyclically);
+- SeedSequence (numpy.random.bit_generator: one uint32 word per small entropy entry, a pool of 4 words mixed with
+  `hashmix` / `mix`, `generate_state` hashing the pool cyclically), for a block of iterations at once in uint32
+  lanes (`state_words_block`);
 - PCG64 (O'Neill's PCG XSL RR 128/64, numpy's `PCG64`: state and increment from `generate_state(4, uint64)`,
-  the increment forced odd, one step, the state added, one step; each output steps then permutes the state);
-- Generator.random(): (next_uint64 >> 11) * 2**-53.
+  the increment forced odd, one step, the state added, one step; each output steps then permutes the state) in
+  Python integers, and Generator.random() = (next_uint64 >> 11) * 2**-53 (`pcg64_randoms`).
 
-tests/test_seeding.py checks them against numpy for many seeds and iterations, bit for bit.
+tests/test_seeding.py checks them against numpy bit for bit.
 """
 from __future__ import annotations
+
+import numpy as np
 
 M32 = 0xFFFFFFFF
 M64 = (1 << 64) - 1
@@ -23,131 +27,55 @@ POOL_SIZE = 4
 INIT_A, MULT_A = 0x43B0D7E5, 0x931E8875
 INIT_B, MULT_B = 0x8B51F9DD, 0x58F38DED
 MIX_MULT_L, MIX_MULT_R = 0xCA01F9DD, 0x4973F715
-XSHIFT = 16
+XSHIFT = np.uint32(16)
 PCG_MULT = (2549297995355413924 << 64) + 4865540595714422341  # PCG_DEFAULT_MULTIPLIER_128
 
 
-def entropy_words(entropy) -> list[int]:
-    """SeedSequence's coercion of a non-negative int or a sequence of them to uint32 words (little-endian
-    words per int; 0 is one word)."""
-    items = [entropy] if isinstance(entropy, int) else list(entropy)
-    out: list[int] = []
-    for n in items:
-        n = int(n)
-        if n < 0:
-            raise ValueError("entropy must be non-negative")
-        if n == 0:
-            out.append(0)
-        while n > 0:
-            out.append(n & M32)
-            n >>= 32
-    return out
-
-
-def seed_pool(entropy) -> list[int]:
-    """SeedSequence(entropy).pool: the 4-word pool mixed from the entropy words."""
-    words = entropy_words(entropy)
-    h = INIT_A
-
-    def hashmix(v: int) -> int:
-        nonlocal h
-        v ^= h
-        h = (h * MULT_A) & M32
-        v = (v * h) & M32
-        return v ^ (v >> XSHIFT)
-
-    def mix(x: int, y: int) -> int:
-        r = (MIX_MULT_L * x - MIX_MULT_R * y) & M32
-        return r ^ (r >> XSHIFT)
-
-    pool = [hashmix(words[i] if i < len(words) else 0) for i in range(POOL_SIZE)]
-    for i_src in range(POOL_SIZE):
-        for i_dst in range(POOL_SIZE):
-            if i_src != i_dst:
-                pool[i_dst] = mix(pool[i_dst], hashmix(pool[i_src]))
-    for i_src in range(POOL_SIZE, len(words)):
-        for i_dst in range(POOL_SIZE):
-            pool[i_dst] = mix(pool[i_dst], hashmix(words[i_src]))
-    return pool
-
-
-def state_words(pool: list[int], n_words: int) -> list[int]:
-    """SeedSequence.generate_state(n_words, uint32) of a pool."""
-    h = INIT_B
-    out = []
-    for i in range(n_words):
-        v = pool[i % POOL_SIZE] ^ h
-        h = (h * MULT_B) & M32
-        v = (v * h) & M32
-        out.append(v ^ (v >> XSHIFT))
-    return out
-
-
-def uint32_key(entropy) -> int:
-    """SeedSequence(entropy).generate_state(1, uint32)[0]."""
-    return state_words(seed_pool(entropy), 1)[0]
-
-
-def pcg64_randoms(entropy, n: int) -> list[float]:
-    """The first n `random()` doubles of numpy.random.default_rng(entropy) (a PCG64 seeded by
-    SeedSequence(entropy))."""
-    return pcg64_randoms_from_state(state_words(seed_pool(entropy), 8), n)
-
-
-def _np_hashmix(v, h: int):
-    import numpy as np
-
-    v = v ^ np.uint32(h)
-    h = (h * MULT_A) & M32
-    v = v * np.uint32(h)
-    return v ^ (v >> np.uint32(XSHIFT)), h
-
-
-def _np_mix(x, y):
-    import numpy as np
-
-    r = np.uint32(MIX_MULT_L) * x - np.uint32(MIX_MULT_R) * y
-    return r ^ (r >> np.uint32(XSHIFT))
-
-
-def state_words_block(prefix: tuple, first: int, count: int, n_words: int):
+def state_words_block(prefix: tuple, first: int, count: int, n_words: int) -> np.ndarray:
     """SeedSequence([*prefix, it]).generate_state(n_words, uint32) for it = first .. first + count - 1 at
-    once (numpy uint32 lanes, one per iteration): [count, n_words] uint32. Every prefix entry and every
-    iteration must be below 2**32 (one entropy word each) and the entropy at most POOL_SIZE words."""
-    import numpy as np
-
+    once (uint32 lanes, one per iteration): [count, n_words] uint32. Every prefix entry and every
+    iteration must lie in [0, 2**32) (one entropy word each), at most POOL_SIZE entries in all."""
     its = np.arange(first, first + count, dtype=np.uint64)
     if first < 0 or (count and int(its[-1]) > M32) or any(not 0 <= int(p) <= M32 for p in prefix) \
             or len(prefix) + 1 > POOL_SIZE:
         raise ValueError("state_words_block: one uint32 word per entropy entry, at most 4 entries")
     words = [np.full(count, int(p), np.uint32) for p in prefix] + [its.astype(np.uint32)]
     h = INIT_A
-    pool = []
-    for i in range(POOL_SIZE):
-        v, h = _np_hashmix(words[i] if i < len(words) else np.zeros(count, np.uint32), h)
-        pool.append(v)
+
+    def hashmix(v):
+        nonlocal h
+        v = v ^ np.uint32(h)
+        h = (h * MULT_A) & M32
+        v = v * np.uint32(h)
+        return v ^ (v >> XSHIFT)
+
+    def mix(x, y):
+        r = np.uint32(MIX_MULT_L) * x - np.uint32(MIX_MULT_R) * y
+        return r ^ (r >> XSHIFT)
+
+    pool = [hashmix(words[i] if i < len(words) else np.zeros(count, np.uint32)) for i in range(POOL_SIZE)]
     for i_src in range(POOL_SIZE):
         for i_dst in range(POOL_SIZE):
             if i_src != i_dst:
-                v, h = _np_hashmix(pool[i_src], h)
-                pool[i_dst] = _np_mix(pool[i_dst], v)
+                pool[i_dst] = mix(pool[i_dst], hashmix(pool[i_src]))
     out = np.empty((count, n_words), np.uint32)
     h = INIT_B
     for i in range(n_words):
         v = pool[i % POOL_SIZE] ^ np.uint32(h)
         h = (h * MULT_B) & M32
         v = v * np.uint32(h)
-        out[:, i] = v ^ (v >> np.uint32(XSHIFT))
+        out[:, i] = v ^ (v >> XSHIFT)
     return out
 
 
-def pcg64_randoms_from_state(w, n: int) -> list[float]:
-    """`pcg64_randoms` from the 8 generate_state words `w` (uint32) of its SeedSequence."""
+def pcg64_randoms(w, n: int) -> list[float]:
+    """The first n `random()` doubles of numpy.random.default_rng(entropy), from the 8 words `w` of
+    SeedSequence(entropy).generate_state(8, uint32) (Python ints or uint32)."""
     w = [int(x) for x in w]
-    u64 = [w[2 * i] | (w[2 * i + 1] << 32) for i in range(4)]
+    u64 = [w[2 * i] | (w[2 * i + 1] << 32) for i in range(4)]  # generate_state(4, uint64), little-endian
     initstate = (u64[0] << 64) | u64[1]
     inc = ((((u64[2] << 64) | u64[3]) << 1) | 1) & M128
-    state = ((inc + initstate) * PCG_MULT + inc) & M128
+    state = ((inc + initstate) * PCG_MULT + inc) & M128  # step from 0 (= inc), add the state, step
     out = []
     for _ in range(n):
         state = (state * PCG_MULT + inc) & M128
@@ -160,9 +88,9 @@ def pcg64_randoms_from_state(w, n: int) -> list[float]:
 
 class IterationDraws:
     """The generate_state words of SeedSequence([seed, stream, it]) for a fit's iterations it >= 1, computed
-    BLOCK iterations at a time (`state_words_block`) and kept as Python ints: DropGaussian's key
-    (stream 2, `uint32_key`) and the virtual view's baseline draws (stream 1, `randoms`) without building
-    numpy generators per iteration. `seed` must lie in [0, 2**32) (`supports`)."""
+    BLOCK iterations at a time (`state_words_block`) and kept as Python ints: DropGaussian's key (stream 2,
+    `uint32_key`) and the virtual view's baseline draws (stream 1, `randoms`) without building numpy
+    generators per iteration. `seed` must lie in [0, 2**32) (`supports`)."""
 
     BLOCK = 1024
     WORDS = 8  # enough for a PCG64 seed (4 uint64); a uint32 key is the first word
@@ -196,4 +124,4 @@ class IterationDraws:
 
     def randoms(self, stream: int, it: int, n: int) -> list[float]:
         """The first n random() of numpy.random.default_rng([seed, stream, it])."""
-        return pcg64_randoms_from_state(self.words(stream, it), n)
+        return pcg64_randoms(self.words(stream, it), n)

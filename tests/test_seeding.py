@@ -3,34 +3,31 @@ per-iteration draws (train.drop_at, train.warp_baseline) with and without Iterat
 import numpy as np
 import pytest
 
-from reings.seeding import (IterationDraws, pcg64_randoms, pcg64_randoms_from_state, seed_pool, state_words,
-                            state_words_block, uint32_key)
+from reings.seeding import IterationDraws, pcg64_randoms, state_words_block
 from reings.train import drop_at, warp_baseline
 
 RNG = np.random.default_rng(20261127)
-CASES = [[int(RNG.integers(0, 2**40)) if i % 3 else int(RNG.integers(0, 10)), int(RNG.integers(0, 5)),
-          int(RNG.integers(0, 100_000))] for i in range(300)]
+# (seed, stream, first iteration): seeds small and up to 2**32 - 1, iterations up to 2**32 - 1
+CASES = [(int(RNG.integers(0, 2**32)) if i % 3 else int(RNG.integers(0, 10)), int(RNG.integers(0, 5)),
+          int(RNG.integers(0, 100_000))) for i in range(60)] + [(0, 0, 0), (2**32 - 1, 2**32 - 1, 2**32 - 9)]
 
 
-@pytest.mark.parametrize("entropy", CASES[:300] + [0, 17, 2**70, [1, 2, 3, 4, 5, 6], [2**32 - 1, 2**32, 0]])
-def test_seed_sequence_and_pcg64_match_numpy(entropy):
-    ss = np.random.SeedSequence(entropy)
-    assert seed_pool(entropy) == [int(x) for x in ss.pool]
-    assert state_words(seed_pool(entropy), 8) == [int(x) for x in ss.generate_state(8, np.uint32)]
-    assert uint32_key(entropy) == int(ss.generate_state(1, np.uint32)[0])
-    g = np.random.default_rng(entropy)
-    assert pcg64_randoms(entropy, 4) == [g.random() for _ in range(4)]
+@pytest.mark.parametrize("seed,stream,first", CASES)
+def test_state_words_and_pcg64_match_numpy(seed, stream, first):
+    blk = state_words_block((seed, stream), first, 8, 8)
+    for j in range(8):
+        ss = np.random.SeedSequence([seed, stream, first + j])
+        np.testing.assert_array_equal(blk[j], ss.generate_state(8, np.uint32))
+        g = np.random.default_rng([seed, stream, first + j])
+        assert pcg64_randoms(blk[j], 3) == [g.random() for _ in range(3)]
+        assert pcg64_randoms(blk[j].tolist(), 1) == pcg64_randoms(blk[j], 1)
 
 
-@pytest.mark.parametrize("seed,stream", [(0, 1), (0, 2), (3, 1), (2**32 - 1, 2), (123456789, 7)])
-def test_state_words_block_matches_numpy(seed, stream):
-    first, count = 1000, 1100  # crosses no block rule: a plain range
-    blk = state_words_block((seed, stream), first, count, 8)
-    for it in (first, first + 1, first + 517, first + count - 1):
-        want = np.random.SeedSequence([seed, stream, it]).generate_state(8, np.uint32)
-        np.testing.assert_array_equal(blk[it - first], want)
-        g = np.random.default_rng([seed, stream, it])
-        assert pcg64_randoms_from_state(blk[it - first].tolist(), 2) == [g.random(), g.random()]
+@pytest.mark.parametrize("prefix", [(), (7,), (3, 1, 4)])
+def test_state_words_block_other_entropy_lengths(prefix):
+    blk = state_words_block(prefix, 5, 3, 2)
+    for j in range(3):
+        np.testing.assert_array_equal(blk[j], np.random.SeedSequence([*prefix, 5 + j]).generate_state(2, np.uint32))
 
 
 def test_state_words_block_refuses_what_it_cannot_coerce():
@@ -38,6 +35,8 @@ def test_state_words_block_refuses_what_it_cannot_coerce():
         state_words_block((2**32, 1), 1, 4, 1)  # two entropy words for the seed
     with pytest.raises(ValueError):
         state_words_block((0, 1), 2**32, 1, 1)
+    with pytest.raises(ValueError):
+        state_words_block((0, 1, 2, 3), 1, 1, 1)  # five entries: more than the pool
     with pytest.raises(ValueError):
         IterationDraws(-1)
     assert not IterationDraws.supports(2**32) and not IterationDraws.supports(np.int64(3))

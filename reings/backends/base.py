@@ -40,6 +40,12 @@ CLAMP_GUARD = 0.3  # Jacobian guard band, fraction of tan(fov/2) (gsplat)
 V_RECORD = 10  # floats per intersection gradient record, see `rasterize_bwd`
 
 
+def grad_columns(sh_k: int) -> dict:
+    """Floats per Gaussian of each raw-field gradient buffer of a device backward (project_bwd's outputs
+    [N,3], [N,4], [N,3], [N], [N,sh_k,3]), by field."""
+    return {"means": 3, "quats": 4, "log_scales": 3, "opacity_logits": 1, "sh": 3 * sh_k}
+
+
 def tile_grid(width: int, height: int) -> tuple[int, int]:
     """(tiles_x, tiles_y) for an image."""
     return (width + TILE_SIZE - 1) // TILE_SIZE, (height + TILE_SIZE - 1) // TILE_SIZE

@@ -98,7 +98,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from ...types import FIELDS, Camera, Gaussians, RenderOutput
-from ..base import (CLAMP_GUARD, V_RECORD, Bins, Projected, RasterGrads, RasterOut, tile_grid)
+from ..base import (CLAMP_GUARD, V_RECORD, Bins, Projected, RasterGrads, RasterOut, grad_columns, tile_grid)
 from ..reference_drop import Drop, drop_args
 from . import quirks
 from .bin_counts import (CTRL_ISECTS, CTRL_RANKED, CTRL_VISIBLE, CTRL_WORDS, CountsRing, DeviceCounts,
@@ -113,6 +113,7 @@ CAM_RECORD = 24  # floats, layout in kernels/project.cl
 CAM_CACHE = 256  # camera record buffers kept (OpenCLBackend._camera_buffer)
 DEPTH_KEY_CULLED = 0xFFFFFFFF
 GRAD_BITS = {"means": 1, "quats": 2, "log_scales": 4, "opacity_logits": 8, "sh": 16}
+
 ISECT_GUESS = 8  # sync-free binning: intersections per Gaussian guessed before a slot's first K is known
 ISECT_HISTORY = 8  # ... then the largest of its last ISECT_HISTORY known K's, plus 1/8
 _F32, _I32, _U32 = np.float32, np.int32, np.uint32
@@ -257,7 +258,6 @@ class OpenCLBackend:
         self.proj_stage = not self.cpu if stage == "" else stage == "1"
         self.local_mem = int(self.handle.device.local_mem_size)
         self._kernels: dict = {}
-        self._proj_kernels: dict = {}  # (kernel name, sh_k, schedule) -> project.cl kernel (_proj_kernel)
         self._frame: _Frame | None = None
         self._keep: list = []  # host arrays referenced by non-blocking copies still in flight
         self._cams: dict = {}  # (K, viewmat, W, H, near) bytes -> read-only camera record buffer
@@ -412,7 +412,7 @@ class OpenCLBackend:
         b["depth_keys"] = s.get("gauss", "depth_keys", n, 4)
         b["gid_vals"] = s.get("gauss", "gid_vals", n, 4)
         b["ctrl"] = s.get("small", "ctrl", CTRL_WORDS, 4)  # the binning's words (project_fwd zeroes ctrl[2])
-        k = self._proj_kernel("project_fwd", fr.sh_k)
+        k = self.kernel("project.cl", "project_fwd", **self._proj_defines(fr.sh_k))
         ov = _F32(override if override is not None else 0.0)
         ev = self.launch(k, -(-n // self.proj_vw), _I32(n), inp["means"], inp["quats"], inp["log_scales"],
                           inp["opacity_logits"], *_sh_args(inp, fr.sh_k), b["cam"], _I32(fr.width), _I32(fr.height),
@@ -680,8 +680,7 @@ class OpenCLBackend:
         if self._slot(fr.slot).frame is not fr:
             raise RuntimeError(f"backward_device: a later forward replaced the frame (slot {fr.slot})")
         if out is not None:  # before anything is enqueued or announced
-            need = {"means": 12, "quats": 16, "log_scales": 12, "opacity_logits": 4, "sh": 12 * fr.sh_k}
-            short = [f for f, row in need.items() if f not in out or out[f].size < fr.n * row]
+            short = [f for f, cols in grad_columns(fr.sh_k).items() if f not in out or out[f].size < 4 * cols * fr.n]
             if short:
                 raise ValueError(f"backward_device: out= lacks room for {short} ({fr.n} rows, SH count {fr.sh_k})")
         only = opacity_only_fields(grad_fields)
@@ -838,16 +837,6 @@ class OpenCLBackend:
         self._last_counts = fr.counts
         return Gaussians(**res)
 
-    def _proj_kernel(self, name: str, sh_k: int):
-        """`kernel("project.cl", name, **_proj_defines(sh_k))`, looked up once per (name, sh_k) and schedule
-        (proj_vw, proj_stage, proj_wg, local_mem: everything _proj_defines reads; tests switch them on a live
-        backend)."""
-        key = (name, sh_k, self.proj_vw, self.proj_stage, self.proj_wg, self.local_mem)
-        k = self._proj_kernels.get(key)
-        if k is None:
-            k = self._proj_kernels[key] = self.kernel("project.cl", name, **self._proj_defines(sh_k))
-        return k
-
     def _proj_defines(self, sh_k: int) -> dict:
         """project.cl's build defines at sh_k coefficients: the GPU schedule stages SH rows through
         local memory when there is more than one coefficient (PROJ_SH_STAGE, a work-group of
@@ -864,12 +853,9 @@ class OpenCLBackend:
         for f in (FIELDS if grad_fields is None else grad_fields):
             mask |= GRAD_BITS[f]
         if out is None:  # else backward_device has checked the caller's buffers
-            out = {"means": s.get("gauss", "v_means", n, 12), "quats": s.get("gauss", "v_quats", n, 16),
-                   "log_scales": s.get("gauss", "v_log_scales", n, 12),
-                   "opacity_logits": s.get("gauss", "v_opacity_logits", n, 4),
-                   "sh": s.get("gauss", "v_sh", n, 12 * fr.sh_k)}
+            out = {f: s.get("gauss", f"v_{f}", n, 4 * cols) for f, cols in grad_columns(fr.sh_k).items()}
         inp = b["in"]
-        k = self._proj_kernel("project_bwd", fr.sh_k)
+        k = self.kernel("project.cl", "project_bwd", **self._proj_defines(fr.sh_k))
         ov = _F32(override if override is not None else 0.0)
         ev = self.launch(k, -(-n // self.proj_vw), _I32(n), inp["means"], inp["quats"], inp["log_scales"], inp["opacity_logits"],
                           *_sh_args(inp, fr.sh_k), b["cam"], _I32(fr.width), _I32(fr.height), ov, drop_args(fr.drop)[2],

@@ -70,7 +70,7 @@ from contextlib import ExitStack, contextmanager, nullcontext
 import numpy as np
 
 from ...types import ACCUM, COUNT, PARAM_NAMES, RADII
-from ..base import HeldDepth, check_held_depth
+from ..base import HeldDepth, check_held_depth, grad_columns
 from ..reference_cross_warp import CROSS_WARP_ALPHA_MIN, blur_image, cross_warp_args
 from ..reference_loss import REG_VALUE_COLS, DepthSmoothWeights, regularize_value
 from ..reference_state import adam_update, opacity_cap_, zero_stats
@@ -692,7 +692,7 @@ class DeviceTrainer:
 
     def _grad_columns(self, sh_k: int) -> dict:
         """Floats per Gaussian of each gradient buffer of backend.backward_device."""
-        return {"means": 3, "quats": 4, "log_scales": 3, "opacity_logits": 1, "sh": 3 * sh_k}
+        return grad_columns(sh_k)
 
     def upload_bg_masks(self, masks) -> None:
         """Trainer.upload_bg_masks: float32 0/1 device buffers, once per fit."""
