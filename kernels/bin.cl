@@ -15,12 +15,13 @@
                    same means and camera z row whatever it culls (OpenCLBackend, "Depth orders").
      bin_count     per rank r in [0, N]: tiles_touched[r] (0 for r >= V, and for a ranked Gaussian
                    culled otherwise: its tile rect is empty), ctrl[0] = V (the one r where the ranked
-                   prefix ends; no atomics), and ctrl[2] += the visible ranks (radii > 0; ctrl[2]
+                   prefix ends; no atomics), ctrl[2] += the visible ranks (radii > 0; ctrl[2]
                    zeroed by project_fwd, or by the host for an uploaded projection; one atomic add
-                   per work-group)
-     scan          exclusive scan of tiles_touched[0..N] -> offset_from_rank, offset_from_rank[N] = K:
-                   the ranks culled otherwise add nothing, so a visible rank's emit slots are those
-                   of the visible-only binning, and K is the same
+                   per block), and the scan's block sums of tiles_touched over the scan's blocks
+                   (ExclusiveScan.blocks: the scan's first pass, scan_reduce, is not launched)
+     scan          scan_add alone: exclusive scan of tiles_touched[0..N] -> offset_from_rank,
+                   offset_from_rank[N] = K: the ranks culled otherwise add nothing, so a visible
+                   rank's emit slots are those of the visible-only binning, and K is the same
      (one blocking read of ctrl = (V, K, visible); none in the sync-free mode, below)
      bin_emit      per rank r < V: its tiles row-major (ty outer, tx inner) at emit slots
                    offset_from_rank[r] + i: tile_keys[emit] = tile, emit_vals[emit] = emit,
@@ -40,52 +41,91 @@
    V here counts the ranked Gaussians (the sort's prefix), the launch bound of bin_emit and the
    reduces; the visible count (radii > 0) is ctrl[2], the statistic reported as "visible".
 
-   Defines: none (the tile grid arrives as tiles_x / n_tiles). Integers only: no float math here.
+   Defines: REINGS_CPU_SCHEDULE (bin_count's blocks: a work-item per block on CPUs, a work-group per
+   block on GPUs) and, on the GPU schedule, SCAN_WG / SCAN_ITEMS (the scan's block: ExclusiveScan's
+   defines). The tile grid arrives as tiles_x / n_tiles. Integers only: no float math here.
 */
 
 #include "common.h"
 
 #define DEPTH_KEY_CULLED 0xFFFFFFFFu /* project.cl's key of a culled Gaussian: sorts last */
 
-#define BIN_WG_MAX 256 /* bin_count's largest work-group (a power of two: the host's launch size) */
+/* The tiles of rank r in [0, N] (0 for r >= V and for an empty rect), its visibility (radii > 0), and
+   ctrl[0] = V at the one r where the ranked prefix ends. */
+inline uint rank_tiles(const int r, const int n, __global const uint *depth_keys_sorted,
+                       __global const uint *gid_from_rank, __global const int *tile_rect,
+                       __global const int *radii, __global uint *ctrl, uint *vis) {
+    const bool ranked = r < n && depth_keys_sorted[r] != DEPTH_KEY_CULLED;
+    const bool prev_ranked = r == 0 || depth_keys_sorted[r - 1] != DEPTH_KEY_CULLED;
+    if (prev_ranked && !ranked) ctrl[0] = (uint)r; /* the ranked Gaussians form a prefix: one writer */
+    if (!ranked) return 0u;
+    const uint g = gid_from_rank[r];
+    __global const int *rc = tile_rect + 4 * (size_t)g;
+    *vis += radii[g] > 0;
+    return (uint)((rc[2] - rc[0]) * (rc[3] - rc[1]));
+}
 
-/* Per rank r in [0, N] (N + 1 work-items, work-groups of a power of two <= BIN_WG_MAX): tiles
-   touched by the Gaussian of rank r, V, and the visible count (every work-item reaches the
-   barriers: no early return). */
+#if REINGS_CPU_SCHEDULE
+/* CPU schedule: a work-item per block of `chunk` ranks (the scan's blocks), serial, no barriers. */
 __kernel void bin_count(const int n,
                         __global const uint *depth_keys_sorted, /* [N] */
                         __global const uint *gid_from_rank,     /* [N] (entries >= V are unranked gids) */
                         __global const int *tile_rect,          /* [N, 4] by gid (zeros where culled) */
                         __global const int *radii,              /* [N] by gid (> 0: visible) */
                         __global uint *tiles_touched,           /* [N + 1] */
-                        __global uint *ctrl) {                  /* [3]: ctrl[0] = V, ctrl[2] += visible (zeroed) */
-    __local uint part[BIN_WG_MAX];
-    const int r = get_global_id(0);
-    const int lid = get_local_id(0);
-    uint vis = 0;
-    if (r <= n) {
-        const bool ranked = r < n && depth_keys_sorted[r] != DEPTH_KEY_CULLED;
-        const bool prev_ranked = r == 0 || depth_keys_sorted[r - 1] != DEPTH_KEY_CULLED;
-        if (prev_ranked && !ranked) ctrl[0] = (uint)r;  /* the ranked Gaussians form a prefix: one writer */
-        uint cnt = 0;
-        if (ranked) {
-            const uint g = gid_from_rank[r];
-            __global const int *rc = tile_rect + 4 * (size_t)g;
-            cnt = (uint)((rc[2] - rc[0]) * (rc[3] - rc[1]));
-            vis = radii[g] > 0;
-        }
+                        __global uint *ctrl,                    /* [3]: ctrl[0] = V, ctrl[2] += visible */
+                        const uint chunk,                       /* ranks per block (ExclusiveScan.blocks) */
+                        __global uint *block_sums) {            /* [nblocks]: the scan's block sums */
+    const int b = get_global_id(0);
+    const int lo = b * (int)chunk, hi = min(n + 1, lo + (int)chunk);
+    uint s = 0, vis = 0;
+    for (int r = lo; r < hi; ++r) {
+        const uint cnt = rank_tiles(r, n, depth_keys_sorted, gid_from_rank, tile_rect, radii, ctrl, &vis);
         tiles_touched[r] = cnt;
+        s += cnt;
     }
-    /* the work-group's visible ranks: a tree sum in local memory, then one atomic add */
-    part[lid] = vis;
-    barrier(CLK_LOCAL_MEM_FENCE);
-    for (int s = (int)get_local_size(0) / 2; s > 0; s /= 2) {
-        if (lid < s) part[lid] += part[lid + s];
-        barrier(CLK_LOCAL_MEM_FENCE);
-    }
-    if (lid == 0 && part[0] != 0u) atomic_add(&ctrl[2], part[0]);
-    if (n == 0 && r == 0) ctrl[2] = 0u; /* no Gaussian: project_fwd launched no work-item to zero it */
+    block_sums[b] = s;
+    if (vis) atomic_add(&ctrl[2], vis);
+    if (n == 0 && b == 0) ctrl[2] = 0u; /* no Gaussian: project_fwd launched no work-item to zero it */
 }
+#else
+#define WG_SCAN_SIZE SCAN_WG
+#include "wg_scan.h"
+#define SCAN_BLOCK (SCAN_WG * SCAN_ITEMS)
+
+/* GPU schedule: a work-group of SCAN_WG per block of SCAN_BLOCK ranks (the scan's blocks), coalesced. */
+__kernel __attribute__((reqd_work_group_size(SCAN_WG, 1, 1)))
+void bin_count(const int n,
+               __global const uint *depth_keys_sorted, /* [N] */
+               __global const uint *gid_from_rank,     /* [N] (entries >= V are unranked gids) */
+               __global const int *tile_rect,          /* [N, 4] by gid (zeros where culled) */
+               __global const int *radii,              /* [N] by gid (> 0: visible) */
+               __global uint *tiles_touched,           /* [N + 1] */
+               __global uint *ctrl,                    /* [3]: ctrl[0] = V, ctrl[2] += visible */
+               const uint chunk,                       /* unused (block = SCAN_BLOCK) */
+               __global uint *block_sums) {            /* [nblocks]: the scan's block sums */
+    __local uint tmp[SCAN_WG];
+    const int lid = get_local_id(0);
+    const int base = get_group_id(0) * SCAN_BLOCK;
+    uint s = 0, vis = 0;
+    for (int k = 0; k < SCAN_ITEMS; ++k) {
+        const int r = base + k * SCAN_WG + lid;
+        if (r <= n) {
+            const uint cnt = rank_tiles(r, n, depth_keys_sorted, gid_from_rank, tile_rect, radii, ctrl, &vis);
+            tiles_touched[r] = cnt;
+            s += cnt;
+        }
+    }
+    uint sum, vsum;
+    wg_exclusive_scan(s, tmp, &sum);
+    wg_exclusive_scan(vis, tmp, &vsum);
+    if (lid == 0) {
+        block_sums[get_group_id(0)] = sum;
+        if (vsum) atomic_add(&ctrl[2], vsum);
+        if (n == 0) ctrl[2] = 0u; /* no Gaussian: project_fwd launched no work-item to zero it */
+    }
+}
+#endif
 
 /* Per rank r < V: write its tiles at its emit slots. */
 __kernel void bin_emit(const int n_ranked, const int tiles_x,

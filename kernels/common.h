@@ -51,6 +51,53 @@ inline uint launch_count(const uint n, __global const uint *counts, const int co
 #define ALPHA_BOX_LO(o) ((o) * 255.0f)
 #define ALPHA_BOX_HALF(lo, q, det, rel) (sqrt(2.0f * log(lo) * (q) / (det)) * (rel) + ALPHA_BOX_PAD)
 
+/* The rasterizer's record of Gaussian g, from the projection's stored floats: (u, v, A, B, C, o, r, g,
+ * b, z) and the pixel box outside of which alpha < ALPHA_MIN ([xlo, xhi] x [ylo, yhi], empty where
+ * o < 1/255 or not finite; no box, 1e7 wide, where the conic is not positive definite), 16 floats.
+ * rasterize.cl's rasterize_prep (an uploaded projection) and project.cl's project_fwd (a forward on
+ * the device, which writes the record itself: one launch fewer) both call this. */
+inline void raster_prep_one(const int g, __global const float *means2d, __global const float *conics,
+                            __global const float *colors, __global const float *opacities,
+                            __global const float *depths, __global float *packed) {
+    const float u = means2d[2 * g], v = means2d[2 * g + 1];
+    const float A = conics[3 * g], B = conics[3 * g + 1], C = conics[3 * g + 2];
+    const float o = opacities[g];
+    float xlo = 1.0f, xhi = 0.0f, ylo = 1.0f, yhi = 0.0f; /* empty box */
+    const float lo = ALPHA_BOX_LO(o);
+    /* o < 1/255 (or NaN): alpha < ALPHA_MIN everywhere -> never blended */
+    if (lo >= 1.0f && isfinite(u) && isfinite(v) && isfinite(lo)) {
+        const float det = A * C - B * B;
+        /* the alpha box: project_fwd cuts the tile rect to it (a little wider) */
+        float ex = 1e7f, ey = 1e7f; /* not positive definite: no box, the pixel test decides */
+        if (det > 0.0f && A > 0.0f && C > 0.0f && isfinite(det)) {
+            ex = fmin(ALPHA_BOX_HALF(lo, C, det, ALPHA_BOX_REL), 1e7f);
+            ey = fmin(ALPHA_BOX_HALF(lo, A, det, ALPHA_BOX_REL), 1e7f);
+        }
+        /* pixel i (centre i + 0.5) is inside when |u - (i + 0.5)| <= ex */
+        xlo = clamp(ceil(u - ex - 0.5f), -2.0f, 1e7f);
+        xhi = clamp(floor(u + ex - 0.5f), -2.0f, 1e7f);
+        ylo = clamp(ceil(v - ey - 0.5f), -2.0f, 1e7f);
+        yhi = clamp(floor(v + ey - 0.5f), -2.0f, 1e7f);
+    }
+    __global float *rec = packed + (size_t)g * 16;
+    rec[0] = u;
+    rec[1] = v;
+    rec[2] = A;
+    rec[3] = B;
+    rec[4] = C;
+    rec[5] = o;
+    rec[6] = colors[3 * g];
+    rec[7] = colors[3 * g + 1];
+    rec[8] = colors[3 * g + 2];
+    rec[9] = depths[g];
+    rec[10] = xlo;
+    rec[11] = xhi;
+    rec[12] = ylo;
+    rec[13] = yhi;
+    rec[14] = 0.0f;
+    rec[15] = 0.0f;
+}
+
 /* atomic_add_f32(p, v): *p += v, atomically, by the best means the device has.
  * NVIDIA: fire-and-forget PTX `red` (never a CAS loop there, docs/perf_notes.md §4.4). Native
  * cl_ext_float_atomics where the compiler exposes it. Otherwise a compare-and-swap loop (last

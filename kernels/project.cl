@@ -22,10 +22,15 @@
                    the depth sort key and gid, and zeroes the binning's visible count (ctrl[2],
                    kernels/bin.cl). The key is the float bits of t_z wherever t_z > near (finite),
                    DEPTH_KEY_CULLED elsewhere: the near-plane test only, so it is a function of the
-                   means and the camera's z row (and near) alone.
+                   means and the camera's z row (and near) alone. Also the rasterizer's record of
+                   each Gaussian (`raster_prep_one`, common.h: rasterize_prep's code on the floats
+                   just stored), so a forward on the device launches no rasterize_prep.
      project_bwd   one work-item per Gaussian; chains the per-Gaussian cotangents
                    (v_means2d, v_conics, v_colors, v_opacities, v_depths, packed as a [N, 10] record)
-                   back to the raw fields (true derivative of project_fwd, clamps included).
+                   back to the raw fields (true derivative of project_fwd, clamps included). With
+                   grad_acc 1 it adds the gradients of the fields in grad_mask into its outputs and
+                   leaves the other fields alone (GRAD_F: a second backward into held gradients,
+                   the device trainer's `backward(into=)`, with no separate add).
 
    Defines
      SH_K          number of SH coefficients per channel (1, 4, 9 or 16); default 1.
@@ -147,7 +152,7 @@ typedef struct {
 #define SH_AT(src, gid, i)                                           \
     ((i) < 3 ? GATHER((src).dc, (gid) * (src).dc_stride + (i))      \
              : GATHER((src).rest, (gid) * (src).rest_stride + (src).rest_offset + ((i) - 3)))
-#define SH_OUT(dst, i, x) SCATTER_F(dst, SH_K * 3, i, x)
+#define SH_OUT(dst, i, x) GRAD_F(dst, SH_K * 3, i, x, 16) /* project_bwd_one only */
 #define PROJ_ATTR
 #endif
 
@@ -225,6 +230,24 @@ typedef uint vu;
         uint tmp_[PROJ_VW];                                                              \
         STORE_U(x_, tmp_);                                                               \
         for (int l_ = 0; l_ < nl; ++l_) (out)[(size_t)(g0 + l_) * (stride) + (off)] = tmp_[l_]; \
+    } while (0)
+
+/* A gradient output of project_bwd (`grad_acc`, `grad_mask` in scope): out[row] = lane value (grad_acc 0),
+   or out[row] = out[row] + lane value for the fields in grad_mask (grad_acc 1: a second backward added
+   into held gradients, one IEEE add per element, as reference_state.grad_add; the other fields untouched) */
+#define GRAD_F(out, stride, off, x, bit)                                                 \
+    do {                                                                                 \
+        const vf x_ = (x);                                                               \
+        float tmp_[PROJ_VW];                                                             \
+        STORE_F(x_, tmp_);                                                               \
+        if (!grad_acc) {                                                                 \
+            for (int l_ = 0; l_ < nl; ++l_) (out)[(size_t)(g0 + l_) * (stride) + (off)] = tmp_[l_]; \
+        } else if (grad_mask & (bit)) {                                                  \
+            for (int l_ = 0; l_ < nl; ++l_) {                                            \
+                const size_t i_ = (size_t)(g0 + l_) * (stride) + (off);                  \
+                (out)[i_] = (out)[i_] + tmp_[l_];                                        \
+            }                                                                            \
+        }                                                                                \
     } while (0)
 
 /* |x| <= FLT_MAX is false for NaN and +-Inf */
@@ -480,14 +503,19 @@ PROJ_INLINE void sh_stage_in(const int n, const sh_in_t sh, __local float *rows)
     barrier(CLK_LOCAL_MEM_FENCE);
 }
 
-/* The block of rows in local memory -> v_sh; every work-item calls it (a barrier first). */
-PROJ_INLINE void sh_stage_out(const int n, __local const float *rows, __global float *v_sh) {
+/* The block of rows in local memory -> v_sh (acc: added into it, as GRAD_F; nothing when acc and the
+   SH are not asked for); every work-item calls it (a barrier first). */
+PROJ_INLINE void sh_stage_out(const int n, __local const float *rows, __global float *v_sh, const int acc,
+                              const int wanted) {
     barrier(CLK_LOCAL_MEM_FENCE);
+    if (acc && !wanted) return;
     const int lid = (int)get_local_id(0), base = (int)get_group_id(0) * PROJ_WG;
     const int words = min(PROJ_WG, n - base) * (SH_K * 3);
     for (int i = lid; i < words; i += PROJ_WG) {
         const int r = i / (SH_K * 3);
-        v_sh[(size_t)base * (SH_K * 3) + i] = rows[r * SH_LSTRIDE + (i - r * (SH_K * 3))];
+        const float x = rows[r * SH_LSTRIDE + (i - r * (SH_K * 3))];
+        const size_t at = (size_t)base * (SH_K * 3) + i;
+        v_sh[at] = acc ? v_sh[at] + x : x;
     }
 }
 #endif
@@ -516,7 +544,8 @@ __kernel PROJ_ATTR void project_fwd(const int n,
                           __global float *opacities,            /* [N] */
                           __global uint *depth_keys,            /* [N] sort keys */
                           __global uint *gid_vals,              /* [N] sort values = gid */
-                          __global uint *ctrl) {                /* the binning's words: ctrl[2] = 0 here */
+                          __global uint *ctrl,                  /* the binning's words: ctrl[2] = 0 here */
+                          __global float *packed) {             /* [N, 16] the rasterizer's records */
     const sh_in_t sh = SH_IN_OF_ARGS;
 #if PROJ_SH_STAGE
     __local float sh_rows[PROJ_WG * SH_LSTRIDE];
@@ -561,6 +590,9 @@ __kernel PROJ_ATTR void project_fwd(const int n,
        t_z > near > 0: the float bits order like the floats. */
     const vi zkey = (p.t[2] > cam[19]) & FINITE(p.t[2]) & lane_ok;
     SCATTER_U(depth_keys, 1, 0, SEL((vu)DEPTH_KEY_CULLED, AS_U(p.t[2]), zkey));
+    /* the rasterizer's records, from the floats just stored (rasterize_prep's inputs and code, common.h):
+       a forward on the device launches no rasterize_prep */
+    for (int l = 0; l < nl; ++l) raster_prep_one(g0 + l, means2d, conics, colors, opacities, depths, packed);
 }
 
 /* Backward projection, one work-item per PROJ_VW Gaussians: raw-field gradients from the
@@ -578,6 +610,7 @@ PROJ_INLINE void project_bwd_one(const int n,
                           const float opacity_override,         /* > 0: opacity grad is zero */
                           const float drop_scale,               /* project_fwd's (dropped ones have radii 0) */
                           const int grad_mask,
+                          const int grad_acc,                   /* 1: add into the outputs (GRAD_F) */
                           __global const int *radii,            /* [N] from project_fwd */
                           __global const float *v_proj,         /* [N, V_PROJ] (rows of culled gids unread) */
                           __global float *v_means,              /* [N, 3] */
@@ -589,9 +622,9 @@ PROJ_INLINE void project_bwd_one(const int n,
     const vf zero = 0.0f;
     vi vis = (GATHER_I(radii, gid) > 0) & lane_ok;
     if (!ANY(vis)) { /* all culled: zeros (the common case for off-screen blocks) */
-        for (int i = 0; i < 3; ++i) { SCATTER_F(v_means, 3, i, zero); SCATTER_F(v_log_scales, 3, i, zero); }
-        for (int i = 0; i < 4; ++i) SCATTER_F(v_quats, 4, i, zero);
-        SCATTER_F(v_opacity_logits, 1, 0, zero);
+        for (int i = 0; i < 3; ++i) { GRAD_F(v_means, 3, i, zero, 1); GRAD_F(v_log_scales, 3, i, zero, 4); }
+        for (int i = 0; i < 4; ++i) GRAD_F(v_quats, 4, i, zero, 2);
+        GRAD_F(v_opacity_logits, 1, 0, zero, 8);
         for (int i = 0; i < SH_K * 3; ++i) SH_OUT(v_sh, i, zero);
         return;
     }
@@ -637,7 +670,7 @@ PROJ_INLINE void project_bwd_one(const int n,
         vlogit = v_op * op * (1.0f - op) * drop_scale; /* opacity = sigmoid(logit) * drop_scale */
     }
     const vi keep_op = vis & (vi)((grad_mask & 8) ? -1 : 0);
-    SCATTER_F(v_opacity_logits, 1, 0, SEL(zero, vlogit * vscale, keep_op));
+    GRAD_F(v_opacity_logits, 1, 0, SEL(zero, vlogit * vscale, keep_op), 8);
 
     /* colour: zero gradient where the 0 clamp is active */
     vf vc[3];
@@ -727,7 +760,7 @@ PROJ_INLINE void project_bwd_one(const int n,
     /* t = Rc mu + tc */
     for (int j = 0; j < 3; ++j) vmu[j] += cam[j] * vt[0] + cam[3 + j] * vt[1] + cam[6 + j] * vt[2];
     const vi keep_mu = vis & (vi)((grad_mask & 1) ? -1 : 0);
-    for (int j = 0; j < 3; ++j) SCATTER_F(v_means, 3, j, SEL(zero, vmu[j] * vscale, keep_mu));
+    for (int j = 0; j < 3; ++j) GRAD_F(v_means, 3, j, SEL(zero, vmu[j] * vscale, keep_mu), 1);
 
     /* Sc = Rc Sigma Rc^T: v_Sigma = Rc^T v_Sc Rc */
     vf T1[9], vS[9];
@@ -749,7 +782,7 @@ PROJ_INLINE void project_bwd_one(const int n,
     const vi keep_ls = vis & (vi)((grad_mask & 4) ? -1 : 0);
     for (int j = 0; j < 3; ++j) {
         vf vs = p.R[j] * vM[j] + p.R[3 + j] * vM[3 + j] + p.R[6 + j] * vM[6 + j];
-        SCATTER_F(v_log_scales, 3, j, SEL(zero, vs * p.s[j] * vscale, keep_ls));
+        GRAD_F(v_log_scales, 3, j, SEL(zero, vs * p.s[j] * vscale, keep_ls), 4);
     }
     vf G[9];
     for (int i = 0; i < 3; ++i)
@@ -765,7 +798,7 @@ PROJ_INLINE void project_bwd_one(const int n,
     const vf dq = w * vq[0] + x * vq[1] + y * vq[2] + z * vq[3];
     const vf iq = 1.0f / p.qnorm;
     const vi keep_q = vis & (vi)((grad_mask & 2) ? -1 : 0);
-    for (int i = 0; i < 4; ++i) SCATTER_F(v_quats, 4, i, SEL(zero, (vq[i] - p.qn[i] * dq) * iq * vscale, keep_q));
+    for (int i = 0; i < 4; ++i) GRAD_F(v_quats, 4, i, SEL(zero, (vq[i] - p.qn[i] * dq) * iq * vscale, keep_q), 2);
 }
 
 /* Backward projection kernel: project_bwd_one per work-item (PROJ_SH_STAGE: its SH row in local
@@ -781,6 +814,7 @@ __kernel PROJ_ATTR void project_bwd(const int n,
                           const float opacity_override,         /* > 0: opacity grad is zero */
                           const float drop_scale,               /* project_fwd's (dropped ones have radii 0) */
                           const int grad_mask,
+                          const int grad_acc,                   /* 1: add into the outputs (GRAD_F) */
                           __global const int *radii,            /* [N] from project_fwd */
                           __global const float *v_proj,         /* [N, V_PROJ] (rows of culled gids unread) */
                           __global float *v_means,              /* [N, 3] */
@@ -794,10 +828,10 @@ __kernel PROJ_ATTR void project_bwd(const int n,
     sh_stage_in(n, sh, sh_rows);
     __local float *row = sh_rows + get_local_id(0) * SH_LSTRIDE;
     project_bwd_one(n, means, quats, log_scales, opacity_logits, row, cam, width, height, opacity_override, drop_scale,
-                    grad_mask, radii, v_proj, v_means, v_quats, v_log_scales, v_opacity_logits, row);
-    sh_stage_out(n, sh_rows, v_sh);
+                    grad_mask, grad_acc, radii, v_proj, v_means, v_quats, v_log_scales, v_opacity_logits, row);
+    sh_stage_out(n, sh_rows, v_sh, grad_acc, grad_mask & 16);
 #else
     project_bwd_one(n, means, quats, log_scales, opacity_logits, sh, cam, width, height, opacity_override, drop_scale,
-                    grad_mask, radii, v_proj, v_means, v_quats, v_log_scales, v_opacity_logits, v_sh);
+                    grad_mask, grad_acc, radii, v_proj, v_means, v_quats, v_log_scales, v_opacity_logits, v_sh);
 #endif
 }

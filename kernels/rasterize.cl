@@ -128,43 +128,7 @@ __kernel void rasterize_prep(__global const float *means2d,   // [N, 2]
                              const int n) {
     const int g = get_global_id(0);
     if (g >= n) return;
-    const float u = means2d[2 * g], v = means2d[2 * g + 1];
-    const float A = conics[3 * g], B = conics[3 * g + 1], C = conics[3 * g + 2];
-    const float o = opacities[g];
-    float xlo = 1.0f, xhi = 0.0f, ylo = 1.0f, yhi = 0.0f; /* empty box */
-    const float lo = ALPHA_BOX_LO(o);
-    /* o < 1/255 (or NaN): alpha < ALPHA_MIN everywhere -> never blended */
-    if (lo >= 1.0f && isfinite(u) && isfinite(v) && isfinite(lo)) {
-        const float det = A * C - B * B;
-        /* the alpha box (common.h): project_fwd cuts the tile rect to it (a little wider) */
-        float ex = 1e7f, ey = 1e7f; /* not positive definite: no box, the pixel test decides */
-        if (det > 0.0f && A > 0.0f && C > 0.0f && isfinite(det)) {
-            ex = fmin(ALPHA_BOX_HALF(lo, C, det, ALPHA_BOX_REL), 1e7f);
-            ey = fmin(ALPHA_BOX_HALF(lo, A, det, ALPHA_BOX_REL), 1e7f);
-        }
-        /* pixel i (centre i + 0.5) is inside when |u - (i + 0.5)| <= ex */
-        xlo = clamp(ceil(u - ex - 0.5f), -2.0f, 1e7f);
-        xhi = clamp(floor(u + ex - 0.5f), -2.0f, 1e7f);
-        ylo = clamp(ceil(v - ey - 0.5f), -2.0f, 1e7f);
-        yhi = clamp(floor(v + ey - 0.5f), -2.0f, 1e7f);
-    }
-    __global float *rec = packed + (size_t)g * 16;
-    rec[0] = u;
-    rec[1] = v;
-    rec[2] = A;
-    rec[3] = B;
-    rec[4] = C;
-    rec[5] = o;
-    rec[6] = colors[3 * g];
-    rec[7] = colors[3 * g + 1];
-    rec[8] = colors[3 * g + 2];
-    rec[9] = depths[g];
-    rec[10] = xlo;
-    rec[11] = xhi;
-    rec[12] = ylo;
-    rec[13] = yhi;
-    rec[14] = 0.0f;
-    rec[15] = 0.0f;
+    raster_prep_one(g, means2d, conics, colors, opacities, depths, packed);
 }
 
 /* ------------------------------------------------------------------------------------------ */

@@ -7,12 +7,13 @@
  * Reduce-then-scan, never a decoupled look-back: PoCL gives no forward-progress guarantee between
  * work-groups (docs/perf_notes.md §4.1), so no work-group ever waits on another one inside a launch.
  *
- *   scan_reduce  block b -> block_sums[b] = sum of its elements
- *   scan_top     (GPU schedule only) one work-group scans block_sums[0..nblocks) in place, exclusive,
- *                and writes the grand total
- *   scan_add     block b scans its elements and adds its block offset; in == out is allowed.
- *                CPU schedule: the block offset is summed from block_sums here (nblocks is small),
- *                and the last block writes the total, so the CPU path is two launches.
+ *   scan_reduce  block b -> block_sums[b] = sum of its elements (bin.cl's bin_count writes the same
+ *                sums for the binning's tile counts, so a forward scans them with scan_add alone)
+ *   scan_add     block b sums the block sums before it (its offset), scans its elements and adds
+ *                the offset; the last block writes the grand total. in == out is allowed. Two
+ *                launches on both schedules (a third, a one-work-group scan of the block sums,
+ *                cost a launch per scan on GPUs until 2026-11-27: blocks are few, ~N / 2048, so
+ *                each work-group reading the sums before it is cheap).
  *
  * Defines (defaults in brackets):
  *   REINGS_CPU_SCHEDULE [0]  1: one work-item per block, serial loops, no barriers, local size 1
@@ -53,14 +54,6 @@ __kernel void scan_reduce(__global const uint *in,   // [n]
     uint s = 0;
     for (uint i = lo; i < hi; ++i) s += in[i];
     block_sums[b] = s;
-}
-
-/* scan_top is not needed on the CPU schedule; a stub keeps the kernel list identical. */
-__kernel void scan_top(__global uint *block_sums, // [nblocks]
-                       const uint nblocks,
-                       __global uint *total,      // unused
-                       const uint total_at)
-{
 }
 
 __kernel void scan_add(__global const uint *in,         // [n]  (may alias out)
@@ -111,39 +104,24 @@ void scan_reduce(__global const uint *in,   // [n]
     if (lid == 0) block_sums[get_group_id(0)] = sum;
 }
 
-/* One work-group: block_sums[0..nblocks) -> exclusive prefix in place, total[total_at] = sum. */
-__kernel __attribute__((reqd_work_group_size(SCAN_WG, 1, 1)))
-void scan_top(__global uint *block_sums, // [nblocks]
-              const uint nblocks,
-              __global uint *total,      // [>= total_at + 1]
-              const uint total_at)
-{
-    __local uint tmp[SCAN_WG];
-    const uint lid = get_local_id(0);
-    uint carry = 0;
-    for (uint c = 0; c < nblocks; c += SCAN_WG) {
-        const uint i = c + lid;
-        const uint x = i < nblocks ? block_sums[i] : 0u;
-        uint sum;
-        const uint ex = wg_exclusive_scan(x, tmp, &sum);
-        if (i < nblocks) block_sums[i] = carry + ex;
-        carry += sum;
-    }
-    if (lid == 0) total[total_at] = carry;
-}
-
 __kernel __attribute__((reqd_work_group_size(SCAN_WG, 1, 1)))
 void scan_add(__global const uint *in,         // [n]  (may alias out)
               __global uint *out,              // [n]
               const uint n,
-              const uint chunk,                // unused
-              __global const uint *block_sums, // [nblocks] exclusive block offsets from scan_top
-              __global uint *total,            // unused here (scan_top wrote it)
+              const uint chunk,                // unused (block = SCAN_BLOCK)
+              __global const uint *block_sums, // [nblocks] from scan_reduce (not scanned)
+              __global uint *total,            // [>= total_at + 1] grand total written here
               const uint total_at)
 {
     __local uint tmp[SCAN_WG];
     const uint lid = get_local_id(0);
-    const uint base = get_group_id(0) * SCAN_BLOCK + lid * SCAN_ITEMS; /* SCAN_ITEMS consecutive */
+    const uint b = get_group_id(0);
+    /* this block's offset: the sum of the block sums before it, over the work-group */
+    uint part = 0;
+    for (uint j = lid; j < b; j += SCAN_WG) part += block_sums[j];
+    uint offset;
+    wg_exclusive_scan(part, tmp, &offset);
+    const uint base = b * SCAN_BLOCK + lid * SCAN_ITEMS; /* SCAN_ITEMS consecutive */
     uint x[SCAN_ITEMS];
     uint s = 0;
     for (uint k = 0; k < SCAN_ITEMS; ++k) {
@@ -152,12 +130,13 @@ void scan_add(__global const uint *in,         // [n]  (may alias out)
         s += x[k];
     }
     uint sum;
-    uint acc = wg_exclusive_scan(s, tmp, &sum) + block_sums[get_group_id(0)];
+    uint acc = wg_exclusive_scan(s, tmp, &sum) + offset;
     for (uint k = 0; k < SCAN_ITEMS; ++k) {
         const uint i = base + k;
         if (i < n) out[i] = acc;
         acc += x[k];
     }
+    if (lid == 0 && b == get_num_groups(0) - 1) total[total_at] = offset + sum;
 }
 
 #endif

@@ -315,6 +315,71 @@ def test_project_empty(device):
         assert gr.sh.shape == (0, (deg + 1) ** 2, 3)
 
 
+ACC_POISON = np.array([np.nan, np.inf, -np.inf, 3.0e38, -3.0e38, 1e-40, -1e-40], np.float32)
+
+
+def check_project_bwd_accumulate(device, g, cam, grad_fields=None, seed=0, name=""):
+    """project_bwd's accumulate mode (the device trainer's `backward(into=)`): into buffers that hold
+    start values (signed zeros, poison, random), the gradients of `grad_fields` are added, one float32
+    add per element as reference_state.grad_add, and the other fields keep their bytes. The plain
+    mode's gradients of the same frame are the independent side."""
+    import pyopencl as cl
+
+    from reings.backends.base import grad_columns
+    from reings.backends.reference_state import grad_add
+
+    be = get_backend(device)
+    n, k = len(g), g.sh.shape[1]
+    gr = _random_grads(n, seed)
+    plain = be.project_bwd(g, cam, None, gr, grad_fields=grad_fields)
+    rng = np.random.default_rng(seed + 100)
+    start = {}
+    for f, cols in grad_columns(k).items():
+        a = rng.normal(size=n * cols).astype(np.float32)
+        a[0::5] = -0.0  # -0.0 + 0.0 is +0.0: an added zero shows
+        a[1::7] = ACC_POISON[np.arange(len(a[1::7])) % len(ACC_POISON)]
+        start[f] = a
+    fr = be._new_frame(n, cam.width, cam.height, k)
+    fr.bufs["in"] = be._upload_gaussians(g)
+    be._project_device(fr, fr.bufs["in"], cam, 0.01, None)
+    vp = np.concatenate([np.asarray(gr.v_means2d, np.float32).reshape(n, 2), np.asarray(gr.v_conics, np.float32),
+                         np.asarray(gr.v_colors, np.float32), np.asarray(gr.v_opacities, np.float32).reshape(n, 1),
+                         np.asarray(gr.v_depths, np.float32).reshape(n, 1)], axis=1)
+    fr.bufs["v_proj"] = be._upload("gauss", "v_proj_in", vp)
+    mf = cl.mem_flags
+    out = {f: cl.Buffer(be.handle.context, mf.READ_WRITE | mf.COPY_HOST_PTR, hostbuf=a) for f, a in start.items()}
+    be._project_bwd_device(fr, None, grad_fields, out, accumulate=True)
+    got = {f: be._read(out[f], start[f].shape, np.float32) for f in out}
+    be._finish()
+    for f in start:
+        want = start[f].copy()
+        if grad_fields is None or f in grad_fields:
+            with np.errstate(invalid="ignore", over="ignore"):
+                grad_add(want, np.asarray(getattr(plain, f), np.float32).reshape(-1))
+        assert np.array_equal(got[f].view(np.uint32), want.view(np.uint32)), f"{name}: {f}"
+    return plain
+
+
+@pytest.mark.parametrize("vw", [1, 8, "1-staged"])
+@pytest.mark.parametrize("grad_fields", [None, ("opacity_logits",), ("sh", "means")])
+def test_project_bwd_accumulate(device, vw, grad_fields):
+    """The accumulate mode at both lane widths (and width 1 with the SH rows staged), SH degree 3,
+    a partial last work-group and culled rows (behind the camera): every asked field added bit for
+    bit, the others untouched (check_project_bwd_accumulate)."""
+    be = get_backend(device)
+    old = be.proj_vw, be.proj_stage
+    be.proj_vw, be.proj_stage = (1, True) if vw == "1-staged" else (vw, False)
+    try:
+        g, cam = random_scene(203, 64, 48, seed=9, sh_degree=3, scale_median=0.1)
+        means = g.means.copy()
+        means[::7, 2] = -5.0
+        plain = check_project_bwd_accumulate(device, replace(g, means=means), cam, grad_fields, name=f"vw{vw}")
+        f = "means" if grad_fields is None else grad_fields[-1]
+        assert np.abs(getattr(plain, f)).max() > 0 and not getattr(plain, f)[::7].any()
+    finally:
+        be.proj_vw, be.proj_stage = old
+
+
 # ------------------------------------------------------------------------------------------------
 # Oclgrind: out-of-bounds, uninitialised values, data races
 # ------------------------------------------------------------------------------------------------
@@ -330,7 +395,7 @@ def test_project_oclgrind(lanes):
     run_oclgrind("""
         import numpy as np
         from cases import random_scene, case
-        from test_project import check_project_fwd, check_project_bwd
+        from test_project import check_project_fwd, check_project_bwd, check_project_bwd_accumulate
         from reings.backends import get_backend
         from reings.backends.reference_drop import Drop
         be = get_backend("oclgrind")
@@ -344,6 +409,8 @@ def test_project_oclgrind(lanes):
                                   name=f"oclgrind vw{vw} sh{deg}")
                 check_project_fwd("oclgrind", g, cam, name=f"oclgrind vw{vw} sh{deg} drop", drop=drop)
                 check_project_bwd("oclgrind", g, cam, name=f"oclgrind vw{vw} sh{deg} drop", drop=drop)
+                check_project_bwd_accumulate("oclgrind", g, cam, ("opacity_logits", "sh") if deg else None,
+                                             name=f"oclgrind vw{vw} sh{deg} accumulate")
             c = case("quat_tiny")
             check_project_fwd("oclgrind", c.gaussians, c.camera, name="quat_tiny")
     """.replace("WIDTHS", widths), extra_env={"OCLGRIND_UNINITIALIZED": "0"} if lanes == "float8" else None)

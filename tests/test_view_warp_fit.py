@@ -154,7 +154,7 @@ def test_backward_into_is_the_sum(device, case):
 
 def test_backward_hold_is_hold_of_the_backward(device, case):
     """backward(hold=True) gives hold(backward()) bit for bit, survives the next backward, and a later
-    opacity-only backward into it adds that field alone (grad_add_multi, one launch on the device)."""
+    opacity-only backward into it adds that field alone (project_bwd's accumulate mode on the device)."""
     scene, init, cfg = case
     for engine in ("host", "device"):
         be = get_backend(device)
@@ -185,7 +185,7 @@ def test_backward_hold_is_hold_of_the_backward(device, case):
 def test_backward_into_adds_every_field(device, case, k):
     """backward(hold=True) then a full backward into it: every field (means, quats, log_scales, opacities and
     both SH groups at k coefficients) is the float32 sum of the two backwards, on both engines (the device
-    engine's one grad_add_multi launch, every slot)."""
+    engine's project_bwd accumulate mode, every field)."""
     scene, init, cfg = case
     rng = np.random.default_rng(5)  # anisotropic scales and SH colours: every field has a gradient
     init = replace(init, log_scales=(init.log_scales + rng.normal(0, 0.4, init.log_scales.shape)).astype(np.float32),

@@ -5,7 +5,8 @@
     adam_update         kernels/adam.cl adam_step     one float32 Adam update, numpy's exact op sequence
     ndc_grad_norm,      kernels/densify_accumulate.cl 3DGS `add_densification_stats` for one view
     densify_accumulate
-    grad_add            kernels/grad_add.cl           the gradients of a second backward added in place
+    grad_add            kernels/project.cl            the gradients of a second backward added in place
+                        project_bwd (grad_acc 1)
     opacity_decay_      kernels/regularize.cl         logits <- logit(f sigmoid(logits)) in place, the
                         opacity_decay                 float64 twin reference_view_warp.opacity_decay
                                                       rounded to float32
@@ -88,7 +89,8 @@ def densify_accumulate(stats: dict, grad_norms: np.ndarray, visible: np.ndarray,
 
 
 def grad_add(dst: np.ndarray, src: np.ndarray) -> None:
-    """dst += src in float32, in place (kernels/grad_add.cl: one IEEE add per element, same bits)."""
+    """dst += src in float32, in place (project.cl project_bwd with grad_acc 1: one IEEE add per element,
+    same bits)."""
     if dst.shape != src.shape:
         raise ValueError(f"grad_add: shapes {dst.shape} and {src.shape} differ")
     np.add(dst, np.asarray(src, np.float32), out=dst)

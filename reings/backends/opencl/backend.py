@@ -179,6 +179,7 @@ class _Frame:
     key: tuple | None = None  # (camera, background, near, override, drop) for forward reuse
     camera: Camera | None = None  # the camera rendered
     drop: Drop | None = None  # DropGaussian's mask of the projection (its backward uses the same)
+    packed: bool = False  # project_fwd wrote the rasterizer's records (no rasterize_prep launch)
     slot: int = 0  # the frame slot owning its buffers (module docstring): 0, or 1 for a kept frame
     order: Any = None  # the depth_order.Order its (keys, gid_from_rank) are in (None: uploaded bins)
     order_gen: int = 0  # that order's generation at the forward (module docstring, "Depth orders")
@@ -246,8 +247,6 @@ class OpenCLBackend:
         self.depth_sorts = {"sorted": 0, "shared": 0}  # forwards that sorted / that shared an order
         self.scan = ExclusiveScan(self.handle)
         self.wg = 256 if self.cpu else 128  # PoCL: fewer, larger work-groups (dispatch cost ~us each)
-        # bin.cl's bin_count sums its visible count by a tree over the work-group: a power of two <= BIN_WG_MAX
-        assert self.wg & (self.wg - 1) == 0 and self.wg <= 256, self.wg
         self.proj_vw = 8 if self.cpu else 1  # Gaussians per work-item in project.cl (float8 lanes on CPUs)
         self.proj_wg = 64 if self.cpu else 128  # project.cl work-group (64 x 8 Gaussians on CPUs)
         # project.cl's SH rows through local memory on the GPU schedule only (_proj_defines, width-1 lanes);
@@ -417,7 +416,9 @@ class OpenCLBackend:
         ev = self.launch(k, -(-n // self.proj_vw), _I32(n), inp["means"], inp["quats"], inp["log_scales"],
                           inp["opacity_logits"], *_sh_args(inp, fr.sh_k), b["cam"], _I32(fr.width), _I32(fr.height),
                           ov, *drop_args(drop), b["means2d"], b["conics"], b["depths"], b["radii"], b["tile_rect"],
-                          b["colors"], b["opacities"], b["depth_keys"], b["gid_vals"], b["ctrl"], wg=self.proj_wg)
+                          b["colors"], b["opacities"], b["depth_keys"], b["gid_vals"], b["ctrl"],
+                          self._raster(fr).packed_for(n), wg=self.proj_wg)
+        fr.packed = True  # the rasterizer's records too: _raster_fwd launches no rasterize_prep
         self._mark("project_fwd", ev)
 
     def _camera_buffer(self, cam: Camera, near: float):
@@ -451,11 +452,14 @@ class OpenCLBackend:
         touched = s.get("gauss", "tiles_touched", n + 1, 4)
         ctrl = b["ctrl"]  # its visible count zeroed by project_fwd (or _upload_projected)
         offsets = b["offset_from_rank"] = s.get("gauss", "offset_from_rank", n + 1, 4)
-        ev = self.launch(self.kernel("bin.cl", "bin_count"), n + 1, _I32(n), keys, gfr, b["tile_rect"],
-                          b["radii"], touched, ctrl)
+        sc = self.scan  # bin_count writes the scan's block sums too: the scan is its scan_add alone
+        nblocks, chunk, items, wg = sc.blocks(n + 1)
+        sums = sc.block_sums(nblocks)
+        ev = self.launch(self.kernel("bin.cl", "bin_count", **sc.defines), items, _I32(n), keys, gfr,
+                         b["tile_rect"], b["radii"], touched, ctrl, _U32(chunk), sums, wg=wg)
         self._mark("bin_count", ev)
-        _, ev = self.scan(touched, offsets, n + 1, total_buf=ctrl, total_at=CTRL_ISECTS, read_total=False)
-        self._mark("scan", ev, span=True)
+        ev = sc.add(touched, offsets, n + 1, sums, ctrl, CTRL_ISECTS)
+        self._mark("scan", ev)
         if allow_async and self.binning(n, fr.n_tiles) == "async":
             # sync-free: buffers at the bound, the counts read back without blocking
             if self._ring is None:
@@ -565,13 +569,14 @@ class OpenCLBackend:
     # rasterizer adapter (reings/backends/opencl/rasterize.py owns the kernels)
     # ------------------------------------------------------------------------------------------
     def _raster_fwd(self, fr: _Frame, background, want_importance: bool) -> None:
-        """rasterize_prep + rasterize_fwd; importance: per-emit records reduced per gid."""
+        """rasterize_prep (unless project_fwd wrote the records: fr.packed) + rasterize_fwd; importance:
+        per-emit records reduced per gid."""
         import pyopencl as cl
 
         r, b = self._raster(fr), fr.bufs
         ev = r.fwd(b["means2d"], b["conics"], b["colors"], b["opacities"], b["depths"], fr.n, b["tile_ranges"],
                    b["gid_from_isect"], b["emit_from_isect"], fr.cap, fr.width, fr.height,
-                   tuple(float(x) for x in background), importance=want_importance)
+                   tuple(float(x) for x in background), importance=want_importance, prepared=fr.packed)
         self._mark("rasterize_fwd", ev, span=True)
         b["out_rgb"], b["out_depth"], b["out_alpha"] = r.rgb, r.depth, r.alpha
         b["out_T"], b["out_last"] = r.final_T, r.last
@@ -658,7 +663,7 @@ class OpenCLBackend:
 
     def backward_device(self, fr: _Frame, v_rgb=None, v_depth=None, v_alpha=None,
                         opacity_override: float | None = None, grad_fields: Sequence[str] | None = None,
-                        v_depth_opacity=None, out: dict | None = None) -> dict:
+                        v_depth_opacity=None, out: dict | None = None, accumulate: bool = False) -> dict:
         """`render_vjp`'s backward for a frame of `forward_device`, with the cotangent images as
         device buffers ([H,W,3], [H,W], [H,W]; None = zero). Returns the gradient buffers
         {field: buffer} ([N,3], [N,4], [N,3], [N], [N,sh_k,3]; fields outside `grad_fields` are
@@ -676,9 +681,13 @@ class OpenCLBackend:
 
         out: {field: buffer} (every field of FIELDS, each at least the rows above) that project_bwd writes
         the gradients into instead of this backend's own buffers (returned, then: the device trainer's
-        held gradients, so that the next backward leaves them alone with no copy)."""
+        held gradients, so that the next backward leaves them alone with no copy). accumulate (with out):
+        the gradients of the `grad_fields` are added into `out` (one float32 add per element, as
+        reference_state.grad_add) and its other fields are left as they are."""
         if self._slot(fr.slot).frame is not fr:
             raise RuntimeError(f"backward_device: a later forward replaced the frame (slot {fr.slot})")
+        if accumulate and out is None:
+            raise ValueError("backward_device: accumulate needs the buffers to add into (out=)")
         if out is not None:  # before anything is enqueued or announced
             short = [f for f, cols in grad_columns(fr.sh_k).items() if f not in out or out[f].size < 4 * cols * fr.n]
             if short:
@@ -689,12 +698,12 @@ class OpenCLBackend:
                 and v_alpha is None and only):
             self._check_order(fr)  # the records announced by the previous backward: reduce them
             self._reduce_records(fr, self._raster(fr).v_emit_o)
-            return self._project_bwd_device(fr, opacity_override, grad_fields, out)
+            return self._project_bwd_device(fr, opacity_override, grad_fields, out, accumulate)
         fuse = v_depth_opacity is not None and not only and not fr.sync_free
         self._raster_bwd_buffers(fr, v_rgb, v_depth, v_alpha, only, v_depth_opacity if fuse else None)
         if fuse:
             self._pending_o = (fr, v_depth_opacity)
-        return self._project_bwd_device(fr, opacity_override, grad_fields, out)
+        return self._project_bwd_device(fr, opacity_override, grad_fields, out, accumulate)
 
     # ------------------------------------------------------------------------------------------
     # training: the trainer factory and the loss kernels (reings/backends/opencl/losses.py)
@@ -847,7 +856,10 @@ class OpenCLBackend:
             d.update(PROJ_SH_STAGE=1, PROJ_WG=self.proj_wg)
         return d
 
-    def _project_bwd_device(self, fr: _Frame, override, grad_fields, out: dict | None = None) -> dict:
+    def _project_bwd_device(self, fr: _Frame, override, grad_fields, out: dict | None = None,
+                            accumulate: bool = False) -> dict:
+        """project_bwd into `out` (default: this backend's gradient buffers); accumulate: added into
+        `out`'s rows, the fields outside `grad_fields` left untouched (project.cl GRAD_F)."""
         n, s, b = fr.n, self.scratch, fr.bufs
         mask = 0
         for f in (FIELDS if grad_fields is None else grad_fields):
@@ -859,7 +871,7 @@ class OpenCLBackend:
         ov = _F32(override if override is not None else 0.0)
         ev = self.launch(k, -(-n // self.proj_vw), _I32(n), inp["means"], inp["quats"], inp["log_scales"], inp["opacity_logits"],
                           *_sh_args(inp, fr.sh_k), b["cam"], _I32(fr.width), _I32(fr.height), ov, drop_args(fr.drop)[2],
-                          _I32(mask), b["radii"],
+                          _I32(mask), _I32(1 if accumulate else 0), b["radii"],
                           b["v_proj"], out["means"], out["quats"], out["log_scales"], out["opacity_logits"],
                           out["sh"], wg=self.proj_wg)
         self._mark("project_bwd", ev)

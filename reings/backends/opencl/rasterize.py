@@ -141,6 +141,12 @@ class Rasterizer:
     def packed(self):
         return self.scratch.get("gauss", "raster_packed", self.n, PACKED_BYTES)
 
+    def packed_for(self, n: int):
+        """The records buffer of n Gaussians for a kernel that writes them itself (project_fwd): a
+        later fwd(..., prepared=True) of n Gaussians reads it."""
+        self.n = int(n)
+        return self.packed
+
     @property
     def imp_emit(self):
         return self.scratch.get("isect", "raster_imp_emit", self.n_isect, 4)

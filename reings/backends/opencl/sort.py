@@ -213,6 +213,9 @@ class ExclusiveScan:
         total_buf        optional [>= total_at + 1] uint32 device buffer that receives the total
                          (so a caller can fold it into its one readback); default: own scratch
         returns (total or None, event); total is read back (a host sync) only if read_total.
+    Two launches (scan_reduce, scan_add; kernels/scan.cl). A kernel that can write the block sums
+    itself (bin.cl's bin_count) takes the block geometry from `blocks(n)` and the sums buffer from
+    `block_sums(nblocks)`, and then calls `add` alone: one launch.
     Built once per DeviceHandle: `ExclusiveScan.for_handle(handle)` caches one.
     """
 
@@ -230,15 +233,35 @@ class ExclusiveScan:
         self.handle = handle
         self.cpu = _cpu_schedule(handle, cpu_schedule)
         self.wg, self.items, self.per_core = wg, items, blocks_per_core
-        defines = {"REINGS_CPU_SCHEDULE": int(self.cpu)}
+        self.defines = {"REINGS_CPU_SCHEDULE": int(self.cpu)}  # a block-sum writer builds with these too
         if not self.cpu:
-            defines.update(SCAN_WG=wg, SCAN_ITEMS=items)
+            self.defines.update(SCAN_WG=wg, SCAN_ITEMS=items)
         u, b = np.uint32, None  # b: a buffer argument
-        self.k_reduce = _kernel(handle, "scan.cl", "scan_reduce", [b, u, u, b], **defines)
-        self.k_top = _kernel(handle, "scan.cl", "scan_top", [b, u, b, u], **defines)
-        self.k_add = _kernel(handle, "scan.cl", "scan_add", [b, b, u, u, b, b, u], **defines)
+        self.k_reduce = _kernel(handle, "scan.cl", "scan_reduce", [b, u, u, b], **self.defines)
+        self.k_add = _kernel(handle, "scan.cl", "scan_add", [b, b, u, u, b, b, u], **self.defines)
         self._sums = _Scratch(handle.context)
         self._total = _Scratch(handle.context)
+
+    def blocks(self, n: int) -> tuple[int, int, int, int]:
+        """The blocks of a scan of n > 0 elements: (nblocks, chunk, global size, local size). CPU
+        schedule: a work-item per block of `chunk` elements; GPU: a work-group of `wg` per block of
+        wg * items elements (chunk 0)."""
+        if self.cpu:
+            nblocks, chunk = _blocks_cpu(self.handle, n, 4096, self.per_core)
+            return nblocks, chunk, nblocks, 1
+        nblocks = -(-n // (self.wg * self.items))
+        return nblocks, 0, nblocks * self.wg, self.wg
+
+    def block_sums(self, nblocks: int):
+        """The block sums' buffer (this scan's scratch; valid until the next scan)."""
+        return self._sums.get(4 * nblocks)
+
+    def add(self, in_buf, out_buf, n: int, sums, total_buf, total_at: int, wait_for=None):
+        """scan_add of n > 0 elements whose block sums (`blocks(n)`'s blocks) are in `sums`: the scan
+        into out_buf, the total into total_buf[total_at]. Returns the event."""
+        _, chunk, gsize, lsize = self.blocks(n)
+        return self.k_add(self.handle.queue, (gsize,), (lsize,), in_buf, out_buf, n, chunk, sums, total_buf,
+                          total_at, wait_for=wait_for)
 
     def __call__(self, in_buf, out_buf, n: int, total_buf=None, total_at: int = 0,
                  read_total: bool = True, wait_for=None):
@@ -249,19 +272,11 @@ class ExclusiveScan:
             total_buf, total_at = self._total.get(4), 0
         if n == 0:
             ev = cl.enqueue_fill_buffer(q, total_buf, np.uint32(0), 4 * total_at, 4, wait_for=wait_for)
-        elif self.cpu:
-            nblocks, chunk = _blocks_cpu(self.handle, n, 4096, self.per_core)
-            sums = self._sums.get(4 * nblocks)
-            self.k_reduce(q, (nblocks,), (1,), in_buf, n, chunk, sums, wait_for=wait_for)
-            ev = self.k_add(q, (nblocks,), (1,), in_buf, out_buf, n, chunk, sums, total_buf, total_at)
         else:
-            block = self.wg * self.items
-            nblocks = -(-n // block)
-            sums = self._sums.get(4 * nblocks)
-            self.k_reduce(q, (nblocks * self.wg,), (self.wg,), in_buf, n, 0, sums, wait_for=wait_for)
-            self.k_top(q, (self.wg,), (self.wg,), sums, nblocks, total_buf, total_at)
-            ev = self.k_add(q, (nblocks * self.wg,), (self.wg,), in_buf, out_buf, n, 0, sums,
-                            total_buf, total_at)
+            nblocks, chunk, gsize, lsize = self.blocks(n)
+            sums = self.block_sums(nblocks)
+            self.k_reduce(q, (gsize,), (lsize,), in_buf, n, chunk, sums, wait_for=wait_for)
+            ev = self.add(in_buf, out_buf, n, sums, total_buf, total_at)
         if not read_total:
             return None, ev
         t = np.empty(1, _U32)

@@ -173,7 +173,6 @@ class DeviceTrainer:
         self.k_reg_value = backend.kernel("regularize.cl", "regularize_value", REGULARIZE_FP64=int(self.fp64))
         self.k_mse_rows = backend.kernel("mse.cl", "mse_rows", MSE_FP64=int(self.fp64))
         self._reg_value = None  # (sums buffer, chunks, n, weights) of the last regularize(value=True)
-        self.k_grad_add = backend.kernel("grad_add.cl", "grad_add_multi")
         self.k_gather_rows = backend.kernel("gather_rows.cl", "gather_rows")
         self._none_idx = None  # a one-entry index buffer holding -1 (`_zero`)
         self.k_bg_alpha = backend.kernel("bg_alpha.cl", "bg_alpha_grad")
@@ -656,8 +655,8 @@ class DeviceTrainer:
         e.g. from `depth_loss`, or a host [H,W] array, uploaded). Returns the gradient buffers
         {field: buffer} of backend.backward_device plus "sh_k" (`adam_step` reads the SH groups
         as strided views of the "sh" buffer); with `into` (from `hold`, or a backward with hold),
-        kernels/grad_add.cl's grad_add_multi adds the `grad_fields` ones (None: all) into its buffers
-        in one launch and returns it. hold (without `into`): project_bwd writes the gradients
+        project_bwd adds the `grad_fields` ones (None: all) into its buffers (its accumulate mode:
+        no second launch, the same bits as a float32 add) and returns it. hold (without `into`): project_bwd writes the gradients
         straight into the held buffers `hold` would copy them into (no copy). The frame's
         DropGaussian mask (from `forward`) applies. v_depth_opacity (a device buffer;
         Trainer.backward): with `fuse_soft_backward`, this pass also makes the records of the
@@ -671,24 +670,18 @@ class DeviceTrainer:
             self._write(vdo_buf, np.asarray(v_depth_opacity, _F32))
             v_depth_opacity = vdo_buf
         vdo = v_depth_opacity if self.fuse_soft_backward else None
-        out = self._held(fr.sh_k) if hold and into is None else None
+        cols = self._grad_columns(fr.sh_k)
+        if into is not None:  # project_bwd adds the grad_fields into the held buffers (no second launch)
+            if into.get("sh_k") != fr.sh_k or set(into) != {*cols, "sh_k"}:
+                raise ValueError("backward into: the held gradients are of another SH count or field set")
+            self.b.backward_device(fr, v_rgb, vd, v_alpha, opacity_override, grad_fields, v_depth_opacity=vdo,
+                                   out={f: into[f] for f in cols}, accumulate=True)
+            return into
+        out = self._held(fr.sh_k) if hold else None
         g = dict(self.b.backward_device(fr, v_rgb, vd, v_alpha, opacity_override, grad_fields, v_depth_opacity=vdo,
-                                        out=None if out is None else {f: out[f] for f in self._grad_columns(fr.sh_k)}))
+                                        out=None if out is None else {f: out[f] for f in cols}))
         g["sh_k"] = fr.sh_k
-        if into is None:
-            return g
-        if into.get("sh_k") != fr.sh_k or set(into) != set(g):
-            raise ValueError("backward into: the held gradients are of another SH count or field set")
-        slots = []
-        for f, cols in self._grad_columns(fr.sh_k).items():  # only the fields asked for are added
-            if self.n * cols and (grad_fields is None or f in grad_fields):
-                slots += [_U32(self.n * cols), into[f], g[f]]
-        if slots:
-            size = max(int(x) for x in slots[0::3])
-            dummy = self.mem.get("small", "grad_add_dummy", 1, 4)
-            slots += [_U32(0), dummy, dummy] * (5 - len(slots) // 3)
-            self._launch("grad_add", self.k_grad_add, size, *slots)
-        return into
+        return g
 
     def _grad_columns(self, sh_k: int) -> dict:
         """Floats per Gaussian of each gradient buffer of backend.backward_device."""
