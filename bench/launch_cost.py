@@ -18,7 +18,9 @@ Session 24 (docs/perf_notes.md §18) measured on an H100: invoker 17–19 us, pr
 noevent_preset 13.6–14.2 us per launch, wall = enqueue in every way: the host is the limit, and NVIDIA's
 enqueue itself (~13 us on that host) is most of it; leaving the event out saves < 1 us (reings keeps pyopencl's path).
 
-and for two global sizes (one work-group; --groups work-groups). Per way: the host's seconds in the
+and for two global sizes (one work-group; --groups work-groups). --buffer-sweep B1,B2,... (session 25): the
+`preset` way for do-nothing kernels of B distinct buffer arguments each (one work-group): whether NVIDIA's enqueue
+costs per buffer argument (a cost per buffer would favour fewer, larger buffers: an arena of the training state). Per way: the host's seconds in the
 enqueue loop per launch ("enqueue us") and the wall from the first enqueue to the end of
 queue.finish() per launch ("wall us"). wall ~ enqueue: the host is the limit (the device finished
 each launch before the next arrived); wall > enqueue: the device's own cost per launch (its launch
@@ -78,6 +80,38 @@ def enqueue_no_event():
     return fn
 
 
+def buffer_sweep(be, counts, a) -> list:
+    """The preset way's enqueue and wall per launch for kernels of each count of buffer arguments."""
+    import pyopencl as cl
+
+    q, ctx, rows = be.queue, be.handle.context, []
+    for nb in counts:
+        params = ", ".join(["int n"] + [f"__global float* b{i}" for i in range(nb)])
+        body = "if (get_global_id(0) >= n && n < 0) b0[0] = 1.0f;" if nb else ""
+        k = cl.Kernel(cl.Program(ctx, f"__kernel void nothing_{nb}({params}) {{ {body} }}").build(), f"nothing_{nb}")
+        bufs = [cl.Buffer(ctx, cl.mem_flags.READ_WRITE, 4096) for _ in range(nb)]
+        k.set_args(np.int32(1), *bufs)
+        g, l = (a.wg,), (a.wg,)
+        enq, wall = [], []
+        for r in range(a.repeats + 1):
+            q.finish()
+            t0 = time.perf_counter()
+            for _ in range(a.launches):
+                cl.enqueue_nd_range_kernel(q, k, g, l)
+            t1 = time.perf_counter()
+            q.finish()
+            t2 = time.perf_counter()
+            if r:
+                enq.append((t1 - t0) / a.launches * 1e6)
+                wall.append((t2 - t0) / a.launches * 1e6)
+        rec = dict(device=be.device_name, way="preset", buffers=nb, groups=1, wg=a.wg, launches=a.launches,
+                   enqueue_us=statistics.median(enq), wall_us=statistics.median(wall))
+        rows.append(rec)
+        print(f"preset   buffers {nb:4d}: enqueue {rec['enqueue_us']:7.2f} us/launch, wall {rec['wall_us']:7.2f} us/launch",
+              flush=True)
+    return rows
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--device", default="pocl")
@@ -86,6 +120,7 @@ def main(argv=None) -> int:
     ap.add_argument("--groups", type=int, default=512, help="work-groups of the larger launch")
     ap.add_argument("--wg", type=int, default=256)
     ap.add_argument("--json", default=None)
+    ap.add_argument("--buffer-sweep", default=None, help="comma-separated buffer counts: the preset way per count")
     a = ap.parse_args(argv)
 
     import pyopencl as cl
@@ -104,6 +139,8 @@ def main(argv=None) -> int:
     args = [n, *bufs[:6], np.float32(1.0), np.int32(1), np.float32(2.0), *bufs[6:]]
     typed_invoker(k, args)
     rows = []
+    if a.buffer_sweep:
+        rows += buffer_sweep(be, [int(x) for x in a.buffer_sweep.split(",")], a)
     for groups in (1, a.groups):
         g, l = (groups * a.wg,), (a.wg,)
         gb, lb, qp = struct.pack("@N", g[0]), struct.pack("@N", l[0]), q.int_ptr

@@ -8,9 +8,11 @@
 
    Kernels
      regularize_opacity_count  counts[0] += #(sigmoid(logit) > 0.2), counts[1] += #(< 0.2) (counts
-                               zeroed by the host); each work-item a contiguous chunk, one atomic
-                               add per item.
-     regularize_grads          the three penalties' gradients, one work-item per Gaussian.
+                               zero on entry); each work-item a contiguous chunk, one atomic add
+                               per item.
+     regularize_grads          the three penalties' gradients, one work-item per Gaussian. The counts
+                               are one of two pairs, used in turn: work-item 0 zeroes the other pair,
+                               the next call's (the host fills both once, when they are made).
      regularize_value          the penalties' value, for the loop's logging iterations (the
                                device trainer's `regularize(..., value=True)` / `read_regularize`):
                                per chunk of `chunk` Gaussians, in order, the sums of max/min scale,
@@ -41,8 +43,10 @@ typedef float real;
 
 __kernel void regularize_opacity_count(const int n, const int chunk,
                                        __global const float *logits,  /* [N] */
-                                       __global int *counts)          /* [2] (> 0.2, < 0.2), zeroed */
+                                       __global int *count_pairs,     /* [2, 2] (> 0.2, < 0.2) pairs */
+                                       const int pair)                /* the pair counted (zero on entry) */
 {
+    __global int *counts = count_pairs + 2 * pair;
     const int lo = get_global_id(0) * chunk;
     const int hi = min(n, lo + chunk);
     int nh = 0, nl = 0;
@@ -58,13 +62,19 @@ __kernel void regularize_opacity_count(const int n, const int chunk,
 __kernel void regularize_grads(const int n,
                                __global const float *log_scales,   /* [N, 3] */
                                __global const float *logits,       /* [N] */
-                               __global const int *counts,         /* [2] from regularize_opacity_count */
+                               __global int *count_pairs,          /* [2, 2]: this call's pair, the other */
+                               const int pair,                     /* 0 / 1: the pair counted this call */
                                const real shape_pena, const real scale_pena, const real opa_pena,
                                __global float *v_log_scales,       /* [N, 3] += */
                                __global float *v_logits)           /* [N] += */
 {
     const int i = get_global_id(0);
+    if (i == 0) { /* the other pair, zero for the next call's count: no fill command per step */
+        count_pairs[2 * (1 - pair)] = 0;
+        count_pairs[2 * (1 - pair) + 1] = 0;
+    }
     if (!(i < n)) return;
+    __global const int *counts = count_pairs + 2 * pair;
     const real nn = (real)n;
     if (shape_pena != (real)0 || scale_pena != (real)0) {
         real l[3] = {log_scales[3 * i], log_scales[3 * i + 1], log_scales[3 * i + 2]};

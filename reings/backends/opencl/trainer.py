@@ -173,6 +173,7 @@ class DeviceTrainer:
         self.k_reg_value = backend.kernel("regularize.cl", "regularize_value", REGULARIZE_FP64=int(self.fp64))
         self.k_mse_rows = backend.kernel("mse.cl", "mse_rows", MSE_FP64=int(self.fp64))
         self._reg_value = None  # (sums buffer, chunks, n, weights) of the last regularize(value=True)
+        self._reg_counts, self._reg_pair = None, 0  # regularize's two pairs of opacity counts, the next one
         self.k_gather_rows = backend.kernel("gather_rows.cl", "gather_rows")
         self._none_idx = None  # a one-entry index buffer holding -1 (`_zero`)
         self.k_bg_alpha = backend.kernel("bg_alpha.cl", "bg_alpha_grad")
@@ -910,16 +911,20 @@ class DeviceTrainer:
             self._launch("regularize_value", self.k_reg_value, chunks, _I32(self.n), _I32(REG_VALUE_CHUNK),
                          self.buf("p", "log_scales"), self.buf("p", "opacity_logits"), sums)
             self._reg_value = (sums, chunks, self.n, weights)
-        counts = self.mem.get("small", "reg_counts", 2, 4)
+        if self._reg_counts is None:  # two pairs of counters, zero; regularize_grads zeroes the next one
+            self._reg_counts = self.mem.get("small", "reg_counts", 4, 4)
+            self.cl.enqueue_fill_buffer(self.queue, self._reg_counts, _I32(0), 0, 16)
+        counts, pair = self._reg_counts, self._reg_pair
         if opa_pena:
-            self.cl.enqueue_fill_buffer(self.queue, counts, _I32(0), 0, 8)
             chunk = REG_COUNT_CHUNK_CPU if self.b.cpu else REG_COUNT_CHUNK_GPU
             self._launch("regularize_opacity_count", self.k_reg_count, -(-self.n // chunk), _I32(self.n),
-                         _I32(chunk), self.buf("p", "opacity_logits"), counts)
+                         _I32(chunk), self.buf("p", "opacity_logits"), counts, _I32(pair))
         r = self.real
         self._launch("regularize_grads", self.k_reg_grads, self.n, _I32(self.n), self.buf("p", "log_scales"),
-                     self.buf("p", "opacity_logits"), counts, r(shape_pena), r(scale_pena), r(opa_pena),
-                     grads["log_scales"], grads["opacity_logits"])
+                     self.buf("p", "opacity_logits"), counts, _I32(pair), r(shape_pena), r(scale_pena),
+                     r(opa_pena), grads["log_scales"], grads["opacity_logits"])
+        if opa_pena:
+            self._reg_pair = 1 - pair
 
     def read_regularize(self) -> float:
         """Trainer.read_regularize: the last regularize(value=True)'s penalties (a blocking read of
