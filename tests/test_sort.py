@@ -538,7 +538,10 @@ for cpu, kw, sizes in [CONFIGS[PART]]:
     sc = ExclusiveScan(h, cpu_schedule=cpu, **kw)
     keep += [s, sc]
     for n in sizes:
-        for dt, b0, b1 in ((np.uint32, 0, 32), (np.uint64, 0, 42), (np.uint32, 3, 10)):
+        # the default geometry (the production one, the slowest to simulate) sorts the full-width keys of both
+        # widths; the bit-range case runs in the small blocks (the same kernels, fewer work-items)
+        cases = ((np.uint32, 0, 32), (np.uint64, 0, 42)) + (((np.uint32, 3, 10),) if PART != "gpu_default" else ())
+        for dt, b0, b1 in cases:
             if dt == np.uint64:
                 k = rng.integers(0, 2**64 - 1, n, dtype=np.uint64, endpoint=True)
             else:
@@ -559,7 +562,7 @@ for cpu, kw, sizes in [CONFIGS[PART]]:
         assert np.array_equal(out, ref[:n]) and tot == int(ref[n]), (cpu, kw, n)
     # device counts (the sync-free binning): capacity 400, the count in a ctrl word, launched for
     # one pair (every work-group loops over the virtual blocks) and for the capacity
-    for count in (0, 1, 129, 300):
+    for count in (0, 1, 129, 300) if PART != "gpu_default" else (1, 300):
         for est in (1, 400):
             k = rng.integers(0, 2**32, 400, dtype=np.uint64).astype(np.uint32)
             ctrl = upload(np.array([5, count], np.uint32))
