@@ -52,9 +52,9 @@
 
 /* The tiles of rank r in [0, N] (0 for r >= V and for an empty rect), its visibility (radii > 0), and
    ctrl[0] = V at the one r where the ranked prefix ends. */
-inline uint rank_tiles(const int r, const int n, __global const uint *depth_keys_sorted,
-                       __global const uint *gid_from_rank, __global const int *tile_rect,
-                       __global const int *radii, __global uint *ctrl, uint *vis) {
+static inline uint rank_tiles(const int r, const int n, __global const uint *depth_keys_sorted,
+                              __global const uint *gid_from_rank, __global const int *tile_rect,
+                              __global const int *radii, __global uint *ctrl, uint *vis) {
     const bool ranked = r < n && depth_keys_sorted[r] != DEPTH_KEY_CULLED;
     const bool prev_ranked = r == 0 || depth_keys_sorted[r - 1] != DEPTH_KEY_CULLED;
     if (prev_ranked && !ranked) ctrl[0] = (uint)r; /* the ranked Gaussians form a prefix: one writer */

@@ -56,9 +56,9 @@ inline uint launch_count(const uint n, __global const uint *counts, const int co
  * o < 1/255 or not finite; no box, 1e7 wide, where the conic is not positive definite), 16 floats.
  * rasterize.cl's rasterize_prep (an uploaded projection) and project.cl's project_fwd (a forward on
  * the device, which writes the record itself: one launch fewer) both call this. */
-inline void raster_prep_one(const int g, __global const float *means2d, __global const float *conics,
-                            __global const float *colors, __global const float *opacities,
-                            __global const float *depths, __global float *packed) {
+static inline void raster_prep_one(const int g, __global const float *means2d, __global const float *conics,
+                                   __global const float *colors, __global const float *opacities,
+                                   __global const float *depths, __global float *packed) {
     const float u = means2d[2 * g], v = means2d[2 * g + 1];
     const float A = conics[3 * g], B = conics[3 * g + 1], C = conics[3 * g + 2];
     const float o = opacities[g];

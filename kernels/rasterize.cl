@@ -12,7 +12,10 @@
  *   rasterize_prep  per gid: packs (u, v, A, B, C, o, r, g, b, z) plus the pixel box outside of
  *                   which alpha < ALPHA_MIN (opacity-aware, conservative by 1% + 0.5 px) into one
  *                   float16 record, so a (tile, Gaussian) pair costs one 64-byte gather.  The box
- *                   only skips pairs the per-pixel test would skip anyway (same function).
+ *                   only skips pairs the per-pixel test would skip anyway (same function). Its code
+ *                   is common.h's raster_prep_one, which project_fwd also calls: a forward on the
+ *                   device writes the records there, and rasterize_prep runs only for an uploaded
+ *                   projection (the stage API).
  *   rasterize_fwd   images; with -D RASTER_IMPORTANCE=1 also imp_emit[emit] = sum over the tile's
  *                   pixels of alpha T (every emit slot of the tile is written, 0 if unused).
  *   rasterize_bwd   per-intersection gradient records v_emit[emit, V_RECORD] =
@@ -297,7 +300,7 @@ inline int box_in_tile(float16 g, int x0, int y0, int *r0, int *r1, int *c0, int
     return 1;
 }
 
-__kernel void rasterize_fwd(__global const float16 *packed,      // [N] from rasterize_prep
+__kernel void rasterize_fwd(__global const float16 *packed,      // [N] records of raster_prep_one (project_fwd or rasterize_prep)
                             __global const int *tile_ranges,     // [T, 2]
                             __global const int *gid_from_isect,  // [K]
                             __global const int *emit_from_isect, // [K]
@@ -611,7 +614,7 @@ static inline void bwd_tile_bounds(__global const float16 *packed, __global cons
     *mk_out = mk;
 }
 
-__kernel void rasterize_bwd(__global const float16 *packed,      // [N] from rasterize_prep
+__kernel void rasterize_bwd(__global const float16 *packed,      // [N] records of raster_prep_one (project_fwd or rasterize_prep)
                             __global const int *tile_ranges,     // [T, 2]
                             __global const int *gid_from_isect,  // [K]
                             __global const int *emit_from_isect, // [K]
@@ -750,7 +753,7 @@ inline int in_box(float16 g, int px, int py) {
 }
 
 __kernel __attribute__((reqd_work_group_size(TILE_PIXELS, 1, 1))) void
-rasterize_fwd(__global const float16 *packed,      // [N] from rasterize_prep
+rasterize_fwd(__global const float16 *packed,      // [N] records of raster_prep_one (project_fwd or rasterize_prep)
               __global const int *tile_ranges,     // [T, 2]
               __global const int *gid_from_isect,  // [K]
               __global const int *emit_from_isect, // [K]
@@ -998,7 +1001,7 @@ bwd_group(__global const float16 *packed, __global const int *gid_from_isect,
 }
 
 __kernel __attribute__((reqd_work_group_size(TILE_PIXELS, 1, 1))) void
-rasterize_bwd(__global const float16 *packed,      // [N] from rasterize_prep
+rasterize_bwd(__global const float16 *packed,      // [N] records of raster_prep_one (project_fwd or rasterize_prep)
               __global const int *tile_ranges,     // [T, 2]
               __global const int *gid_from_isect,  // [K]
               __global const int *emit_from_isect, // [K]

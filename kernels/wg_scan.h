@@ -10,7 +10,7 @@
 #error "define WG_SCAN_SIZE before including wg_scan.h"
 #endif
 
-inline uint wg_exclusive_scan(uint x, __local uint *tmp, uint *sum)
+static inline uint wg_exclusive_scan(uint x, __local uint *tmp, uint *sum)
 {
     const uint lid = get_local_id(0);
     tmp[lid] = x;

@@ -293,7 +293,8 @@ def check_bin_count(handle, cpu: bool, wg: int, items: int, n: int, seed: int = 
         return cl.Buffer(ctx, mf.READ_WRITE | mf.COPY_HOST_PTR, hostbuf=a)
 
     touched, offsets = up(np.full(n + 1, 7, np.uint32)), up(np.full(n + 1, 7, np.uint32))
-    ctrl = up(np.array([7, 7, 0], np.uint32))  # project_fwd zeroes ctrl[2]; the rest is left to these
+    # project_fwd zeroes ctrl[2] (with no Gaussian it launches nothing: bin_count zeroes it); the rest is left to these
+    ctrl = up(np.array([7, 7, 0 if n else 7], np.uint32))
     nblocks, chunk, gsize, lsize = sc.blocks(n + 1)
     sums = sc.block_sums(nblocks)
     k(q, (gsize,), (lsize,), np.int32(n), up(keys), up(gfr), up(rect.reshape(-1)), up(radii), touched, ctrl,
@@ -362,7 +363,7 @@ def test_bin_oclgrind():
         # bin_count with the scan's block sums on both schedules (the GPU one in blocks of 8 x 2 ranks)
         from test_bin import check_bin_count
         for cpu, wg, items in ((True, 256, 8), (False, 8, 2)):
-            for n in (0, 1, 15, 16, 17, 70):
+            for n in (0, 1, 15, 16, 17, 70, 2100 if cpu else 200):  # GPU: 13 blocks of 16, offsets over 2 strides
                 check_bin_count(be.handle, cpu, wg, items, n, seed=n, name=f"oclgrind cpu={cpu} n={n}")
     """)
 

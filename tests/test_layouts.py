@@ -473,12 +473,13 @@ def test_grad_mask_bits_match():
 
 
 def test_packed_record_size():
-    """rasterize_prep writes a [N, 16] float record read as float16 vectors; Python sizes it PACKED_BYTES."""
+    """raster_prep_one (common.h; called by rasterize_prep and project_fwd) writes a [N, 16] float record that
+    rasterize.cl reads as float16 vectors; Python sizes it PACKED_BYTES."""
     text = _strip_comments(c_text("rasterize.cl"))
     m = re.search(r"__global float \*packed\s*,", text)
     assert m, "rasterize.cl: rasterize_prep's `__global float *packed` not found"
-    stride = re.findall(r"packed \+ \(size_t\)g \* (\d+)", text)
-    assert stride, "rasterize.cl: no `packed + (size_t)g * K` store"
+    stride = re.findall(r"packed \+ \(size_t\)g \* (\d+)", _strip_comments(c_text("common.h")))
+    assert stride, "common.h: no `packed + (size_t)g * K` store in raster_prep_one"
     readers = re.findall(r"__global const (float\d*) \*packed", text)
     assert readers and set(readers) == {f"float{stride[0]}"}, f"packed is written {stride[0]} floats wide, read as {readers}"
     comment = re.search(r"\*packed,\s*// \[N, (\d+)\]", c_text("rasterize.cl"))

@@ -288,7 +288,7 @@ class Trainer(Protocol):
         gradients per parameter group (handle for `regularize`, `adam_step`); only the groups of
         `grad_fields` are present. into: gradients from `hold` (the same SH
         count, holding at least the groups of `grad_fields`): this backward's gradients of those
-        groups are added into them (reference_state.grad_add; kernels/grad_add.cl) and `into` is
+        groups are added into them (reference_state.grad_add; on OpenCL project_bwd's grad_acc) and `into` is
         returned. v_alpha: a cotangent of the alpha image
         (from `bg_alpha`), or None. v_depth_opacity: a depth cotangent (from `depth_loss`) whose
         opacity-only backward of this frame comes next (`backward(frame, None, it, None,

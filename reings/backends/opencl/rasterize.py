@@ -193,6 +193,8 @@ class Rasterizer:
         if not prepared:  # the one in-order queue runs it first: no wait list
             self.prep(means2d, conics, colors, opacities, depths, n, wait_for)
             wait_for = None
+        elif int(n) != self.n:
+            raise ValueError(f"Rasterizer.fwd: prepared records are of {self.n} Gaussians, not {n} (packed_for)")
         tiles_x, n_tiles = self._tiles(width, height)
         bg = [np.float32(b) for b in background]
         k = self._fwd_imp_kernel() if importance else self.k_fwd
