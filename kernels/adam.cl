@@ -28,7 +28,9 @@
                  end), so the slot is uniform over a work-group (read from get_group_id(0)); a
                  work-group holds LY "lines" of LX lanes. A flat slot (rpl == 0: gradient laid out
                  like the parameter) maps line L, lane x to element L * LX + x < rows (rows = its
-                 element count). A strided slot (as adam_step: gradient column c of row r at
+                 element count); with sh 1 the same flat mapping reads a strided gradient view
+                 (row = element / cols: one division per element, every lane busy and p, m, v read
+                 contiguously; the GPUs' mapping of the SH groups since session 25). A strided slot (as adam_step: gradient column c of row r at
                  g[r * g_stride + g_off + c], zero for c >= g_cols) puts rpl rows of 1 << sh lanes
                  in a line: lane x is row L * rpl + (x >> sh), column x & ((1 << sh) - 1), used
                  where that column is < cols (the host makes LX at least every strided slot's
@@ -143,8 +145,16 @@ static inline void adam_multi_slot(const uint wgi, __global float *p, __global f
     const uint line = wgi * get_local_size(1) + get_local_id(1);  /* the slot's line */
     if (rpl == 0) {  /* flat: consecutive elements along the lanes */
         const uint i = line * get_local_size(0) + x;
-        if (i < rows)
-            adam_elem(p, m, v, i, g[i], b1, omb1, b2, omb2, inv_sqrt_bc2, eps, neg_step);
+        if (i < rows) {
+            float gi;
+            if (sh == 0) {
+                gi = g[i];
+            } else { /* sh 1: a strided gradient view stepped flat (element i is row i / cols, column i % cols) */
+                const uint r = i / cols, c = i - r * cols;
+                gi = c < g_cols ? g[r * g_stride + g_off + c] : 0.0f;
+            }
+            adam_elem(p, m, v, i, gi, b1, omb1, b2, omb2, inv_sqrt_bc2, eps, neg_step);
+        }
         return;
     }
     /* strided: rpl rows of 1 << sh lanes per line (no division) */

@@ -27,7 +27,7 @@ def _bits(a):
     return np.ascontiguousarray(a, np.float32).view(np.uint32)
 
 
-def _run(device, st0, groups_seq, sh_k, multi, seed, steps=4, split=None, fp64=True):
+def _run(device, st0, groups_seq, sh_k, multi, seed, steps=4, split=None, fp64=True, flat_views=None):
     """Step a trainer on a copy of st0 `steps` times per entry of groups_seq; returns (state after,
     step counts, launches per adam_step call). split: None (the trainer's choice) or the
     ADAM_MULTI_SPLIT build of adam_step_multi; fp64 False: the ADAM_FP64=0 builds (float
@@ -37,6 +37,8 @@ def _run(device, st0, groups_seq, sh_k, multi, seed, steps=4, split=None, fp64=T
     n = len(st)
     t = _trainer(device, st, "kernel")
     t.adam_multi = multi
+    if flat_views is not None:
+        t.adam_flat_views = flat_views
     if not fp64:
         t.fp64 = False
     if split is not None or not fp64:
@@ -92,9 +94,12 @@ CASES = {
 }
 
 
+@pytest.mark.parametrize("flat_views", [False, True])
 @pytest.mark.parametrize("case", list(CASES))
-def test_adam_multi_matches_per_group_launches(device, case):
-    _check_case(device, case, None)
+def test_adam_multi_matches_per_group_launches(device, case, flat_views):
+    """flat_views: the strided SH gradient views stepped in lines of rows (CPUs) or flat, one division per
+    element (GPUs): both against one launch per group."""
+    _check_case(device, case, None, flat_views=flat_views)
 
 
 @pytest.mark.parametrize("build", ["nosplit", "split", "fp32"])
@@ -119,10 +124,10 @@ def test_adam_multi_work_group_sizes(device, case, wg):
         be.wg = old
 
 
-def _check_case(device, case, split, fp64=True):
+def _check_case(device, case, split, fp64=True, flat_views=None):
     n, kmax, sh_k, seq = CASES[case]
     st0 = _state(np.random.default_rng(1), n, kmax)
-    got, steps_got, launches = _run(device, st0, seq, sh_k, True, seed=2, split=split, fp64=fp64)
+    got, steps_got, launches = _run(device, st0, seq, sh_k, True, seed=2, split=split, fp64=fp64, flat_views=flat_views)
     ref, steps_ref, launches_ref = _run(device, st0, seq, sh_k, False, seed=2, fp64=fp64)
     _assert_same(got, ref, case)
     assert steps_got == steps_ref
@@ -194,9 +199,10 @@ for n, kmax, sh_k in ((37, 16, 4), (53, 4, 1)):
     st0 = _state(np.random.default_rng(7), n, kmax)
     seq = [T.ALL, ("means", "sh_dc")]
     ref = T._run("oclgrind", st0, seq, sh_k, False, seed=8, steps=1)[0]
-    for split in (0, 1):
-        got, _, launches = T._run("oclgrind", st0, seq, sh_k, True, seed=8, steps=1, split=split)
-        T._assert_same(got, ref, f"oclgrind n={n} kmax={kmax} split={split}")
+    for split, flat_views in ((0, False), (1, False), (0, True)):
+        got, _, launches = T._run("oclgrind", st0, seq, sh_k, True, seed=8, steps=1, split=split,
+                                  flat_views=flat_views)
+        T._assert_same(got, ref, f"oclgrind n={n} kmax={kmax} split={split} flat_views={flat_views}")
         assert launches == [1, 1], launches
 print("ok")
 """

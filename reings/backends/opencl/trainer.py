@@ -162,6 +162,9 @@ class DeviceTrainer:
         self.profile = profile
         self.photo = backend.photometric_kernels
         adam_defs = {"ADAM_FP64": int(self.fp64), "ADAM_MULTI_SPLIT": int(bool(backend.cpu))}  # one build
+        # adam_step_multi steps the SH groups' strided gradient views flat on GPUs (every lane busy, p / m / v
+        # contiguous; docs/perf_notes.md §19), in lines of rows on CPUs (PoCL vectorizes along a row); the same bits
+        self.adam_flat_views = not backend.cpu
         self.k_adam = backend.kernel("adam.cl", "adam_step", **adam_defs)
         self.k_adam_flat = backend.kernel("adam.cl", "adam_step_flat", **adam_defs)
         self.k_adam_multi = backend.kernel("adam.cl", "adam_step_multi", **adam_defs)
@@ -1014,7 +1017,7 @@ class DeviceTrainer:
             cols = self._cols[name]
             flat = gs == cols and go == 0 and gc == cols
             views.append((name, t, g, gs, go, gc, cols, flat))
-            if not flat:
+            if not flat and not self.adam_flat_views:
                 wide = max(wide, cols)
         lx = -(-wide // ADAM_LX) * ADAM_LX
         if self._adam_multi_wg is None:  # the kernel's own limit (CL_KERNEL_WORK_GROUP_SIZE) bounds lx * ly too
@@ -1027,8 +1030,8 @@ class DeviceTrainer:
         end = 0
         for name, t, g, gs, go, gc, cols, flat in views:
             sc = adam_scalars(opt.lr[name], t, opt.beta1, opt.beta2, opt.eps, self.fp64)
-            if flat:  # rows counts elements, lx of them per line
-                rows, rpl, sh = n * cols, 0, 0
+            if flat or self.adam_flat_views:  # rows counts elements, lx of them per line (sh 1: a strided view)
+                rows, rpl, sh = n * cols, 0, 0 if flat else 1
                 end += -(-rows // lanes)
             else:
                 sh = max(cols - 1, 0).bit_length()  # 1 << sh >= cols lanes per row
