@@ -1,0 +1,28 @@
+"""Every kernel file builds on the GPU schedule with its defaults.
+
+PoCL and Oclgrind are CPU devices, so the backend builds every kernel with REINGS_CPU_SCHEDULE=1 on them, and a
+file's GPU schedule (REINGS_CPU_SCHEDULE=0: work-groups, local memory, the schedule's own defines) is compiled only
+where a test forces it. In session 25 bin.cl's GPU schedule did not build on NVIDIA (bin_emit and tile_ranges are
+built without the scan's SCAN_WG / SCAN_ITEMS, which had no defaults there): this builds each file's whole program on
+the GPU schedule, with no define but the schedule, on the test device. NVIDIA's own build (REINGS_NV_PTX=1: inline
+PTX) needs an NVIDIA device: REINGS_TEST_DEVICES=cuda runs this there too."""
+from __future__ import annotations
+
+import pyopencl as cl
+import pytest
+
+from reings.backends import get_backend
+from reings.backends.opencl.program import kernel_dir, library_for
+
+FILES = sorted(p.name for p in kernel_dir().glob("*.cl"))
+
+
+def test_every_kernel_file_is_listed():
+    assert len(FILES) >= 15 and "bin.cl" in FILES and "project.cl" in FILES
+
+
+@pytest.mark.parametrize("filename", FILES)
+def test_builds_on_the_gpu_schedule_with_its_defaults(device, filename):
+    be = get_backend(device)
+    prg = library_for(be.handle).program(filename, REINGS_CPU_SCHEDULE=0)
+    assert prg.get_info(cl.program_info.NUM_KERNELS) > 0
