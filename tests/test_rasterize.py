@@ -482,6 +482,8 @@ _OCLGRIND_SCRIPT = """
             g = rasterize_bwd_host(proj, bins, w, h, vr, vd, va, BG, device="oclgrind", cpu_schedule=cpu)
             g = rasterize_bwd_host(proj, bins, w, h, None, None, va, BG, device="oclgrind", cpu_schedule=cpu)
             assert np.all(np.isfinite(o.rgb)) and np.all(np.isfinite(g.v_emit))
+            if name != "size_17x15":  # the builds below share the backward's code: one case each under the
+                continue              # simulator (every case on PoCL: test_bwd_*_keeps_the_bits)
             g = rasterize_bwd_host(proj, bins, w, h, None, vd, None, BG, device="oclgrind", cpu_schedule=cpu,
                                    opacity_only=True)  # RASTER_BWD_OPACITY
             assert np.all(np.isfinite(g.v_emit))
