@@ -30,8 +30,9 @@
                  like the parameter) maps line L, lane x to element L * LX + x < rows (rows = its
                  element count); with sh 1 the same flat mapping reads a strided gradient view
                  (row = element / cols: one division per element, every lane busy and p, m, v read
-                 contiguously; the GPUs' mapping of the SH groups since session 25). A strided slot (as adam_step: gradient column c of row r at
-                 g[r * g_stride + g_off + c], zero for c >= g_cols) puts rpl rows of 1 << sh lanes
+                 contiguously; the GPUs' mapping of the SH groups since session 25). A strided slot
+                 (as adam_step: gradient column c of row r at g[r * g_stride + g_off + c], zero for
+                 c >= g_cols) puts rpl rows of 1 << sh lanes
                  in a line: lane x is row L * rpl + (x >> sh), column x & ((1 << sh) - 1), used
                  where that column is < cols (the host makes LX at least every strided slot's
                  cols, so no index division is needed; a row wider than half a line takes the

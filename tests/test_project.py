@@ -365,10 +365,14 @@ def check_project_bwd_accumulate(device, g, cam, grad_fields=None, seed=0, name=
 def check_packed_records(device, g, cam, name=""):
     """project_fwd's rasterizer records (raster_prep_one over the floats it stored) are rasterize_prep's
     bytes on the same projection outputs: the device forward launches no rasterize_prep."""
+    import pyopencl as cl
+
     be = get_backend(device)
     n = len(g)
     fr = be._new_frame(n, cam.width, cam.height, g.sh.shape[1])
     fr.bufs["in"] = be._upload_gaussians(g)
+    if n:  # poison first: records left from an earlier forward of the same scene must not pass for new ones
+        cl.enqueue_fill_buffer(be.queue, be._raster(fr).packed_for(n), np.uint32(0x7FC0DEAD), 0, 64 * n)
     be._project_device(fr, fr.bufs["in"], cam, 0.01, None)
     assert fr.packed
     r, b = be._raster(fr), fr.bufs

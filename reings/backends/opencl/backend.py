@@ -113,7 +113,6 @@ CAM_RECORD = 24  # floats, layout in kernels/project.cl
 CAM_CACHE = 256  # camera record buffers kept (OpenCLBackend._camera_buffer)
 DEPTH_KEY_CULLED = 0xFFFFFFFF
 GRAD_BITS = {"means": 1, "quats": 2, "log_scales": 4, "opacity_logits": 8, "sh": 16}
-
 ISECT_GUESS = 8  # sync-free binning: intersections per Gaussian guessed before a slot's first K is known
 ISECT_HISTORY = 8  # ... then the largest of its last ISECT_HISTORY known K's, plus 1/8
 _F32, _I32, _U32 = np.float32, np.int32, np.uint32

@@ -660,8 +660,9 @@ class DeviceTrainer:
         {field: buffer} of backend.backward_device plus "sh_k" (`adam_step` reads the SH groups
         as strided views of the "sh" buffer); with `into` (from `hold`, or a backward with hold),
         project_bwd adds the `grad_fields` ones (None: all) into its buffers (its accumulate mode:
-        no second launch, the same bits as a float32 add) and returns it. hold (without `into`): project_bwd writes the gradients
-        straight into the held buffers `hold` would copy them into (no copy). The frame's
+        no second launch, the same bits as a float32 add) and returns it. hold (without `into`):
+        project_bwd writes the gradients straight into the held buffers `hold` would copy them into
+        (no copy). The frame's
         DropGaussian mask (from `forward`) applies. v_depth_opacity (a device buffer;
         Trainer.backward): with `fuse_soft_backward`, this pass also makes the records of the
         announced opacity-only backward of that cotangent (backend.backward_device)."""
@@ -674,7 +675,7 @@ class DeviceTrainer:
             self._write(vdo_buf, np.asarray(v_depth_opacity, _F32))
             v_depth_opacity = vdo_buf
         vdo = v_depth_opacity if self.fuse_soft_backward else None
-        cols = self._grad_columns(fr.sh_k)
+        cols = grad_columns(fr.sh_k)
         if into is not None:  # project_bwd adds the grad_fields into the held buffers (no second launch)
             if into.get("sh_k") != fr.sh_k or set(into) != {*cols, "sh_k"}:
                 raise ValueError("backward into: the held gradients are of another SH count or field set")
@@ -686,10 +687,6 @@ class DeviceTrainer:
                                         out=None if out is None else {f: out[f] for f in cols}))
         g["sh_k"] = fr.sh_k
         return g
-
-    def _grad_columns(self, sh_k: int) -> dict:
-        """Floats per Gaussian of each gradient buffer of backend.backward_device."""
-        return grad_columns(sh_k)
 
     def upload_bg_masks(self, masks) -> None:
         """Trainer.upload_bg_masks: float32 0/1 device buffers, once per fit."""
@@ -856,7 +853,7 @@ class DeviceTrainer:
         backward, which reuses the backend's, leaves them alone); gradients already held (a backward
         with hold=True) are returned as they are."""
         out = self._held(grads["sh_k"])
-        for f, cols in self._grad_columns(grads["sh_k"]).items():
+        for f, cols in grad_columns(grads["sh_k"]).items():
             if self.n * cols and grads[f] is not out[f]:
                 self.cl.enqueue_copy(self.queue, out[f], grads[f], byte_count=4 * cols * self.n)
         return out
@@ -864,7 +861,7 @@ class DeviceTrainer:
     def _held(self, sh_k: int) -> dict:
         """The trainer-owned gradient buffers of `hold` and `backward(hold=True)` ({field: buffer, "sh_k"})."""
         out = {"sh_k": sh_k}
-        for f, cols in self._grad_columns(sh_k).items():
+        for f, cols in grad_columns(sh_k).items():
             out[f] = self.mem.get("gauss", f"held_{f}", self.n, 4 * cols)
         return out
 
