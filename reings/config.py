@@ -339,6 +339,9 @@ ABLATION_METHODS = ("reings-no-ehps", "reings-no-ivps", "reings-no-cvps")
 STAGES = {"reings": ("ehps", "coarse", "ivps", "fine", "cvps", "final", "final_prune"),
           "dngaussian": ("init", "dngaussian"),
           "3dgs": ("init", "3dgs")}
+# RunConfig.ensemble_from: 'init' is the start of every method; the others are stages (not final_prune,
+# which draws nothing: members that share the final fit would be one model)
+ENSEMBLE_FROM = ("init", "ehps", "coarse", "ivps", "fine", "cvps", "final", "dngaussian", "3dgs")
 FIT_STAGES = {"reings": ("coarse", "fine", "final"), "dngaussian": ("dngaussian",), "3dgs": ("3dgs",)}
 RECIPES = ("auto", "llff", "dtu")  # RunConfig.recipe: the recipe family of the fits
 DATASETS = ("llff", "llff_nex", "colmap", "dtu", "blender", "nerfstudio", "procedural")
@@ -743,6 +746,23 @@ class RunConfig:
     dtu_background: bool = opt(False, "every fit: DNGaussian's DTU background rules (dark-pixel mask of the training "
                                       "views, ground truth 0 there, the mean(alpha^2) pass, the black / white Gaussian "
                                       "rules; reings/background.py); not yet measured, so off")
+    ensemble: int | None = opt(None, "fit K models (members) and render their mean image: member k is the whole "
+                                     "method with seed + k * 1000003 (member 0 is the plain run), the stages "
+                                     "before --ensemble-from shared; the test metrics are the mean image's, each "
+                                     "member's own PSNR and SSIM are in metrics.json, the models are gaussians.ply and "
+                                     "gaussians_member<k>.ply (docs/method.md §13); 1 = one model; none: the "
+                                     "recipe family's for reings (2 for 'dtu', 1 for 'llff'; docs/results.md §36), 1 for the "
+                                     "baselines",
+                               check=at_least(1), metavar="K")
+    ensemble_from: str = opt("init", "with --ensemble K > 1: the first stage the members do not share: 'init' (none "
+                                     "shared: independent fits) or a stage of the method (reings: ehps, coarse, "
+                                     "ivps, fine, cvps, final; 'cvps' shares the coarse and fine fits)",
+                             choices=ENSEMBLE_FROM, metavar="STAGE")
+    ensemble_jobs: int = opt(1, "with --ensemble K > 1: how many members fit at once, member 0 in this process and "
+                                "each other one in a worker process of its own on the same device (the same "
+                                "results; on one H100 two at once took 5-11 % less wall time, as the members "
+                                "share the GPU, and seconds.method then sums overlapping clocks: docs/results.md "
+                                "§36)", check=at_least(1), metavar="J")
     reings: ReInGSConfig = opt(factory=ReInGSConfig, help="the ReInGS stages")
     output: OutputConfig = opt(factory=OutputConfig, help="outputs and reports")
 
@@ -767,6 +787,9 @@ class RunConfig:
         if self.extent == "stereo" and prior_kind(self.depth_prior) != "stereo":
             raise ValueError(f"extent stereo takes the scene box from the stereo depth prior, but depth_prior is "
                              f"{self.depth_prior!r}: use --depth-prior stereo or another --extent")
+        if self.ensemble_from != "init" and self.ensemble_from not in STAGES[self.method]:
+            raise ValueError(f"ensemble_from: {self.ensemble_from!r} is not a stage of {self.method} (its stages: init, "
+                             f"{', '.join(s for s in STAGES[self.method] if s in ENSEMBLE_FROM and s != 'init')})")
         if self.iterations is not None and len(self.iterations) not in (1, 3):
             raise ValueError(f"iterations must be one count or three (reings: coarse, fine, final), "
                              f"got {self.iterations}")

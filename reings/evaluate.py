@@ -177,6 +177,9 @@ def _setting_tag(m: dict) -> str:
         tag.append(f"grad x{cfg['grad_threshold_scale']:g}")
     if cfg.get("soft_depth_shared"):  # absent when off
         tag.append("soft shared")
+    if cfg.get("ensemble"):  # absent for one model
+        tag.append(f"ensemble {cfg['ensemble']}" + (f" from {cfg['ensemble_from']}"
+                                                   if cfg.get("ensemble_from") not in (None, "init") else ""))
     seeds = (cfg.get("reings_config") or {}).get("stereo_seeds")  # absent: none (the preset's or the auto rule)
     if base == "reings" and seeds is not None:
         tag.append(f"seeds {seeds:g}")
@@ -227,7 +230,8 @@ def _run_entry(m: dict, path: str) -> dict:
     sec = m.get("seconds") or {}
     entry = {k: m["mean"].get(k) for k in METRICS}
     entry.update({"seconds": sec.get("method", sec.get("total")), "seconds_total": sec.get("total"),
-                  "gaussians": (m.get("stages") or [{}])[-1].get("gaussians") if m.get("stages") else None,
+                  "gaussians": ((m["ensemble"].get("gaussians") if isinstance(m.get("ensemble"), dict) else None)
+                                or ((m.get("stages") or [{}])[-1].get("gaussians") if m.get("stages") else None)),
                   "device": m.get("device"), "device_name": m.get("device_name"), "run": path,
                   "seed": int(m.get("seed") or 0)})
     return entry
@@ -532,7 +536,7 @@ def _prepare(jobs) -> None:
 # recipe's): a run that has one and a config that has not differ
 _ABSENT_WHEN_OFF = ("drop_gamma", "depth_metric", "prune_unseen", "cross_warp", "cross_warp_start",
                     "cross_warp_occlusion", "cross_warp_blur", "view_warp_start", "lambda_dssim",
-                    "soft_depth_shared", "grad_threshold_scale")
+                    "soft_depth_shared", "grad_threshold_scale", "ensemble", "ensemble_from")
 
 
 def _settings_differ(metrics_path: str, cfg, dataset_kind: str | None = None) -> str:

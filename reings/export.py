@@ -9,7 +9,7 @@
                OUT/cfg_args                                    argparse.Namespace(...) as 3DGS writes it
 
 Every PLY carries provenance comments in its header (`comment reings ...`: version, run folder,
-method, scene, views, seed). Files are written whole or not at all; an existing file is replaced
+method, scene, views, seed; for an ensemble run, that the file is member 0). Files are written whole or not at all; an existing file is replaced
 only with `overwrite`.
 """
 from __future__ import annotations
@@ -33,6 +33,13 @@ def _provenance(run_dir: str, metrics: dict) -> list[str]:
     if mean:
         lines.append("reings scores (" + clean(metrics.get("scored_on", "test")) + " views): "
                      + " ".join(f"{k}={v:.4f}" for k, v in mean.items() if isinstance(v, (int, float))))
+    ens = metrics.get("ensemble")
+    if isinstance(ens, dict) and ens.get("members"):  # the scores above are the members' mean image's
+        per = ens.get("per_member")
+        p0 = per[0].get("psnr") if isinstance(per, list) and per and isinstance(per[0], dict) else None
+        lines.append(f"reings ensemble of {clean(ens['members'])} models: this file is member 0 (gaussians.ply)"
+                     + (f", psnr={p0:.4f} alone" if isinstance(p0, (int, float)) else "")
+                     + "; the scores above are the members' mean image's")
     return lines
 
 

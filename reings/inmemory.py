@@ -2,6 +2,7 @@
 
     g = reings.reconstruct(images, cameras, device="cuda")            # -> reings.Gaussians
     g = reings.reconstruct(images, cameras, method="dngaussian", preset="paper", out="runs/x")
+    gs = reings.reconstruct(images, cameras, ensemble=2)              # -> [member 0, member 1]
 
 Every view trains (`holdout="none"`); nothing is read from or written to disk unless `out` is
 given (then it is a normal run folder: metrics.json, gaussians.ply, cameras.json, renders). The
@@ -45,11 +46,13 @@ def as_scene(images, cameras, names=None, bounds=None, kind: str = "colmap"):
 
 def reconstruct(images, cameras, method: str = "reings", device: str = "pocl", names=None, bounds=None,
                 out: str | None = None, quiet: bool = True, **config):
-    """Fit `method` to every given view; returns the final `reings.Gaussians` (module docstring)."""
+    """Fit `method` to every given view; returns the final `reings.Gaussians` (module docstring),
+    or with `ensemble=K` > 1 the list of the K members (`reings.render_path` takes the list and
+    draws their mean image)."""
     from .pipeline import run
 
     scene = as_scene(images, cameras, names, bounds)
     config.setdefault("with_lpips", False)
     config.setdefault("eval_every", 0)
     res = run(scene=scene, method=method, device=device, holdout="none", out=out or None, quiet=quiet, **config)
-    return res.gaussians
+    return res.members if len(res.members) > 1 else res.gaussians

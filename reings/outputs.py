@@ -11,8 +11,9 @@
     write_config(out, config)               config.toml: the resolved RunConfig (reings.config.to_toml)
     write_test_renders(out, names, rgbs, depths)   renders/<name>.png (8-bit RGB),
                                             depths/<name>.png (16-bit, min-max normalised)
-    write_run_outputs(out, gaussians, metrics, series, bounds, title)
-                                            gaussians.ply, psnr_vs_time.svg, then metrics.json
+    write_run_outputs(out, gaussians, metrics, series, bounds, title, members)
+                                            gaussians.ply (an ensemble's other members:
+                                            gaussians_member<k>.ply), psnr_vs_time.svg, then metrics.json
                                             (last: its presence marks a finished run)
     write_json_atomic / write_text_atomic / jsonable / psnr_time_svg   the pieces
 
@@ -24,6 +25,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import os
+import re
 
 import numpy as np
 
@@ -68,6 +70,7 @@ def write_text_atomic(path: str, text: str) -> None:
 
 PREVIOUS = ".previous-run"  # where --overwrite keeps the replaced run until the new one finishes
 RUN_FOLDERS = ("renders", "depths")
+MEMBER_PLY = re.compile(r"gaussians_member[1-9][0-9]*\.ply")  # an ensemble's members 1..K-1 (`member_ply`)
 
 
 def check_out(out: str, settings: dict, overwrite: bool) -> None:
@@ -105,6 +108,7 @@ def check_out(out: str, settings: dict, overwrite: bool) -> None:
 def _old_run_entries(out: str) -> list[str]:
     """The entries of `out` that belong to a run: its files, render folders and checkpoints."""
     names = [n for n in RUN_OUTPUTS + RUN_FOLDERS if os.path.lexists(os.path.join(out, n))]
+    names += sorted(n for n in os.listdir(out) if MEMBER_PLY.fullmatch(n)) if os.path.isdir(out) else []
     ck = os.path.join(out, "checkpoints")
     if os.path.isdir(ck):
         names += [os.path.join("checkpoints", n) for n in sorted(os.listdir(ck))
@@ -225,11 +229,29 @@ def write_png_atomic(path: str, a: np.ndarray) -> None:
         f.write(buf.tobytes())
 
 
-def write_run_outputs(out: str, gaussians, metrics: dict, series: list, bounds: list, title: str) -> None:
-    """gaussians.ply, psnr_vs_time.svg (when there are probes), then metrics.json, last."""
+def member_ply(k: int) -> str:
+    """The file name of ensemble member k's model (member 0: gaussians.ply)."""
+    return "gaussians.ply" if k == 0 else f"gaussians_member{k}.ply"
+
+
+def member_plys(out: str) -> list[str]:
+    """The model files of the run in `out`, member 0 first: gaussians.ply and gaussians_member1.ply,
+    gaussians_member2.ply, ... up to the first missing one."""
+    names = []
+    while os.path.isfile(os.path.join(out, member_ply(len(names)))):
+        names.append(member_ply(len(names)))
+    return names
+
+
+def write_run_outputs(out: str, gaussians, metrics: dict, series: list, bounds: list, title: str,
+                      members=()) -> None:
+    """gaussians.ply (and gaussians_member<k>.ply of `members`, an ensemble's members 1..K-1),
+    psnr_vs_time.svg (when there are probes), then metrics.json, last."""
     from .io.ply import write_ply
 
     write_ply(os.path.join(out, "gaussians.ply"), gaussians)
+    for k, g in enumerate(members, start=1):
+        write_ply(os.path.join(out, member_ply(k)), g)
     if series:
         write_text_atomic(os.path.join(out, "psnr_vs_time.svg"), psnr_time_svg(series, bounds, title))
     write_json_atomic(os.path.join(out, "metrics.json"), metrics)  # last: marks the run finished

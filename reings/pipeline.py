@@ -28,9 +28,15 @@ A stage is `f(ctx, name) -> Gaussians`: it reads the current Gaussians `ctx.g` a
 the next ones. The re-initialisation maths is `reings.reinit`; the files `reings.outputs`.
 A rerun into the same folder resumes: each fit reloads its checkpoint, and the stages between
 fits are recomputed from the same draws (`tests/test_pipeline.py`).
+
+An ensemble (RunConfig.ensemble K > 1, docs/method.md §13) runs the stages from `ensemble_from` on
+K times: member 0 is the plain run, member k a `RunContext.member` with seed + k * MEMBER_SEED_STRIDE
+and its own checkpoints (checkpoints/member<k>_<stage>.npz), starting from the shared stages'
+model. The test views are scored on the mean of the members' images (`score_test_views`).
 """
 from __future__ import annotations
 
+import copy
 import dataclasses
 import os
 import sys
@@ -41,6 +47,7 @@ import numpy as np
 
 from .config import FIT_STAGES, RUN_PRESETS, ReInGSConfig, RunConfig, run_config, stage_value  # noqa: F401 (ReInGSConfig: re-exported)
 from .data.depth_prior import NO_PRIOR, prior_kind
+from .ensemble import fit_members, jobs_of
 from .reinit import (cvps_select, ehps_init, gaussian_importance, ivps_points, prune_keep_indices,
                      stereo_box, stereo_seed_points)
 from .train import fit, gaussians_from_points, random_points_in_box, scene_extent, with_iterations
@@ -50,9 +57,10 @@ PRUNE_CURVE_KEEP = (1.0, 0.9, 0.8, 0.7, 0.6, 0.5, 0.4)
 
 @dataclass
 class RunResult:
-    gaussians: object
+    gaussians: object  # the model (member 0 of an ensemble)
     metrics: dict
     stages: list = field(default_factory=list)
+    members: list = field(default_factory=list)  # every member's model, gaussians first (one for a single model)
 
 
 # {{{ small helpers
@@ -123,17 +131,28 @@ def test_psnr(g, test, device, bg, near) -> float:
     return float(np.mean(vals))
 
 
-def score_test_views(g, test, device, bg, near, with_lpips=True):
-    """(metrics of `evaluate_images`, renders [H, W, 3] in [0, 1], depths [H, W] = depth / alpha) of
-    the test views; without an LPIPS model, metrics without LPIPS and an `lpips_error`."""
-    from .metrics import LPIPSModelNotFound, evaluate_images
+def render_views(g, cameras, device, bg, near) -> tuple[list, list]:
+    """(renders [H, W, 3] clipped to [0, 1], depths [H, W] = depth / alpha) of `cameras`; `g` a list of
+    models (an ensemble's members): the mean of their clipped renders and of their depths."""
     from .rendering import render
 
+    members = list(g) if isinstance(g, (list, tuple)) else [g]
     preds, depths = [], []
-    for cam in test.cameras:
-        r = render(g, cam, device, bg, near)
-        preds.append(np.clip(r.rgb, 0, 1))
-        depths.append(r.depth / np.maximum(r.alpha, 1e-6))
+    for cam in cameras:
+        rs = [render(m, cam, device, bg, near) for m in members]
+        preds.append(sum(np.clip(r.rgb, 0, 1) for r in rs) / len(rs) if len(rs) > 1 else np.clip(rs[0].rgb, 0, 1))
+        ds = [r.depth / np.maximum(r.alpha, 1e-6) for r in rs]
+        depths.append(sum(ds) / len(ds) if len(ds) > 1 else ds[0])
+    return preds, depths
+
+
+def score_test_views(g, test, device, bg, near, with_lpips=True):
+    """(metrics of `evaluate_images`, renders [H, W, 3] in [0, 1], depths [H, W] = depth / alpha) of
+    the test views; without an LPIPS model, metrics without LPIPS and an `lpips_error`. `g` a list
+    of models (an ensemble): the metrics of the mean image (`render_views`)."""
+    from .metrics import LPIPSModelNotFound, evaluate_images
+
+    preds, depths = render_views(g, test.cameras, device, bg, near)
     try:
         m = evaluate_images(preds, list(test.images), masks=test.masks, with_lpips=with_lpips)
     except LPIPSModelNotFound as e:  # no LPIPS model on this machine: report without it
@@ -227,6 +246,10 @@ def run_settings(cfg: RunConfig, dataset_kind: str) -> dict:
         s["holdout"], s["views"] = cfg.holdout, None  # every view given trains
     if cfg.seed:  # the seed reaches every fit too (before, only the initial points and IVPS/CVPS draws)
         s["fit_seed"] = cfg.seed
+    k = ensemble_of(cfg, recipe_family(cfg.recipe, dataset_kind))
+    if k > 1:  # absent for one model (older folders resume); the first stage of the method recorded as "init"
+        s["ensemble"] = k
+        s["ensemble_from"] = "init" if ensemble_split(cfg.method, cfg.ensemble_from) == 0 else cfg.ensemble_from
     return s
 # }}}
 
@@ -279,6 +302,35 @@ DEPTH_METRIC_BY_FAMILY = {"llff": 0.0, "dtu": 0.0}  # RunConfig.depth_metric = n
 # ~35 degrees apart, where the plane sweep's matches are ambiguous (brick, windows) and only a much
 # stronger SGM smoothness and each view's own near/far hold; LLFF keeps the settings it was measured with
 STEREO_BY_FAMILY = {"llff": {}, "dtu": {"sgm_p1": 0.2, "sgm_p2": 9.6, "use_bounds": True}}
+
+
+# RunConfig.ensemble = none, reings fits: the members per recipe family (docs/results.md §36; H100, full schedule,
+# seeds 0-2, members independent): DTU scan24 2 / 3 / 4 views 17.62 / 18.59 / 19.97 -> 17.99 / 19.19 / 20.53 dB
+# (LPIPS 0.289 / 0.267 / 0.246 -> 0.279 / 0.255 / 0.233) at twice the training time; LLFF fern + flower at 3
+# views +0.35 dB (21.73 -> 22.08), but LLFF already meets its goals and issue 15 times its runs: one model there
+ENSEMBLE_BY_FAMILY = {"llff": 1, "dtu": 2}
+MEMBER_SEED_STRIDE = 1_000_003  # member k's seed: seed + k * stride (distinct from every other run's seeds < stride)
+
+
+def ensemble_of(cfg: RunConfig, family: str) -> int:
+    """The run's ensemble members: RunConfig.ensemble, or for none the recipe family's for reings
+    (its ablations too) and 1 for the baselines."""
+    if cfg.ensemble is not None:
+        return int(cfg.ensemble)
+    return ENSEMBLE_BY_FAMILY[family] if cfg.method == "reings" else 1
+
+
+def member_seed(seed: int, k: int) -> int:
+    """The seed of ensemble member k (member 0: the run's seed)."""
+    return int(seed) + int(k) * MEMBER_SEED_STRIDE
+
+
+def ensemble_split(method: str, start: str) -> int:
+    """The index in `stages_of(method)` of the first stage the members do not share (`start`:
+    RunConfig.ensemble_from; 'init' = 0, nothing shared)."""
+    from .config import STAGES
+
+    return 0 if start == "init" else STAGES[method].index(start)
 
 
 def prior_for_family(prior, family: str):
@@ -416,6 +468,7 @@ class RunContext:
     bg, near = (0.0, 0.0, 0.0), 0.01
     in_memory = False  # the scene came from reings.run(scene=...), not from a folder
     prior_options = None  # the stereo prior's options, where the spec or the recipe set some
+    member_index = 0  # which ensemble member this context fits (`member`)
 
     def __init__(self, cfg: RunConfig, backend, train, test, priors, box, log, progress, family: str = "llff"):
         self.cfg, self.backend, self.train, self.test, self.priors, self.box = cfg, backend, train, test, priors, box
@@ -496,7 +549,24 @@ class RunContext:
 
     def checkpoint(self, name: str):
         out = self.cfg.output.out
-        return os.path.join(out, "checkpoints", name + ".npz") if out else None
+        prefix = f"member{self.member_index}_" if self.member_index else ""
+        return os.path.join(out, "checkpoints", prefix + name + ".npz") if out else None
+
+    def member(self, k: int, g):
+        """Ensemble member k >= 1: this context's inputs (views, priors, box, device, config) with
+        the member's seed (`member_seed`: its fits' seed and a fresh random generator), its own
+        checkpoints and records, starting from `g` (the shared stages' model; None when nothing
+        is shared)."""
+        m = copy.copy(self)
+        m.cfg = replace(self.cfg, seed=member_seed(self.cfg.seed, k))
+        m.member_index = k
+        m.rng = np.random.default_rng(m.cfg.seed)
+        m.g, m.unpruned, m._omega = g, None, None
+        m.timings, m.counts, m.model_bytes = {}, {}, {}
+        m.stages, m.series, m.bounds = [], [], []
+        m.clock = {"train": 0.0, "wall": 0.0, "probe": 0.0}
+        m.log = lambda msg, _log=self.log: _log(f"(member {k}) {msg}")
+        return m
 
     def probe(self, g) -> dict:
         t0 = time.perf_counter()
@@ -779,6 +849,8 @@ def option_notes(cfg: RunConfig, family: str, n_train: int) -> list:
         notes.append("cross_warp applies to the reings fits only; ignored")
     elif cfg.cross_warp and n_train < 2:  # given: the recipe's default needs no note
         notes.append(f"cross_warp needs a partner view: {n_train} training view; ignored")
+    if cfg.ensemble_from != "init" and ensemble_of(cfg, family) == 1:
+        notes.append("ensemble_from without an ensemble (--ensemble K > 1); ignored")
     for opt_name in ("cross_warp_start", "cross_warp_occlusion", "cross_warp_blur"):
         if getattr(cfg, opt_name) and not (cfg.cross_warp or cross_warp_of(cfg, family)):
             notes.append(f"{opt_name} without cross_warp; ignored")
@@ -875,7 +947,7 @@ def _prepare(cfg: RunConfig, backend, prior, overwrite: bool, quiet: bool, scene
     return ctx, settings, scene, tr_idx, te_idx
 
 
-def _metrics(ctx: RunContext, m: dict, settings: dict, scene, tr_idx, te_idx, curve) -> dict:
+def _metrics(ctx: RunContext, m: dict, settings: dict, scene, tr_idx, te_idx, curve, ensemble=None) -> dict:
     """metrics.json (docs/pipeline.md lists the keys)."""
     cfg, backend, box = ctx.cfg, ctx.backend, ctx.box
     dev_peak = device_peak_bytes(backend)
@@ -922,6 +994,8 @@ def _metrics(ctx: RunContext, m: dict, settings: dict, scene, tr_idx, te_idx, cu
     }
     if curve is not None:
         metrics["prune_curve"] = curve
+    if ensemble is not None:
+        metrics["ensemble"] = ensemble
     if "lpips_error" in m:
         metrics["lpips_error"] = m["lpips_error"]
     elif m.get("lpips") is not None:  # which network scored LPIPS (path and sha256)
@@ -945,7 +1019,9 @@ def run(config: RunConfig | None = None, /, *, scene=None, overwrite: bool = Fal
         same settings is resumed. quiet (default): no progress bars; quiet=False draws them when
         stderr is a terminal. Stage lines go to the "reings" logger (reings.log). Neither
         changes the result.
-    Returns RunResult(gaussians, metrics, stages): `metrics` is what metrics.json holds.
+    Returns RunResult(gaussians, metrics, stages, members): `metrics` is what metrics.json holds,
+    `stages` its `stages`; `members` every model of an ensemble (`--ensemble K`: gaussians is
+    member 0, and the metrics are the members' mean image's), [gaussians] for one model.
     """
     if config is not None and not isinstance(config, RunConfig):
         raise TypeError(f"run(config): expected a RunConfig, got {type(config).__name__} (pass data= by keyword)")
@@ -980,10 +1056,14 @@ def _run_prepared(cfg: RunConfig, backend, prior, overwrite: bool, quiet: bool, 
 
     t_start = time.perf_counter()
     ctx, settings, scene, tr_idx, te_idx = _prepare(cfg, backend, prior, overwrite, quiet, scene)
-    for name, stage in stages_of(cfg.method):
+    stages = stages_of(cfg.method)
+    split = ensemble_split(cfg.method, cfg.ensemble_from)
+    for name, stage in stages[:split]:  # the stages the members share
         ctx.g = stage(ctx, name)
-    ctx.timings["method"] = ctx.clock["train"]  # training + re-initialisation, probes excluded
-    ctx.timings["probes"] = ctx.clock["probe"]
+    k = ensemble_of(cfg, ctx.family)  # member 0 goes on with the run's context and draws: the plain run
+    members = fit_members(ctx, stages, split, k, jobs_of(cfg, k))
+    ctx.timings["method"] = sum(m.clock["train"] for m in members)  # training + re-initialisation, probes excluded
+    ctx.timings["probes"] = sum(m.clock["probe"] for m in members)
     curve = None
     if cfg.output.prune_curve:  # reporting only: the model before final_prune, cut by the same ranking
         t = time.perf_counter()
@@ -992,17 +1072,45 @@ def _run_prepared(cfg: RunConfig, backend, prior, overwrite: bool, quiet: bool, 
         ctx.timings["prune_curve"] = time.perf_counter() - t
 
     t = time.perf_counter()
-    m, preds, depths = score_test_views(ctx.g, ctx.test, cfg.device, ctx.bg, ctx.near, with_lpips=cfg.output.lpips)
+    models = [mk.g for mk in members]
+    m, preds, depths = score_test_views(models if len(models) > 1 else ctx.g, ctx.test, cfg.device, ctx.bg, ctx.near,
+                                        with_lpips=cfg.output.lpips)
+    ensemble = ensemble_record(members, split, stages, ctx.test) if len(members) > 1 else None
     out = cfg.output.out
     if out:
         write_test_renders(out, ctx.test.names, preds, depths)
     ctx.timings["eval"] = time.perf_counter() - t
     ctx.timings["total"] = time.perf_counter() - t_start
-    metrics = jsonable(_metrics(ctx, m, settings, scene, tr_idx, te_idx, curve))
+    metrics = jsonable(_metrics(ctx, m, settings, scene, tr_idx, te_idx, curve, ensemble))
     if out:
         write_run_outputs(out, ctx.g, metrics, ctx.series, ctx.bounds,
-                          f"{cfg.label} on {metrics['scene']}, {metrics['views']} views ({cfg.device})")
-    return RunResult(ctx.g, metrics, ctx.stages)
+                          f"{cfg.label} on {metrics['scene']}, {metrics['views']} views ({cfg.device})",
+                          members=models[1:])
+    return RunResult(ctx.g, metrics, ctx.stages, models)
+
+
+def ensemble_record(members: list, split: int, stages: list, test) -> dict:
+    """metrics.json `ensemble`: the members, the stages they share, and each member's seed, model
+    size, seconds (its own stages; member 0's include the shared ones) and test metrics (PSNR and
+    SSIM of its own images: what one model of the ensemble scores)."""
+    from .metrics import evaluate_images
+
+    ctx = members[0]
+    per = []
+    for mk in members:
+        preds, _ = render_views(mk.g, test.cameras, ctx.device, ctx.bg, ctx.near)
+        mm = evaluate_images(preds, list(test.images), masks=test.masks, with_lpips=False)
+        per.append({"member": mk.member_index, "seed": mk.cfg.seed, "gaussians": len(mk.g),
+                    "model_bytes": gaussians_nbytes(mk.g), "seconds": mk.clock["train"],
+                    "psnr": mm.get("psnr"), "ssim": mm.get("ssim")})
+    return {"members": len(members), "from": ctx.cfg.ensemble_from, "shared_stages": [n for n, _ in stages[:split]],
+            "seed_stride": MEMBER_SEED_STRIDE, "gaussians": sum(p["gaussians"] for p in per),
+            "model_bytes": sum(p["model_bytes"] for p in per), "per_member": per,
+            "member_psnr_mean": float(np.mean([p["psnr"] for p in per])),
+            "member_stages": [dict(s, member=mk.member_index) for mk in members[1:] for s in mk.stages],
+            "note": "the test metrics (mean) are the mean image's; per_member: each model's own images; "
+                    "member 0's seconds include the shared stages; `stages` holds member 0's (and the shared) "
+                    "stages, member_stages the other members'"}
 
 
 def main_run(cfg: RunConfig, overwrite: bool = False, quiet: bool = False) -> int:
@@ -1011,6 +1119,9 @@ def main_run(cfg: RunConfig, overwrite: bool = False, quiet: bool = False) -> in
     print(f"{m['method']} on {m['data']} ({m['views']} views, {m['device']}): "
           + " ".join(f"{k.upper()} {v:.4f}" for k, v in m["mean"].items())
           + f" | {m['seconds']['method']:.1f} s training ({m['seconds']['total']:.1f} s total)"
-          + f" | Gaussians {m['gaussians']} | {cfg.output.out}")
+          + f" | Gaussians {m['gaussians']}"
+          + (f" | ensemble of {e['members']}: {e['gaussians']} Gaussians, members' PSNR "
+             + " / ".join(f"{p['psnr']:.4f}" for p in e["per_member"]) if (e := m.get("ensemble")) else "")
+          + f" | {cfg.output.out}")
     return 0
 # }}}

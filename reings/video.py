@@ -58,10 +58,13 @@ class PathFrames:
         return paths
 
 
-def load_run(run_dir):
-    """(Gaussians, training CameraRecords) of a run folder (gaussians.ply, cameras.json)."""
+def load_run(run_dir, members: bool = False):
+    """(Gaussians, training CameraRecords) of a run folder (gaussians.ply, cameras.json); with
+    members=True the first item is the list of the run's models, an ensemble's members in order
+    (gaussians.ply, gaussians_member1.ply, ...: `reings.outputs.member_plys`)."""
     from .io.cameras import read_cameras_json
     from .io.ply import read_ply
+    from .outputs import member_plys
 
     run_dir = os.fspath(run_dir)
     if not os.path.isdir(run_dir):
@@ -75,9 +78,35 @@ def load_run(run_dir):
                                 "or pass --cameras FILE)")
     recs = read_cameras_json(cams)
     train = [r for r in recs if r.split in ("train", "")] or recs
+    if members:
+        names = member_plys(run_dir)
+        want = _members_scored(run_dir)
+        if want is not None and want != len(names):
+            raise FileNotFoundError(f"{run_dir}: metrics.json scores an ensemble of {want} models but "
+                                    f"{len(names)} model file(s) are there ({', '.join(names)}): "
+                                    f"gaussians_member1.ply ... gaussians_member{want - 1}.ply expected")
+        return [read_ply(os.path.join(run_dir, n)) for n in names], train
     return read_ply(ply), train
 
 
+def _members_scored(run_dir: str) -> int | None:
+    """The ensemble's member count that the run's metrics.json scored (1 without `ensemble`), or
+    None when metrics.json is absent or unreadable (the model files then say)."""
+    import json
+
+    try:
+        with open(os.path.join(run_dir, "metrics.json")) as f:
+            m = json.load(f)
+    except (OSError, ValueError):
+        return None
+    ens = m.get("ensemble") if isinstance(m, dict) else None
+    if not isinstance(ens, dict):
+        return 1 if isinstance(m, dict) else None
+    k = ens.get("members")
+    return k if isinstance(k, int) and not isinstance(k, bool) and k >= 1 else None
+
+
+MEMBER_CHUNK = 16  # frames of an ensemble's path rendered per member in turn (`render_path`)
 MAX_SIZE = 16384  # the largest frame side `render_path` draws (and `reings render --size` takes)
 
 
@@ -88,7 +117,8 @@ def _to_uint8(rgb: np.ndarray) -> np.ndarray:
 def render_path(model, path: str = "spiral", frames: int = 120, size: tuple[int, int] | None = None,
                 cameras=None, device: str = "pocl", background=(0.0, 0.0, 0.0), near: float = 0.01,
                 depth: bool = False) -> PathFrames:
-    """Render a camera path of `model` (a run folder, or a `Gaussians` with `cameras`).
+    """Render a camera path of `model` (a run folder, or a `Gaussians` with `cameras`, or a list of
+    them: an ensemble's members, whose frames are the mean of theirs, as the run's test renders).
 
     path: 'spiral' (LLFF, forward-facing), 'ellipse' (object scenes), 'interpolate' (through the
         training views), or 'cameras' to render `cameras` as given.
@@ -101,9 +131,16 @@ def render_path(model, path: str = "spiral", frames: int = 120, size: tuple[int,
     from .paths import camera_path, resize
 
     if isinstance(model, Gaussians):
-        g, recs = model, None
+        gs, recs = [model], None
+    elif isinstance(model, (list, tuple)):
+        gs, recs = list(model), None
+        bad = [i for i, m in enumerate(gs) if not isinstance(m, Gaussians)]
+        if not gs or bad:
+            raise TypeError("render_path: model must be a run folder, a reings.Gaussians or a non-empty list of them"
+                            + (f" (item {bad[0]} is a {type(gs[bad[0]]).__name__})" if bad else ""))
     else:
-        g, recs = load_run(model)
+        gs, recs = load_run(model, members=True)
+    g = gs[0]
     if cameras is None:
         if recs is None:
             raise ValueError("render_path: pass cameras= with a Gaussians model")
@@ -134,13 +171,33 @@ def render_path(model, path: str = "spiral", frames: int = 120, size: tuple[int,
     bg = tuple(float(x) for x in np.asarray(background, np.float32).reshape(3))  # as reings.render takes it
     t = time.perf_counter()
     out, deps = [], [] if depth else None
-    for rgb, d in backend.render_frames(g, todo, background=bg, near=near, depth=depth):
+    for rgb, d in _model_frames(backend, gs, todo, bg, near, depth):
         out.append(_to_uint8(rgb))
         if depth:
             deps.append(d)
     secs = time.perf_counter() - t
     return PathFrames(out, todo, secs, deps, device=getattr(backend, "device_name", device),
-                      meta={"path": path, "gaussians": len(g)})
+                      meta={"path": path, "gaussians": sum(len(m) for m in gs), "members": len(gs)})
+
+
+def _model_frames(backend, gs: list, cams: list, bg, near: float, depth: bool):
+    """(rgb, depth or None) per camera: one model's frames as the backend renders them; an
+    ensemble's, the mean of its members' clipped images (as its test renders) and depths. A
+    backend holds one uploaded model at a time, so the members render in turn, MEMBER_CHUNK frames
+    at a time: at most that many float frames per member are held."""
+    if len(gs) == 1:
+        yield from backend.render_frames(gs[0], cams, background=bg, near=near, depth=depth)
+        return
+    for lo in range(0, len(cams), MEMBER_CHUNK):
+        rgb_sum = d_sum = None
+        for m in gs:
+            frames = list(backend.render_frames(m, cams[lo:lo + MEMBER_CHUNK], background=bg, near=near, depth=depth))
+            rgbs = [np.clip(r, 0, 1) for r, _ in frames]
+            ds = [d for _, d in frames]
+            rgb_sum = rgbs if rgb_sum is None else [x + y for x, y in zip(rgb_sum, rgbs)]
+            d_sum = ds if d_sum is None or not depth else [x + y for x, y in zip(d_sum, ds)]
+        for r, d in zip(rgb_sum, d_sum):
+            yield r / len(gs), (d / len(gs) if depth else None)
 
 
 def depth_colormap(depths) -> list:
