@@ -5,7 +5,8 @@ same bits; on one H100 5-11 % less wall time, docs/results.md §36).
 
     members = fit_members(ctx, stages, split, k, jobs)   # [RunContext], member 0 = ctx
 
-A worker is `python -m reings.ensemble_worker IN OUT`: it reads its member's inputs (the run's config,
+A worker is `python -m reings.ensemble_worker IN OUT` (started through `python -c` and runpy so that
+this package, not the current folder, comes first on its path): it reads its member's inputs (the run's config,
 training and test views, priors, scene box and the shared stages' model) from the pickle IN, opens
 its own backend for the run's device, runs the member's stages and writes the member's model,
 records and log lines to OUT. A subprocess, not multiprocessing: a library must not re-import its
@@ -34,47 +35,43 @@ def jobs_of(cfg, k: int) -> int:
 
 def fit_members(ctx, stages: list, split: int, k: int, jobs: int = 1) -> list:
     """The K members' contexts after their stages (member 0 is `ctx`, which has run the shared
-    stages `stages[:split]`); `jobs` members at a time."""
+    stages `stages[:split]`), `jobs` at a time: in each round one member fits here while up to
+    jobs - 1 others fit in worker processes."""
     members = [ctx] + [ctx.member(i, ctx.g) for i in range(1, k)]
-    if jobs <= 1:
-        for mk in members:
+    queue = list(members)
+    while queue:
+        here, others, queue = queue[0], queue[1:max(jobs, 1)], queue[max(jobs, 1):]
+        with _Workers(ctx, others, split) as workers:
             for name, stage in stages[split:]:
-                mk.g = stage(mk, name)
-        return members
-    first, rest = members[1:jobs], members[jobs:]
-    with _Workers(ctx, first, split) as workers:  # member 0 here meanwhile
-        for name, stage in stages[split:]:
-            ctx.g = stage(ctx, name)
-        workers.collect()
-    while rest:
-        batch, rest = rest[:jobs], rest[jobs:]
-        with _Workers(ctx, batch, split) as workers:
+                here.g = stage(here, name)
             workers.collect()
     return members
 
 
 class _Workers:
     """Worker processes, one per member of `batch`, started on entry; `collect` waits for them
-    and copies each member's records into its context; leaving early (an exception, Ctrl-C)
-    terminates the ones still running."""
+    and copies each member's records into its context. Leaving early (an exception, Ctrl-C, also
+    while starting them) terminates the ones still running and removes their files; a worker
+    whose parent dies (its stdin pipe closes) exits too (`reings.ensemble_worker`)."""
 
     def __init__(self, ctx, batch: list, split: int):
         self.ctx, self.batch, self.split = ctx, batch, split
-        self.dir = tempfile.mkdtemp(prefix="reings-members-")
+        self.dir = tempfile.mkdtemp(prefix="reings-members-") if batch else None
         self.procs = []
 
     def __enter__(self):
-        env = dict(os.environ)  # the worker imports this very package
-        env["PYTHONPATH"] = os.pathsep.join([_package_root()] + [p for p in env.get("PYTHONPATH", "").split(os.pathsep)
-                                                                 if p])
-        for mk in self.batch:
-            src, dst, log = (os.path.join(self.dir, f"member{mk.member_index}.{s}") for s in ("in", "out", "log"))
-            with open(src, "wb") as f:
-                pickle.dump(_payload(mk, self.split), f, protocol=pickle.HIGHEST_PROTOCOL)
-            with open(log, "wb") as out:  # a file, not a pipe: a full pipe would stall the worker
-                p = subprocess.Popen([sys.executable, "-m", "reings.ensemble_worker", src, dst], env=env,
-                                     stdin=subprocess.DEVNULL, stdout=out, stderr=subprocess.STDOUT)
-            self.procs.append((mk, dst, log, p))
+        try:
+            for mk in self.batch:
+                src, dst, log = (os.path.join(self.dir, f"member{mk.member_index}.{s}") for s in ("in", "out", "log"))
+                with open(src, "wb") as f:
+                    pickle.dump(_payload(mk, self.split), f, protocol=pickle.HIGHEST_PROTOCOL)
+                with open(log, "wb") as out:  # a file, not a pipe: a full pipe would stall the worker
+                    p = subprocess.Popen(_worker_command(src, dst), stdin=subprocess.PIPE, stdout=out,
+                                         stderr=subprocess.STDOUT)
+                self.procs.append((mk, dst, log, p))
+        except BaseException:
+            self.__exit__(None, None, None)
+            raise
         return self
 
     def collect(self) -> None:
@@ -103,8 +100,20 @@ class _Workers:
                 except subprocess.TimeoutExpired:
                     p.kill()
                     p.wait()
-        shutil.rmtree(self.dir, ignore_errors=True)
+            if p.stdin is not None:
+                p.stdin.close()
+        if self.dir:
+            shutil.rmtree(self.dir, ignore_errors=True)
         return False
+
+
+def _worker_command(src: str, dst: str) -> list:
+    """`python -m reings.ensemble_worker SRC DST` with this very package first on the path (not the
+    current folder, which `-m` would put first: a checkout there must not shadow the package
+    the run imported)."""
+    boot = (f"import runpy, sys; sys.path[0] = {_package_root()!r}; "
+            "runpy.run_module('reings.ensemble_worker', run_name='__main__', alter_sys=True)")
+    return [sys.executable, "-c", boot, src, dst]
 
 
 def _package_root() -> str:
@@ -112,7 +121,8 @@ def _package_root() -> str:
 
 
 def _payload(mk, split: int) -> dict:
-    """What a worker needs to run member `mk` (a RunContext from RunContext.member)."""
-    return {"cfg": mk.cfg, "k": mk.member_index, "g": mk.g, "split": split, "train": mk.train, "test": mk.test,
-            "priors": mk.priors, "confidences": mk.confidences, "box": mk.box, "family": mk.family,
-            "prior_options": mk.prior_options, "in_memory": mk.in_memory}
+    """What a worker needs to run member `mk` (a RunContext from RunContext.member): its whole
+    state but the device handle, the logger and the progress flag (`ensemble_worker.run_member`
+    restores it), so a worker's context is the in-process one."""
+    state = {key: v for key, v in vars(mk).items() if key not in ("backend", "log", "progress")}
+    return {"state": state, "split": split}

@@ -15,19 +15,35 @@ def run_member(payload: dict) -> dict:
     from .backends import get_backend
     from .pipeline import RunContext, stages_of
 
-    p, lines = payload, []
-    ctx = RunContext(p["cfg"], get_backend(p["cfg"].device), p["train"], p["test"], p["priors"], p["box"],
-                     lines.append, progress=False, family=p["family"])
-    ctx.confidences, ctx.prior_options, ctx.in_memory = p["confidences"], p["prior_options"], p["in_memory"]
-    ctx.member_index = p["k"]  # its checkpoints: member<k>_<stage>.npz
-    ctx.g = p["g"]
-    for name, stage in stages_of(p["cfg"].method)[p["split"]:]:
+    lines = []
+    ctx = RunContext.__new__(RunContext)
+    ctx.__dict__.update(payload["state"])  # the member's context as RunContext.member made it
+    ctx.backend, ctx.log, ctx.progress = get_backend(ctx.cfg.device), lines.append, False
+    for name, stage in stages_of(ctx.cfg.method)[payload["split"]:]:
         ctx.g = stage(ctx, name)
     return {**{key: getattr(ctx, key) for key in RECORDS}, "log": lines}
 
 
+def _exit_with_parent() -> None:
+    """Exit when the parent's end of stdin closes (the parent died: SIGKILL, the OOM killer), so
+    no orphan goes on writing this member's checkpoints under a later resume."""
+    import threading
+
+    def watch():  # the raw descriptor: a thread blocked in sys.stdin's buffer would hold its lock at shutdown
+        try:
+            while os.read(0, 1 << 16):
+                pass
+        except OSError:
+            pass
+        os._exit(1)
+
+    threading.Thread(target=watch, daemon=True).start()
+
+
 def main(argv=None) -> int:
     src, dst = (argv if argv is not None else sys.argv[1:])[:2]
+    if argv is None:
+        _exit_with_parent()
     with open(src, "rb") as f:
         payload = pickle.load(f)
     r = run_member(payload)

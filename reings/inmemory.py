@@ -47,8 +47,8 @@ def as_scene(images, cameras, names=None, bounds=None, kind: str = "colmap"):
 def reconstruct(images, cameras, method: str = "reings", device: str = "pocl", names=None, bounds=None,
                 out: str | None = None, quiet: bool = True, **config):
     """Fit `method` to every given view; returns the final `reings.Gaussians` (module docstring),
-    or with `ensemble=K` > 1 the list of the K members (`reings.render_path` takes the list and
-    draws their mean image)."""
+    or for an ensemble (`ensemble=K` > 1, or `recipe="dtu"`, whose reings default is two members)
+    the list of its members (`reings.render_path` takes the list and draws their mean image)."""
     from .pipeline import run
 
     scene = as_scene(images, cameras, names, bounds)

@@ -849,8 +849,11 @@ def option_notes(cfg: RunConfig, family: str, n_train: int) -> list:
         notes.append("cross_warp applies to the reings fits only; ignored")
     elif cfg.cross_warp and n_train < 2:  # given: the recipe's default needs no note
         notes.append(f"cross_warp needs a partner view: {n_train} training view; ignored")
-    if cfg.ensemble_from != "init" and ensemble_of(cfg, family) == 1:
-        notes.append("ensemble_from without an ensemble (--ensemble K > 1); ignored")
+    if ensemble_of(cfg, family) == 1:
+        if cfg.ensemble_from != "init":
+            notes.append("ensemble_from without an ensemble (--ensemble K > 1); ignored")
+        if cfg.ensemble_jobs > 1:
+            notes.append("ensemble_jobs without an ensemble (--ensemble K > 1); ignored")
     for opt_name in ("cross_warp_start", "cross_warp_occlusion", "cross_warp_blur"):
         if getattr(cfg, opt_name) and not (cfg.cross_warp or cross_warp_of(cfg, family)):
             notes.append(f"{opt_name} without cross_warp; ignored")
@@ -1103,7 +1106,8 @@ def ensemble_record(members: list, split: int, stages: list, test) -> dict:
         per.append({"member": mk.member_index, "seed": mk.cfg.seed, "gaussians": len(mk.g),
                     "model_bytes": gaussians_nbytes(mk.g), "seconds": mk.clock["train"],
                     "psnr": mm.get("psnr"), "ssim": mm.get("ssim")})
-    return {"members": len(members), "from": ctx.cfg.ensemble_from, "shared_stages": [n for n, _ in stages[:split]],
+    return {"members": len(members), "from": ctx.cfg.ensemble_from if split else "init",
+            "shared_stages": [n for n, _ in stages[:split]],
             "seed_stride": MEMBER_SEED_STRIDE, "gaussians": sum(p["gaussians"] for p in per),
             "model_bytes": sum(p["model_bytes"] for p in per), "per_member": per,
             "member_psnr_mean": float(np.mean([p["psnr"] for p in per])),

@@ -70,7 +70,6 @@ def test_members_are_the_plain_runs_of_their_seeds(runs):
     # the method clock is both members' stages (the initial points are off it, as for one model)
     on_clock = [s["seconds"] for s in ens.metrics["stages"] + e["member_stages"] if s["stage"] not in ("init", "ehps")]
     assert len(on_clock) == 12 and ens.metrics["seconds"]["method"] == pytest.approx(sum(on_clock))
-    assert [(s["stage"], s["seconds"]) for s in ens.stages] == [(s["stage"], s["seconds"]) for s in ens.metrics["stages"]]
 
 
 def test_the_scores_are_the_mean_image_s(runs):
@@ -184,6 +183,13 @@ def test_defaults_settings_and_refusals():
     with pytest.raises(ValueError, match="ensemble_from"):
         RunConfig(ensemble_from="final_prune")  # draws nothing: the members would be one model
     assert pipeline.ensemble_split("reings", "cvps") == 4 and pipeline.ensemble_split("dngaussian", "init") == 0
+    assert pipeline.run_settings(RunConfig(ensemble=2, ensemble_from="ehps").resolved(), "llff")["ensemble_from"] == "init"
+    # the member options without an ensemble are named as ignored; the defaults say nothing
+    assert pipeline.option_notes(RunConfig(ensemble_jobs=2, ensemble_from="cvps"), "llff", 3) == [
+        "ensemble_from without an ensemble (--ensemble K > 1); ignored",
+        "ensemble_jobs without an ensemble (--ensemble K > 1); ignored"]
+    assert pipeline.option_notes(RunConfig(ensemble_jobs=2, ensemble_from="cvps"), "dtu", 3) == []
+    assert pipeline.option_notes(RunConfig(), "llff", 3) == pipeline.option_notes(RunConfig(), "dtu", 3) == []
 
 
 def test_cli_refuses_bad_values_and_writes_nothing(tmp_path, capsys):
@@ -293,18 +299,26 @@ def test_reconstruct_returns_the_members_of_an_ensemble():
     _same_model(one, gs[0])
 
 
-def test_members_in_worker_processes_are_the_same_bits(runs, tmp_path, caplog):
-    """--ensemble-jobs 2: member 1 fits in a worker process (`python -m reings.ensemble_worker`) while member 0
-    fits here; the models, scores and records are those of the members fitted one after another, and
-    the worker's stage lines reach this process's log."""
+def test_members_in_worker_processes_are_the_same_bits(runs, tmp_path, monkeypatch, caplog):
+    """--ensemble-jobs 2: member 1 fits in a worker process while member 0 fits here (this process's
+    fit sees member 0's stages only); the models, scores and records are those of the members fitted
+    one after another, and the worker's stage lines reach this process's log."""
     import logging
 
     from reings import ensemble
 
     assert ensemble.jobs_of(RunConfig(ensemble_jobs=3), 2) == 2  # never more than the members
     assert ensemble.jobs_of(RunConfig(), 3) == 1  # one at a time unless asked
+    here, real = [], pipeline.fit
+
+    def fit(*a, **k):
+        here.append(os.path.basename(k.get("checkpoint")))
+        return real(*a, **k)
+
+    monkeypatch.setattr(pipeline, "fit", fit)
     with caplog.at_level(logging.INFO, logger="reings"):
         par = reings.run(out=str(tmp_path / "par"), seed=5, ensemble=2, ensemble_jobs=2, **KW)
+    assert here == ["coarse.npz", "fine.npz", "final.npz"]  # member 1's fits ran elsewhere
     seq = runs["ens"]
     for a, b in zip(par.members, seq.members):
         _same_model(a, b)
@@ -317,9 +331,27 @@ def test_members_in_worker_processes_are_the_same_bits(runs, tmp_path, caplog):
     assert "ensemble_jobs" not in json.dumps(par.metrics["config"])  # the same results: resumable either way
 
 
+def test_more_members_than_jobs(runs, tmp_path):
+    """K = 3 members, 2 at a time (member 0 here with member 1 in a worker, then member 2 here): the
+    members fitted one after another, bit for bit."""
+    kw = dict(seed=5, ensemble=3, ensemble_from="cvps", **KW)
+    par = reings.run(out=str(tmp_path / "p"), ensemble_jobs=2, **kw)
+    for a, b in zip(par.members, runs["cvps"].members):
+        _same_model(a, b)
+    assert par.metrics["mean"] == runs["cvps"].metrics["mean"]
+
+
 def test_a_failing_worker_is_a_named_error(tmp_path, monkeypatch):
-    monkeypatch.setenv("PYTHONPATH", str(tmp_path))  # a worker that cannot start: a broken numpy first on its path
-    (tmp_path / "numpy").mkdir()
-    (tmp_path / "numpy" / "__init__.py").write_text("raise ImportError('planted numpy')\n")
-    with pytest.raises(RuntimeError, match=r"ensemble member 1: its worker process failed \(exit code 1\)"):
+    """A worker that cannot start (a broken numpy first on its path): a named error with the
+    worker's last lines, and nothing left in the temporary folder."""
+    import tempfile
+
+    plant = tmp_path / "plant"
+    (plant / "numpy").mkdir(parents=True)
+    (plant / "numpy" / "__init__.py").write_text("raise ImportError('planted numpy')\n")
+    monkeypatch.setenv("PYTHONPATH", str(plant))
+    (tmp_path / "tmp").mkdir()
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path / "tmp"))
+    with pytest.raises(RuntimeError, match=r"(?s)ensemble member 1: its worker process failed \(exit code 1\).*planted"):
         reings.run(seed=5, ensemble=2, ensemble_jobs=2, **{**KW, "iterations": 2})
+    assert os.listdir(tmp_path / "tmp") == []

@@ -1,6 +1,6 @@
 set -u
 # session 26, call 4 (nvidia-h100-x1): an ensemble's members one after another (--ensemble-jobs 1) or at once
-# (--ensemble-jobs 2, the GPU default: member 1 in a worker process on the same GPU); DTU scan24 and fern, 3 views,
+# (--ensemble-jobs 2: member 1 in a worker process on the same GPU; a GPU default when this ran, off since); DTU scan24 and fern, 3 views,
 # seed 0, alone on the GPU, alternating. CARRY = $1 (.gpu_s26).
 CARRY=$1
 mkdir -p /tmp/cache /tmp/g; cp -r $CARRY/cache/* /tmp/cache/; export REINGS_CACHE_DIR=/tmp/cache
