@@ -131,28 +131,36 @@ def test_psnr(g, test, device, bg, near) -> float:
     return float(np.mean(vals))
 
 
-def render_views(g, cameras, device, bg, near) -> tuple[list, list]:
+def render_views(g, cameras, device, bg, near, per_member: list | None = None) -> tuple[list, list]:
     """(renders [H, W, 3] clipped to [0, 1], depths [H, W] = depth / alpha) of `cameras`; `g` a list of
-    models (an ensemble's members): the mean of their clipped renders and of their depths."""
+    models (an ensemble's members): the mean of their clipped renders and of their depths, and
+    with `per_member` (an empty list) each member's clipped renders appended to it, one list per
+    member (rendered once for both)."""
     from .rendering import render
 
     members = list(g) if isinstance(g, (list, tuple)) else [g]
+    if per_member is not None:
+        per_member[:] = [[] for _ in members]
     preds, depths = [], []
     for cam in cameras:
         rs = [render(m, cam, device, bg, near) for m in members]
-        preds.append(sum(np.clip(r.rgb, 0, 1) for r in rs) / len(rs) if len(rs) > 1 else np.clip(rs[0].rgb, 0, 1))
+        rgbs = [np.clip(r.rgb, 0, 1) for r in rs]
+        for kept, rgb in zip(per_member or (), rgbs):
+            kept.append(rgb)
+        preds.append(sum(rgbs) / len(rgbs) if len(rgbs) > 1 else rgbs[0])
         ds = [r.depth / np.maximum(r.alpha, 1e-6) for r in rs]
         depths.append(sum(ds) / len(ds) if len(ds) > 1 else ds[0])
     return preds, depths
 
 
-def score_test_views(g, test, device, bg, near, with_lpips=True):
+def score_test_views(g, test, device, bg, near, with_lpips=True, per_member: list | None = None):
     """(metrics of `evaluate_images`, renders [H, W, 3] in [0, 1], depths [H, W] = depth / alpha) of
     the test views; without an LPIPS model, metrics without LPIPS and an `lpips_error`. `g` a list
-    of models (an ensemble): the metrics of the mean image (`render_views`)."""
+    of models (an ensemble): the metrics of the mean image, and `per_member` filled with each
+    member's renders (`render_views`)."""
     from .metrics import LPIPSModelNotFound, evaluate_images
 
-    preds, depths = render_views(g, test.cameras, device, bg, near)
+    preds, depths = render_views(g, test.cameras, device, bg, near, per_member)
     try:
         m = evaluate_images(preds, list(test.images), masks=test.masks, with_lpips=with_lpips)
     except LPIPSModelNotFound as e:  # no LPIPS model on this machine: report without it
@@ -1075,10 +1083,10 @@ def _run_prepared(cfg: RunConfig, backend, prior, overwrite: bool, quiet: bool, 
         ctx.timings["prune_curve"] = time.perf_counter() - t
 
     t = time.perf_counter()
-    models = [mk.g for mk in members]
+    models, member_preds = [mk.g for mk in members], []
     m, preds, depths = score_test_views(models if len(models) > 1 else ctx.g, ctx.test, cfg.device, ctx.bg, ctx.near,
-                                        with_lpips=cfg.output.lpips)
-    ensemble = ensemble_record(members, split, stages, ctx.test) if len(members) > 1 else None
+                                        with_lpips=cfg.output.lpips, per_member=member_preds)
+    ensemble = ensemble_record(members, split, stages, ctx.test, member_preds) if len(members) > 1 else None
     out = cfg.output.out
     if out:
         write_test_renders(out, ctx.test.names, preds, depths)
@@ -1092,16 +1100,16 @@ def _run_prepared(cfg: RunConfig, backend, prior, overwrite: bool, quiet: bool, 
     return RunResult(ctx.g, metrics, ctx.stages, models)
 
 
-def ensemble_record(members: list, split: int, stages: list, test) -> dict:
+def ensemble_record(members: list, split: int, stages: list, test, member_preds: list) -> dict:
     """metrics.json `ensemble`: the members, the stages they share, and each member's seed, model
     size, seconds (its own stages; member 0's include the shared ones) and test metrics (PSNR and
-    SSIM of its own images: what one model of the ensemble scores)."""
+    SSIM of its own images `member_preds[k]`, from `score_test_views`: what one model of the
+    ensemble scores)."""
     from .metrics import evaluate_images
 
     ctx = members[0]
     per = []
-    for mk in members:
-        preds, _ = render_views(mk.g, test.cameras, ctx.device, ctx.bg, ctx.near)
+    for mk, preds in zip(members, member_preds):
         mm = evaluate_images(preds, list(test.images), masks=test.masks, with_lpips=False)
         per.append({"member": mk.member_index, "seed": mk.cfg.seed, "gaussians": len(mk.g),
                     "model_bytes": gaussians_nbytes(mk.g), "seconds": mk.clock["train"],
