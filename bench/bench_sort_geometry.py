@@ -54,7 +54,7 @@ def make_keys(case: str, n: int, seed: int = 0) -> np.ndarray:
     return rng.integers(0, 768, n).astype(np.uint32)
 
 
-def _timed_sorter(handle, cpu: bool, wg: int, items: int, bits: int):
+def _timed_sorter(handle, cpu: bool, wg: int, items: int, bits: int, onesweep: bool = False):
     """A RadixSort whose kernel launches are recorded in `.events` (for the profiling sums)."""
     from reings.backends.opencl.sort import RadixSort
 
@@ -71,16 +71,20 @@ def _timed_sorter(handle, cpu: bool, wg: int, items: int, bits: int):
         def kernels(self, key64, items=None, bits=None):
             return tuple(_Rec(k, self.events) for k in super().kernels(key64, items, bits))
 
-    s = TimedRadixSort(handle, cpu_schedule=cpu, wg=wg, items=items, max_bits=bits)
+        def onesweep_kernels(self, key64, items, bits):
+            return tuple(_Rec(k, self.events) for k in super().onesweep_kernels(key64, items, bits))
+
+    s = TimedRadixSort(handle, cpu_schedule=cpu, wg=wg, items=items, max_bits=bits, onesweep=onesweep)
     s.events = []
     return s
 
 
-def configs(cpu: bool, max_wg: int) -> list[tuple[int, int, int]]:
-    """(wg, items, bits); the CPU schedule has no wg nor items (reported as 0)."""
+def configs(cpu: bool, max_wg: int, onesweep=(0,)) -> list[tuple[int, int, int, int]]:
+    """(wg, items, bits, onesweep); the CPU schedule has no wg nor items (reported as 0) nor onesweep."""
     if cpu:
-        return [(0, 0, b) for b in BITS]
-    return [(wg, it, b) for wg in WGS for it in ITEMS for b in BITS if wg * it <= 65536 and wg <= max_wg]
+        return [(0, 0, b, 0) for b in BITS]
+    return [(wg, it, b, o) for o in onesweep for wg in WGS for it in ITEMS for b in BITS
+            if wg * it <= 65536 and wg <= max_wg]
 
 
 def measure(h, sorter, kb, vb, out, n: int, end_bit: int, repeats: int) -> dict:
@@ -99,7 +103,7 @@ def measure(h, sorter, kb, vb, out, n: int, end_bit: int, repeats: int) -> dict:
             "wall_ms": statistics.median(wall), "launches": len(sorter.events)}
 
 
-def run(device: str, repeats: int, quick: bool, schedule: str, log=sys.stderr) -> list[dict]:
+def run(device: str, repeats: int, quick: bool, schedule: str, log=sys.stderr, onesweep=(0,)) -> list[dict]:
     import pyopencl as cl
 
     from reings.backends.opencl.device import open_device
@@ -119,11 +123,13 @@ def run(device: str, repeats: int, quick: bool, schedule: str, log=sys.stderr) -
         vb = cl.Buffer(h.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=np.arange(n, dtype=np.uint32))
         out = tuple(cl.Buffer(h.context, mf.READ_WRITE, 4 * n) for _ in range(2))
         t_case = time.perf_counter()
-        for wg, items, bits in configs(cpu, int(d.max_work_group_size)):
+        for wg, items, bits, os_ in configs(cpu, int(d.max_work_group_size), onesweep):
             r = {**base, "case": case, "n": n, "end_bit": end_bit, "wg": wg, "items": items, "max_bits": bits,
-                 "passes": len(split_bits(0, end_bit, bits))}
+                 "passes": len(split_bits(0, end_bit, bits)), "onesweep": os_}
             try:
-                s = _timed_sorter(h, cpu, wg or 256, items or 8, bits)  # explicit: no env
+                s = _timed_sorter(h, cpu, wg or 256, items or 8, bits, bool(os_))  # explicit: no env
+                if os_ and not s.uses_onesweep(n, items, bits, False):
+                    raise ValueError("onesweep: the block's local memory is over the device's")
                 s.sort_pairs(kb, vb, n, 0, end_bit, out=out)  # warm-up: builds the program
             except (ValueError, cl.Error) as e:  # local memory over the device's, a build failure
                 rows.append({**r, "skipped": f"{type(e).__name__}: {str(e).splitlines()[0][:160]}"})
@@ -151,14 +157,15 @@ def print_table(rows: list[dict]) -> None:
     r0 = rows[0]
     print(f"# {r0['device']} [{r0['platform']}], driver {r0['driver']}, {r0['compute_units']} CUs, "
           f"schedule={r0['schedule']}, median of {r0['repeats']}")
-    print(f"{'case':6s} {'n':>8s} {'wg':>4s} {'items':>5s} {'bits':>4s} {'pass':>4s} {'device ms':>10s} "
-          f"{'span ms':>9s} {'wall ms':>9s}  ok")
+    print(f"{'case':6s} {'n':>8s} {'os':>2s} {'wg':>4s} {'items':>5s} {'bits':>4s} {'pass':>4s} {'device ms':>10s} "
+          f"{'span ms':>9s} {'wall ms':>9s} {'launches':>8s}  ok")
     for r in rows:
-        head = f"{r['case']:6s} {r['n']:8d} {r['wg']:4d} {r['items']:5d} {r['max_bits']:4d} {r['passes']:4d}"
+        head = (f"{r['case']:6s} {r['n']:8d} {r.get('onesweep', 0):2d} {r['wg']:4d} {r['items']:5d} {r['max_bits']:4d} "
+                f"{r['passes']:4d}")
         if "skipped" in r:
             print(f"{head}  skipped: {r['skipped']}")
         else:
-            print(f"{head} {r['device_ms']:10.4f} {r['span_ms']:9.4f} {r['wall_ms']:9.4f}  "
+            print(f"{head} {r['device_ms']:10.4f} {r['span_ms']:9.4f} {r['wall_ms']:9.4f} {r['launches']:8d}  "
                   f"{'ok' if r['ok'] else 'MISMATCH'}")
     print("# summary per case, device ms / span ms: before §10 (wg 256, items 8, bits 8) | fastest by span | "
           "the default since §10 (wg 256, items auto at this device's CUs, bits 11)")
@@ -172,7 +179,7 @@ def print_table(rows: list[dict]) -> None:
                 "now": (256 if gpu else 0, want_items, 11 if gpu else 8)}
         cell = {}
         for name, key in pick.items():
-            m = [r for r in rs if (r["wg"], r["items"], r["max_bits"]) == key]
+            m = [r for r in rs if (r["wg"], r["items"], r["max_bits"]) == key and not r.get("onesweep")]
             cell[name] = f"{m[0]['device_ms']:.4f} / {m[0]['span_ms']:.4f}" if m else "-"
         print(f"{case:6s} {n:8d}  before {cell['before']:>17s} | best wg {best['wg']} items {best['items']} "
               f"bits {best['max_bits']}: {best['device_ms']:.4f} / {best['span_ms']:.4f} | "
@@ -186,12 +193,23 @@ def main(argv=None) -> int:
     ap.add_argument("--quick", action="store_true", help="depth 20k and tile 100k only")
     ap.add_argument("--schedule", choices=("device", "gpu", "cpu"), default="device")
     ap.add_argument("--out", help="JSON lines, one per config")
+    ap.add_argument("--onesweep", default="0",
+                    help="GPU schedule: comma list of 0 (radix_hist + radix_scan + radix_scatter per pass) and 1 "
+                         "(radix_global_hist + radix_onesweep per pass); default 0, the rows before it existed")
+    ap.add_argument("--items", help="comma list of elements per work-item (default 1,2,4,8)")
+    ap.add_argument("--bits", help="comma list of digit widths (default 8,10,11)")
+    ap.add_argument("--wgs", help="comma list of work-group sizes (default 128,256)")
     a = ap.parse_args(argv)
+    global ITEMS, BITS, WGS
+    ITEMS = tuple(int(x) for x in a.items.split(",")) if a.items else ITEMS
+    BITS = tuple(int(x) for x in a.bits.split(",")) if a.bits else BITS
+    WGS = tuple(int(x) for x in a.wgs.split(",")) if a.wgs else WGS
+    onesweep = tuple(int(x) for x in a.onesweep.split(","))
     for e in ("REINGS_SORT_ITEMS", "REINGS_SORT_WG", "REINGS_SORT_BITS"):
         if os.environ.get(e):
             print(f"# note: {e}={os.environ[e]} is ignored here (every config is explicit)", file=sys.stderr)
     t0 = time.perf_counter()
-    rows = run(a.device, max(1, a.repeats), a.quick, a.schedule)
+    rows = run(a.device, max(1, a.repeats), a.quick, a.schedule, onesweep=onesweep)
     print_table(rows)
     print(f"# {time.perf_counter() - t0:.1f} s", file=sys.stderr)
     if a.out:

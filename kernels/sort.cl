@@ -8,8 +8,8 @@
  *
  * Reference: numpy.argsort(kind="stable") on (key >> begin_bit) & mask (tests/test_sort.py).
  *
- * One pass, reduce-then-scan (never a decoupled look-back: PoCL has no forward-progress guarantee
- * between work-groups, docs/perf_notes.md §4.1):
+ * One pass, reduce-then-scan (no work-group waits on another; the GPU schedule's host-count sorts take
+ * the onesweep kernels at the end of this file instead, docs/perf_notes.md §20):
  *   radix_hist     block b counts its digits -> hist[d * nblocks + b]   (digit-major matrix)
  *   radix_scan     (GPU schedule) work-group d scans row d in place (exclusive, block order) and
  *                  writes the row total to totals[d]
@@ -326,6 +326,223 @@ void radix_scatter(__global const key_t *keys_in, // [n]
             vals_out[dst_i] = vals_in[src_i];
         }
         barrier(CLK_LOCAL_MEM_FENCE); /* ent, dbase and dstart are rewritten for the next virtual block */
+    }
+}
+
+/* ------------------------------------- GPU schedule, host count: a pass in one launch (onesweep)
+ *
+ * radix_hist + radix_scan + radix_scatter are three launches per pass; on a GPU run bound by the
+ * host's enqueues (docs/perf_notes.md §18-§20) every launch costs ~25-30 us of host time. With a host
+ * count the sort instead takes 1 + passes launches (after Adinets and Merrill, "Onesweep: a faster
+ * least significant digit radix sort for GPUs", 2022, arXiv:2206.01784):
+ *   radix_global_hist  every pass's digit counts over all n keys at once (order-independent):
+ *                      ghist[p * RADIX + d]; also zeroes the passes' status words and block-id
+ *                      counters, and the other ghist buffer for the next sort (the host alternates
+ *                      two: a buffer must be zero when its radix_global_hist starts, and no kernel
+ *                      can zero what its own other work-groups are still adding into)
+ *   radix_onesweep     one launch per pass: work-group = a block of SORT_BLOCK keys, its block id
+ *                      taken from an atomic counter in launch order (so every lower id belongs to a
+ *                      work-group that already runs: the waits below always end), its digits'
+ *                      counts published at once (AGGREGATE), then the local stable sort as in
+ *                      radix_scatter, then per digit a decoupled look-back over the lower blocks'
+ *                      words (summing AGGREGATEs until a PREFIX), its own inclusive PREFIX published,
+ *                      and the scatter. A status word is (flag << 30) | count in one uint, so a
+ *                      relaxed atomic read sees a flag and its count together (n < 2^30, the host
+ *                      checks).
+ * The element's position is sum_{d' < d} ghist[d'] + (elements of digit d in lower blocks) + (its
+ * rank in its block): radix_scatter's position, so the bits are the same (a stable sort is unique).
+ * Status: [npass, nvb, stride] words (stride = 2^widest pass), zero before the pass.
+ */
+#define OS_EMPTY 0u
+#define OS_AGGREGATE 1u
+#define OS_PREFIX 2u
+#define OS_SHIFT 30
+#define OS_MASK ((1u << OS_SHIFT) - 1u)
+#ifndef OS_WINDOW
+#define OS_WINDOW 8 /* status words of lower blocks read at once (independent loads) per look-back step */
+#endif
+/* Status words are read and written as volatile 32-bit words (one aligned word: its flag and count are
+ * seen together; volatile keeps every read of the look-back's wait a fresh load), where the host allows it
+ * (quirks.volatile_status_words: NVIDIA, PoCL). OS_ATOMIC_STATUS=1 makes them atomic_or / atomic_xchg,
+ * the portable form (Oclgrind, other vendors; on an H100 ~1.5-3x slower at 11-bit digits, docs/perf_notes.md
+ * §20). */
+#ifndef OS_ATOMIC_STATUS
+#define OS_ATOMIC_STATUS 0
+#endif
+#if OS_ATOMIC_STATUS
+#define OS_LOAD(p) atomic_or((p), 0u)
+#define OS_STORE(p, v) atomic_xchg((p), (v))
+#else
+#define OS_LOAD(p) (*(volatile __global uint *)(p))
+#define OS_STORE(p, v) (*(volatile __global uint *)(p) = (v))
+#endif
+
+/* split_bits' digit width of pass i of npass over `total` bits (reings/backends/opencl/sort.py). */
+inline uint pass_width(const uint total, const uint npass, const uint i)
+{
+    return total / npass + (i < total % npass ? 1u : 0u);
+}
+
+__kernel __attribute__((reqd_work_group_size(SORT_WG, 1, 1)))
+void radix_global_hist(__global const key_t *keys, // [n]
+                       const uint n,
+                       const uint begin_bit,
+                       const uint end_bit,
+                       const uint npass,
+                       __global uint *ghist,       // [npass, RADIX], zero on entry
+                       __global uint *ghist_next,  // [ghist_words]: zeroed for the next sort
+                       const uint ghist_words,
+                       __global uint *status,      // [status_words]: zeroed
+                       const uint status_words,
+                       __global uint *ids)         // [npass]: zeroed
+{
+    __local uint h[RADIX];
+    const uint lid = get_local_id(0);
+    const uint gid = get_global_id(0), gsz = get_global_size(0);
+    for (uint i = gid; i < status_words; i += gsz) status[i] = 0u;
+    for (uint i = gid; i < ghist_words; i += gsz) ghist_next[i] = 0u;
+    if (gid < npass) ids[gid] = 0u;
+    const uint total = end_bit - begin_bit;
+    const uint base = get_group_id(0) * SORT_BLOCK;
+    uint shift = begin_bit;
+    for (uint p = 0; p < npass; ++p) {
+        const uint nbins = 1u << pass_width(total, npass, p);
+        for (uint d = lid; d < nbins; d += SORT_WG) h[d] = 0u;
+        barrier(CLK_LOCAL_MEM_FENCE);
+        for (uint k = 0; k < SORT_ITEMS; ++k) {
+            const uint i = base + k * SORT_WG + lid;
+            if (i < n) atomic_inc(&h[digit_of(keys[i], shift, nbins)]);
+        }
+        barrier(CLK_LOCAL_MEM_FENCE);
+        for (uint d = lid; d < nbins; d += SORT_WG) {
+            const uint c = h[d];
+            if (c) atomic_add(&ghist[p * RADIX + d], c);
+        }
+        barrier(CLK_LOCAL_MEM_FENCE); /* h is zeroed again for the next pass */
+        shift += pass_width(total, npass, p);
+    }
+}
+
+__kernel __attribute__((reqd_work_group_size(SORT_WG, 1, 1)))
+void radix_onesweep(__global const key_t *keys_in, // [n]
+                    __global const uint *vals_in,  // [n]
+                    __global key_t *keys_out,      // [n]
+                    __global uint *vals_out,       // [n]
+                    const uint n,
+                    const uint shift,
+                    const uint nbins,
+                    const uint pass,
+                    __global const uint *ghist,    // [npass, RADIX] from radix_global_hist
+                    __global uint *status,         // [npass, nvb, stride], this pass's part zero
+                    const uint stride,
+                    __global uint *ids)            // [npass] block-id counters, zero
+{
+    __local uint ent[2][SORT_BLOCK]; /* (digit << 16) | local index */
+    __local uint tmp[SORT_WG];
+    __local uint dbase[RADIX];
+    __local uint dstart[RADIX];
+    __local uint cnt[RADIX];         /* the block's count of each digit */
+    __local uint vb_shared;
+    const uint lid = get_local_id(0);
+    if (lid == 0) vb_shared = atomic_inc(&ids[pass]);
+    for (uint d = lid; d < nbins; d += SORT_WG) cnt[d] = 0u;
+    barrier(CLK_LOCAL_MEM_FENCE);
+    const uint vb = vb_shared;
+    const uint nvb = virtual_blocks(n);
+    const uint base = vb * SORT_BLOCK;
+    const uint count = min((uint)SORT_BLOCK, n - base);
+    __global uint *st = status + pass * nvb * stride;
+    __global const uint *gh = ghist + pass * RADIX;
+
+    /* 1. digits (padding: the largest digit, after every valid element) and the block's counts */
+    for (uint k = 0; k < SORT_ITEMS; ++k) {
+        const uint p = lid * SORT_ITEMS + k;
+        const uint d = p < count ? digit_of(keys_in[base + p], shift, nbins) : nbins - 1u;
+        ent[0][p] = (d << 16) | p;
+        if (p < count) atomic_inc(&cnt[d]);
+    }
+    barrier(CLK_LOCAL_MEM_FENCE);
+
+    /* 2. publish the counts: block 0's are already its inclusive prefixes */
+    for (uint j = 0; j < DIGITS_PER_ITEM; ++j) {
+        const uint d = lid * DIGITS_PER_ITEM + j;
+        if (d < nbins) OS_STORE(&st[vb * stride + d], ((vb == 0u ? OS_PREFIX : OS_AGGREGATE) << OS_SHIFT) | cnt[d]);
+    }
+
+    /* 3. stable local sort of the block by digit (radix_scatter's step 3); meanwhile the lower
+     *    blocks publish */
+    uint cur = 0;
+    for (uint bit = 16; (1u << (bit - 16)) < nbins; ++bit) {
+        __local const uint *src = ent[cur];
+        __local uint *dst = ent[cur ^ 1u];
+        uint zeros = 0;
+        for (uint k = 0; k < SORT_ITEMS; ++k) zeros += ((src[lid * SORT_ITEMS + k] >> bit) & 1u) ^ 1u;
+        uint nz;
+        uint zp = wg_exclusive_scan(zeros, tmp, &nz);
+        uint op = nz + lid * SORT_ITEMS - zp;
+        for (uint k = 0; k < SORT_ITEMS; ++k) {
+            const uint e = src[lid * SORT_ITEMS + k];
+            if ((e >> bit) & 1u) dst[op++] = e;
+            else dst[zp++] = e;
+        }
+        barrier(CLK_LOCAL_MEM_FENCE);
+        cur ^= 1u;
+    }
+    __local const uint *srt = ent[cur];
+
+    /* 4. dbase[d] = sum_{d' < d} ghist[d'] + (digit d's elements in blocks < vb): the look-back reads
+     *    OS_WINDOW lower blocks' words at once, adds AGGREGATEs up to the nearest PREFIX, and waits
+     *    where a word is still EMPTY (that block has an id, so it runs and will publish). */
+    {
+        uint s = 0;
+        for (uint j = 0; j < DIGITS_PER_ITEM; ++j) {
+            const uint d = lid * DIGITS_PER_ITEM + j;
+            if (d < nbins) s += gh[d];
+        }
+        uint sum;
+        uint acc = wg_exclusive_scan(s, tmp, &sum);
+        for (uint j = 0; j < DIGITS_PER_ITEM; ++j) {
+            const uint d = lid * DIGITS_PER_ITEM + j;
+            if (d >= nbins) break;
+            uint excl = 0;
+            if (vb > 0u) {
+                int b = (int)vb - 1;
+                for (;;) {
+                    uint w[OS_WINDOW];
+                    for (int i = 0; i < OS_WINDOW; ++i)
+                        w[i] = b - i >= 0 ? OS_LOAD(&st[(uint)(b - i) * stride + d]) : (OS_PREFIX << OS_SHIFT);
+                    int used = 0;
+                    bool done = false;
+                    for (int i = 0; i < OS_WINDOW; ++i) {
+                        const uint f = w[i] >> OS_SHIFT;
+                        if (f == OS_EMPTY) break;
+                        excl += w[i] & OS_MASK;
+                        ++used;
+                        if (f == OS_PREFIX) { done = true; break; }
+                    }
+                    if (done) break;
+                    b -= used;
+                }
+                OS_STORE(&st[vb * stride + d], (OS_PREFIX << OS_SHIFT) | (excl + cnt[d]));
+            }
+            dbase[d] = acc + excl;
+            acc += gh[d];
+        }
+    }
+
+    /* 5. where each digit's run starts in the sorted block; 6. the scatter (radix_scatter's 4, 5) */
+    for (uint p = lid; p < count; p += SORT_WG) {
+        const uint d = srt[p] >> 16;
+        if (p == 0 || (srt[p - 1] >> 16) != d) dstart[d] = p;
+    }
+    barrier(CLK_LOCAL_MEM_FENCE);
+    for (uint p = lid; p < count; p += SORT_WG) {
+        const uint e = srt[p];
+        const uint d = e >> 16;
+        const uint src_i = base + (e & 0xFFFFu);
+        const uint dst_i = dbase[d] + (p - dstart[d]);
+        keys_out[dst_i] = keys_in[src_i];
+        vals_out[dst_i] = vals_in[src_i];
     }
 }
 

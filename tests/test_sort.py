@@ -15,7 +15,9 @@ from oclgrind_util import oclgrind_available, run_oclgrind
 
 # straddling powers of two and the block sizes of both schedules (GPU block = 256 * 8 = 2048)
 SIZES = [0, 1, 2, 3, 255, 256, 257, 1023, 1024, 1025, 2047, 2048, 2049, 4097, 65535, 65536, 65537, 300_001]
-SCHEDULES = ["cpu", "gpu"]
+# "gpu": the GPU schedule as the device gets it (host counts through radix_onesweep); "gpu3": with
+# onesweep off (radix_hist, radix_scan, radix_scatter per pass)
+SCHEDULES = ["cpu", "gpu", "gpu3"]
 
 
 @pytest.fixture(scope="module")
@@ -31,7 +33,7 @@ def _sorter(device, schedule, cache):
     if key not in cache:
         h = open_device(device)
         cpu = schedule == "cpu"
-        cache[key] = (RadixSort(h, cpu_schedule=cpu), ExclusiveScan(h, cpu_schedule=cpu))
+        cache[key] = (RadixSort(h, cpu_schedule=cpu, onesweep=schedule != "gpu3"), ExclusiveScan(h, cpu_schedule=cpu))
     return cache[key]
 
 
@@ -350,7 +352,7 @@ def test_scan_total_into_device_buffer(device, schedule, rng, _sorters):
 
 # ------------------------------------------------------------ geometry (docs/perf_notes.md §10)
 
-_GEOM_ENV = ("REINGS_SORT_ITEMS", "REINGS_SORT_WG", "REINGS_SORT_BITS")
+_GEOM_ENV = ("REINGS_SORT_ITEMS", "REINGS_SORT_WG", "REINGS_SORT_BITS", "REINGS_SORT_ONESWEEP")
 
 
 @pytest.fixture
@@ -397,12 +399,17 @@ def test_sort_geometry_host_and_device_count(device, items, bits, wg, rng, _no_s
 
 
 def test_sort_geometry_defaults_and_env(device, rng, _no_sort_env):
-    """The GPU schedule's defaults (docs/perf_notes.md §10): items auto, 11-bit digits where auto's largest
-    block fits the local memory (else 8), wg 256; a device-count sort whose width was defaulted takes 8-bit
-    digits; the CPU schedule's defaults are 8 bits. The environment is read once per RadixSort; arguments win."""
+    """The GPU schedule's defaults: with onesweep (docs/perf_notes.md §20) 8-bit digits and blocks of 256 * 4
+    pairs under items auto; without it (§10) items auto, 11-bit digits where auto's largest block fits the
+    local memory (else 8), wg 256; a device-count sort whose width was defaulted takes 8-bit digits; the CPU
+    schedule's defaults are 8 bits. The environment is read once per RadixSort; arguments win."""
     from reings.backends.opencl.sort import sort_local_bytes
 
     s = _gpu_sorter(device)
+    assert (s.items, s.wg, s.max_bits, s.onesweep) == ("auto", 256, 8, True)
+    assert (s.launch_items(100), s.launch_items(10 ** 6), s.geometry(5000)) == (4, 4, (5, 1024))
+    _check_sort(s, _keys(rng, 5000, np.uint32, "topbit"))
+    s = _gpu_sorter(device, onesweep=False)
     fits = sort_local_bytes(256, 8, 11) <= s.local_mem
     assert (s.items, s.wg, s.max_bits) == ("auto", 256, 11 if fits else 8)
     assert (s.call_bits(False), s.call_bits(True)) == ((11, 8) if fits else (8, 8))
@@ -464,6 +471,83 @@ def test_sort_geometry_arguments_rejected(device, _no_sort_env):
         s.kernels(False)
 
 
+class _Counted:
+    """A kernel whose launches are appended to `log` by name."""
+
+    def __init__(self, k, name, log):
+        self.k, self.name, self.log = k, name, log
+
+    def __call__(self, *a, **kw):
+        self.log.append(self.name)
+        return self.k(*a, **kw)
+
+
+def _counting_sorter(device, onesweep, **kw):
+    from reings.backends.opencl.device import open_device
+    from reings.backends.opencl.sort import RadixSort
+
+    class CountingSort(RadixSort):
+        def kernels(self, key64, items=None, bits=None):
+            return tuple(_Counted(k, nm, self.log) for k, nm in
+                         zip(super().kernels(key64, items, bits), ("hist", "scan", "scatter")))
+
+        def onesweep_kernels(self, key64, items, bits):
+            return tuple(_Counted(k, nm, self.log) for k, nm in
+                         zip(super().onesweep_kernels(key64, items, bits), ("global_hist", "onesweep")))
+
+    s = CountingSort(open_device(device), cpu_schedule=False, onesweep=onesweep, **kw)
+    s.log = []
+    return s
+
+
+def test_onesweep_launches_and_state_between_sorts(device, rng, _no_sort_env):
+    """A host-count sort of the GPU schedule is radix_global_hist then one radix_onesweep per pass
+    (1 + passes launches, against 3 per pass with onesweep off). The two global histograms are used
+    in turn, each zeroed by the sort before its next use: a run of sorts of different widths, pass
+    counts, sizes and outputs on one sorter (and on one with small blocks: 128 pairs, many blocks
+    whose look-backs wait on each other) gives numpy's stable order every time, and the same bits as
+    the three-launch path."""
+    from reings.backends.opencl.sort import split_bits
+
+    seq = [(np.uint64, 0, 64, 3001), (np.uint32, 0, 10, 40_000), (np.uint32, 0, 32, 2), (np.uint32, 0, 32, 2049),
+           (np.uint64, 32, 43, 5000), (np.uint32, 7, 8, 777), (np.uint32, 0, 32, 70_001), (np.uint64, 0, 64, 3001)]
+    for kw in ({}, dict(wg=32, items=4)):
+        on, off = _counting_sorter(device, True, **kw), _counting_sorter(device, False, **kw)
+        for i, (dt, b0, b1, n) in enumerate(seq):
+            keys = _keys(rng, n, dt, "random")
+            keys[::5] = keys[2 % n]
+            p_on, p_off = len(split_bits(b0, b1, on.max_bits)), len(split_bits(b0, b1, off.max_bits))
+            for s, want in ((on, ["global_hist"] + ["onesweep"] * p_on), (off, ["hist", "scan", "scatter"] * p_off)):
+                s.log.clear()
+                _check_sort(s, keys, b0, b1)
+                assert s.log == (want if n > 1 else []), (kw, dt, b0, b1, n, s.log)
+            assert on._ghist_turn == sum(1 for *_, m in seq[:i + 1] if m > 1) % 2
+
+
+def test_onesweep_setting(device, _no_sort_env):
+    """REINGS_SORT_ONESWEEP: 0 or 1 (read once per sorter), the argument wins, anything else is refused;
+    the CPU schedule never uses it; counts of 2^30 and more (a status word's 30 bits), device counts and
+    blocks whose local memory the device lacks go through the three-launch path."""
+    from reings.backends.opencl.sort import onesweep_local_bytes
+
+    mp = _no_sort_env
+    assert _gpu_sorter(device).onesweep and not _gpu_sorter(device, onesweep=False).onesweep
+    mp.setenv("REINGS_SORT_ONESWEEP", "0")
+    assert not _gpu_sorter(device).onesweep and _gpu_sorter(device, onesweep=True).onesweep
+    mp.setenv("REINGS_SORT_ONESWEEP", "1")
+    assert _gpu_sorter(device).onesweep and not _sorter_cpu_bits(device).onesweep
+    for bad in ("2", "yes", "on"):
+        mp.setenv("REINGS_SORT_ONESWEEP", bad)
+        with pytest.raises(ValueError, match=f"REINGS_SORT_ONESWEEP must be 0 or 1, got '{bad}'"):
+            _gpu_sorter(device)
+    mp.delenv("REINGS_SORT_ONESWEEP")
+    s = _gpu_sorter(device, items=8, max_bits=11, wg=256)
+    assert s.uses_onesweep(2**30 - 1, 8, 11, False)
+    assert not s.uses_onesweep(2**30, 8, 11, False) and not s.uses_onesweep(1000, 8, 11, True)
+    s.local_mem = onesweep_local_bytes(256, 8, 11) - 1
+    assert not s.uses_onesweep(1000, 8, 11, False)
+
+
 def test_auto_items_rule():
     from reings.backends.opencl.sort import auto_items
 
@@ -482,7 +566,7 @@ def test_sort_auto_items_per_call(device, n, want, rng, _no_sort_env):
     """items="auto" with a fake count of 7 compute units and 32-wide groups (>= 14 blocks wanted):
     each call builds and uses the chosen items, and sorts exactly; a device count keeps the
     histogram's bytes per pair (8-bit digits: items 8 at wg 32) and still sorts exactly."""
-    s = _gpu_sorter(device, items="auto", wg=32, max_bits=8)
+    s = _gpu_sorter(device, items="auto", wg=32, max_bits=8, onesweep=False)
     s.compute_units = 7
     assert s.launch_items(n) == want
     assert s.geometry(n) == (-(-n // (32 * want)), 32 * want)
@@ -493,7 +577,7 @@ def test_sort_auto_items_per_call(device, n, want, rng, _no_sort_env):
     assert s.launch_items(n, device_count=True) == 8
     assert s.device_geometry(2 * n, n) == (-(-n // 256), -(-(2 * n) // 256))
     _check_sort_device_count(s, np.concatenate([keys, keys]), n, 0, 32, n)
-    s4 = _gpu_sorter(device, items="auto", wg=32, max_bits=4)  # 16 bins (64 B): blocks of >= 128 pairs
+    s4 = _gpu_sorter(device, items="auto", wg=32, max_bits=4, onesweep=False)  # 16 bins (64 B): blocks of >= 128 pairs
     s4.compute_units = 7
     assert s4.launch_items(n, device_count=True) == max(want, 4)
     _check_sort_device_count(s4, np.concatenate([keys, keys]), n, 0, 10, n)
@@ -528,14 +612,17 @@ def download(buf, like):
 
 # CPU schedule; GPU schedule with small blocks (32 x 4 = 128 elements) so a few hundred keys span
 # several work-groups and the work-group scans loop; GPU schedule with the default 256 x 8 once.
-CONFIGS = {"cpu": (True, dict(wg=32, items=4), (1, 2, 129, 300)),
-           "gpu_small_blocks": (False, dict(wg=32, items=4), (1, 2, 129, 300)),
-           "gpu_default": (False, dict(wg=256, items=8), (300,))}
+# The GPU schedule's host-count sorts go through radix_global_hist + radix_onesweep (the default) and,
+# in the small blocks, through radix_hist + radix_scan + radix_scatter too (onesweep=False).
+CONFIGS = {"cpu": [(True, dict(wg=32, items=4), (1, 2, 129, 300))],
+           "gpu_small_blocks": [(False, dict(wg=32, items=4), (1, 2, 129, 300)),
+                                (False, dict(wg=32, items=4, onesweep=False), (129, 300))],
+           "gpu_default": [(False, dict(wg=256, items=8), (300,))]}
 # one stream per part (each runs in its own process): the parts sort and scan different keys
 rng = np.random.default_rng([0, list(CONFIGS).index(PART)])
-for cpu, kw, sizes in [CONFIGS[PART]]:
+for cpu, kw, sizes in CONFIGS[PART]:
     s = RadixSort(h, cpu_schedule=cpu, **kw)
-    sc = ExclusiveScan(h, cpu_schedule=cpu, **kw)
+    sc = ExclusiveScan(h, cpu_schedule=cpu, wg=kw["wg"], items=kw["items"])
     keep += [s, sc]
     for n in sizes:
         # the default geometry (the production one, the slowest to simulate) sorts the full-width keys of both
@@ -624,7 +711,7 @@ def test_sort_geometry_defaults_on_a_small_local_memory(device, _no_sort_env):
     from types import SimpleNamespace
 
     from reings.backends.opencl.device import open_device
-    from reings.backends.opencl.sort import RadixSort, sort_local_bytes
+    from reings.backends.opencl.sort import RadixSort, onesweep_local_bytes, sort_local_bytes
 
     h = open_device(device)
 
@@ -633,12 +720,18 @@ def test_sort_geometry_defaults_on_a_small_local_memory(device, _no_sort_env):
         return SimpleNamespace(device=dev, context=h.context, queue=h.queue)
 
     assert sort_local_bytes(256, 8, 11) > 32768 >= sort_local_bytes(256, 8, 8)
-    small = RadixSort(fake(32768), cpu_schedule=False)
+    small = RadixSort(fake(32768), cpu_schedule=False, onesweep=False)
     assert (small.items, small.max_bits) == ("auto", 8)
-    big = RadixSort(fake(1 << 20), cpu_schedule=False)
+    big = RadixSort(fake(1 << 20), cpu_schedule=False, onesweep=False)
     assert big.max_bits == 11 and big.call_bits(True) == 8 and big.call_bits(False) == 11
-    tight = RadixSort(fake(sort_local_bytes(256, 2, 11)), cpu_schedule=False, max_bits=11)
+    tight = RadixSort(fake(sort_local_bytes(256, 2, 11)), cpu_schedule=False, max_bits=11, onesweep=False)
     assert tight.launch_items(10 ** 7) == 2  # 8 and 4 would not fit at 11 bits
+    # onesweep (the default): 8-bit digits whatever the local memory, auto's items 4 where its block fits,
+    # else the three-launch path and auto's rule
+    os_small = RadixSort(fake(32768), cpu_schedule=False)
+    assert (os_small.max_bits, os_small.launch_items(10 ** 7), os_small.launch_items(10 ** 7, True)) == (8, 4, 8)
+    os_tight = RadixSort(fake(onesweep_local_bytes(256, 4, 8) - 1), cpu_schedule=False)
+    assert os_tight.launch_items(10 ** 7) == 4 and not os_tight.uses_onesweep(10 ** 7, 4, 8, False)  # 8 does not fit
     with pytest.raises(ValueError, match="work-group size 512 > the device's 256"):
         RadixSort(fake(1 << 20, max_wg=256), cpu_schedule=False, wg=512)
     s = _gpu_sorter(device)  # the real device: a device-count sort compiles its own (8-bit) kernels

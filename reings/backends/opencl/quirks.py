@@ -12,7 +12,9 @@ def platform_name(device) -> str:
 
 def is_pocl(device) -> bool:
     """PoCL: CPU work-groups run as loops over work-items; no forward-progress guarantee between
-    work-groups, so no look-back scans (docs/perf_notes.md §4.1)."""
+    work-groups, so a look-back may wait only on a work-group that is already running (sort.cl's
+    onesweep takes its block ids from an atomic counter; the CPU schedule has no look-back at all;
+    docs/perf_notes.md §4.1, §20)."""
     return "Portable Computing Language" in device.platform.name
 
 
@@ -25,6 +27,14 @@ def is_nvidia(device) -> bool:
     """NVIDIA's OpenCL: `cl_nv_pragma_unroll` is the standard detection (docs/perf_notes.md §4.4); inline PTX
     (`red.global.add.f32`, `shfl.sync`) compiles there."""
     return "cl_nv_pragma_unroll" in device.extensions
+
+
+def volatile_status_words(device) -> bool:
+    """Whether a look-back may read other work-groups' status words with volatile loads (one aligned
+    32-bit word each) instead of atomics: NVIDIA (volatile global loads are not cached in L1; measured
+    in docs/perf_notes.md §20) and PoCL (a CPU's coherent caches). Elsewhere atomics, the portable form
+    (Oclgrind reports the volatile form as the data race it is by OpenCL's memory model)."""
+    return is_nvidia(device) or is_pocl(device)
 
 
 def is_cpu(device) -> bool:

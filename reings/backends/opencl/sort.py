@@ -11,10 +11,16 @@
     total, ev = scan(in_buf, out_buf, n)            # out = exclusive prefix sum, total read back
     _, ev = scan(in_buf, out_buf, n, total_buf=counts, total_at=1, read_total=False)  # no readback
 
-Both are reduce-then-scan (docs/perf_notes.md §4: no decoupled look-back, PoCL has no forward progress between
-work-groups) and choose their schedule per device: REINGS_CPU_SCHEDULE=1 (PoCL: one work-item per
-block, few large blocks, no barriers) or 0 (GPUs: one work-group per block, local memory). See the
-header comments of the two .cl files for the kernels.
+The scan, and the sort's CPU schedule and device counts, are reduce-then-scan (no work-group waits on
+another: docs/perf_notes.md §4.1). A GPU-schedule sort with a host count is onesweep by default
+(docs/perf_notes.md §20): radix_global_hist counts every pass's digits at once, then one radix_onesweep
+launch per pass finds each block's offsets by a decoupled look-back over the lower blocks (block ids
+taken in launch order from an atomic counter, so a wait is always on a running work-group): 1 + passes
+launches instead of 3 per pass, at 8-bit digits and blocks of 256 x 4 pairs (REINGS_SORT_ONESWEEP=0: the
+three-launch sort, 11-bit digits). Both choose their schedule per device: REINGS_CPU_SCHEDULE=1 (PoCL:
+one work-item per block, few large blocks, no barriers) or 0 (GPUs: one work-group per block, local
+memory). See the header comments of the two .cl files for the kernels. Every schedule, geometry and
+path gives the same bits (a stable sort's output is unique).
 
 Buffers (n elements):
     keys   [n] uint32, or uint64 with key64=True
@@ -42,8 +48,13 @@ Geometry (docs/perf_notes.md §10), read once per RadixSort from its arguments, 
                        estimate (device count), else 1 (`auto_items`); with a device count auto never
                        makes the histogram (sized for the capacity) larger per pair than 8-bit digits'
     REINGS_SORT_WG     GPU schedule work-group size, a power of two 1..1024 (default 256)
-    REINGS_SORT_BITS   widest digit per pass, 1..16. Default: 11 on the GPU schedule where its largest
-                       block fits the device's local memory (else 8), 8 on the CPU schedule. 11 sorts
+    REINGS_SORT_ONESWEEP  0 or 1 (default 1): the GPU schedule's host-count sorts through radix_onesweep,
+                       whose defaults are 8-bit digits and, under items auto, 4 elements per work-item
+                       (ONESWEEP_BITS_DEFAULT, ONESWEEP_AUTO_ITEMS); a count of 2^30 or more, a device
+                       count or a block over the local memory takes the three-launch path
+    REINGS_SORT_BITS   widest digit per pass, 1..16. Default: 8 with onesweep; without it 11 on the GPU
+                       schedule where its largest block fits the device's local memory (else 8), 8 on
+                       the CPU schedule. 11 sorts
                        32 bits in 3 passes (11, 11, 10) and a 10-bit tile id in one: on an H100 a pass
                        costs ~0.055 ms of launch span whatever its width (§10). A device-count sort
                        whose width was defaulted takes at most 8 bits (its histogram is sized for the
@@ -66,6 +77,11 @@ from .program import library_for
 _U32 = np.uint32
 
 SORT_ITEMS_ENV, SORT_WG_ENV, SORT_BITS_ENV = "REINGS_SORT_ITEMS", "REINGS_SORT_WG", "REINGS_SORT_BITS"
+SORT_ONESWEEP_ENV = "REINGS_SORT_ONESWEEP"
+ONESWEEP_MAX_N = 1 << 30  # a status word holds a count in 30 bits (kernels/sort.cl, "onesweep")
+# onesweep's defaults (docs/perf_notes.md §20, an H100 sweep): 8-bit digits (the look-back's status words are
+# 2^bits per block: at 11 bits as many as the keys) and blocks of 256 * 4 pairs under items "auto"
+ONESWEEP_BITS_DEFAULT, ONESWEEP_AUTO_ITEMS = 8, 4
 SORT_ITEMS_DEFAULT, SORT_WG_DEFAULT, SORT_BITS_DEFAULT = 8, 256, 8  # the CPU schedule's; the GPU's before §10
 # the GPU schedule's defaults since docs/perf_notes.md §10 (an H100: a pass costs ~0.055 ms of launch span
 # whatever its width, so fewer passes win): items auto, 11-bit digits where the local memory holds them
@@ -205,6 +221,25 @@ def sort_local_bytes(wg: int, items: int, max_bits: int) -> int:
     return 4 * (2 * wg * items + wg + 2 * (1 << max_bits))
 
 
+def onesweep_local_bytes(wg: int, items: int, max_bits: int) -> int:
+    """Local memory of radix_onesweep: radix_scatter's, the block's digit counts and its block id."""
+    return sort_local_bytes(wg, items, max_bits) + 4 * (1 << max_bits) + 4
+
+
+def sort_onesweep_setting(onesweep=None) -> bool:
+    """Whether a GPU-schedule sort with a host count takes 1 + passes launches (radix_global_hist,
+    then radix_onesweep per pass) instead of three per pass: `onesweep`, else $REINGS_SORT_ONESWEEP
+    (0 or 1), else on."""
+    raw = onesweep if onesweep is not None else (os.environ.get(SORT_ONESWEEP_ENV) or None)
+    if raw is None:
+        return True
+    if isinstance(raw, bool):
+        return raw
+    if str(raw).strip() in ("0", "1"):
+        return str(raw).strip() == "1"
+    raise ValueError(f"{'onesweep' if onesweep is not None else SORT_ONESWEEP_ENV} must be 0 or 1, got {raw!r}")
+
+
 class ExclusiveScan:
     """Exclusive prefix sum of uint32 on the device: out[i] = sum(in[:i]) mod 2^32.
 
@@ -311,6 +346,9 @@ class RadixSort:
                   None: $REINGS_SORT_WG / $REINGS_SORT_ITEMS, else 256 / "auto" (chosen per
                   sort_pairs call: `launch_items`; module docstring, "Geometry")
     blocks_per_core  CPU schedule: blocks (work-items) per compute unit
+    onesweep      GPU schedule, host count: a pass in one launch after one histogram launch for
+                  every pass (kernels/sort.cl, "onesweep"); None: $REINGS_SORT_ONESWEEP, else on.
+                  The same bits either way
     """
 
     _cache: dict[int, "RadixSort"] = {}
@@ -323,9 +361,11 @@ class RadixSort:
         return s
 
     def __init__(self, handle, cpu_schedule: bool | None = None, max_bits: int | None = None,
-                 wg: int | None = None, items: int | str | None = None, blocks_per_core: int = 4):
+                 wg: int | None = None, items: int | str | None = None, blocks_per_core: int = 4,
+                 onesweep: bool | None = None):
         self.handle = handle
         self.cpu = _cpu_schedule(handle, cpu_schedule)
+        self.onesweep = sort_onesweep_setting(onesweep) and not self.cpu
         self.local_mem = int(handle.device.local_mem_size)
         self.wg = sort_wg_setting(wg)
         max_wg = int(getattr(handle.device, "max_work_group_size", self.wg))
@@ -340,6 +380,8 @@ class RadixSort:
         biggest = max(AUTO_ITEMS) if self.items == "auto" else self.items
         gpu_bits = GPU_BITS_DEFAULT if sort_local_bytes(self.wg, biggest, GPU_BITS_DEFAULT) <= self.local_mem \
             else SORT_BITS_DEFAULT
+        if self.onesweep:
+            gpu_bits = ONESWEEP_BITS_DEFAULT
         self.max_bits = sort_bits_setting(max_bits, SORT_BITS_DEFAULT if self.cpu else gpu_bits)
         # a device-count sort sizes its histogram for the capacity (bin_counts' memory bound assumes the
         # 8-bit digit's 0.5 B per pair): a defaulted wider digit is cut to 8 bits there
@@ -351,6 +393,11 @@ class RadixSort:
         self._keys_tmp, self._vals_tmp = _Scratch(ctx), _Scratch(ctx)
         self._hist, self._totals = _Scratch(ctx), _Scratch(ctx)
         self._no_count = _Scratch(ctx)  # the counts argument of a host-count sort (never read)
+        # onesweep: the passes' status words and block-id counters; two global histograms used in
+        # turn (each sort's radix_global_hist adds into one and zeroes the other for the next sort)
+        self._status, self._ids = _Scratch(ctx), _Scratch(ctx)
+        self._ghist: list = []
+        self._ghist_turn = 0
 
     def kernels(self, key64: bool, items: int | None = None, bits: int | None = None):
         """(radix_hist, radix_scan, radix_scatter), built on first use per (key64, items, wg, max_bits)
@@ -382,6 +429,46 @@ class RadixSort:
             )
         return ks
 
+    def onesweep_kernels(self, key64: bool, items: int, bits: int):
+        """(radix_global_hist, radix_onesweep) of the GPU schedule, built on first use (the same
+        defines as `kernels`, so the same program)."""
+        key = ("onesweep", bool(key64), int(items), self.wg, int(bits))
+        ks = self._kernels.get(key)
+        if ks is None:
+            self.kernels(key64, items, bits)  # the geometry's checks
+            defines = {"REINGS_CPU_SCHEDULE": 0, "KEY64": int(key64), "RADIX_BITS": int(bits),
+                       "SORT_WG": self.wg, "SORT_ITEMS": int(items)}
+            if not quirks.volatile_status_words(self.handle.device):
+                defines["OS_ATOMIC_STATUS"] = 1  # kernels/sort.cl: the look-back through atomics
+            u, b, h = np.uint32, None, self.handle
+            ks = self._kernels[key] = (
+                _kernel(h, "sort.cl", "radix_global_hist", [b, u, u, u, u, b, b, u, b, u, b], **defines),
+                _kernel(h, "sort.cl", "radix_onesweep", [b, b, b, b, u, u, u, u, b, b, u, b], **defines),
+            )
+        return ks
+
+    def uses_onesweep(self, n: int, items: int, bits: int, device_count: bool) -> bool:
+        """Whether a sort of n pairs goes through radix_onesweep: the GPU schedule with it on, a host
+        count below 2^30, and the kernel's local memory within the device's."""
+        return (self.onesweep and not device_count and n < ONESWEEP_MAX_N
+                and onesweep_local_bytes(self.wg, items, bits) <= self.local_mem)
+
+    def _ghist_pair(self, words: int):
+        """(this sort's global histogram, the next sort's), both of `words` uint32; zeroed once when
+        made, then by radix_global_hist (kernels/sort.cl)."""
+        import pyopencl as cl
+
+        if not self._ghist or self._ghist[0].size < 4 * words:
+            q = self.handle.queue
+            self._ghist = [cl.Buffer(self.handle.context, cl.mem_flags.READ_WRITE, 4 * words) for _ in range(2)]
+            zeros = np.zeros(words, _U32)  # a copy, not a fill: Oclgrind's uninitialized check takes it as written
+            for g in self._ghist:
+                cl.enqueue_copy(q, g, zeros)
+            self._ghist_turn = 0
+        cur = self._ghist_turn
+        self._ghist_turn ^= 1
+        return self._ghist[cur], self._ghist[cur ^ 1]
+
     def call_bits(self, device_count: bool) -> int:
         """The widest digit of one sort: max_bits, but at most 8 for a device-count sort whose width
         was defaulted (its histogram is sized for the capacity; module docstring)."""
@@ -391,12 +478,15 @@ class RadixSort:
 
     def launch_items(self, n: int, device_count: bool = False) -> int:
         """SORT_ITEMS of a GPU-schedule sort of about n pairs (n: the host count, or a device count's
-        estimate): the fixed items, or auto's rule (`auto_items` on this device's compute units);
-        with a device_count, auto keeps the histogram within HIST_BYTES_PER_PAIR of the capacity
-        (at most the largest auto choice)."""
+        estimate): the fixed items, or under auto ONESWEEP_AUTO_ITEMS for a sort that goes through
+        radix_onesweep (`uses_onesweep`), else auto's rule (`auto_items` on this device's compute
+        units); with a device_count, auto keeps the histogram within HIST_BYTES_PER_PAIR of the
+        capacity (at most the largest auto choice)."""
         if self.items != "auto":
             return self.items
         bits = self.call_bits(device_count)
+        if self.uses_onesweep(n, ONESWEEP_AUTO_ITEMS, bits, device_count):
+            return ONESWEEP_AUTO_ITEMS
         fits = tuple(c for c in AUTO_ITEMS if sort_local_bytes(self.wg, c, bits) <= self.local_mem) or (1,)
         items = auto_items(n, self.wg, self.compute_units, choices=fits)
         if device_count:
@@ -460,6 +550,9 @@ class RadixSort:
             raise ValueError("n must be < 2^32")
         est = n if count is None or estimate is None else int(estimate)
         items = None if self.cpu else self.launch_items(est, device_count=count is not None)  # once per call
+        if not self.cpu and self.uses_onesweep(n, items, bits, count is not None):
+            return self._sort_onesweep(keys_buf, vals_buf, n, begin_bit, end_bit, key64, passes, items, bits,
+                                       wait_for, out)
         hist_k, scan_k, scat_k = self.kernels(key64, items, bits)
         q = self.handle.queue
         if count is None:
@@ -492,6 +585,37 @@ class RadixSort:
                 scan_k(q, (nbins * self.wg,), (self.wg,), hist, n, nbins, totals, counts, count_at)
             ev = scat_k(q, g, l, src[0], src[1], dst[0], dst[1], n, chunk, shift, nbins, hist, totals,
                         counts, count_at)
+            src = dst
+        return src[0], src[1], ev
+
+    def _sort_onesweep(self, keys_buf, vals_buf, n: int, begin_bit: int, end_bit: int, key64: bool, passes: list,
+                       items: int, bits: int, wait_for, out):
+        """sort_pairs through radix_global_hist and one radix_onesweep per pass (1 + passes launches;
+        the buffers' roles as in sort_pairs)."""
+        gh_k, os_k = self.onesweep_kernels(key64, items, bits)
+        q = self.handle.queue
+        ksize = 8 if key64 else 4
+        nvb = -(-n // (self.wg * items))
+        stride = 1 << max(w for _, w in passes)
+        npass = len(passes)
+        status_words = npass * nvb * stride
+        ghist_words = -(-64 // bits) << bits  # the most passes of any sort here, at RADIX = 2^bits
+        ghist, ghist_next = self._ghist_pair(ghist_words)
+        status = self._status.get(4 * status_words)
+        ids = self._ids.get(4 * npass)
+        kt = self._keys_tmp.get(n * ksize)
+        vt = self._vals_tmp.get(n * 4)
+        g, l = (nvb * self.wg,), (self.wg,)
+        gh_k(q, g, l, keys_buf, n, begin_bit, end_bit, npass, ghist, ghist_next, ghist_words, status,
+             status_words, ids, wait_for=wait_for)
+        src = inp = (keys_buf, vals_buf)
+        ev = None
+        for i, (shift, w) in enumerate(passes):
+            if out is None:  # scratch, inputs, scratch, ...
+                dst = (kt, vt) if i % 2 == 0 else inp
+            else:  # ..., out, scratch, out
+                dst = tuple(out) if (npass - 1 - i) % 2 == 0 else (kt, vt)
+            ev = os_k(q, g, l, src[0], src[1], dst[0], dst[1], n, shift, 1 << w, i, ghist, status, stride, ids)
             src = dst
         return src[0], src[1], ev
 
