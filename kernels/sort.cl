@@ -364,7 +364,7 @@ void radix_scatter(__global const key_t *keys_in, // [n]
 /* Status words are read and written as volatile 32-bit words (one aligned word: its flag and count are
  * seen together; volatile keeps every read of the look-back's wait a fresh load), where the host allows it
  * (quirks.volatile_status_words: NVIDIA, PoCL). OS_ATOMIC_STATUS=1 makes them atomic_or / atomic_xchg,
- * the portable form (Oclgrind, other vendors; on an H100 ~1.5-3x slower at 11-bit digits, docs/perf_notes.md
+ * the portable form (Oclgrind, other vendors; on an H100 1.2-3.5x slower at 11-bit digits, docs/perf_notes.md
  * §20). */
 #ifndef OS_ATOMIC_STATUS
 #define OS_ATOMIC_STATUS 0
@@ -401,7 +401,7 @@ void radix_global_hist(__global const key_t *keys, // [n]
     const uint gid = get_global_id(0), gsz = get_global_size(0);
     for (uint i = gid; i < status_words; i += gsz) status[i] = 0u;
     for (uint i = gid; i < ghist_words; i += gsz) ghist_next[i] = 0u;
-    if (gid < npass) ids[gid] = 0u;
+    for (uint i = gid; i < npass; i += gsz) ids[i] = 0u; /* the grid may be smaller than npass */
     const uint total = end_bit - begin_bit;
     const uint base = get_group_id(0) * SORT_BLOCK;
     uint shift = begin_bit;

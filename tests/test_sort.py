@@ -505,13 +505,13 @@ def test_onesweep_launches_and_state_between_sorts(device, rng, _no_sort_env):
     (1 + passes launches, against 3 per pass with onesweep off). The two global histograms are used
     in turn, each zeroed by the sort before its next use: a run of sorts of different widths, pass
     counts, sizes and outputs on one sorter (and on one with small blocks: 128 pairs, many blocks
-    whose look-backs wait on each other) gives numpy's stable order every time, and the same bits as
+    whose look-backs wait on each other, at 6-bit digits to stay within the status bound) gives numpy's stable order every time, and the same bits as
     the three-launch path."""
     from reings.backends.opencl.sort import split_bits
 
     seq = [(np.uint64, 0, 64, 3001), (np.uint32, 0, 10, 40_000), (np.uint32, 0, 32, 2), (np.uint32, 0, 32, 2049),
            (np.uint64, 32, 43, 5000), (np.uint32, 7, 8, 777), (np.uint32, 0, 32, 70_001), (np.uint64, 0, 64, 3001)]
-    for kw in ({}, dict(wg=32, items=4)):
+    for kw in ({}, dict(wg=32, items=4, max_bits=6)):  # small blocks (128 pairs) at 6-bit digits: 547 blocks
         on, off = _counting_sorter(device, True, **kw), _counting_sorter(device, False, **kw)
         for i, (dt, b0, b1, n) in enumerate(seq):
             keys = _keys(rng, n, dt, "random")
@@ -522,6 +522,56 @@ def test_onesweep_launches_and_state_between_sorts(device, rng, _no_sort_env):
                 _check_sort(s, keys, b0, b1)
                 assert s.log == (want if n > 1 else []), (kw, dt, b0, b1, n, s.log)
             assert on._ghist_turn == sum(1 for *_, m in seq[:i + 1] if m > 1) % 2
+
+
+@pytest.mark.parametrize("wg", [1, 2, 4])
+def test_onesweep_grid_smaller_than_the_passes(device, wg, rng, _no_sort_env):
+    """A launch of fewer work-items than passes (a work-group of 1, 2 or 4 over one block, 4 to 8 passes):
+    radix_global_hist still zeroes every pass's block-id counter (they were left as the previous sort's)."""
+    s = _gpu_sorter(device, wg=wg, items=1, onesweep=True)
+    for _ in range(2):
+        for dt, n in ((np.uint32, 2), (np.uint32, 3), (np.uint64, 2), (np.uint64, 5)):
+            assert s.uses_onesweep(n, 1, s.max_bits, False, -(-dt(0).itemsize * 8 // s.max_bits))
+            _check_sort(s, _keys(rng, n, dt, "random"))
+
+
+def test_onesweep_failed_enqueue_keeps_the_histograms(device, rng, _no_sort_env):
+    """A radix_global_hist that fails to enqueue leaves the two global histograms' turn as it was (the
+    buffer it would have zeroed for the next sort is still the next sort's): the next sorts are exact."""
+    s = _gpu_sorter(device)
+    keys = _keys(rng, 5000, np.uint32, "random")
+    _check_sort(s, keys)
+    turn = s._ghist_turn
+    real = s.onesweep_kernels
+
+    def failing(*a, **kw):
+        gh, os_ = real(*a, **kw)
+
+        def boom(*args, **kwargs):
+            raise RuntimeError("enqueue failed")
+        return boom, os_
+    s.onesweep_kernels = failing
+    with pytest.raises(RuntimeError, match="enqueue failed"):
+        s.sort_pairs_host(keys)
+    s.onesweep_kernels = real
+    assert s._ghist_turn == turn
+    for _ in range(3):
+        _check_sort(s, _keys(rng, 5000, np.uint32, "random"))
+
+
+def test_onesweep_status_bound(device, _no_sort_env):
+    """A geometry whose status words would take more than ONESWEEP_STATUS_BYTES_PER_PAIR per pair and the
+    floor in all (small blocks at wide digits), or 2^31 words, takes the three-launch path; the defaults
+    take 4 B per 32-bit key."""
+    from reings.backends.opencl.sort import ONESWEEP_STATUS_BYTES_PER_PAIR, ONESWEEP_STATUS_FLOOR
+
+    s = _gpu_sorter(device)
+    assert s.status_words(10 ** 6, 4, 4, 8) == 977 * 4 * 256  # 977 blocks of 1024 pairs, 4 passes of 256 words
+    assert s.uses_onesweep(10 ** 6, 4, 8, False, 4) and s.uses_onesweep(10 ** 6, 4, 8, False, 8)
+    wide = _gpu_sorter(device, wg=32, items=1, max_bits=11)
+    assert 4 * wide.status_words(10 ** 5, 1, 3, 11) > max(ONESWEEP_STATUS_BYTES_PER_PAIR * 10 ** 5, ONESWEEP_STATUS_FLOOR)
+    assert not wide.uses_onesweep(10 ** 5, 1, 11, False, 3) and wide.uses_onesweep(10 ** 5, 1, 11, False)
+    assert not s.uses_onesweep(2**30 - 1, 1, 16, False, 4)  # 2^32 status words
 
 
 def test_onesweep_setting(device, _no_sort_env):
@@ -588,7 +638,7 @@ def test_sort_auto_items_per_call(device, n, want, rng, _no_sort_env):
 _OCLGRIND_SNIPPET = """
 import numpy as np
 from reings.backends.opencl.device import open_device
-from reings.backends.opencl.sort import ExclusiveScan, RadixSort
+from reings.backends.opencl.sort import ExclusiveScan, RadixSort, split_bits
 
 import pyopencl as cl
 
@@ -635,6 +685,9 @@ for cpu, kw, sizes in CONFIGS[PART]:
                 k = rng.integers(0, 2**32, n, dtype=np.uint64).astype(np.uint32)
             k[::3] = k[0]
             v = np.arange(n, dtype=np.uint32)
+            if not cpu and n > 1:  # the path this config means to check is the one taken
+                npass = len(split_bits(b0, b1, s.max_bits))
+                assert s.uses_onesweep(n, kw["items"], s.max_bits, False, npass) == kw.get("onesweep", True)
             kb, vb, _ = s.sort_pairs(upload(k), upload(v), n, b0, b1, key64=dt == np.uint64)
             ok, ov = download(kb, k), download(vb, v)
             sub = (k >> dt(b0)) & dt((1 << (b1 - b0)) - 1) if b1 - b0 < 8 * k.itemsize else k >> dt(b0)

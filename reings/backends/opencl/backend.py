@@ -241,7 +241,7 @@ class OpenCLBackend:
         with warnings.catch_warnings():  # re-retrieves the slot's sorter kernels, once
             warnings.simplefilter("ignore")
             self._depth_sorter = RadixSort(self.handle)  # sorts into an order: its scratch is only a sort's
-            self._depth_sorter.kernels(False)
+            self._depth_sorter.warm(False)
         self._orders = DepthOrders(self.scratch)  # the sorted depth orders ("Depth orders")
         self.depth_sorts = {"sorted": 0, "shared": 0}  # forwards that sorted / that shared an order
         self.scan = ExclusiveScan(self.handle)
@@ -346,7 +346,7 @@ class OpenCLBackend:
         with warnings.catch_warnings():  # a later sorter re-retrieves the same kernels, once
             warnings.simplefilter("ignore")
             sorter = RadixSort(self.handle)  # owns its ping-pong scratch
-            sorter.kernels(False)
+            sorter.warm(False)
         return _Slot(mem, sorter)
 
     def _slot(self, i: int) -> _Slot:

@@ -58,7 +58,7 @@ def sort_comparison(be, keys: np.ndarray, tbits: int, repeats: int, warmup: int,
         with warnings.catch_warnings():  # the backend's sorters already retrieved these kernels
             warnings.simplefilter("ignore")
             sorter = RadixSort(be.handle)
-            sorter.kernels(True)
+            sorter.warm(True)
         ts, dev = [], []
         for i in range(warmup + repeats):
             cl.enqueue_copy(q, kb, src_k)

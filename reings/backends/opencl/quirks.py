@@ -32,9 +32,10 @@ def is_nvidia(device) -> bool:
 def volatile_status_words(device) -> bool:
     """Whether a look-back may read other work-groups' status words with volatile loads (one aligned
     32-bit word each) instead of atomics: NVIDIA (volatile global loads are not cached in L1; measured
-    in docs/perf_notes.md §20) and PoCL (a CPU's coherent caches). Elsewhere atomics, the portable form
-    (Oclgrind reports the volatile form as the data race it is by OpenCL's memory model)."""
-    return is_nvidia(device) or is_pocl(device)
+    in docs/perf_notes.md §20) and PoCL on a CPU (coherent caches). Elsewhere atomics, the portable form
+    (PoCL's GPU drivers, other vendors; Oclgrind reports the volatile form as the data race it is by
+    OpenCL's memory model)."""
+    return is_nvidia(device) or (is_pocl(device) and is_cpu(device))
 
 
 def is_cpu(device) -> bool:

@@ -82,6 +82,9 @@ ONESWEEP_MAX_N = 1 << 30  # a status word holds a count in 30 bits (kernels/sort
 # onesweep's defaults (docs/perf_notes.md §20, an H100 sweep): 8-bit digits (the look-back's status words are
 # 2^bits per block: at 11 bits as many as the keys) and blocks of 256 * 4 pairs under items "auto"
 ONESWEEP_BITS_DEFAULT, ONESWEEP_AUTO_ITEMS = 8, 4
+# a geometry whose status words take more than this per pair (and more than the floor in all) takes the
+# three-launch path; the defaults take 4 B per pair of a 32-bit key, 8 of a 64-bit one
+ONESWEEP_STATUS_BYTES_PER_PAIR, ONESWEEP_STATUS_FLOOR = 16, 1 << 20
 SORT_ITEMS_DEFAULT, SORT_WG_DEFAULT, SORT_BITS_DEFAULT = 8, 256, 8  # the CPU schedule's; the GPU's before §10
 # the GPU schedule's defaults since docs/perf_notes.md §10 (an H100: a pass costs ~0.055 ms of launch span
 # whatever its width, so fewer passes win): items auto, 11-bit digits where the local memory holds them
@@ -340,8 +343,10 @@ class RadixSort:
     and uint64 keys are built lazily on first use.
 
     cpu_schedule  None: from the device (REINGS_CPU_SCHEDULE); True/False force a schedule
-    max_bits      widest digit per pass (None: $REINGS_SORT_BITS, else the schedule's default: 11 on the
-                  GPU schedule where its largest block fits the local memory, else 8; 8 on the CPU's)
+    max_bits      widest digit per pass (None: $REINGS_SORT_BITS, else the schedule's default: 8 with
+                  onesweep; without it 11 on the GPU schedule where its largest block fits the local
+                  memory, else 8; 8 on the CPU's. A sort that onesweep leaves to the three-launch path
+                  keeps this width: 4 passes of a 32-bit key at 8 bits)
     wg, items     GPU schedule work-group size and elements per work-item (block = wg * items);
                   None: $REINGS_SORT_WG / $REINGS_SORT_ITEMS, else 256 / "auto" (chosen per
                   sort_pairs call: `launch_items`; module docstring, "Geometry")
@@ -435,7 +440,6 @@ class RadixSort:
         key = ("onesweep", bool(key64), int(items), self.wg, int(bits))
         ks = self._kernels.get(key)
         if ks is None:
-            self.kernels(key64, items, bits)  # the geometry's checks
             defines = {"REINGS_CPU_SCHEDULE": 0, "KEY64": int(key64), "RADIX_BITS": int(bits),
                        "SORT_WG": self.wg, "SORT_ITEMS": int(items)}
             if not quirks.volatile_status_words(self.handle.device):
@@ -447,15 +451,37 @@ class RadixSort:
             )
         return ks
 
-    def uses_onesweep(self, n: int, items: int, bits: int, device_count: bool) -> bool:
+    def warm(self, key64: bool) -> None:
+        """Retrieve (and build on first use) the kernels a sort of this sorter takes by default: the
+        three-launch ones (device counts) and, with onesweep, radix_global_hist / radix_onesweep at
+        auto's items, so that the first sort of a fit compiles nothing."""
+        self.kernels(key64)
+        items = ONESWEEP_AUTO_ITEMS if self.items == "auto" else self.items
+        if self.uses_onesweep(1 << 20, items, self.max_bits, False):
+            self.onesweep_kernels(key64, items, self.max_bits)
+
+    def uses_onesweep(self, n: int, items: int, bits: int, device_count: bool, npass: int | None = None) -> bool:
         """Whether a sort of n pairs goes through radix_onesweep: the GPU schedule with it on, a host
-        count below 2^30, and the kernel's local memory within the device's."""
-        return (self.onesweep and not device_count and n < ONESWEEP_MAX_N
-                and onesweep_local_bytes(self.wg, items, bits) <= self.local_mem)
+        count below 2^30, the kernel's local memory within the device's, and (given the passes) the
+        status words within 2^31 and within ONESWEEP_STATUS_BYTES_PER_PAIR per pair or
+        ONESWEEP_STATUS_FLOOR in all (a small block at a wide digit would take more status than
+        keys: `status_words`)."""
+        if not (self.onesweep and not device_count and n < ONESWEEP_MAX_N
+                and onesweep_local_bytes(self.wg, items, bits) <= self.local_mem):
+            return False
+        if npass is None:
+            return True
+        words = self.status_words(n, items, npass, bits)
+        return words < 2**31 and 4 * words <= max(ONESWEEP_STATUS_BYTES_PER_PAIR * n, ONESWEEP_STATUS_FLOOR)
+
+    def status_words(self, n: int, items: int, npass: int, widest: int) -> int:
+        """radix_onesweep's status words for n pairs: npass x blocks x 2^widest digit."""
+        return npass * -(-n // (self.wg * items)) * (1 << widest)
 
     def _ghist_pair(self, words: int):
         """(this sort's global histogram, the next sort's), both of `words` uint32; zeroed once when
-        made, then by radix_global_hist (kernels/sort.cl)."""
+        made, then by radix_global_hist (kernels/sort.cl). The caller flips `_ghist_turn` once its
+        radix_global_hist is enqueued (a failure before that leaves both buffers as they were)."""
         import pyopencl as cl
 
         if not self._ghist or self._ghist[0].size < 4 * words:
@@ -466,7 +492,6 @@ class RadixSort:
                 cl.enqueue_copy(q, g, zeros)
             self._ghist_turn = 0
         cur = self._ghist_turn
-        self._ghist_turn ^= 1
         return self._ghist[cur], self._ghist[cur ^ 1]
 
     def call_bits(self, device_count: bool) -> int:
@@ -550,7 +575,7 @@ class RadixSort:
             raise ValueError("n must be < 2^32")
         est = n if count is None or estimate is None else int(estimate)
         items = None if self.cpu else self.launch_items(est, device_count=count is not None)  # once per call
-        if not self.cpu and self.uses_onesweep(n, items, bits, count is not None):
+        if not self.cpu and self.uses_onesweep(n, items, bits, count is not None, len(passes)):
             return self._sort_onesweep(keys_buf, vals_buf, n, begin_bit, end_bit, key64, passes, items, bits,
                                        wait_for, out)
         hist_k, scan_k, scat_k = self.kernels(key64, items, bits)
@@ -596,9 +621,10 @@ class RadixSort:
         q = self.handle.queue
         ksize = 8 if key64 else 4
         nvb = -(-n // (self.wg * items))
-        stride = 1 << max(w for _, w in passes)
+        widest = max(w for _, w in passes)
+        stride = 1 << widest
         npass = len(passes)
-        status_words = npass * nvb * stride
+        status_words = self.status_words(n, items, npass, widest)
         ghist_words = -(-64 // bits) << bits  # the most passes of any sort here, at RADIX = 2^bits
         ghist, ghist_next = self._ghist_pair(ghist_words)
         status = self._status.get(4 * status_words)
@@ -608,6 +634,7 @@ class RadixSort:
         g, l = (nvb * self.wg,), (self.wg,)
         gh_k(q, g, l, keys_buf, n, begin_bit, end_bit, npass, ghist, ghist_next, ghist_words, status,
              status_words, ids, wait_for=wait_for)
+        self._ghist_turn ^= 1  # only once radix_global_hist is enqueued: it zeroes ghist_next
         src = inp = (keys_buf, vals_buf)
         ev = None
         for i, (shift, w) in enumerate(passes):
