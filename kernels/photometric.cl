@@ -18,7 +18,12 @@
  * rows per work-item: the host passes it, reings.backends.opencl.losses.SSIM_ROWS).  Not handled: masks,
  * other window sizes.
  * Schedules (the same sums in the same order, so the same bits; tests/test_losses.py):
- *   GPU: the four passes with one work-item per pixel (global size (W, H)).
+ *   GPU: the four passes with one work-item per pixel (global size (W, H)); or, the default there
+ *        (PhotometricCL's `fused`), each H pass and its V pass in one launch: ssim_fwd_tile and
+ *        ssim_bwd_tile, a work-group per SSIM_TX x SSIM_TY tile of pixels that first computes the
+ *        W-pass values of its rows and the SSIM_R rows above and below into local memory (each value
+ *        the H pass's sum in its order), then the V pass from there: two launches instead of four, no
+ *        h5 / h3 planes in global memory.
  *   CPU: the same four kernels with one work-item per SSIM_ROWS image rows (global size ceil(H / SSIM_ROWS),
  *        local size 1: the H pass's 11-row window stays in that core's cache).  A row
  *        of [H, W, 3] is 3W contiguous floats and the tap k of element o (pixel o / 3) sits at o + 3k,
@@ -281,6 +286,124 @@ __kernel void ssim_vpass_bwd(__global const float *h3,    // [3, H, W, 3] from s
         const int o = (j * W + i) * 3 + c;
         const float a = x[o], b = y[o];
         const float sgn = (a > b) ? 1.0f : ((a < b) ? -1.0f : 0.0f);  /* torch sign: 0 at ties */
+        v_x[o] = g0 + 2.0f * a * g1 + b * g2 + w_l1_grad * sgn;
+    }
+}
+
+/* ---- GPU schedule, fused: a pass pair per launch, the W-pass values of a tile in local memory ---- */
+#ifndef SSIM_TX
+#define SSIM_TX 16
+#endif
+#ifndef SSIM_TY
+#define SSIM_TY 16
+#endif
+#define SSIM_HR (SSIM_TY + 2 * SSIM_R) /* rows of W-pass values a tile's V pass reads */
+
+/* ssim_hpass_fwd + ssim_vpass_fwd; global size (W, H) rounded up to the tile, local (SSIM_TX, SSIM_TY) */
+__kernel __attribute__((reqd_work_group_size(SSIM_TX, SSIM_TY, 1)))
+void ssim_fwd_tile(__global const float *x,     // [H, W, 3]
+                   __global const float *y,     // [H, W, 3]
+                   __constant float *taps,      // [11]
+                   __global float *smap,        // [H, W, 3]
+                   __global float *d3,          // [3, H, W, 3]
+                   const float w_ssim_grad,
+                   const int W, const int H)
+{
+    __local float hl[5 * 3 * SSIM_HR * SSIM_TX]; /* [map][channel][row][column] */
+    const int lx = get_local_id(0), ly = get_local_id(1);
+    const int i = get_global_id(0), j = get_global_id(1);
+    const int j0 = (int)get_group_id(1) * SSIM_TY - SSIM_R; /* image row of local row 0 */
+    const int lp = 3 * SSIM_HR * SSIM_TX;                   /* one map's local plane */
+    for (int r = ly; r < SSIM_HR; r += SSIM_TY) {
+        const int jj = j0 + r;
+        for (int c = 0; c < 3; ++c) {
+            float sx = 0.0f, sy = 0.0f, sxx = 0.0f, syy = 0.0f, sxy = 0.0f;
+            if (i < W && jj >= 0 && jj < H) {
+                for (int k = -SSIM_R; k <= SSIM_R; ++k) { /* ssim_hpass_fwd's sum */
+                    const int ii = i + k;
+                    if (ii < 0 || ii >= W) continue;
+                    const float w = taps[k + SSIM_R];
+                    const float a = x[(jj * W + ii) * 3 + c], b = y[(jj * W + ii) * 3 + c];
+                    sx += w * a; sy += w * b; sxx += w * a * a; syy += w * b * b; sxy += w * a * b;
+                }
+            }
+            const int l = (c * SSIM_HR + r) * SSIM_TX + lx;
+            hl[l] = sx; hl[lp + l] = sy; hl[2 * lp + l] = sxx; hl[3 * lp + l] = syy; hl[4 * lp + l] = sxy;
+        }
+    }
+    barrier(CLK_LOCAL_MEM_FENCE);
+    if (!(i < W && j < H)) return;
+    const int plane = H * W * 3;
+    for (int c = 0; c < 3; ++c) {
+        float mx = 0.0f, my = 0.0f, exx = 0.0f, eyy = 0.0f, exy = 0.0f;
+        for (int k = -SSIM_R; k <= SSIM_R; ++k) { /* ssim_vpass_fwd's sum */
+            const int jj = j + k;
+            if (jj < 0 || jj >= H) continue;
+            const float w = taps[k + SSIM_R];
+            const int l = (c * SSIM_HR + (jj - j0)) * SSIM_TX + lx;
+            mx += w * hl[l]; my += w * hl[lp + l]; exx += w * hl[2 * lp + l];
+            eyy += w * hl[3 * lp + l]; exy += w * hl[4 * lp + l];
+        }
+        const float sx = exx - mx * mx, sy = eyy - my * my, sxy = exy - mx * my;
+        const float a1 = 2.0f * mx * my + SSIM_C1, a2 = 2.0f * sxy + SSIM_C2;
+        const float b1 = mx * mx + my * my + SSIM_C1, b2 = sx + sy + SSIM_C2;
+        const float inv_d = 1.0f / (b1 * b2);
+        const float s = a1 * a2 * inv_d;
+        const int o = (j * W + i) * 3 + c;
+        smap[o] = s;
+        d3[o] = w_ssim_grad * (2.0f * my * (a2 - a1) - s * 2.0f * mx * (b2 - b1)) * inv_d;
+        d3[plane + o] = w_ssim_grad * (-s * b1 * inv_d);
+        d3[2 * plane + o] = w_ssim_grad * (2.0f * a1 * inv_d);
+    }
+}
+
+/* ssim_hpass_bwd + ssim_vpass_bwd; sizes as ssim_fwd_tile */
+__kernel __attribute__((reqd_work_group_size(SSIM_TX, SSIM_TY, 1)))
+void ssim_bwd_tile(__global const float *d3,    // [3, H, W, 3] from ssim_fwd_tile
+                   __global const float *x,     // [H, W, 3]
+                   __global const float *y,     // [H, W, 3]
+                   __constant float *taps,      // [11]
+                   __global float *v_x,         // [H, W, 3] dL/dx
+                   const float w_l1_grad,
+                   const int W, const int H)
+{
+    __local float hl[3 * 3 * SSIM_HR * SSIM_TX];
+    const int lx = get_local_id(0), ly = get_local_id(1);
+    const int i = get_global_id(0), j = get_global_id(1);
+    const int j0 = (int)get_group_id(1) * SSIM_TY - SSIM_R;
+    const int lp = 3 * SSIM_HR * SSIM_TX;
+    const int plane = H * W * 3;
+    for (int r = ly; r < SSIM_HR; r += SSIM_TY) {
+        const int jj = j0 + r;
+        for (int c = 0; c < 3; ++c) {
+            float s0 = 0.0f, s1 = 0.0f, s2 = 0.0f;
+            if (i < W && jj >= 0 && jj < H) {
+                for (int k = -SSIM_R; k <= SSIM_R; ++k) { /* ssim_hpass_bwd's sum */
+                    const int ii = i + k;
+                    if (ii < 0 || ii >= W) continue;
+                    const float w = taps[k + SSIM_R];
+                    const int o = (jj * W + ii) * 3 + c;
+                    s0 += w * d3[o]; s1 += w * d3[plane + o]; s2 += w * d3[2 * plane + o];
+                }
+            }
+            const int l = (c * SSIM_HR + r) * SSIM_TX + lx;
+            hl[l] = s0; hl[lp + l] = s1; hl[2 * lp + l] = s2;
+        }
+    }
+    barrier(CLK_LOCAL_MEM_FENCE);
+    if (!(i < W && j < H)) return;
+    for (int c = 0; c < 3; ++c) {
+        float g0 = 0.0f, g1 = 0.0f, g2 = 0.0f;
+        for (int k = -SSIM_R; k <= SSIM_R; ++k) { /* ssim_vpass_bwd's sum */
+            const int jj = j + k;
+            if (jj < 0 || jj >= H) continue;
+            const float w = taps[k + SSIM_R];
+            const int l = (c * SSIM_HR + (jj - j0)) * SSIM_TX + lx;
+            g0 += w * hl[l]; g1 += w * hl[lp + l]; g2 += w * hl[2 * lp + l];
+        }
+        const int o = (j * W + i) * 3 + c;
+        const float a = x[o], b = y[o];
+        const float sgn = (a > b) ? 1.0f : ((a < b) ? -1.0f : 0.0f);
         v_x[o] = g0 + 2.0f * a * g1 + b * g2 + w_l1_grad * sgn;
     }
 }

@@ -217,8 +217,9 @@ def test_photometric_kernel_matches_reference(device, shape, form, rng):
 def test_photometric_schedules_keep_the_bits(device, shape, rng):
     """photometric.cl's CPU schedule (a work-item per SSIM_ROWS image rows, 8 elements at a time, the
     interior without bounds checks; shapes with only borders, a partial last block of rows, vector
-    remainders) gives the per-pixel schedule's gradient byte for byte and its loss; both match the float64
-    reference. Either schedule is chosen per device (CPUs: rows), so both are tested on every device."""
+    remainders) and the GPU schedule's fused kernels (16 x 16 tiles: partial tiles, images smaller than the
+    window) give the per-pixel schedule's gradient byte for byte and its loss; all match the float64
+    reference. Either schedule is chosen per device (CPUs: rows), so every form is tested on every device."""
     _cl_or_skip(device)
     from reings.backends.opencl.losses import SSIM_ROWS, PhotometricCL
 
@@ -229,18 +230,22 @@ def test_photometric_schedules_keep_the_bits(device, shape, rng):
     x[h // 2, 1:] = y[h // 2, 1:]  # ties in an interior row too (the CPU schedule's vector path when h >= 11)
     if h > SSIM_ROWS:
         assert h % SSIM_ROWS, "a partial last block of rows"
-    out = {cpu: PhotometricCL(device, cpu_schedule=cpu)(x, y, 0.8, 0.2) for cpu in (False, True)}
+    out = {cpu: PhotometricCL(device, cpu_schedule=cpu, fused=False)(x, y, 0.8, 0.2) for cpu in (False, True)}
+    fused = PhotometricCL(device, cpu_schedule=False, fused=True)
+    assert fused.fused and not PhotometricCL(device, cpu_schedule=True, fused=True).fused
+    out["fused"] = fused(x, y, 0.8, 0.2)
     assert out[True][1].dtype == np.float32
-    assert np.array_equal(out[True][1].view(np.uint32), out[False][1].view(np.uint32))
-    assert out[True][0] == out[False][0]
+    for other in (False, "fused"):  # the fused GPU kernels (a tile's W-pass values in local memory) too
+        assert np.array_equal(out[True][1].view(np.uint32), out[other][1].view(np.uint32)), other
+        assert out[True][0] == out[other][0]
     lr, vr = R.weighted_photometric_fwd_bwd(x.astype(np.float64), y.astype(np.float64), 0.8, 0.2)
     assert abs(out[True][0] - lr) < PHOTO_LOSS_ATOL
     assert np.abs(out[True][1] - vr).max() <= PHOTO_GRAD_REL * max(np.abs(vr).max(), 1.0 / x.size)
 
 
 @pytest.mark.oclgrind
-@pytest.mark.parametrize("cpu", [True, False])
-def test_photometric_oclgrind(cpu):
+@pytest.mark.parametrize("cpu,fused", [(True, False), (False, False), (False, True)])
+def test_photometric_oclgrind(cpu, fused):
     """photometric.cl on both schedules under Oclgrind (out-of-bounds, data races, the API): an image with
     only borders, one with a partial last block of rows and vector remainders. The uninitialised-value check
     is off: on both schedules, and on the per-pixel kernels as they were before the CPU schedule (9249c82),
@@ -255,8 +260,8 @@ def test_photometric_oclgrind(cpu):
         import numpy as np
         from reings.backends.opencl.losses import PhotometricCL
         rng = np.random.default_rng(0)
-        p = PhotometricCL("oclgrind", cpu_schedule={cpu})
-        for h, w in ((5, 3), (19, 13)):
+        p = PhotometricCL("oclgrind", cpu_schedule={cpu}, fused={fused})
+        for h, w in ((5, 3), (19, 13), (33, 17)):
             x = rng.uniform(size=(h, w, 3)).astype(np.float32)
             y = rng.uniform(size=(h, w, 3)).astype(np.float32)
             loss, v = p(x, y, 0.8, 0.2)

@@ -13,6 +13,8 @@ references are `reings.backends.reference_loss`; the host-facing loss functions 
 """
 from __future__ import annotations
 
+import os
+
 import numpy as np
 
 from ..reference_loss import gaussian_taps
@@ -26,15 +28,31 @@ def _handle(device):
 
 
 SSIM_ROWS = 16  # photometric.cl's CPU schedule: image rows per work-item (passed to the build)
+SSIM_TILE = (16, 16)  # photometric.cl's fused GPU kernels: the work-group's tile of pixels (SSIM_TX, SSIM_TY)
+SSIM_FUSED_ENV = "REINGS_SSIM_FUSED"  # 0 / 1: the GPU schedule's SSIM in two launches (fused, default) or four
+
+
+def ssim_fused_setting(fused=None) -> bool:
+    """`fused`, else $REINGS_SSIM_FUSED (0 or 1), else True."""
+    raw = fused if fused is not None else (os.environ.get(SSIM_FUSED_ENV) or None)
+    if raw is None:
+        return True
+    if isinstance(raw, bool):
+        return raw
+    if str(raw).strip() in ("0", "1"):
+        return str(raw).strip() == "1"
+    raise ValueError(f"{'fused' if fused is not None else SSIM_FUSED_ENV} must be 0 or 1, got {raw!r}")
 
 
 class PhotometricCL:
     """The photometric loss on an OpenCL device (a DeviceHandle or a device string); buffers are
     kept per image size and reused. `cpu_schedule` overrides the device's REINGS_CPU_SCHEDULE (the
     SSIM passes a work-item per SSIM_ROWS image rows on CPUs, per pixel on GPUs: the same bits; tests run
-    both)."""
+    both). `fused` (GPU schedule; None: $REINGS_SSIM_FUSED, else on): each W pass and its H pass in one
+    launch through a tile in local memory (ssim_fwd_tile, ssim_bwd_tile: the same bits, two launches
+    instead of four; docs/perf_notes.md §21)."""
 
-    def __init__(self, device, cpu_schedule: bool | None = None):
+    def __init__(self, device, cpu_schedule: bool | None = None, fused: bool | None = None):
         import pyopencl as cl
 
         self.cl = cl
@@ -44,8 +62,12 @@ class PhotometricCL:
         if cpu_schedule is not None:
             d["REINGS_CPU_SCHEDULE"] = int(bool(cpu_schedule))
         self.cpu_schedule = bool(d.get("REINGS_CPU_SCHEDULE", lib.base_defines["REINGS_CPU_SCHEDULE"]))
-        self.k = {n: lib.get("photometric.cl", n, **d) for n in
-                  ("ssim_hpass_fwd", "ssim_vpass_fwd", "ssim_hpass_bwd", "ssim_vpass_bwd", "loss_row_sums")}
+        self.fused = ssim_fused_setting(fused) and not self.cpu_schedule
+        names = ("ssim_hpass_fwd", "ssim_vpass_fwd", "ssim_hpass_bwd", "ssim_vpass_bwd", "loss_row_sums")
+        if self.fused:
+            d.update(SSIM_TX=SSIM_TILE[0], SSIM_TY=SSIM_TILE[1])
+            names += ("ssim_fwd_tile", "ssim_bwd_tile")
+        self.k = {n: lib.get("photometric.cl", n, **d) for n in names}
         ctx = self.handle.context
         self.taps = cl.Buffer(ctx, cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR,
                               hostbuf=gaussian_taps().astype(np.float32))
@@ -59,10 +81,10 @@ class PhotometricCL:
         img = h * w * 3 * 4
         self.x = cl.Buffer(ctx, mf.READ_ONLY, img)
         self.y = cl.Buffer(ctx, mf.READ_ONLY, img)
-        self.h5 = cl.Buffer(ctx, mf.READ_WRITE, 5 * img)
+        self.h5 = None if self.fused else cl.Buffer(ctx, mf.READ_WRITE, 5 * img)
         self.smap = cl.Buffer(ctx, mf.READ_WRITE, img)
         self.d3 = cl.Buffer(ctx, mf.READ_WRITE, 3 * img)
-        self.h3 = cl.Buffer(ctx, mf.READ_WRITE, 3 * img)
+        self.h3 = None if self.fused else cl.Buffer(ctx, mf.READ_WRITE, 3 * img)
         self.v = cl.Buffer(ctx, mf.WRITE_ONLY, img)
         self.partial = cl.Buffer(ctx, mf.WRITE_ONLY, h * 2 * 4)
         self._shape = (h, w)
@@ -92,10 +114,16 @@ class PhotometricCL:
         # a work-item per SSIM_ROWS rows / per pixel
         g2 = ((-(-h // SSIM_ROWS),), (1,)) if self.cpu_schedule else ((w, h), None)
         k = self._typed
-        k("ssim_hpass_fwd", q, g2, x, y, self.taps, self.h5, W, H)
-        k("ssim_vpass_fwd", q, g2, self.h5, self.taps, self.smap, self.d3, np.float32(-w_ssim / n), W, H)
-        k("ssim_hpass_bwd", q, g2, self.d3, self.taps, self.h3, W, H)
-        ev = k("ssim_vpass_bwd", q, g2, self.h3, x, y, self.taps, v, np.float32(w_l1 / n), W, H)
+        if self.fused:
+            tx, ty = SSIM_TILE
+            gt = ((-(-w // tx) * tx, -(-h // ty) * ty), (tx, ty))
+            k("ssim_fwd_tile", q, gt, x, y, self.taps, self.smap, self.d3, np.float32(-w_ssim / n), W, H)
+            ev = k("ssim_bwd_tile", q, gt, self.d3, x, y, self.taps, v, np.float32(w_l1 / n), W, H)
+        else:
+            k("ssim_hpass_fwd", q, g2, x, y, self.taps, self.h5, W, H)
+            k("ssim_vpass_fwd", q, g2, self.h5, self.taps, self.smap, self.d3, np.float32(-w_ssim / n), W, H)
+            k("ssim_hpass_bwd", q, g2, self.d3, self.taps, self.h3, W, H)
+            ev = k("ssim_vpass_bwd", q, g2, self.h3, x, y, self.taps, v, np.float32(w_l1 / n), W, H)
         if value:
             ev = k("loss_row_sums", q, ((h,), None), self.smap, x, y, self.partial, W, H)
         self._weights = (float(w_l1), float(w_ssim)) if value else None
