@@ -19,7 +19,8 @@
  * other window sizes.
  * Schedules (the same sums in the same order, so the same bits; tests/test_losses.py):
  *   GPU: the four passes with one work-item per pixel (global size (W, H)); or, the default there
- *        (PhotometricCL's `fused`), each H pass and its V pass in one launch: ssim_fwd_tile and
+ *        (PhotometricCL's `fused`), each ssim_hpass_* (along W) and its ssim_vpass_* (along H) in one
+ *        launch: ssim_fwd_tile and
  *        ssim_bwd_tile, a work-group per SSIM_TX x SSIM_TY tile of pixels that first computes the
  *        W-pass values of its rows and the SSIM_R rows above and below into local memory (each value
  *        the H pass's sum in its order), then the V pass from there: two launches instead of four, no

@@ -251,7 +251,9 @@ def test_photometric_oclgrind(cpu, fused):
     is off: on both schedules, and on the per-pixel kernels as they were before the CPU schedule (9249c82),
     Oclgrind 21.10 reports ssim_vpass_fwd's stores as uninitialised although every h5 element it reads was
     stored by ssim_hpass_fwd (storing a plain sum of h5 reads is reported too); the results match the float64
-    reference (test_photometric_kernel_matches_reference)."""
+    reference (test_photometric_kernel_matches_reference). The GPU schedule runs its four passes and its fused
+    pair (ssim_fwd_tile, ssim_bwd_tile: a 16 x 16 tile's W-pass values in local memory), the fused gradient
+    compared byte for byte with the four passes' here too; (33, 17) spans three rows and two columns of tiles."""
     from oclgrind_util import oclgrind_available, run_oclgrind
 
     if not oclgrind_available():
@@ -266,7 +268,34 @@ def test_photometric_oclgrind(cpu, fused):
             y = rng.uniform(size=(h, w, 3)).astype(np.float32)
             loss, v = p(x, y, 0.8, 0.2)
             assert np.isfinite(loss) and np.isfinite(v).all()
+            assert p.fused == {fused}
+            if {fused}:
+                loss4, v4 = PhotometricCL("oclgrind", cpu_schedule=False, fused=False)(x, y, 0.8, 0.2)
+                assert loss4 == loss and np.array_equal(v4.view(np.uint32), v.view(np.uint32))
         """, extra_env={"OCLGRIND_UNINITIALIZED": "0"})
+
+
+def test_ssim_fused_setting(device, monkeypatch):
+    """REINGS_SSIM_FUSED: 0 or 1, the argument wins, anything else is refused; the CPU schedule is never fused;
+    a device without the tile's work-group size or local memory takes the four passes."""
+    _cl_or_skip(device)
+    from reings.backends.opencl import losses as L
+
+    monkeypatch.delenv("REINGS_SSIM_FUSED", raising=False)
+    assert L.ssim_fused_setting() and not L.ssim_fused_setting(False)
+    monkeypatch.setenv("REINGS_SSIM_FUSED", "0")
+    assert not L.ssim_fused_setting() and L.ssim_fused_setting(True)
+    assert not L.PhotometricCL(device, cpu_schedule=False).fused
+    monkeypatch.setenv("REINGS_SSIM_FUSED", "1")
+    assert L.PhotometricCL(device, cpu_schedule=False).fused and not L.PhotometricCL(device, cpu_schedule=True).fused
+    for bad in ("2", "yes"):
+        monkeypatch.setenv("REINGS_SSIM_FUSED", bad)
+        with pytest.raises(ValueError, match=f"REINGS_SSIM_FUSED must be 0 or 1, got '{bad}'"):
+            L.ssim_fused_setting()
+    monkeypatch.delenv("REINGS_SSIM_FUSED")
+    assert L.ssim_tile_local_bytes() == 24960
+    monkeypatch.setattr(L, "ssim_tile_local_bytes", lambda tile=L.SSIM_TILE: 1 << 40)  # more than any device has
+    assert not L.PhotometricCL(device, cpu_schedule=False).fused
 
 
 def test_photometric_reference_device(rng):

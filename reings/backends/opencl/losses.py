@@ -32,6 +32,11 @@ SSIM_TILE = (16, 16)  # photometric.cl's fused GPU kernels: the work-group's til
 SSIM_FUSED_ENV = "REINGS_SSIM_FUSED"  # 0 / 1: the GPU schedule's SSIM in two launches (fused, default) or four
 
 
+def ssim_tile_local_bytes(tile=SSIM_TILE) -> int:
+    """Local memory of ssim_fwd_tile (the larger): 5 planes x 3 channels x (ty + 10) rows x tx floats."""
+    return 4 * 5 * 3 * (tile[1] + 10) * tile[0]
+
+
 def ssim_fused_setting(fused=None) -> bool:
     """`fused`, else $REINGS_SSIM_FUSED (0 or 1), else True."""
     raw = fused if fused is not None else (os.environ.get(SSIM_FUSED_ENV) or None)
@@ -48,9 +53,10 @@ class PhotometricCL:
     """The photometric loss on an OpenCL device (a DeviceHandle or a device string); buffers are
     kept per image size and reused. `cpu_schedule` overrides the device's REINGS_CPU_SCHEDULE (the
     SSIM passes a work-item per SSIM_ROWS image rows on CPUs, per pixel on GPUs: the same bits; tests run
-    both). `fused` (GPU schedule; None: $REINGS_SSIM_FUSED, else on): each W pass and its H pass in one
-    launch through a tile in local memory (ssim_fwd_tile, ssim_bwd_tile: the same bits, two launches
-    instead of four; docs/perf_notes.md §21)."""
+    both). `fused` (GPU schedule; None: $REINGS_SSIM_FUSED, else on): each ssim_hpass_* (along W) and its
+    ssim_vpass_* (along H) in one launch through a tile in local memory (ssim_fwd_tile, ssim_bwd_tile: the
+    same bits, two launches instead of four; docs/perf_notes.md §21), where the device takes the tile's
+    work-group and local memory (else the four passes)."""
 
     def __init__(self, device, cpu_schedule: bool | None = None, fused: bool | None = None):
         import pyopencl as cl
@@ -62,7 +68,11 @@ class PhotometricCL:
         if cpu_schedule is not None:
             d["REINGS_CPU_SCHEDULE"] = int(bool(cpu_schedule))
         self.cpu_schedule = bool(d.get("REINGS_CPU_SCHEDULE", lib.base_defines["REINGS_CPU_SCHEDULE"]))
-        self.fused = ssim_fused_setting(fused) and not self.cpu_schedule
+        dev = self.handle.device
+        # the fused kernels' work-group (SSIM_TILE) and local memory (5 W-pass planes of the tile and its halo rows)
+        self.fused = (ssim_fused_setting(fused) and not self.cpu_schedule
+                      and int(dev.max_work_group_size) >= SSIM_TILE[0] * SSIM_TILE[1]
+                      and int(dev.local_mem_size) >= ssim_tile_local_bytes())
         names = ("ssim_hpass_fwd", "ssim_vpass_fwd", "ssim_hpass_bwd", "ssim_vpass_bwd", "loss_row_sums")
         if self.fused:
             d.update(SSIM_TX=SSIM_TILE[0], SSIM_TY=SSIM_TILE[1])
