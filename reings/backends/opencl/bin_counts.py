@@ -66,6 +66,19 @@ def choice_setting(value: str | None, name: str, env: str, default: str, choices
     return m
 
 
+def flag_setting(value, name: str, env: str, default: bool = True) -> bool:
+    """A backend's on / off setting: `value` (a bool, or "0" / "1"), else $`env` ("0" or "1"), else `default`;
+    anything else is refused (the error names the argument `name` or the variable)."""
+    raw = value if value is not None else (os.environ.get(env) or None)
+    if raw is None:
+        return default
+    if isinstance(raw, bool):
+        return raw
+    if str(raw).strip() in ("0", "1"):
+        return str(raw).strip() == "1"
+    raise ValueError(f"{name if value is not None else env} must be 0 or 1, got {raw!r}")
+
+
 def bin_mode_setting(mode: str | None) -> str:
     """The binning mode of a backend: `mode`, else $REINGS_BIN, else BIN_DEFAULT ("sync"); checked."""
     return choice_setting(mode, "bin_mode", BIN_ENV, BIN_DEFAULT, BIN_MODES)

@@ -13,11 +13,10 @@ references are `reings.backends.reference_loss`; the host-facing loss functions 
 """
 from __future__ import annotations
 
-import os
-
 import numpy as np
 
 from ..reference_loss import gaussian_taps
+from .bin_counts import flag_setting
 from .device import open_device
 from .program import library_for, typed_invoker
 
@@ -39,14 +38,7 @@ def ssim_tile_local_bytes(tile=SSIM_TILE) -> int:
 
 def ssim_fused_setting(fused=None) -> bool:
     """`fused`, else $REINGS_SSIM_FUSED (0 or 1), else True."""
-    raw = fused if fused is not None else (os.environ.get(SSIM_FUSED_ENV) or None)
-    if raw is None:
-        return True
-    if isinstance(raw, bool):
-        return raw
-    if str(raw).strip() in ("0", "1"):
-        return str(raw).strip() == "1"
-    raise ValueError(f"{'fused' if fused is not None else SSIM_FUSED_ENV} must be 0 or 1, got {raw!r}")
+    return flag_setting(fused, "fused", SSIM_FUSED_ENV)
 
 
 class PhotometricCL:

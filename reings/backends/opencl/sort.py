@@ -72,6 +72,7 @@ import os
 import numpy as np
 
 from . import quirks
+from .bin_counts import flag_setting
 from .program import library_for
 
 _U32 = np.uint32
@@ -233,14 +234,7 @@ def sort_onesweep_setting(onesweep=None) -> bool:
     """Whether a GPU-schedule sort with a host count takes 1 + passes launches (radix_global_hist,
     then radix_onesweep per pass) instead of three per pass: `onesweep`, else $REINGS_SORT_ONESWEEP
     (0 or 1), else on."""
-    raw = onesweep if onesweep is not None else (os.environ.get(SORT_ONESWEEP_ENV) or None)
-    if raw is None:
-        return True
-    if isinstance(raw, bool):
-        return raw
-    if str(raw).strip() in ("0", "1"):
-        return str(raw).strip() == "1"
-    raise ValueError(f"{'onesweep' if onesweep is not None else SORT_ONESWEEP_ENV} must be 0 or 1, got {raw!r}")
+    return flag_setting(onesweep, "onesweep", SORT_ONESWEEP_ENV)
 
 
 class ExclusiveScan:
