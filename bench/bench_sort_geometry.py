@@ -128,8 +128,8 @@ def run(device: str, repeats: int, quick: bool, schedule: str, log=sys.stderr, o
                  "passes": len(split_bits(0, end_bit, bits)), "onesweep": os_}
             try:
                 s = _timed_sorter(h, cpu, wg or 256, items or 8, bits, bool(os_))  # explicit: no env
-                if os_ and not s.uses_onesweep(n, items, bits, False):
-                    raise ValueError("onesweep: the block's local memory is over the device's")
+                if os_ and not s.uses_onesweep(n, items, bits, False, r["passes"]):
+                    raise ValueError("onesweep: the block's local memory or status words are over the limits")
                 s.sort_pairs(kb, vb, n, 0, end_bit, out=out)  # warm-up: builds the program
             except (ValueError, cl.Error) as e:  # local memory over the device's, a build failure
                 rows.append({**r, "skipped": f"{type(e).__name__}: {str(e).splitlines()[0][:160]}"})
@@ -152,6 +152,8 @@ def auto_pick(r0: dict, n: int, wg: int) -> int:
 
 
 def print_table(rows: list[dict]) -> None:
+    from reings.backends.opencl.sort import ONESWEEP_AUTO_ITEMS, ONESWEEP_BITS_DEFAULT
+
     if not rows:
         return
     r0 = rows[0]
@@ -168,22 +170,25 @@ def print_table(rows: list[dict]) -> None:
             print(f"{head} {r['device_ms']:10.4f} {r['span_ms']:9.4f} {r['wall_ms']:9.4f} {r['launches']:8d}  "
                   f"{'ok' if r['ok'] else 'MISMATCH'}")
     print("# summary per case, device ms / span ms: before §10 (wg 256, items 8, bits 8) | fastest by span | "
-          "the default since §10 (wg 256, items auto at this device's CUs, bits 11)")
+          "§10's default (wg 256, items auto at this device's CUs, bits 11) | the default since §20 (onesweep, "
+          "wg 256, items 4, bits 8; rows with --onesweep 1)")
     done = [r for r in rows if "skipped" not in r]
     for case, n in dict.fromkeys((r["case"], r["n"]) for r in done):
         rs = [r for r in done if (r["case"], r["n"]) == (case, n)]
         best = min(rs, key=lambda r: r["span_ms"])
         gpu = r0["schedule"] == "gpu"
         want_items = auto_pick(r0, n, 256) if gpu else 0
-        pick = {"before": (256 if gpu else 0, 8 if gpu else 0, 8),
-                "now": (256 if gpu else 0, want_items, 11 if gpu else 8)}
+        pick = {"before": (256 if gpu else 0, 8 if gpu else 0, 8, 0),
+                "s10": (256 if gpu else 0, want_items, 11 if gpu else 8, 0),
+                "now": (256, ONESWEEP_AUTO_ITEMS, ONESWEEP_BITS_DEFAULT, 1)}
         cell = {}
         for name, key in pick.items():
-            m = [r for r in rs if (r["wg"], r["items"], r["max_bits"]) == key and not r.get("onesweep")]
+            m = [r for r in rs if (r["wg"], r["items"], r["max_bits"], r.get("onesweep", 0)) == key]
             cell[name] = f"{m[0]['device_ms']:.4f} / {m[0]['span_ms']:.4f}" if m else "-"
-        print(f"{case:6s} {n:8d}  before {cell['before']:>17s} | best wg {best['wg']} items {best['items']} "
-              f"bits {best['max_bits']}: {best['device_ms']:.4f} / {best['span_ms']:.4f} | "
-              + (f"now (items {want_items}, bits 11): {cell['now']}" if gpu else "now: 8 bits on the CPU schedule"))
+        print(f"{case:6s} {n:8d}  before {cell['before']:>17s} | best os {best.get('onesweep', 0)} wg {best['wg']} "
+              f"items {best['items']} bits {best['max_bits']}: {best['device_ms']:.4f} / {best['span_ms']:.4f} | "
+              + (f"§10 (items {want_items}, bits 11): {cell['s10']} | now: {cell['now']}" if gpu
+                 else "now: 8 bits on the CPU schedule"))
 
 
 def main(argv=None) -> int:

@@ -65,10 +65,11 @@ class PhotometricCL:
         self.fused = (ssim_fused_setting(fused) and not self.cpu_schedule
                       and int(dev.max_work_group_size) >= SSIM_TILE[0] * SSIM_TILE[1]
                       and int(dev.local_mem_size) >= ssim_tile_local_bytes())
-        names = ("ssim_hpass_fwd", "ssim_vpass_fwd", "ssim_hpass_bwd", "ssim_vpass_bwd", "loss_row_sums")
         if self.fused:
             d.update(SSIM_TX=SSIM_TILE[0], SSIM_TY=SSIM_TILE[1])
-            names += ("ssim_fwd_tile", "ssim_bwd_tile")
+            names = ("ssim_fwd_tile", "ssim_bwd_tile", "loss_row_sums")
+        else:
+            names = ("ssim_hpass_fwd", "ssim_vpass_fwd", "ssim_hpass_bwd", "ssim_vpass_bwd", "loss_row_sums")
         self.k = {n: lib.get("photometric.cl", n, **d) for n in names}
         ctx = self.handle.context
         self.taps = cl.Buffer(ctx, cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR,

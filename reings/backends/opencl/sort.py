@@ -237,6 +237,14 @@ def sort_onesweep_setting(onesweep=None) -> bool:
     return flag_setting(onesweep, "onesweep", SORT_ONESWEEP_ENV)
 
 
+def _pass_output(i: int, npass: int, inp: tuple, tmp: tuple, out) -> tuple:
+    """The (keys, vals) buffers pass i of npass writes: without `out` the scratch pair, the inputs, the
+    scratch pair, ...; with `out` ..., out, scratch, out (the last pass writes out, none the inputs)."""
+    if out is None:
+        return tmp if i % 2 == 0 else inp
+    return tuple(out) if (npass - 1 - i) % 2 == 0 else tmp
+
+
 class ExclusiveScan:
     """Exclusive prefix sum of uint32 on the device: out[i] = sum(in[:i]) mod 2^32.
 
@@ -429,8 +437,8 @@ class RadixSort:
         return ks
 
     def onesweep_kernels(self, key64: bool, items: int, bits: int):
-        """(radix_global_hist, radix_onesweep) of the GPU schedule, built on first use (the same
-        defines as `kernels`, so the same program)."""
+        """(radix_global_hist, radix_onesweep) of the GPU schedule, built on first use (`kernels`'
+        defines, and OS_ATOMIC_STATUS=1 where `quirks.volatile_status_words` is false)."""
         key = ("onesweep", bool(key64), int(items), self.wg, int(bits))
         ks = self._kernels.get(key)
         if ks is None:
@@ -593,10 +601,7 @@ class RadixSort:
             g, l = (nblocks * self.wg,), (self.wg,)
         ev = None
         for i, (shift, w) in enumerate(passes):
-            if out is None:  # scratch, inputs, scratch, ...
-                dst = (kt, vt) if i % 2 == 0 else inp
-            else:  # ..., out, scratch, out: the last pass writes out, no pass writes the inputs
-                dst = tuple(out) if (len(passes) - 1 - i) % 2 == 0 else (kt, vt)
+            dst = _pass_output(i, len(passes), inp, (kt, vt), out)
             nbins = 1 << w
             hist_k(q, g, l, src[0], n, chunk, shift, nbins, hist, counts, count_at, wait_for=wait_for)
             wait_for = None
@@ -632,10 +637,7 @@ class RadixSort:
         src = inp = (keys_buf, vals_buf)
         ev = None
         for i, (shift, w) in enumerate(passes):
-            if out is None:  # scratch, inputs, scratch, ...
-                dst = (kt, vt) if i % 2 == 0 else inp
-            else:  # ..., out, scratch, out
-                dst = tuple(out) if (npass - 1 - i) % 2 == 0 else (kt, vt)
+            dst = _pass_output(i, npass, inp, (kt, vt), out)
             ev = os_k(q, g, l, src[0], src[1], dst[0], dst[1], n, shift, 1 << w, i, ghist, status, stride, ids)
             src = dst
         return src[0], src[1], ev
