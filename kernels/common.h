@@ -50,10 +50,17 @@ inline uint launch_count(const uint n, __global const uint *counts, const int co
 #define ALPHA_BOX_PAD 0.5f
 #define ALPHA_BOX_LO(o) ((o) * 255.0f)
 #define ALPHA_BOX_HALF(lo, q, det, rel) (sqrt(2.0f * log(lo) * (q) / (det)) * (rel) + ALPHA_BOX_PAD)
+/* The power below which alpha = o exp(power) < ALPHA_MIN for certain: -ln(lo) less ALPHA_CUT_PAD (a
+ * factor e^-0.001 in alpha, far above float32's rounding of log, exp and the product). The CPU
+ * rasterizer skips a pixel vector's exp where every lane's power is below it: those lanes fail the
+ * alpha >= ALPHA_MIN test anyway, so the outputs keep their bits (record field 14). */
+#define ALPHA_CUT_PAD 1e-3f
+#define ALPHA_CUT(lo) (-log(lo) - ALPHA_CUT_PAD)
 
 /* The rasterizer's record of Gaussian g, from the projection's stored floats: (u, v, A, B, C, o, r, g,
- * b, z) and the pixel box outside of which alpha < ALPHA_MIN ([xlo, xhi] x [ylo, yhi], empty where
- * o < 1/255 or not finite; no box, 1e7 wide, where the conic is not positive definite), 16 floats.
+ * b, z), the pixel box outside of which alpha < ALPHA_MIN ([xlo, xhi] x [ylo, yhi], empty where
+ * o < 1/255 or not finite; no box, 1e7 wide, where the conic is not positive definite) and the power
+ * cut ALPHA_CUT (0 with an empty box), 16 floats (the last 0).
  * rasterize.cl's rasterize_prep (an uploaded projection) and project.cl's project_fwd (a forward on
  * the device, which writes the record itself: one launch fewer) both call this. */
 static inline void raster_prep_one(const int g, __global const float *means2d, __global const float *conics,
@@ -63,6 +70,7 @@ static inline void raster_prep_one(const int g, __global const float *means2d, _
     const float A = conics[3 * g], B = conics[3 * g + 1], C = conics[3 * g + 2];
     const float o = opacities[g];
     float xlo = 1.0f, xhi = 0.0f, ylo = 1.0f, yhi = 0.0f; /* empty box */
+    float cut = 0.0f;                                    /* ALPHA_CUT: none (an empty box) */
     const float lo = ALPHA_BOX_LO(o);
     /* o < 1/255 (or NaN): alpha < ALPHA_MIN everywhere -> never blended */
     if (lo >= 1.0f && isfinite(u) && isfinite(v) && isfinite(lo)) {
@@ -78,6 +86,7 @@ static inline void raster_prep_one(const int g, __global const float *means2d, _
         xhi = clamp(floor(u + ex - 0.5f), -2.0f, 1e7f);
         ylo = clamp(ceil(v - ey - 0.5f), -2.0f, 1e7f);
         yhi = clamp(floor(v + ey - 0.5f), -2.0f, 1e7f);
+        cut = ALPHA_CUT(lo);
     }
     __global float *rec = packed + (size_t)g * 16;
     rec[0] = u;
@@ -94,7 +103,7 @@ static inline void raster_prep_one(const int g, __global const float *means2d, _
     rec[11] = xhi;
     rec[12] = ylo;
     rec[13] = yhi;
-    rec[14] = 0.0f;
+    rec[14] = cut;
     rec[15] = 0.0f;
 }
 

@@ -49,6 +49,10 @@
  *   its own (R_o = v_depth_o * out_depth, c_o = v_depth_o * z), summed over the tile the same way.
  *   (Finite colours assumed: the separate pass multiplies its zero colour cotangents by them.) The
  *   overflow rerun of a tile scales by the bounds of all four cotangents. (docs/perf_notes.md §13)
+ *   RASTER_ALPHA_CUT (1, CPU schedule): skip a pixel vector's exp and blend where every lane's power
+ *   is below the record's ALPHA_CUT (common.h: alpha < ALPHA_MIN there for certain, so those lanes
+ *   fail the pixel test anyway); 0 evaluates every vector of the box. The same bits either way
+ *   (tests/test_rasterize.py; docs/perf_notes.md §22).
  * Schedules (same algorithm, same results up to float rounding of sums):
  *   CPU: one work-item per tile (local size 1), no barriers; the tile's 256 pixels are
  *        RASTER_VEC-wide vectors in private arrays; Gaussians are the outer loop (uniform scalar
@@ -80,6 +84,9 @@
 
 #ifndef RASTER_IMPORTANCE
 #define RASTER_IMPORTANCE 0
+#endif
+#ifndef RASTER_ALPHA_CUT
+#define RASTER_ALPHA_CUT 1
 #endif
 #ifndef RASTER_VEC
 #define RASTER_VEC 8
@@ -345,6 +352,9 @@ __kernel void rasterize_fwd(__global const float16 *packed,      // [N] records 
                     const vf T = Tv[c];
                     const vf dx = (vf)(g.s0 - (float)(x0 + cc * RASTER_VEC)) - LANES;
                     const vf power = -0.5f * (g.s2 * dx * dx + g.s4 * dy * dy) - g.s3 * dx * dy;
+#if RASTER_ALPHA_CUT
+                    if (!vany(power >= g.se)) continue; /* ALPHA_CUT: every lane fails ok below */
+#endif
                     const vf a = g.s5 * exp(power); /* once: VMIN names its argument twice */
                     const vf alpha = VMIN(a, (vf)(ALPHA_MAX));
                     const vi ok = (T > 0.0f) & (power <= 0.0f) & (alpha >= ALPHA_MIN);
@@ -498,6 +508,9 @@ bwd_tile(__global const float16 *packed, __global const int *gid_from_isect, __g
                     if (!vany(valid)) continue;
                     const vf dx = (vf)(g.s0 - (float)(x0 + cc * RASTER_VEC)) - LANES;
                     const vf power = -0.5f * (g.s2 * dx * dx + g.s4 * dy * dy) - g.s3 * dx * dy;
+#if RASTER_ALPHA_CUT
+                    if (!vany(power >= g.se)) continue; /* ALPHA_CUT: every lane fails ok below */
+#endif
                     const vf G = exp(power);
                     const vf a = g.s5 * G;
                     const vf alpha = VMIN(a, (vf)(ALPHA_MAX));

@@ -13,6 +13,8 @@ it. Gradients: MIN_COSINE / MAX_REL_L2 per field.
 """
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -223,6 +225,58 @@ def test_bwd_transposed_warp_sum_keeps_the_bits(device, name):
             assert np.array_equal(out[1].v_emit_o.view(np.uint32), out[0].v_emit_o.view(np.uint32))
         if name.startswith("random"):
             assert np.abs(out[1].v_emit).max() > 0
+
+
+@pytest.mark.parametrize("name", ["random", "random_large", "saturated", "alpha_clamp", "many_in_one_tile",
+                                  "tile_corner", "needles", "size_70x45"])
+def test_cpu_alpha_cut_keeps_the_bits(device, name):
+    """The CPU schedule's ALPHA_CUT skip (RASTER_ALPHA_CUT=1, the default: a pixel vector whose every lane's
+    power is below the record's cut skips its exp) gives the bytes of evaluating every vector of the box
+    (0): the forward's images, `last` and importance, and the records of the full, opacity-only and
+    second-cotangent backwards."""
+    from reings.backends.opencl.rasterize import rasterize_bwd_host, rasterize_fwd_host
+
+    if name == "random_large":  # skewed and large splats: boxes much wider than their ellipses
+        g, cam = random_scene(3000, 200, 150, seed=5, sh_degree=0, scale_median=0.05)
+        proj = ref.project_fwd(g, cam)
+        bins = ref.bin(proj, cam.width, cam.height)
+        w, h = cam.width, cam.height
+    else:
+        proj, bins, w, h = _scene(name)
+    on = dict(device=device, cpu_schedule=True)
+    fwd = {c: rasterize_fwd_host(proj, bins, w, h, BG, True, RASTER_ALPHA_CUT=c, **on) for c in (0, 1)}
+    for f in ("rgb", "depth", "alpha", "final_T", "last", "importance"):
+        assert np.array_equal(np.asarray(getattr(fwd[1], f)).view(np.uint32),
+                              np.asarray(getattr(fwd[0], f)).view(np.uint32)), f
+    vr, vd, va = _cotangents(w, h, seed=2)
+    _, vo, _ = _cotangents(w, h, seed=7)
+    for kw in ({"v_rgb": vr, "v_depth": vd, "v_alpha": va}, {"v_depth": vd, "opacity_only": True},
+               {"v_rgb": vr, "v_depth_o": vo}):
+        out = {c: rasterize_bwd_host(proj, bins, w, h, background=BG, RASTER_ALPHA_CUT=c, **kw, **on) for c in (0, 1)}
+        assert np.array_equal(out[1].v_emit.view(np.uint32), out[0].v_emit.view(np.uint32)), list(kw)
+        if "v_depth_o" in kw:
+            assert np.array_equal(out[1].v_emit_o.view(np.uint32), out[0].v_emit_o.view(np.uint32))
+    assert np.abs(out[1].v_emit).max() > 0
+
+
+def test_alpha_cut_is_below_every_kept_pair():
+    """ALPHA_CUT (kernels/common.h: -ln(255 o) - ALPHA_CUT_PAD) in float32, as the kernel computes it, for
+    opacities from 1/255 to 1: a power just below the cut gives alpha = o exp(power) < ALPHA_MIN in float32
+    (numpy's exp, within an ulp) and in float64, by a margin far above float32's rounding."""
+    import re
+
+    text = (Path(__file__).resolve().parents[1] / "kernels" / "common.h").read_text()
+    pad = float(re.search(r"#define ALPHA_CUT_PAD ([0-9.e+-]+)f", text).group(1))
+    o = np.unique(np.concatenate([np.geomspace(1 / 255, 1, 20001), [1 / 255, 0.5, 0.99, 1.0]]).astype(np.float32))
+    o = o[o * np.float32(255) >= 1]  # lo >= 1: the records with a box
+    lo = o * np.float32(255)
+    cut = -np.log(lo) - np.float32(pad)  # float32 throughout, as the kernel
+    below = np.nextafter(cut, np.float32(-np.inf))
+    alpha32 = o * np.exp(below)
+    assert alpha32.dtype == np.float32
+    assert np.all(alpha32 < np.float32(ALPHA_MIN))
+    alpha64 = o.astype(np.float64) * np.exp(below.astype(np.float64))
+    assert np.all(alpha64 < ALPHA_MIN * np.exp(-pad / 2))
 
 
 @pytest.mark.parametrize("vec", [8, 16])
