@@ -107,6 +107,23 @@ def binning_of(backend) -> dict | None:
     return None if mode is None else {"mode": mode, **getattr(backend, "binned", {})}
 
 
+def kernel_builds(backend) -> dict | None:
+    """The OpenCL programs the backend's kernel library has built in this process and their wall
+    seconds (KernelLibrary.builds / build_seconds); None without a kernel library (reference)."""
+    lib = getattr(backend, "lib", None)
+    if lib is None or not hasattr(lib, "builds"):
+        return None
+    return {"programs": int(lib.builds), "seconds": float(lib.build_seconds)}
+
+
+def builds_since(backend, before: dict | None) -> dict | None:
+    """kernel_builds(backend) less `before` (an earlier kernel_builds)."""
+    now = kernel_builds(backend)
+    if now is None or before is None:
+        return now
+    return {"programs": now["programs"] - before["programs"], "seconds": now["seconds"] - before["seconds"]}
+
+
 def _peak_rss_mb() -> float | None:
     """This process's peak resident memory in MiB (None where the platform has no `resource`:
     Windows). ru_maxrss is in KiB on Linux, in bytes on macOS."""
@@ -496,6 +513,7 @@ class RunContext:
         self.stages, self.series, self.bounds = [], [], []
         self.clock = {"train": 0.0, "wall": 0.0, "probe": 0.0}  # cumulative across stages
         self._omega = None
+        self.kernel_builds = None  # builds_since the run's start (_run_prepared), for metrics.json
 
     def run_recipe(self, recipe, stage: str | None = None):
         """A stage's recipe with the run's settings: its seed, the Gaussian cap, the smoothness
@@ -621,6 +639,7 @@ class RunContext:
             self.series.append({"stage": "init", "iteration": 0, "seconds": 0.0, "wall_seconds": 0.0,
                                 **self.probe(init)})
         prof = {} if c.output.profile else None  # phase -> wall seconds (Trainer.phase)
+        built = kernel_builds(self.backend)
         r = fit(self.train, recipe, device=self.device, init=init,
                 depth_targets=self.priors if use_priors else None, progress=self.progress,
                 depth_confidence=self.confidences if use_priors else None,
@@ -649,6 +668,7 @@ class RunContext:
                             "gaussians": len(g), "model_bytes": self.model_bytes[name],
                             "peak_rss_mb": _peak_rss_mb(), "device_peak_bytes": device_peak_bytes(self.backend),
                             "config": recipe.to_dict(), "history": r.history.to_dict(),
+                            "kernel_builds": builds_since(self.backend, built),
                             **({"phases": {k: v for k, v in prof.items() if k != "device_ms"}} if prof is not None else {})})
         last = f", test PSNR {self.series[-1]['psnr']:.2f}" if self.series and self.series[-1]["stage"] == name else ""
         self.log(f"[{c.label}] {name}: {recipe.iterations} its, {train_s:.1f} s, {len(g)} Gaussians{last}")
@@ -985,6 +1005,9 @@ def _metrics(ctx: RunContext, m: dict, settings: dict, scene, tr_idx, te_idx, cu
         "mean": {k: m[k] for k in ("psnr", "ssim", "lpips", "avge") if k in m and m[k] is not None},
         "per_image": m.get("per_image"), "seconds": ctx.timings, "gaussians": ctx.counts,
         "model_bytes": ctx.model_bytes, "peak_rss_mb": _peak_rss_mb(),
+        # this process's OpenCL builds during the run (each stage entry has its fit's share): a build is
+        # once per process, and pyopencl's and the driver's binary caches make a later process's cheap
+        **({"kernel_builds": ctx.kernel_builds} if getattr(ctx, "kernel_builds", None) is not None else {}),
         "memory": {"peak_rss_mb": _peak_rss_mb(), "device_peak_mb": None if dev_peak is None else dev_peak / 2**20,
                    "device_peak_bytes": dev_peak, "binning": binning_of(backend),
                    "model_mb": {k: v / 2**20 for k, v in ctx.model_bytes.items()},
@@ -1066,6 +1089,7 @@ def _run_prepared(cfg: RunConfig, backend, prior, overwrite: bool, quiet: bool, 
     from .outputs import jsonable, write_run_outputs, write_test_renders
 
     t_start = time.perf_counter()
+    built = kernel_builds(backend)
     ctx, settings, scene, tr_idx, te_idx = _prepare(cfg, backend, prior, overwrite, quiet, scene)
     stages = stages_of(cfg.method)
     split = ensemble_split(cfg.method, cfg.ensemble_from)
@@ -1092,6 +1116,7 @@ def _run_prepared(cfg: RunConfig, backend, prior, overwrite: bool, quiet: bool, 
         write_test_renders(out, ctx.test.names, preds, depths)
     ctx.timings["eval"] = time.perf_counter() - t
     ctx.timings["total"] = time.perf_counter() - t_start
+    ctx.kernel_builds = builds_since(backend, built)
     metrics = jsonable(_metrics(ctx, m, settings, scene, tr_idx, te_idx, curve, ensemble))
     if out:
         write_run_outputs(out, ctx.g, metrics, ctx.series, ctx.bounds,

@@ -26,3 +26,23 @@ def test_builds_on_the_gpu_schedule_with_its_defaults(device, filename):
     be = get_backend(device)
     prg = library_for(be.handle).program(filename, REINGS_CPU_SCHEDULE=0)
     assert prg.get_info(cl.program_info.NUM_KERNELS) > 0
+
+
+def test_the_library_counts_its_builds(device):
+    """KernelLibrary.builds / build_seconds (metrics.json `kernel_builds`): a program not built before in this
+    process adds one build and its seconds; asking for it again adds nothing (the per-process cache)."""
+    import os
+
+    from reings.pipeline import builds_since, kernel_builds
+
+    be = get_backend(device)
+    lib = library_for(be.handle)
+    assert be.lib is lib
+    before = kernel_builds(be)
+    tag = int.from_bytes(os.urandom(3), "little")  # a define no earlier build used: a new program
+    lib.program("l1.cl", REINGS_TEST_BUILD_TAG=tag)
+    once = builds_since(be, before)
+    assert once["programs"] == 1 and once["seconds"] > 0
+    lib.program("l1.cl", REINGS_TEST_BUILD_TAG=tag)
+    assert builds_since(be, before) == once
+    assert kernel_builds(get_backend("reference")) is None

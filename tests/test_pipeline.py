@@ -74,6 +74,8 @@ def test_short_fit_raises_test_psnr(tmp_path):
     assert m["gaussians"]["dngaussian"] == len(r.gaussians) == st["gaussians"]
     assert m["model_bytes"]["dngaussian"] == pipeline.gaussians_nbytes(r.gaussians) > 0
     assert m["memory"]["peak_rss_mb"] > 0 and m["memory"]["device_peak_bytes"] > 0
+    kb = m["kernel_builds"]  # this process's builds during the run; the fit's share on its stage entry
+    assert kb["programs"] >= st["kernel_builds"]["programs"] >= 0 and kb["seconds"] >= st["kernel_builds"]["seconds"] >= 0
     b = m["memory"]["binning"]  # PoCL bins in sync unless REINGS_BIN says otherwise
     assert b["mode"] in ("auto", "sync", "async") and b["sync"] + b["async"] > 0
     assert m["config"]["iterations"] == [100] and m["config"]["method"] == "dngaussian"

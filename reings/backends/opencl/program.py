@@ -17,6 +17,7 @@ from __future__ import annotations
 import contextlib
 import os
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -62,6 +63,10 @@ class KernelLibrary:
         self.base_defines = quirks.build_defines(device)
         self.correct_div_sqrt = has_correctly_rounded_divide_sqrt(device)
         self._programs: dict[tuple, object] = {}
+        # programs built by this library and their wall seconds (pyopencl's and the driver's caches
+        # included: a warm cache makes a build cheap); pipeline.kernel_builds reports them per run
+        self.builds = 0
+        self.build_seconds = 0.0
 
     def options(self, defines: dict, filename: str | None = None) -> list[str]:
         d = dict(self.base_defines)
@@ -85,6 +90,7 @@ class KernelLibrary:
             if not path.is_file():
                 raise FileNotFoundError(f"kernel source {path} does not exist")
             src = path.read_text()
+            t = time.perf_counter()
             try:
                 with _compiler_output() as said:
                     prg = cl.Program(self.context, src).build(options=self.options(defines, filename),
@@ -92,6 +98,8 @@ class KernelLibrary:
             except cl.RuntimeError as e:  # build failure: show the log with the file name
                 raise KernelBuildError(f"building {path} with {self.options(defines, filename)} failed:\n{e}"
                                        + (f"\ncompiler output:\n{said[0]}" if said and said[0] else "")) from e
+            self.builds += 1
+            self.build_seconds += time.perf_counter() - t
             self._programs[key] = prg
         return prg
 
