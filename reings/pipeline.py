@@ -668,7 +668,7 @@ class RunContext:
                             "gaussians": len(g), "model_bytes": self.model_bytes[name],
                             "peak_rss_mb": _peak_rss_mb(), "device_peak_bytes": device_peak_bytes(self.backend),
                             "config": recipe.to_dict(), "history": r.history.to_dict(),
-                            "kernel_builds": builds_since(self.backend, built),
+                            "kernel_builds": builds_since(self.backend, built), "kernel_builds_on_clock": r.kernel_builds,
                             **({"phases": {k: v for k, v in prof.items() if k != "device_ms"}} if prof is not None else {})})
         last = f", test PSNR {self.series[-1]['psnr']:.2f}" if self.series and self.series[-1]["stage"] == name else ""
         self.log(f"[{c.label}] {name}: {recipe.iterations} its, {train_s:.1f} s, {len(g)} Gaussians{last}")

@@ -125,6 +125,9 @@ class FitResult:
     seconds: float
     state: object = None
     checkpoints: int = 0  # checkpoints this call wrote (a resumed fit counts its own only)
+    # the OpenCL programs built on this fit's clock, {"programs", "seconds"} (None: no kernel library);
+    # `backend.prepare` builds the fit's programs before the clock starts, so normally none
+    kernel_builds: dict | None = None
 
 
 def _psnr(mse: float) -> float:
@@ -407,6 +410,10 @@ def fit(views, config: TrainConfig, device: str = "pocl", init: Gaussians | None
     trainer = backend.trainer(images, engine=engine, adam=adam, profile=profile)
     state, rng, history = _initial_state(init, cfg, checkpoint)
     opt = make_optimizer(state, cfg.optim, extent)
+    if hasattr(backend, "prepare"):  # OpenCL: the programs the fit will use, built before its clock
+        backend.prepare(**programs_of(cfg, state.max_sh_degree, depth_targets is not None))
+    lib = getattr(backend, "lib", None)
+    built0 = (lib.builds, lib.build_seconds) if hasattr(lib, "builds") else None
     t0 = time.perf_counter() - (history.seconds[-1] if history.seconds else 0.0)
     if state.iteration == 0 and cfg.iterations >= 1 and cfg.densify.clean_views:
         # DNGaussian clean_views: drop the Gaussians no training view sees, before iteration 1
@@ -434,7 +441,29 @@ def fit(views, config: TrainConfig, device: str = "pocl", init: Gaussians | None
     trainer.download(state)
     trainer.finish()
     deg = sh_degree_at(cfg.iterations, cfg.sh_degree, cfg.sh_degree_interval)
-    return FitResult(state.gaussians(deg), history, time.perf_counter() - t0, state, book.checkpoints)
+    seconds = time.perf_counter() - t0
+    on_clock = None if built0 is None else {"programs": lib.builds - built0[0], "seconds": lib.build_seconds - built0[1]}
+    return FitResult(state.gaussians(deg), history, seconds, state, book.checkpoints, on_clock)
+
+
+def programs_of(cfg: TrainConfig, max_sh_degree: int, depth: bool) -> dict:
+    """The options of `OpenCLBackend.prepare` for a fit of `cfg` (a state of `max_sh_degree`; depth: it
+    has depth targets): every SH coefficient count its forwards take (the degrees the schedule passes
+    through, and 1 for the importance forwards of DensifyConfig.prune_unseen), the rasterizer
+    variants and the loss kernels its passes use (`_Iteration`)."""
+    from .optim import sh_degree_at
+    from .types import SH_COUNTS
+
+    L = cfg.loss
+    lo, hi = (sh_degree_at(it, cfg.sh_degree, cfg.sh_degree_interval) for it in (1, max(cfg.iterations, 1)))
+    sh_ks = {SH_COUNTS[min(d, max_sh_degree)] for d in range(lo, hi + 1)}
+    if cfg.densify.prune_unseen:
+        sh_ks.add(1)
+    soft = depth and L.soft_depth
+    return {"sh_ks": sorted(sh_ks), "importance": bool(cfg.densify.prune_unseen),
+            "opacity_only": bool((soft and not L.soft_depth_shared) or L.dark_background),
+            "depth_o": bool(soft and L.soft_depth_shared), "depth_loss": bool(depth and (L.hard_depth or L.soft_depth)),
+            "view_warp": bool(L.view_warp_weight)}
 
 
 class _Iteration:

@@ -358,7 +358,11 @@ class OpenCLBackend:
     def _raster(self, fr: _Frame):
         """The rasterizer of the frame's slot (its images and packed records are the slot's; the
         backward's per-emit records are shared)."""
-        sl = self._slot(fr.slot)
+        return self._slot_raster(fr.slot)
+
+    def _slot_raster(self, i: int):
+        """The rasterizer of frame slot `i` (`_raster`), made on first use."""
+        sl = self._slot(i)
         if sl.raster is None:
             from .rasterize import Rasterizer
 
@@ -721,6 +725,25 @@ class OpenCLBackend:
         from .trainer import DeviceTrainer
 
         return DeviceTrainer(self, images, adam=adam, profile=profile)
+
+    def prepare(self, sh_ks=(), importance: bool = False, opacity_only: bool = False, depth_o: bool = False,
+                depth_loss: bool = False, view_warp: bool = False) -> None:
+        """Build now the programs that forwards and backwards with these options will use; each is
+        otherwise built on first use. project.cl at each SH coefficient count in `sh_ks`, bin.cl, the
+        rasterizer and the variants asked for (the importance forward, the opacity-only and the
+        second-cotangent backwards), the depth loss's and view_warp's kernels. The sorts, the scan,
+        the photometric loss and the trainer's own kernels are built when their owners are made.
+        DeviceTrainer.prepare calls it before a fit's clock starts: on a fresh machine NVIDIA's
+        compiler takes ~0.1-0.9 s a program (metrics.json `kernel_builds`; docs/results.md §38)."""
+        for k in sorted(set(int(k) for k in sh_ks)):
+            self.lib.program("project.cl", **self._proj_defines(k))
+        self.lib.program("bin.cl", **self.scan.defines)
+        self.lib.program("bin.cl")
+        self._slot_raster(0).prepare(importance=importance, opacity_only=opacity_only, depth_o=depth_o)
+        if depth_loss:
+            self.depth_loss_kernels
+        if view_warp:
+            self.view_warp_kernels
 
     @property
     def photometric_kernels(self):

@@ -161,6 +161,16 @@ class Rasterizer:
         as r.v_emit, valid until the next bwd with v_depth_o."""
         return self.shared.get("isect", "raster_v_emit_o", self.n_isect, 4 * V_RECORD)
 
+    def prepare(self, importance: bool = False, opacity_only: bool = False, depth_o: bool = False) -> None:
+        """Build now the variants a later fwd(importance=True) / bwd(opacity_only=True) / bwd(v_depth_o=)
+        would build on first use (OpenCLBackend.prepare)."""
+        if importance:
+            self._fwd_imp_kernel()
+        if opacity_only:
+            self._bwd_kernel(True)
+        if depth_o:
+            self._bwd_kernel(False, True)
+
     def _fwd_imp_kernel(self):
         if self._k_fwd_imp is None:
             self._k_fwd_imp = self._lib.get(FILE, "rasterize_fwd", RASTER_IMPORTANCE=1, **self._defines)
