@@ -6,9 +6,10 @@
     python bench/bench_builds.py replay builds.json --device cuda:0 --threads 1,8
 
 record: runs the `reings` command line after `--` with KernelLibrary.program wrapped: every program
-built (file, defines), in order, with its wall seconds and the fitting stage (the `desc` of each
-`reings.pipeline.fit` call; "other" outside fits) whose clock it fell on; writes them and the
-per-stage totals to --out (JSON).
+built (file, defines), in order, with its wall seconds and the fitting stage whose `fit` call built it
+(the `desc` of each `reings.pipeline.fit` call, the trainer's construction and the programs built
+before the fit's clock included: metrics.json `kernel_builds_on_clock` says what fell on the clock;
+"other" outside fits); writes them and the per-stage totals to --out (JSON).
 replay: in this fresh process, builds the recorded programs again, on a new context each round, with
 1, 8, ... threads (pyopencl's build releases the GIL; OpenCL's API is thread safe). What is cold
 depends on the on-disk caches (pyopencl's and the driver's, e.g. NVIDIA's ~/.nv/ComputeCache): clear
@@ -41,11 +42,10 @@ def record(out: str, cmd: list) -> int:
         if key in self._programs:
             return orig_program(self, filename, **defines)
         t = time.perf_counter()
-        try:
-            return orig_program(self, filename, **defines)
-        finally:
-            builds.append({"file": filename, "defines": dict(defines), "stage": stage[0],
-                           "seconds": time.perf_counter() - t, "device": self.device.name})
+        prg = orig_program(self, filename, **defines)  # a failed build raises: not recorded
+        builds.append({"file": filename, "defines": dict(defines), "stage": stage[0],
+                       "seconds": time.perf_counter() - t, "device": self.device.name})
+        return prg
 
     def fit(*args, **kw):
         prev, stage[0] = stage[0], str(kw.get("desc") or "fit")

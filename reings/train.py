@@ -411,7 +411,10 @@ def fit(views, config: TrainConfig, device: str = "pocl", init: Gaussians | None
     state, rng, history = _initial_state(init, cfg, checkpoint)
     opt = make_optimizer(state, cfg.optim, extent)
     if hasattr(backend, "prepare"):  # OpenCL: the programs the fit will use, built before its clock
-        backend.prepare(**programs_of(cfg, state.max_sh_degree, depth_targets is not None))
+        from .backends.base import select_engine
+
+        backend.prepare(**programs_of(cfg, state.max_sh_degree, depth_targets is not None,
+                                      select_engine(backend, engine)))
     lib = getattr(backend, "lib", None)
     built0 = (lib.builds, lib.build_seconds) if hasattr(lib, "builds") else None
     t0 = time.perf_counter() - (history.seconds[-1] if history.seconds else 0.0)
@@ -446,11 +449,16 @@ def fit(views, config: TrainConfig, device: str = "pocl", init: Gaussians | None
     return FitResult(state.gaussians(deg), history, seconds, state, book.checkpoints, on_clock)
 
 
-def programs_of(cfg: TrainConfig, max_sh_degree: int, depth: bool) -> dict:
+def programs_of(cfg: TrainConfig, max_sh_degree: int, depth: bool, engine: str = "device") -> dict:
     """The options of `OpenCLBackend.prepare` for a fit of `cfg` (a state of `max_sh_degree`; depth: it
-    has depth targets): every SH coefficient count its forwards take (the degrees the schedule passes
-    through, and 1 for the importance forwards of DensifyConfig.prune_unseen), the rasterizer
-    variants and the loss kernels its passes use (`_Iteration`)."""
+    has depth targets; engine: the resolved trainer, "device" or "host"): every SH coefficient count its
+    forwards take (the degrees the schedule passes through, and 1 for the importance forwards of
+    DensifyConfig.prune_unseen), the rasterizer variants and the loss kernels its passes use (`_Iteration`).
+    The soft depth term on the photometric render (`soft_shared`) takes the second-cotangent backward on
+    the device engine's sync-binned frames and an opacity-only backward elsewhere: the backend, which knows
+    its binning, prepares the ones it may take. The host engine runs the soft term as its own opacity-only
+    pass (HostTrainer.backward ignores v_depth_opacity) and the photometric loss through the backend's
+    kernels, which the device trainer builds when it is made."""
     from .optim import sh_degree_at
     from .types import SH_COUNTS
 
@@ -459,11 +467,13 @@ def programs_of(cfg: TrainConfig, max_sh_degree: int, depth: bool) -> dict:
     sh_ks = {SH_COUNTS[min(d, max_sh_degree)] for d in range(lo, hi + 1)}
     if cfg.densify.prune_unseen:
         sh_ks.add(1)
-    soft = depth and L.soft_depth
+    soft, host = depth and L.soft_depth, engine == "host"
+    shared = bool(soft and L.soft_depth_shared)
     return {"sh_ks": sorted(sh_ks), "importance": bool(cfg.densify.prune_unseen),
-            "opacity_only": bool((soft and not L.soft_depth_shared) or L.dark_background),
-            "depth_o": bool(soft and L.soft_depth_shared), "depth_loss": bool(depth and (L.hard_depth or L.soft_depth)),
-            "view_warp": bool(L.view_warp_weight)}
+            "opacity_only": bool((soft and (host or not shared)) or L.dark_background),
+            "soft_shared": shared and not host,
+            "depth_loss": bool(depth and (L.hard_depth or L.soft_depth or L.depth_metric)),
+            "view_warp": bool(L.view_warp_weight), "photometric": host}
 
 
 class _Iteration:

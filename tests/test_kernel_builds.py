@@ -48,14 +48,15 @@ def test_the_library_counts_its_builds(device):
     assert kernel_builds(get_backend("reference")) is None
 
 
-@pytest.mark.parametrize("variant", ["llff", "dtu"])
+@pytest.mark.parametrize("variant", ["llff", "dtu", "llff-async", "llff-host", "metric-only"])
 def test_a_fit_builds_nothing_on_its_clock(device, monkeypatch, variant):
     """train.fit builds the programs its passes will use before its clock starts (`OpenCLBackend.prepare` with
     `train.programs_of`): on a fresh backend whose kernel library has forgotten every program, a fit with the
     hard depth pass, the soft depth term (on the photometric render, or its own pass with DTU's background
     pass), the view_warp term, DropGaussian, densification with the prune of unseen Gaussians and the SH
     degree rising builds its programs (so the library was really empty) and none on its clock
-    (FitResult.kernel_builds)."""
+    (FitResult.kernel_builds). Also with the sync-free binning (the shared soft term's backward is then
+    opacity-only), on the host engine, and with the metric depth term as the only depth term."""
     from dataclasses import replace
 
     import reings.backends as backends
@@ -64,17 +65,20 @@ def test_a_fit_builds_nothing_on_its_clock(device, monkeypatch, variant):
 
     scene, init, cfg = dngaussian_fit_case(n_views=3, width=64, height=48, n_points=300, sh_degree=1,
                                            iterations=14, soft_depth_from=2, densify_until=14)
-    L = replace(cfg.loss, soft_depth_shared=variant == "llff", dark_background=variant == "dtu", drop_gamma=0.2,
-                view_warp_weight=1.0, view_warp_from=3, view_warp_baseline=0.05)
+    L = replace(cfg.loss, soft_depth_shared=variant.startswith("llff"), dark_background=variant == "dtu",
+                drop_gamma=0.2, view_warp_weight=1.0, view_warp_from=3, view_warp_baseline=0.05)
+    if variant == "metric-only":
+        L = replace(L, hard_depth=False, soft_depth=False, depth_metric=0.1)
     cfg = replace(cfg, loss=L, densify=replace(cfg.densify, prune_unseen=True, densify_from=5, densify_interval=5))
-    fresh = OpenCLBackend(get_backend(device).spec)
+    fresh = OpenCLBackend(get_backend(device).spec, bin_mode="async" if variant == "llff-async" else "sync")
     lib = library_for(fresh.handle)
     monkeypatch.setattr(lib, "_programs", {})  # every program built anew (from the on-disk caches)
     monkeypatch.setitem(backends._CACHE, device, fresh)
     from reings.train import fit
 
     before = lib.builds
-    r = fit(scene, cfg, device=device, init=init, depth_targets=list(scene.depths), progress=False)
+    r = fit(scene, cfg, device=device, init=init, depth_targets=list(scene.depths), progress=False,
+            engine="host" if variant == "llff-host" else "auto")
     assert r.history.densify and r.history.view_warp, "the case must densify and take the view_warp term"
     assert lib.builds - before >= 5, "the fit built its programs (the library had forgotten them)"
     assert r.kernel_builds == {"programs": 0, "seconds": 0.0}, r.kernel_builds

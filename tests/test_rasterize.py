@@ -227,13 +227,14 @@ def test_bwd_transposed_warp_sum_keeps_the_bits(device, name):
             assert np.abs(out[1].v_emit).max() > 0
 
 
+@pytest.mark.parametrize("vec", [8, 16])
 @pytest.mark.parametrize("name", ["random", "random_large", "saturated", "alpha_clamp", "many_in_one_tile",
                                   "tile_corner", "needles", "size_70x45"])
-def test_cpu_alpha_cut_keeps_the_bits(device, name):
+def test_cpu_alpha_cut_keeps_the_bits(device, name, vec):
     """The CPU schedule's ALPHA_CUT skip (RASTER_ALPHA_CUT=1, the default: a pixel vector whose every lane's
     power is below the record's cut skips its exp) gives the bytes of evaluating every vector of the box
     (0): the forward's images, `last` and importance, and the records of the full, opacity-only and
-    second-cotangent backwards."""
+    second-cotangent backwards; at both pixel-lane widths (RASTER_VEC)."""
     from reings.backends.opencl.rasterize import rasterize_bwd_host, rasterize_fwd_host
 
     if name == "random_large":  # skewed and large splats: boxes much wider than their ellipses
@@ -243,7 +244,7 @@ def test_cpu_alpha_cut_keeps_the_bits(device, name):
         w, h = cam.width, cam.height
     else:
         proj, bins, w, h = _scene(name)
-    on = dict(device=device, cpu_schedule=True)
+    on = dict(device=device, cpu_schedule=True, RASTER_VEC=vec)
     fwd = {c: rasterize_fwd_host(proj, bins, w, h, BG, True, RASTER_ALPHA_CUT=c, **on) for c in (0, 1)}
     for f in ("rgb", "depth", "alpha", "final_T", "last", "importance"):
         assert np.array_equal(np.asarray(getattr(fwd[1], f)).view(np.uint32),

@@ -726,24 +726,31 @@ class OpenCLBackend:
 
         return DeviceTrainer(self, images, adam=adam, profile=profile)
 
-    def prepare(self, sh_ks=(), importance: bool = False, opacity_only: bool = False, depth_o: bool = False,
-                depth_loss: bool = False, view_warp: bool = False) -> None:
+    def prepare(self, sh_ks=(), importance: bool = False, opacity_only: bool = False, soft_shared: bool = False,
+                depth_loss: bool = False, view_warp: bool = False, photometric: bool = False) -> None:
         """Build now the programs that forwards and backwards with these options will use; each is
         otherwise built on first use. project.cl at each SH coefficient count in `sh_ks`, bin.cl, the
-        rasterizer and the variants asked for (the importance forward, the opacity-only and the
-        second-cotangent backwards), the depth loss's and view_warp's kernels. The sorts, the scan,
-        the photometric loss and the trainer's own kernels are built when their owners are made.
-        DeviceTrainer.prepare calls it before a fit's clock starts: on a fresh machine NVIDIA's
-        compiler takes ~0.1-0.9 s a program (metrics.json `kernel_builds`; docs/results.md §38)."""
+        rasterizer and the variants asked for: the importance forward, the opacity-only backward, and
+        for `soft_shared` (the soft depth term on the photometric render: `backward_device`'s fused
+        second cotangent on a sync-binned frame, an opacity-only backward on a sync-free one) the
+        variants this backend's binning mode may take; the depth loss's, view_warp's and the photometric
+        loss's kernels. The sorts, the scan and the device trainer's own kernels are built when their
+        owners are made. `train.fit` calls it (with `train.programs_of`) before a fit's clock starts:
+        on a fresh machine NVIDIA's compiler takes ~0.1-0.9 s a program (metrics.json `kernel_builds`;
+        docs/results.md §38)."""
         for k in sorted(set(int(k) for k in sh_ks)):
             self.lib.program("project.cl", **self._proj_defines(k))
         self.lib.program("bin.cl", **self.scan.defines)
         self.lib.program("bin.cl")
-        self._slot_raster(0).prepare(importance=importance, opacity_only=opacity_only, depth_o=depth_o)
+        sync_free = soft_shared and self.bin_mode != "sync"  # "auto" may bin a forward sync-free
+        self._slot_raster(0).prepare(importance=importance, opacity_only=opacity_only or sync_free,
+                                     depth_o=soft_shared and self.bin_mode != "async")
         if depth_loss:
             self.depth_loss_kernels
         if view_warp:
             self.view_warp_kernels
+        if photometric:
+            self.photometric_kernels
 
     @property
     def photometric_kernels(self):

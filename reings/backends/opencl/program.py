@@ -17,6 +17,7 @@ from __future__ import annotations
 import contextlib
 import os
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -67,6 +68,7 @@ class KernelLibrary:
         # included: a warm cache makes a build cheap); pipeline.kernel_builds reports them per run
         self.builds = 0
         self.build_seconds = 0.0
+        self._count_lock = threading.Lock()  # builds may run in threads (bench/bench_builds.py replay)
 
     def options(self, defines: dict, filename: str | None = None) -> list[str]:
         d = dict(self.base_defines)
@@ -98,8 +100,9 @@ class KernelLibrary:
             except cl.RuntimeError as e:  # build failure: show the log with the file name
                 raise KernelBuildError(f"building {path} with {self.options(defines, filename)} failed:\n{e}"
                                        + (f"\ncompiler output:\n{said[0]}" if said and said[0] else "")) from e
-            self.builds += 1
-            self.build_seconds += time.perf_counter() - t
+            with self._count_lock:
+                self.builds += 1
+                self.build_seconds += time.perf_counter() - t
             self._programs[key] = prg
         return prg
 
