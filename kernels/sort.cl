@@ -238,6 +238,57 @@ void radix_scan(__global uint *hist,   // [nbins, nvb]
 
 #define DIGITS_PER_ITEM ((RADIX + SORT_WG - 1) / SORT_WG)
 
+/* Stable local sort of a block's SORT_BLOCK entries ((digit << 16) | local index, in a[]) by digit: one
+ * 1-bit split per digit bit, LSB first, between a[] and b[]; returns the sorted one. Every work-item of
+ * the group calls it (barriers). radix_scatter's step 3 and radix_onesweep's. */
+inline __local const uint *block_sort(__local uint *a, __local uint *b, __local uint *tmp, const uint lid,
+                                      const uint nbins)
+{
+    uint cur = 0;
+    for (uint bit = 16; (1u << (bit - 16)) < nbins; ++bit) {
+        __local const uint *src = cur ? b : a;
+        __local uint *dst = cur ? a : b;
+        uint zeros = 0;
+        for (uint k = 0; k < SORT_ITEMS; ++k) zeros += ((src[lid * SORT_ITEMS + k] >> bit) & 1u) ^ 1u;
+        uint nz;
+        uint zp = wg_exclusive_scan(zeros, tmp, &nz);
+        uint op = nz + lid * SORT_ITEMS - zp;
+        for (uint k = 0; k < SORT_ITEMS; ++k) {
+            const uint e = src[lid * SORT_ITEMS + k];
+            if ((e >> bit) & 1u) dst[op++] = e;
+            else dst[zp++] = e;
+        }
+        barrier(CLK_LOCAL_MEM_FENCE);
+        cur ^= 1u;
+    }
+    return cur ? b : a;
+}
+
+/* The scatter of a sorted block (srt, `count` valid entries of the block at `base`): dstart[d], where
+ * digit d's run starts in srt (only the present digits are written and read), then each entry's key
+ * and value to dbase[d] + (its position - dstart[d]), consecutive work-items taking consecutive
+ * positions. Every work-item of the group calls it (a barrier). radix_scatter's steps 4-5 and
+ * radix_onesweep's 5-6. */
+inline void block_scatter(__local const uint *srt, __local uint *dstart, __local const uint *dbase,
+                          const uint count, const uint base, const uint lid,
+                          __global const key_t *keys_in, __global const uint *vals_in,
+                          __global key_t *keys_out, __global uint *vals_out)
+{
+    for (uint p = lid; p < count; p += SORT_WG) {
+        const uint d = srt[p] >> 16;
+        if (p == 0 || (srt[p - 1] >> 16) != d) dstart[d] = p;
+    }
+    barrier(CLK_LOCAL_MEM_FENCE);
+    for (uint p = lid; p < count; p += SORT_WG) {
+        const uint e = srt[p];
+        const uint d = e >> 16;
+        const uint src_i = base + (e & 0xFFFFu);
+        const uint dst_i = dbase[d] + (p - dstart[d]);
+        keys_out[dst_i] = keys_in[src_i];
+        vals_out[dst_i] = vals_in[src_i];
+    }
+}
+
 __kernel __attribute__((reqd_work_group_size(SORT_WG, 1, 1)))
 void radix_scatter(__global const key_t *keys_in, // [n]
                    __global const uint *vals_in,  // [n]
@@ -289,42 +340,11 @@ void radix_scatter(__global const key_t *keys_in, // [n]
             }
         }
 
-        /* 3. stable local sort of the block by digit: one 1-bit split per digit bit, LSB first. */
-        uint cur = 0;
-        for (uint bit = 16; (1u << (bit - 16)) < nbins; ++bit) {
-            __local const uint *src = ent[cur];
-            __local uint *dst = ent[cur ^ 1u];
-            uint zeros = 0;
-            for (uint k = 0; k < SORT_ITEMS; ++k) zeros += ((src[lid * SORT_ITEMS + k] >> bit) & 1u) ^ 1u;
-            uint nz;
-            uint zp = wg_exclusive_scan(zeros, tmp, &nz);
-            uint op = nz + lid * SORT_ITEMS - zp;
-            for (uint k = 0; k < SORT_ITEMS; ++k) {
-                const uint e = src[lid * SORT_ITEMS + k];
-                if ((e >> bit) & 1u) dst[op++] = e;
-                else dst[zp++] = e;
-            }
-            barrier(CLK_LOCAL_MEM_FENCE);
-            cur ^= 1u;
-        }
-        __local const uint *srt = ent[cur];
+        /* 3. stable local sort of the block by digit (block_sort) */
+        __local const uint *srt = block_sort(ent[0], ent[1], tmp, lid, nbins);
 
-        /* 4. where each digit's run starts in the sorted block (only present digits are written/read) */
-        for (uint p = lid; p < count; p += SORT_WG) {
-            const uint d = srt[p] >> 16;
-            if (p == 0 || (srt[p - 1] >> 16) != d) dstart[d] = p;
-        }
-        barrier(CLK_LOCAL_MEM_FENCE);
-
-        /* 5. scatter in sorted order: p runs over the block, consecutive work-items take consecutive p */
-        for (uint p = lid; p < count; p += SORT_WG) {
-            const uint e = srt[p];
-            const uint d = e >> 16;
-            const uint src_i = base + (e & 0xFFFFu);
-            const uint dst_i = dbase[d] + (p - dstart[d]);
-            keys_out[dst_i] = keys_in[src_i];
-            vals_out[dst_i] = vals_in[src_i];
-        }
+        /* 4. where each digit's run starts in the sorted block; 5. the scatter in sorted order (block_scatter) */
+        block_scatter(srt, dstart, dbase, count, base, lid, keys_in, vals_in, keys_out, vals_out);
         barrier(CLK_LOCAL_MEM_FENCE); /* ent, dbase and dstart are rewritten for the next virtual block */
     }
 }
@@ -469,26 +489,8 @@ void radix_onesweep(__global const key_t *keys_in, // [n]
         if (d < nbins) OS_STORE(&st[vb * stride + d], ((vb == 0u ? OS_PREFIX : OS_AGGREGATE) << OS_SHIFT) | cnt[d]);
     }
 
-    /* 3. stable local sort of the block by digit (radix_scatter's step 3); meanwhile the lower
-     *    blocks publish */
-    uint cur = 0;
-    for (uint bit = 16; (1u << (bit - 16)) < nbins; ++bit) {
-        __local const uint *src = ent[cur];
-        __local uint *dst = ent[cur ^ 1u];
-        uint zeros = 0;
-        for (uint k = 0; k < SORT_ITEMS; ++k) zeros += ((src[lid * SORT_ITEMS + k] >> bit) & 1u) ^ 1u;
-        uint nz;
-        uint zp = wg_exclusive_scan(zeros, tmp, &nz);
-        uint op = nz + lid * SORT_ITEMS - zp;
-        for (uint k = 0; k < SORT_ITEMS; ++k) {
-            const uint e = src[lid * SORT_ITEMS + k];
-            if ((e >> bit) & 1u) dst[op++] = e;
-            else dst[zp++] = e;
-        }
-        barrier(CLK_LOCAL_MEM_FENCE);
-        cur ^= 1u;
-    }
-    __local const uint *srt = ent[cur];
+    /* 3. stable local sort of the block by digit (block_sort); meanwhile the lower blocks publish */
+    __local const uint *srt = block_sort(ent[0], ent[1], tmp, lid, nbins);
 
     /* 4. dbase[d] = sum_{d' < d} ghist[d'] + (digit d's elements in blocks < vb): the look-back reads
      *    OS_WINDOW lower blocks' words at once, adds AGGREGATEs up to the nearest PREFIX, and waits
@@ -530,20 +532,8 @@ void radix_onesweep(__global const key_t *keys_in, // [n]
         }
     }
 
-    /* 5. where each digit's run starts in the sorted block; 6. the scatter (radix_scatter's 4, 5) */
-    for (uint p = lid; p < count; p += SORT_WG) {
-        const uint d = srt[p] >> 16;
-        if (p == 0 || (srt[p - 1] >> 16) != d) dstart[d] = p;
-    }
-    barrier(CLK_LOCAL_MEM_FENCE);
-    for (uint p = lid; p < count; p += SORT_WG) {
-        const uint e = srt[p];
-        const uint d = e >> 16;
-        const uint src_i = base + (e & 0xFFFFu);
-        const uint dst_i = dbase[d] + (p - dstart[d]);
-        keys_out[dst_i] = keys_in[src_i];
-        vals_out[dst_i] = vals_in[src_i];
-    }
+    /* 5. where each digit's run starts in the sorted block; 6. the scatter (block_scatter) */
+    block_scatter(srt, dstart, dbase, count, base, lid, keys_in, vals_in, keys_out, vals_out);
 }
 
 #endif
