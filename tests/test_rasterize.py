@@ -207,24 +207,36 @@ def test_bwd_transposed_warp_sum_keeps_the_bits(device, name):
 
     if not rasterizer_for(device, False)._lib.base_defines["REINGS_NV_PTX"]:
         pytest.skip("the transposed warp sum exists on NVIDIA's GPU schedule only")
-    if name == "random_large":  # many tiles, warps with a few contributing lanes
-        g, cam = random_scene(3000, 200, 150, seed=5, sh_degree=0, scale_median=0.05)
-        proj = ref.project_fwd(g, cam)
-        bins = ref.bin(proj, cam.width, cam.height)
-        w, h = cam.width, cam.height
-    else:
-        proj, bins, w, h = _scene(name)
+    proj, bins, w, h = _bits_scene(name)
+    out = _backwards_by_define(proj, bins, w, h, "RASTER_BWD_TRANSPOSE", device=device, cpu_schedule=False)
+    if name.startswith("random"):
+        assert np.abs(out[1].v_emit).max() > 0
+
+
+def _bits_scene(name: str):
+    """_scene, or "random_large": many tiles, skewed and large splats (boxes much wider than their
+    ellipses, warps with a few contributing lanes)."""
+    if name != "random_large":
+        return _scene(name)
+    g, cam = random_scene(3000, 200, 150, seed=5, sh_degree=0, scale_median=0.05)
+    proj = ref.project_fwd(g, cam)
+    return proj, ref.bin(proj, cam.width, cam.height), cam.width, cam.height
+
+
+def _backwards_by_define(proj, bins, w, h, define: str, **on):
+    """The full, opacity-only and second-cotangent backwards with `define` 0 and 1 (the rasterizer's
+    other options in `on`): their records byte for byte equal; returns the last pair {0: ..., 1: ...}."""
+    from reings.backends.opencl.rasterize import rasterize_bwd_host
+
     vr, vd, va = _cotangents(w, h, seed=2)
     _, vo, _ = _cotangents(w, h, seed=7)
-    on = dict(background=BG, device=device, cpu_schedule=False)
     for kw in ({"v_rgb": vr, "v_depth": vd, "v_alpha": va}, {"v_depth": vd, "opacity_only": True},
                {"v_rgb": vr, "v_depth_o": vo}):
-        out = {t: rasterize_bwd_host(proj, bins, w, h, RASTER_BWD_TRANSPOSE=t, **kw, **on) for t in (0, 1)}
+        out = {t: rasterize_bwd_host(proj, bins, w, h, background=BG, **{define: t}, **kw, **on) for t in (0, 1)}
         assert np.array_equal(out[1].v_emit.view(np.uint32), out[0].v_emit.view(np.uint32)), list(kw)
         if "v_depth_o" in kw:
             assert np.array_equal(out[1].v_emit_o.view(np.uint32), out[0].v_emit_o.view(np.uint32))
-        if name.startswith("random"):
-            assert np.abs(out[1].v_emit).max() > 0
+    return out
 
 
 @pytest.mark.parametrize("vec", [8, 16])
@@ -235,28 +247,15 @@ def test_cpu_alpha_cut_keeps_the_bits(device, name, vec):
     power is below the record's cut skips its exp) gives the bytes of evaluating every vector of the box
     (0): the forward's images, `last` and importance, and the records of the full, opacity-only and
     second-cotangent backwards; at both pixel-lane widths (RASTER_VEC)."""
-    from reings.backends.opencl.rasterize import rasterize_bwd_host, rasterize_fwd_host
+    from reings.backends.opencl.rasterize import rasterize_fwd_host
 
-    if name == "random_large":  # skewed and large splats: boxes much wider than their ellipses
-        g, cam = random_scene(3000, 200, 150, seed=5, sh_degree=0, scale_median=0.05)
-        proj = ref.project_fwd(g, cam)
-        bins = ref.bin(proj, cam.width, cam.height)
-        w, h = cam.width, cam.height
-    else:
-        proj, bins, w, h = _scene(name)
+    proj, bins, w, h = _bits_scene(name)
     on = dict(device=device, cpu_schedule=True, RASTER_VEC=vec)
     fwd = {c: rasterize_fwd_host(proj, bins, w, h, BG, True, RASTER_ALPHA_CUT=c, **on) for c in (0, 1)}
     for f in ("rgb", "depth", "alpha", "final_T", "last", "importance"):
         assert np.array_equal(np.asarray(getattr(fwd[1], f)).view(np.uint32),
                               np.asarray(getattr(fwd[0], f)).view(np.uint32)), f
-    vr, vd, va = _cotangents(w, h, seed=2)
-    _, vo, _ = _cotangents(w, h, seed=7)
-    for kw in ({"v_rgb": vr, "v_depth": vd, "v_alpha": va}, {"v_depth": vd, "opacity_only": True},
-               {"v_rgb": vr, "v_depth_o": vo}):
-        out = {c: rasterize_bwd_host(proj, bins, w, h, background=BG, RASTER_ALPHA_CUT=c, **kw, **on) for c in (0, 1)}
-        assert np.array_equal(out[1].v_emit.view(np.uint32), out[0].v_emit.view(np.uint32)), list(kw)
-        if "v_depth_o" in kw:
-            assert np.array_equal(out[1].v_emit_o.view(np.uint32), out[0].v_emit_o.view(np.uint32))
+    out = _backwards_by_define(proj, bins, w, h, "RASTER_ALPHA_CUT", **on)
     assert np.abs(out[1].v_emit).max() > 0
 
 
