@@ -1,7 +1,7 @@
 set -u
 # session 28, call 6 (nvidia-h100-x1). Run from the repository root: bash bench/results/h100_session28/call6.sh
 # The final code's GPU tests: test_rasterize (the byte tests' shared helper, the transposed warp sum), test_kernel_builds
-# (the clock test at every variant), test_device_fit, test_sort, test_pipeline's short fit.
+# (the clock test at every variant), test_device_fit, test_sort.
 R=$PWD
 python3 -m pip install -q --no-index --no-deps --no-compile --target /tmp/site .whl/*.whl
 mkdir -p /tmp/icd && cp /etc/OpenCL/vendors/*.icd /tmp/icd/ 2>/dev/null; echo /usr/local/nvidia/lib64/libnvidia-opencl.so.1 > /tmp/icd/nvidia.icd
