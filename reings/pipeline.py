@@ -50,7 +50,7 @@ from .data.depth_prior import NO_PRIOR, prior_kind
 from .ensemble import fit_members, jobs_of
 from .reinit import (cvps_select, ehps_init, gaussian_importance, ivps_points, prune_keep_indices,
                      stereo_box, stereo_seed_points)
-from .train import fit, gaussians_from_points, random_points_in_box, scene_extent, with_iterations
+from .train import builds_since, fit, gaussians_from_points, kernel_builds, random_points_in_box, scene_extent, with_iterations
 
 PRUNE_CURVE_KEEP = (1.0, 0.9, 0.8, 0.7, 0.6, 0.5, 0.4)
 
@@ -105,23 +105,6 @@ def binning_of(backend) -> dict | None:
     forwards binned in each mode in this process; None where the backend has none (`reference`)."""
     mode = getattr(backend, "bin_mode", None)
     return None if mode is None else {"mode": mode, **getattr(backend, "binned", {})}
-
-
-def kernel_builds(backend) -> dict | None:
-    """The OpenCL programs the backend's kernel library has built in this process and their wall
-    seconds (KernelLibrary.builds / build_seconds); None without a kernel library (reference)."""
-    lib = getattr(backend, "lib", None)
-    if lib is None or not hasattr(lib, "builds"):
-        return None
-    return {"programs": int(lib.builds), "seconds": float(lib.build_seconds)}
-
-
-def builds_since(backend, before: dict | None) -> dict | None:
-    """kernel_builds(backend) less `before` (an earlier kernel_builds)."""
-    now = kernel_builds(backend)
-    if now is None or before is None:
-        return now
-    return {"programs": now["programs"] - before["programs"], "seconds": now["seconds"] - before["seconds"]}
 
 
 def _peak_rss_mb() -> float | None:

@@ -415,8 +415,7 @@ def fit(views, config: TrainConfig, device: str = "pocl", init: Gaussians | None
 
         backend.prepare(**programs_of(cfg, state.max_sh_degree, depth_targets is not None,
                                       select_engine(backend, engine)))
-    lib = getattr(backend, "lib", None)
-    built0 = (lib.builds, lib.build_seconds) if hasattr(lib, "builds") else None
+    built = kernel_builds(backend)
     t0 = time.perf_counter() - (history.seconds[-1] if history.seconds else 0.0)
     if state.iteration == 0 and cfg.iterations >= 1 and cfg.densify.clean_views:
         # DNGaussian clean_views: drop the Gaussians no training view sees, before iteration 1
@@ -445,8 +444,24 @@ def fit(views, config: TrainConfig, device: str = "pocl", init: Gaussians | None
     trainer.finish()
     deg = sh_degree_at(cfg.iterations, cfg.sh_degree, cfg.sh_degree_interval)
     seconds = time.perf_counter() - t0
-    on_clock = None if built0 is None else {"programs": lib.builds - built0[0], "seconds": lib.build_seconds - built0[1]}
-    return FitResult(state.gaussians(deg), history, seconds, state, book.checkpoints, on_clock)
+    return FitResult(state.gaussians(deg), history, seconds, state, book.checkpoints, builds_since(backend, built))
+
+
+def kernel_builds(backend) -> dict | None:
+    """The OpenCL programs the backend's kernel library has built in this process and their wall
+    seconds (KernelLibrary.builds / build_seconds); None without a kernel library (reference)."""
+    lib = getattr(backend, "lib", None)
+    if lib is None or not hasattr(lib, "builds"):
+        return None
+    return {"programs": int(lib.builds), "seconds": float(lib.build_seconds)}
+
+
+def builds_since(backend, before: dict | None) -> dict | None:
+    """kernel_builds(backend) less `before` (an earlier kernel_builds)."""
+    now = kernel_builds(backend)
+    if now is None or before is None:
+        return now
+    return {"programs": now["programs"] - before["programs"], "seconds": now["seconds"] - before["seconds"]}
 
 
 def programs_of(cfg: TrainConfig, max_sh_degree: int, depth: bool, engine: str = "device") -> dict:
