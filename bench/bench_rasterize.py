@@ -40,7 +40,12 @@ def main(argv=None):
     ap.add_argument("--define", action="append", default=[], help="extra kernel define NAME=VALUE")
     ap.add_argument("--n", type=int, default=None, help="override the Gaussian count (smoke runs)")
     ap.add_argument("--no-count", action="store_true", help="skip the reference pair count (slow)")
+    ap.add_argument("--against", action="append", default=[], metavar="NAME=VALUE",
+                    help="A/B: a second build with these defines (over --define), its runs alternating with "
+                         "the first's in this process; prints both medians and the median per-run ratio")
     args = ap.parse_args(argv)
+    if args.against:
+        return against(args)
 
     import pyopencl as cl
 
@@ -126,6 +131,58 @@ def main(argv=None):
     for name, ms in rows:
         extra = f"  {pairs / (ms * 1e-3) / 1e6:8.1f} M pairs/s" if pairs and name in ("fwd", "bwd") else ""
         print(f"  {name:22s} {ms:9.3f} ms{extra}")
+
+
+def against(args):
+    """Alternate two builds run by run (A, B, A, B, ...) so that a machine's drift (other tenants, clock)
+    falls on both: the per-run ratio B / A is the measurement."""
+    import pyopencl as cl
+
+    from reings.backends.opencl.device import open_device
+    from reings.backends.opencl.rasterize import Rasterizer
+
+    g, cam = perf_scene(args.scene, n=args.n)
+    W, H = cam.width, cam.height
+    proj = ref.project_fwd(g, cam)
+    bins = ref.bin(proj, W, H)
+    n, k, v = len(g), len(bins.gid_from_isect), len(bins.gid_from_rank)
+    h = open_device(args.device, profiling=True)
+    sched = None if args.schedule == "auto" else args.schedule == "cpu"
+    da = dict(d.split("=", 1) for d in args.define)
+    db = dict(da, **dict(d.split("=", 1) for d in args.against))
+    rs = [Rasterizer(h, cpu_schedule=sched, **da), Rasterizer(h, cpu_schedule=sched, **db)]
+    ctx, q = h.context, h.queue
+    mf = cl.mem_flags
+
+    def up(a, dt):
+        a = np.ascontiguousarray(a, dt)
+        return cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=a if a.size else np.zeros(1, dt))
+
+    f32, i32 = np.float32, np.int32
+    b = {f: up(getattr(proj, f), f32) for f in ("means2d", "conics", "colors", "opacities", "depths")}
+    for f in ("tile_ranges", "gid_from_isect", "emit_from_isect"):
+        b[f] = up(getattr(bins, f), i32)
+    rng = np.random.default_rng(0)
+    vr = up(rng.normal(size=(H, W, 3)) / (H * W), f32)
+    times = [{"fwd": [], "bwd": []} for _ in rs]
+    for it in range(args.warmup + args.runs):
+        for j, r in enumerate(rs):
+            r.prep(b["means2d"], b["conics"], b["colors"], b["opacities"], b["depths"], n)
+            e1 = r.fwd(None, None, None, None, None, n, b["tile_ranges"], b["gid_from_isect"],
+                       b["emit_from_isect"], k, W, H, (0, 0, 0), prepared=True)
+            e2 = r.bwd(b["tile_ranges"], b["gid_from_isect"], b["emit_from_isect"], k, W, H, v_rgb=vr)
+            q.finish()
+            if it >= args.warmup:
+                times[j]["fwd"].append(_ms(e1))
+                times[j]["bwd"].append(_ms(e2))
+    print(f"{h.name} | scene {args.scene} {W}x{H} | N={n} K={k} | A {da or '{}'} | B {db}")
+    for stage in ("fwd", "bwd"):
+        a, bb = np.array(times[0][stage]), np.array(times[1][stage])
+        ratio = bb / a
+        print(json.dumps(dict(bench="rasterize_ab", scene=args.scene, stage=stage, a_defines=da, b_defines=db,
+                              a_median_ms=round(float(np.median(a)), 3), b_median_ms=round(float(np.median(bb)), 3),
+                              ratio_median=round(float(np.median(ratio)), 4),
+                              ratio_q25_q75=[round(float(x), 4) for x in np.percentile(ratio, [25, 75])])))
 
 
 if __name__ == "__main__":

@@ -51,7 +51,8 @@
  *   overflow rerun of a tile scales by the bounds of all four cotangents. (docs/perf_notes.md §13)
  *   RASTER_ALPHA_CUT (1, CPU schedule): skip a pixel vector's exp and blend where every lane's power
  *   is below the record's ALPHA_CUT (common.h: alpha < ALPHA_MIN there for certain, so those lanes
- *   fail the pixel test anyway); 0 evaluates every vector of the box. The same bits either way
+ *   fail the pixel test anyway) or, in the forward, has already stopped (T < 0: fails it too); 0
+ *   evaluates every vector of the box. The same bits either way
  *   (tests/test_rasterize.py; docs/perf_notes.md §22).
  * Schedules (same algorithm, same results up to float rounding of sums):
  *   CPU: one work-item per tile (local size 1), no barriers; the tile's 256 pixels are
@@ -353,7 +354,8 @@ __kernel void rasterize_fwd(__global const float16 *packed,      // [N] records 
                     const vf dx = (vf)(g.s0 - (float)(x0 + cc * RASTER_VEC)) - LANES;
                     const vf power = -0.5f * (g.s2 * dx * dx + g.s4 * dy * dy) - g.s3 * dx * dy;
 #if RASTER_ALPHA_CUT
-                    if (!vany(power >= g.se)) continue; /* ALPHA_CUT: every lane fails ok below */
+                    /* ALPHA_CUT, and the lanes already stopped (T < 0): every lane fails ok below */
+                    if (!vany((power >= g.se) & (T > 0.0f))) continue;
 #endif
                     const vf a = g.s5 * exp(power); /* once: VMIN names its argument twice */
                     const vf alpha = VMIN(a, (vf)(ALPHA_MAX));
