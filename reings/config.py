@@ -173,6 +173,12 @@ class LossConfig:
     hard_depth: bool = opt(False, "DNGaussian hard depth term: opacity fixed, gradient to the means only")
     hard_depth_from: int = opt(1, "first iteration of the hard depth term")
     hard_depth_opacity: float = opt(0.95, "the fixed opacity of the hard-depth render (ReInGS: 0.99)")
+    hard_depth_scale: int = opt(1, "the hard depth pass at 1/scale of the training resolution (speed, issue 15): "
+                                   "its camera's image size and intrinsics divided by scale (the last rows and "
+                                   "columns that do not fill a block dropped), the depth prior and its weights "
+                                   "averaged over scale x scale blocks; the patch sizes stay in pixels; 1 = full "
+                                   "resolution (DNGaussian)",
+                                check=lambda v: None if v in (1, 2, 4) else f"must be 1, 2 or 4, got {v}")
     soft_depth: bool = opt(False, "DNGaussian soft depth term: real opacities, gradient to opacities only")
     soft_depth_from: int = opt(1001, "first iteration of the soft depth term")
     soft_depth_shared: bool = opt(False, "speed, changes the optimizer's steps: the soft depth term reuses the "
@@ -683,6 +689,11 @@ class RunConfig:
                                        "DNGaussian; 1 = the confidence alone)",
                                   check=lambda v: None if 0 <= v <= 1 else f"must lie in [0, 1], got {v}",
                                   metavar="A")
+    hard_depth_scale: int = opt(1, "every fit with the hard depth term: render its pass at 1/S of the training "
+                                   "resolution, against the depth prior averaged over S x S blocks (speed, issue "
+                                   "15; docs/perf_notes.md §23); 1 = full resolution",
+                                check=lambda v: None if v in (1, 2, 4) else f"must be 1, 2 or 4, got {v}",
+                                metavar="S")
     lambda_dssim: tuple[float, ...] | None = opt(
         None, "the SSIM weight l of the photometric loss L1 + l (1 - SSIM) (the 3dgs baseline's: (1 - l) L1 + "
               "l (1 - SSIM), l <= 1): L for every fit, or A,B,C for reings' coarse, fine, final (the baselines "

@@ -347,6 +347,49 @@ def _metric_weights(targets, confidence):
             for t, c in zip(targets, conf)]
 
 
+def depth_pass_camera(cam, scale: int):
+    """The hard depth pass's camera at 1/scale of `cam`'s resolution (LossConfig.hard_depth_scale): the
+    intrinsics divided by scale, so that its pixel (i, j) covers cam's pixels [s i, s i + s) x [s j, s j + s)
+    (pixel centres at +0.5 in both); the last rows and columns that do not fill a block are dropped."""
+    from .types import Camera
+
+    if scale == 1:
+        return cam
+    w, h = cam.width // scale, cam.height // scale
+    if w < 1 or h < 1:
+        raise ValueError(f"hard_depth_scale {scale}: a {cam.width}x{cam.height} view has no {scale}x{scale} block")
+    K = cam.K.copy()
+    K[:2] /= scale
+    return Camera(K, cam.viewmat, w, h)
+
+
+def block_mean(a, scale: int) -> np.ndarray:
+    """[H, W] -> [H // scale, W // scale] float32: the mean of each scale x scale block (summed in float64),
+    the last rows and columns that do not fill a block dropped (depth_pass_camera's pixels)."""
+    a = np.asarray(a)
+    h, w = a.shape[0] // scale, a.shape[1] // scale
+    b = a[:h * scale, :w * scale].astype(np.float64).reshape(h, scale, w, scale)
+    return b.mean(axis=(1, 3)).astype(np.float32)
+
+
+def _depth_uploads(depth_targets, weights, metric, cameras, L):
+    """What fit uploads for the depth terms: (targets, shapes, weights, metric weights). With
+    LossConfig.hard_depth_scale > 1 the hard pass's targets (block means of the prior and its weights)
+    follow the views' own: view i's at index n + i (`_Iteration.hard_view`)."""
+    shapes = [(c.height, c.width) for c in cameras]
+    s = L.hard_depth_scale
+    if not (L.hard_depth and s > 1):
+        return depth_targets, shapes, weights, metric
+    n = len(cameras)
+    targets = list(depth_targets) + [None if t is None else block_mean(t, s) for t in depth_targets]
+    shapes = shapes + [(c.height // s, c.width // s) for c in cameras]
+    if weights is not None:
+        weights = list(weights) + [None if w is None else block_mean(w, s) for w in weights]
+    if metric is not None:
+        metric = list(metric) + [None] * n  # the metric term reads the views' own targets only
+    return targets, shapes, weights, metric
+
+
 def fit(views, config: TrainConfig, device: str = "pocl", init: Gaussians | None = None,
         depth_targets=None, progress: bool = False, checkpoint: str | None = None,
         checkpoint_every: int = 250, eval_fn=None, eval_every: int = 0, log_every: int = 10,
@@ -396,6 +439,8 @@ def fit(views, config: TrainConfig, device: str = "pocl", init: Gaussians | None
         v = getattr(L, name)
         if not (v >= 0 and np.isfinite(v)):  # also NaN
             raise ValueError(f"fit: LossConfig.{name} must be >= 0 and finite, got {v}")
+    if L.hard_depth_scale not in (1, 2, 4):
+        raise ValueError(f"fit: LossConfig.hard_depth_scale must be 1, 2 or 4, got {L.hard_depth_scale!r}")
     bad = blur_sigmas(L.cross_warp_blur)  # 0 is the sharp level, always taken
     if bad:
         raise ValueError(f"fit: LossConfig.cross_warp_blur {bad}")
@@ -425,11 +470,12 @@ def fit(views, config: TrainConfig, device: str = "pocl", init: Gaussians | None
     if bg_masks is not None:
         trainer.upload_bg_masks(bg_masks)
     if depth_targets is not None and (L.hard_depth or L.soft_depth or L.depth_metric):
-        trainer.upload_depth_targets(depth_targets, [(c.height, c.width) for c in cameras],
-                                     smooth=L.depth_smooth_weight != 0,
-                                     weights=_depth_weights(depth_targets, depth_confidence, L.depth_confidence))
-    if depth_targets is not None and L.depth_metric:
-        trainer.upload_depth_metric(_metric_weights(depth_targets, depth_confidence))
+        targets, shapes, weights, metric = _depth_uploads(
+            depth_targets, _depth_weights(depth_targets, depth_confidence, L.depth_confidence),
+            _metric_weights(depth_targets, depth_confidence) if L.depth_metric else None, cameras, L)
+        trainer.upload_depth_targets(targets, shapes, smooth=L.depth_smooth_weight != 0, weights=weights)
+        if metric is not None:
+            trainer.upload_depth_metric(metric)
     book = _Bookkeeping(cfg, state, history, rng, t0, progress, desc, checkpoint, checkpoint_every,
                         eval_fn, eval_every, log_every,
                         sync=lambda params_only: trainer.download(state, params_only=params_only),
@@ -514,6 +560,10 @@ class _Iteration:
         self.reg_on = bool(self.L.shape_pena or self.L.scale_pena or self.L.opa_pena)
         self.read_hard_loss = self.L.soft_depth_ema_gate is not None  # the only reader of the hard depth loss
         self.groups = [k for k in PARAM_NAMES if k in opt.lr]
+        # the hard pass's cameras and target indices (LossConfig.hard_depth_scale: _depth_uploads)
+        scale = self.L.hard_depth_scale if self.L.hard_depth else 1
+        self.hard_cams = [depth_pass_camera(c, scale) for c in cameras]
+        self.hard_view = (lambda vi: vi + len(cameras)) if scale > 1 else (lambda vi: vi)
         self.hard_ema = None
         self.k = 1  # active SH coefficients of the current iteration
         # the per-iteration draws of drop_at / warp_baseline, a block of iterations at a time (the same numbers)
@@ -532,7 +582,8 @@ class _Iteration:
         has_target = self.targets is not None and self.targets[vi] is not None
         # hard depth: opacity fixed, gradient to the means only (DNGaussian render_for_depth)
         if L.hard_depth and has_target and it >= L.hard_depth_from:
-            lh = self.depth_pass(it, cam, vi, "hard", L.hard_depth_opacity, ("means",), self.read_hard_loss)
+            lh = self.depth_pass(it, self.hard_cams[vi], self.hard_view(vi), "hard", L.hard_depth_opacity,
+                                 ("means",), self.read_hard_loss)
             if lh is not None:
                 self.hard_ema = lh if self.hard_ema is None else 0.9 * self.hard_ema + 0.1 * lh
         # soft depth: real opacities, gradient to the opacities only (render_for_opa)

@@ -1,0 +1,122 @@
+"""LossConfig.hard_depth_scale: the hard depth pass at 1/scale of the training resolution (issue 15).
+
+The pass's camera (`depth_pass_camera`) against the pinhole model in float64: a point the full camera
+puts at pixel coordinate u lands at u / scale, so pixel (i, j) of the small image covers the full
+image's scale x scale block; the prior's block mean (`block_mean`) against a loop in float64. Then the
+fit: the hard pass renders at the small size against the block-mean target (its depth loss called
+with that frame and the view's index among the small targets), the two engines agree (bit for bit on
+PoCL), and the fit differs from the full-resolution one (the switch does something)."""
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from cases import assert_engines_agree, dngaussian_fit_case
+from reings.config import RunConfig
+from reings.train import block_mean, depth_pass_camera, fit
+from reings.types import Camera
+
+
+def _camera(w=67, h=45, seed=0):
+    rng = np.random.default_rng(seed)
+    K = np.array([[60.0 + rng.random(), 0, w / 2 + rng.random()], [0, 58.0 + rng.random(), h / 2 - rng.random()],
+                  [0, 0, 1]])
+    V = np.eye(4)
+    V[:3, 3] = rng.normal(size=3) * 0.1
+    return Camera(K, V, w, h)
+
+
+def _pixel(cam, X):
+    """float64 pinhole projection of world points X [n, 3]: continuous pixel coordinates (u, v)."""
+    x = X @ cam.viewmat[:3, :3].T + cam.viewmat[:3, 3]
+    return cam.K[0, 0] * x[:, 0] / x[:, 2] + cam.K[0, 2], cam.K[1, 1] * x[:, 1] / x[:, 2] + cam.K[1, 2]
+
+
+@pytest.mark.parametrize("scale", [2, 4])
+def test_the_pass_camera_maps_each_block_to_one_pixel(scale):
+    cam = _camera()
+    small = depth_pass_camera(cam, scale)
+    assert (small.width, small.height) == (67 // scale, 45 // scale)  # the partial blocks dropped
+    X = np.random.default_rng(1).normal(size=(200, 3)) + [0, 0, 6]
+    u, v = _pixel(cam, X)
+    us, vs = _pixel(small, X)
+    np.testing.assert_allclose(us, u / scale, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(vs, v / scale, rtol=0, atol=1e-12)
+    # so the pixel containing u / scale is the block containing u
+    inside = (u >= 0) & (v >= 0) & (u < small.width * scale) & (v < small.height * scale)
+    assert inside.sum() > 50
+    np.testing.assert_array_equal(np.floor(us[inside]), np.floor(u[inside]) // scale)
+    assert depth_pass_camera(cam, 1) is cam
+
+
+def test_block_mean_against_a_loop():
+    a = np.random.default_rng(2).random((13, 10)).astype(np.float32) * 7
+    for s in (2, 4):
+        ref = np.array([[np.mean(a[i * s:i * s + s, j * s:j * s + s].astype(np.float64)) for j in range(10 // s)]
+                        for i in range(13 // s)])
+        got = block_mean(a, s)
+        assert got.dtype == np.float32 and got.shape == ref.shape
+        np.testing.assert_array_equal(got, ref.astype(np.float32))
+
+
+def test_refusals(case):
+    scene, init, cfg = case
+    for bad in (3, 0):
+        with pytest.raises(ValueError, match="hard_depth_scale must be 1, 2 or 4"):
+            fit(scene, replace(cfg, loss=replace(cfg.loss, hard_depth_scale=bad)), device="reference", init=init,
+                depth_targets=list(scene.depths))
+    with pytest.raises(ValueError, match="hard_depth_scale must be 1, 2 or 4, got 3"):
+        RunConfig(hard_depth_scale=3)
+    with pytest.raises(ValueError, match="no 4x4 block"):
+        depth_pass_camera(_camera(w=3, h=9), 4)
+
+
+@pytest.fixture(scope="module")
+def case():
+    return dngaussian_fit_case(n_views=3, width=64, height=48, n_points=300, sh_degree=1, iterations=12,
+                               soft_depth_from=3, densify_until=25)
+
+
+def _fit(case, device, scale, engine, **kw):
+    scene, init, cfg = case
+    cfg = replace(cfg, loss=replace(cfg.loss, hard_depth_scale=scale))
+    return fit(scene, cfg, device=device, init=init, depth_targets=list(scene.depths), progress=False,
+               engine=engine, **kw)
+
+
+def test_the_hard_pass_renders_small_against_the_block_means(device, case, monkeypatch):
+    from reings.backends.opencl.trainer import DeviceTrainer
+
+    seen, uploaded = [], {}
+    depth_loss, upload = DeviceTrainer.depth_loss, DeviceTrainer.upload_depth_targets
+
+    def spy_loss(self, fr, view, *a, **k):
+        seen.append((view, fr.width, fr.height))
+        return depth_loss(self, fr, view, *a, **k)
+
+    def spy_upload(self, targets, shapes, *a, **k):
+        uploaded["targets"], uploaded["shapes"] = targets, shapes
+        return upload(self, targets, shapes, *a, **k)
+
+    monkeypatch.setattr(DeviceTrainer, "depth_loss", spy_loss)
+    monkeypatch.setattr(DeviceTrainer, "upload_depth_targets", spy_upload)
+    scene = case[0]
+    _fit(case, device, 2, "device")
+    assert uploaded["shapes"] == [(48, 64)] * 3 + [(24, 32)] * 3
+    for i in range(3):
+        np.testing.assert_array_equal(uploaded["targets"][3 + i], block_mean(scene.depths[i], 2))
+    hard = [s for s in seen if s[1] == 32]
+    soft = [s for s in seen if s[1] == 64]
+    assert len(hard) == 12 and all(v >= 3 and h == 24 for v, _, h in hard)  # one hard pass per iteration
+    assert len(soft) == 12 - 3 + 1 and all(v < 3 for v, _, _ in soft)  # the soft term: full size, own targets
+
+
+def test_engines_agree_and_the_scale_changes_the_fit(device, case):
+    host = _fit(case, device, 2, "host")
+    dev = _fit(case, device, 2, "device")
+    assert host.history.n_gaussians == dev.history.n_gaussians
+    assert_engines_agree(device, host.state, dev.state, "hard_depth_scale 2")
+    full = _fit(case, device, 1, "device")
+    assert not np.array_equal(full.state.params["means"][:50], dev.state.params["means"][:50])
