@@ -2,6 +2,7 @@
 
     python bench/bench_rasterize.py [--device pocl] [--scene A] [--runs 40] [--warmup 8]
                                     [--schedule auto|cpu|gpu] [--define RASTER_VEC=16 ...]
+    python bench/bench_rasterize.py --define RASTER_ALPHA_CUT=0 --against RASTER_ALPHA_CUT=1   # A/B in one process
 
 Projection and binning come from the float64 reference (`reings.backends.reference`), uploaded
 once; only the rasterizer kernels are timed, with OpenCL profiling events (median of --runs after
@@ -134,13 +135,16 @@ def main(argv=None):
 
 
 def against(args):
-    """Alternate two builds run by run (A, B, A, B, ...) so that a machine's drift (other tenants, clock)
-    falls on both: the per-run ratio B / A is the measurement."""
+    """Alternate two builds run by run (A, B, B, A, ...) so that a machine's drift (other tenants, clock)
+    falls on both: the per-run ratio B / A is the measurement. Times rasterize_fwd and rasterize_bwd only
+    (not rasterize_prep); a schedule switch (REINGS_CPU_SCHEDULE) is --schedule's, not a define's."""
     import pyopencl as cl
 
     from reings.backends.opencl.device import open_device
     from reings.backends.opencl.rasterize import Rasterizer
 
+    if any(d.split("=", 1)[0] == "REINGS_CPU_SCHEDULE" for d in args.against + args.define):
+        raise SystemExit("bench_rasterize: the schedule is --schedule's, not a define's")
     g, cam = perf_scene(args.scene, n=args.n)
     W, H = cam.width, cam.height
     proj = ref.project_fwd(g, cam)
@@ -166,7 +170,8 @@ def against(args):
     vr = up(rng.normal(size=(H, W, 3)) / (H * W), f32)
     times = [{"fwd": [], "bwd": []} for _ in rs]
     for it in range(args.warmup + args.runs):
-        for j, r in enumerate(rs):
+        for j in ((0, 1) if it % 2 == 0 else (1, 0)):  # A, B then B, A: no build always runs first
+            r = rs[j]
             r.prep(b["means2d"], b["conics"], b["colors"], b["opacities"], b["depths"], n)
             e1 = r.fwd(None, None, None, None, None, n, b["tile_ranges"], b["gid_from_isect"],
                        b["emit_from_isect"], k, W, H, (0, 0, 0), prepared=True)

@@ -381,6 +381,9 @@ def _depth_uploads(depth_targets, weights, metric, cameras, L):
     if not (L.hard_depth and s > 1):
         return depth_targets, shapes, weights, metric
     n = len(cameras)
+    for t, c in zip(depth_targets, cameras):
+        if t is not None:
+            depth_pass_camera(c, s)  # refuses a view with no s x s block before anything is made of it
     targets = list(depth_targets) + [None if t is None else block_mean(t, s) for t in depth_targets]
     shapes = shapes + [(c.height // s, c.width // s) for c in cameras]
     if weights is not None:
@@ -562,7 +565,8 @@ class _Iteration:
         self.groups = [k for k in PARAM_NAMES if k in opt.lr]
         # the hard pass's cameras and target indices (LossConfig.hard_depth_scale: _depth_uploads)
         scale = self.L.hard_depth_scale if self.L.hard_depth else 1
-        self.hard_cams = [depth_pass_camera(c, scale) for c in cameras]
+        self.hard_cams = [c if depth_targets is None or depth_targets[i] is None else depth_pass_camera(c, scale)
+                          for i, c in enumerate(cameras)]
         self.hard_view = (lambda vi: vi + len(cameras)) if scale > 1 else (lambda vi: vi)
         self.hard_ema = None
         self.k = 1  # active SH coefficients of the current iteration

@@ -120,3 +120,38 @@ def test_engines_agree_and_the_scale_changes_the_fit(device, case):
     assert_engines_agree(device, host.state, dev.state, "hard_depth_scale 2")
     full = _fit(case, device, 1, "device")
     assert not np.array_equal(full.state.params["means"][:50], dev.state.params["means"][:50])
+
+
+def test_weights_and_the_metric_term_at_scale_2(device, case, monkeypatch):
+    """With the prior's confidence weighting the depth loss and the metric depth term on: the host
+    engine's uploads hold the block means of the targets and of the weights at n + i (the metric
+    term's own n weights padded), and the engines agree."""
+    from reings.backends.host_trainer import HostTrainer
+    from reings.backends.reference_loss import depth_confidence_weights
+
+    scene, init, cfg = case
+    rng = np.random.default_rng(3)
+    conf = [rng.random(d.shape).astype(np.float32) for d in scene.depths]
+    cfg = replace(cfg, loss=replace(cfg.loss, hard_depth_scale=2, depth_confidence=0.5, depth_metric=0.1))
+    seen = {}
+    upload, metric = HostTrainer.upload_depth_targets, HostTrainer.upload_depth_metric
+
+    def spy(self, targets, shapes, *a, **k):
+        out = upload(self, targets, shapes, *a, **k)
+        seen["targets"], seen["weights"] = list(self.targets), list(self.dweights)
+        return out
+
+    def spy_metric(self, weights):
+        seen["metric"] = list(weights)
+        return metric(self, weights)
+
+    monkeypatch.setattr(HostTrainer, "upload_depth_targets", spy)
+    monkeypatch.setattr(HostTrainer, "upload_depth_metric", spy_metric)
+    runs = {e: fit(scene, cfg, device=device, init=init, depth_targets=list(scene.depths), depth_confidence=conf,
+                   progress=False, engine=e) for e in ("host", "device")}
+    for i in range(3):
+        np.testing.assert_array_equal(seen["targets"][3 + i], block_mean(scene.depths[i], 2))
+        np.testing.assert_array_equal(seen["weights"][3 + i], block_mean(depth_confidence_weights(conf[i], 0.5), 2))
+        np.testing.assert_array_equal(seen["weights"][i], depth_confidence_weights(conf[i], 0.5))
+    assert len(seen["metric"]) == 6 and all(w is None for w in seen["metric"][3:])
+    assert_engines_agree(device, runs["host"].state, runs["device"].state, "hard_depth_scale 2, weighted, metric")
