@@ -27,6 +27,25 @@ from reings.backends.base import V_RECORD  # noqa: E402
 from reings.bench_scenes import perf_scene  # noqa: E402
 
 
+def _upload(h, proj, bins, W: int, H: int):
+    """The projection's and binning's arrays as read-only device buffers (by field name), and an
+    L1-like cotangent of the image [H, W, 3] (seeded)."""
+    import pyopencl as cl
+
+    mf = cl.mem_flags
+
+    def up(a, dt):
+        a = np.ascontiguousarray(a, dt)
+        return cl.Buffer(h.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=a if a.size else np.zeros(1, dt))
+
+    f32, i32 = np.float32, np.int32
+    b = {f: up(getattr(proj, f), f32) for f in ("means2d", "conics", "colors", "opacities", "depths")}
+    for f in ("tile_ranges", "gid_from_isect", "emit_from_isect", "gid_from_rank", "offset_from_rank"):
+        b[f] = up(getattr(bins, f), i32)
+    rng = np.random.default_rng(0)
+    return b, up(rng.normal(size=(H, W, 3)) / (H * W), f32)
+
+
 def _ms(ev) -> float:
     return (ev.profile.end - ev.profile.start) * 1e-6
 
@@ -66,19 +85,8 @@ def main(argv=None):
     sched = None if args.schedule == "auto" else args.schedule == "cpu"
     r = Rasterizer(h, cpu_schedule=sched, **defines)
     ctx, q = h.context, h.queue
-    mf = cl.mem_flags
-
-    def up(a, dt):
-        a = np.ascontiguousarray(a, dt)
-        return cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=a if a.size else np.zeros(1, dt))
-
-    f32, i32 = np.float32, np.int32
-    b = {f: up(getattr(proj, f), f32) for f in ("means2d", "conics", "colors", "opacities", "depths")}
-    for f in ("tile_ranges", "gid_from_isect", "emit_from_isect", "gid_from_rank", "offset_from_rank"):
-        b[f] = up(getattr(bins, f), i32)
-    rng = np.random.default_rng(0)
-    vr = up(rng.normal(size=(H, W, 3)) / (H * W), f32)  # an L1-like cotangent scale
-    grads = cl.Buffer(ctx, mf.READ_WRITE, n * V_RECORD * 4)
+    b, vr = _upload(h, proj, bins, W, H)
+    grads = cl.Buffer(ctx, cl.mem_flags.READ_WRITE, n * V_RECORD * 4)
 
     def fwd():
         e0 = r.prep(b["means2d"], b["conics"], b["colors"], b["opacities"], b["depths"], n)
@@ -138,7 +146,6 @@ def against(args):
     """Alternate two builds run by run (A, B, B, A, ...) so that a machine's drift (other tenants, clock)
     falls on both: the per-run ratio B / A is the measurement. Times rasterize_fwd and rasterize_bwd only
     (not rasterize_prep); a schedule switch (REINGS_CPU_SCHEDULE) is --schedule's, not a define's."""
-    import pyopencl as cl
 
     from reings.backends.opencl.device import open_device
     from reings.backends.opencl.rasterize import Rasterizer
@@ -149,25 +156,14 @@ def against(args):
     W, H = cam.width, cam.height
     proj = ref.project_fwd(g, cam)
     bins = ref.bin(proj, W, H)
-    n, k, v = len(g), len(bins.gid_from_isect), len(bins.gid_from_rank)
+    n, k = len(g), len(bins.gid_from_isect)
     h = open_device(args.device, profiling=True)
     sched = None if args.schedule == "auto" else args.schedule == "cpu"
     da = dict(d.split("=", 1) for d in args.define)
     db = dict(da, **dict(d.split("=", 1) for d in args.against))
     rs = [Rasterizer(h, cpu_schedule=sched, **da), Rasterizer(h, cpu_schedule=sched, **db)]
-    ctx, q = h.context, h.queue
-    mf = cl.mem_flags
-
-    def up(a, dt):
-        a = np.ascontiguousarray(a, dt)
-        return cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=a if a.size else np.zeros(1, dt))
-
-    f32, i32 = np.float32, np.int32
-    b = {f: up(getattr(proj, f), f32) for f in ("means2d", "conics", "colors", "opacities", "depths")}
-    for f in ("tile_ranges", "gid_from_isect", "emit_from_isect"):
-        b[f] = up(getattr(bins, f), i32)
-    rng = np.random.default_rng(0)
-    vr = up(rng.normal(size=(H, W, 3)) / (H * W), f32)
+    q = h.queue
+    b, vr = _upload(h, proj, bins, W, H)
     times = [{"fwd": [], "bwd": []} for _ in rs]
     for it in range(args.warmup + args.runs):
         for j in ((0, 1) if it % 2 == 0 else (1, 0)):  # A, B then B, A: no build always runs first
