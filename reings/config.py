@@ -692,7 +692,7 @@ class RunConfig:
                                   metavar="A")
     hard_depth_scale: int = opt(1, "every fit with the hard depth term: render its pass at 1/S of the training "
                                    "resolution, against the depth prior averaged over S x S blocks (speed, issue "
-                                   "15; docs/perf_notes.md §23; LLFF: -0.15 dB on fern and flower, +0.18 on room, "
+                                   "15; docs/perf_notes.md §23; LLFF: -0.15 / -0.17 dB on fern / flower, +0.18 on room, "
                                    "docs/results.md §39); 1 = full resolution",
                                 check=lambda v: None if v in (1, 2, 4) else f"must be 1, 2 or 4, got {v}",
                                 metavar="S")
