@@ -372,24 +372,28 @@ def block_mean(a, scale: int) -> np.ndarray:
     return b.mean(axis=(1, 3)).astype(np.float32)
 
 
-def _depth_uploads(depth_targets, weights, metric, cameras, L):
-    """What fit uploads for the depth terms: (targets, shapes, weights, metric weights). With
-    LossConfig.hard_depth_scale > 1 the hard pass's targets (block means of the prior and its weights)
-    follow the views' own: view i's at index n + i (`_Iteration.hard_view`)."""
-    shapes = [(c.height, c.width) for c in cameras]
+def _hard_cameras(cameras, depth_targets, L):
+    """The hard depth pass's camera per view at LossConfig.hard_depth_scale (`depth_pass_camera`; a view
+    without a target keeps its own), or None when the pass runs at the views' resolution."""
     s = L.hard_depth_scale
-    if not (L.hard_depth and s > 1):
+    if not (L.hard_depth and s > 1 and depth_targets is not None):
+        return None
+    return [c if t is None else depth_pass_camera(c, s) for c, t in zip(cameras, depth_targets)]
+
+
+def _depth_uploads(depth_targets, weights, metric, cameras, hard_cams, scale: int):
+    """What fit uploads for the depth terms: (targets, shapes, weights, metric weights). With the hard
+    pass's own cameras (`_hard_cameras`) its targets (block means of the prior and its weights) follow
+    the views' own: view i's at index n + i (`_Iteration.hard_offset`)."""
+    shapes = [(c.height, c.width) for c in cameras]
+    if hard_cams is None:
         return depth_targets, shapes, weights, metric
-    n = len(cameras)
-    for t, c in zip(depth_targets, cameras):
-        if t is not None:
-            depth_pass_camera(c, s)  # refuses a view with no s x s block before anything is made of it
-    targets = list(depth_targets) + [None if t is None else block_mean(t, s) for t in depth_targets]
-    shapes = shapes + [(c.height // s, c.width // s) for c in cameras]
+    targets = list(depth_targets) + [None if t is None else block_mean(t, scale) for t in depth_targets]
+    shapes = shapes + [(c.height, c.width) for c in hard_cams]
     if weights is not None:
-        weights = list(weights) + [None if w is None else block_mean(w, s) for w in weights]
+        weights = list(weights) + [None if w is None else block_mean(w, scale) for w in weights]
     if metric is not None:
-        metric = list(metric) + [None] * n  # the metric term reads the views' own targets only
+        metric = list(metric) + [None] * len(cameras)  # the metric term reads the views' own targets only
     return targets, shapes, weights, metric
 
 
@@ -472,10 +476,12 @@ def fit(views, config: TrainConfig, device: str = "pocl", init: Gaussians | None
     trainer.upload(state)
     if bg_masks is not None:
         trainer.upload_bg_masks(bg_masks)
+    hard_cams = _hard_cameras(cameras, depth_targets, L)  # refuses a view with no block before any upload
     if depth_targets is not None and (L.hard_depth or L.soft_depth or L.depth_metric):
         targets, shapes, weights, metric = _depth_uploads(
             depth_targets, _depth_weights(depth_targets, depth_confidence, L.depth_confidence),
-            _metric_weights(depth_targets, depth_confidence) if L.depth_metric else None, cameras, L)
+            _metric_weights(depth_targets, depth_confidence) if L.depth_metric else None, cameras, hard_cams,
+            L.hard_depth_scale)
         trainer.upload_depth_targets(targets, shapes, smooth=L.depth_smooth_weight != 0, weights=weights)
         if metric is not None:
             trainer.upload_depth_metric(metric)
@@ -483,7 +489,7 @@ def fit(views, config: TrainConfig, device: str = "pocl", init: Gaussians | None
                         eval_fn, eval_every, log_every,
                         sync=lambda params_only: trainer.download(state, params_only=params_only),
                         checkpoint_seconds=checkpoint_seconds, phase=trainer.phase, rows=lambda: trainer.n)
-    iteration = _Iteration(trainer, cfg, state, opt, rng, extent, images, cameras, depth_targets, book)
+    iteration = _Iteration(trainer, cfg, state, opt, rng, extent, images, cameras, depth_targets, book, hard_cams)
     try:
         for it in range(state.iteration + 1, cfg.iterations + 1):
             iteration(it)
@@ -552,7 +558,7 @@ class _Iteration:
     `soft_depth_ema_gate` needs it, the decision columns when densification is due."""
 
     def __init__(self, trainer, cfg: TrainConfig, state, opt, rng, extent: float, images, cameras,
-                 depth_targets, book: _Bookkeeping):
+                 depth_targets, book: _Bookkeeping, hard_cams=None):
         from .losses import photometric_weights
         from .types import PARAM_NAMES
 
@@ -563,11 +569,9 @@ class _Iteration:
         self.reg_on = bool(self.L.shape_pena or self.L.scale_pena or self.L.opa_pena)
         self.read_hard_loss = self.L.soft_depth_ema_gate is not None  # the only reader of the hard depth loss
         self.groups = [k for k in PARAM_NAMES if k in opt.lr]
-        # the hard pass's cameras and target indices (LossConfig.hard_depth_scale: _depth_uploads)
-        scale = self.L.hard_depth_scale if self.L.hard_depth else 1
-        self.hard_cams = [c if depth_targets is None or depth_targets[i] is None else depth_pass_camera(c, scale)
-                          for i, c in enumerate(cameras)]
-        self.hard_view = (lambda vi: vi + len(cameras)) if scale > 1 else (lambda vi: vi)
+        # the hard pass's cameras and the offset of its targets (LossConfig.hard_depth_scale: _depth_uploads)
+        self.hard_cams = cameras if hard_cams is None else hard_cams
+        self.hard_offset = 0 if hard_cams is None else len(cameras)
         self.hard_ema = None
         self.k = 1  # active SH coefficients of the current iteration
         # the per-iteration draws of drop_at / warp_baseline, a block of iterations at a time (the same numbers)
@@ -586,7 +590,7 @@ class _Iteration:
         has_target = self.targets is not None and self.targets[vi] is not None
         # hard depth: opacity fixed, gradient to the means only (DNGaussian render_for_depth)
         if L.hard_depth and has_target and it >= L.hard_depth_from:
-            lh = self.depth_pass(it, self.hard_cams[vi], self.hard_view(vi), "hard", L.hard_depth_opacity,
+            lh = self.depth_pass(it, self.hard_cams[vi], vi + self.hard_offset, "hard", L.hard_depth_opacity,
                                  ("means",), self.read_hard_loss)
             if lh is not None:
                 self.hard_ema = lh if self.hard_ema is None else 0.9 * self.hard_ema + 0.1 * lh
