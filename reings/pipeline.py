@@ -182,11 +182,12 @@ def prune_curve_points(g, omega, test, device, bg, near, keeps=PRUNE_CURVE_KEEP)
 
 def load_run_scene(data, dataset=None, factor=8):
     """`load_scene` for a run: LLFF's full-view COLMAP points are not read (the few-shot side
-    never uses them, and reading them needs pycolmap, which a GPU machine may lack)."""
+    never uses them, and reading them needs pycolmap, which a GPU machine may lack). The built-in
+    procedural scene comes from the on-disk cache when it is there (`make_procedural_scene`)."""
     from .data.loader import canonical_kind, detect_format, load_scene
 
     if data is None or str(data) == "procedural":
-        return load_scene(data, dataset, factor=factor)
+        return load_scene(data, dataset, factor=factor, disk_cache=True)
     kind = canonical_kind(dataset) if dataset else detect_format(os.fspath(data))
     kw = {"load_points": False} if kind in ("llff", "llff_nex") else {}
     return load_scene(data, dataset, factor=factor, **kw)

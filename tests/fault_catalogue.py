@@ -232,10 +232,11 @@ def build_photos(d):
 
     from reings.data.procedural import make_procedural_scene
 
-    sc = make_procedural_scene(n_views=20, width=320, height=240)
+    views = (3, 7, 11, 15)
+    sc = make_procedural_scene(n_views=20, width=320, height=240, views=views)
     os.makedirs(d, exist_ok=True)
-    for i in (3, 7, 11, 15):
-        u8 = np.clip(np.rint(sc.images[i] * 255), 0, 255).astype(np.uint8)
+    for i, im in zip(views, sc.images):
+        u8 = np.clip(np.rint(im * 255), 0, 255).astype(np.uint8)
         cv2.imwrite(os.path.join(d, f"photo_{i:02d}.png"), u8[..., ::-1])
 
 

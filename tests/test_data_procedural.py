@@ -1,11 +1,14 @@
 """The built-in procedural scene: deterministic, and its depths are exact and multi-view consistent."""
 from __future__ import annotations
 
+import errno
 import time
 
 import numpy as np
+import pytest
 
 from reings.data import make_procedural_scene
+from reings.data import procedural as P
 from reings.data.procedural import _WALL_Z
 
 DEPTH_REL_TOL = 1e-4  # float32 depth maps; exact geometry otherwise
@@ -20,8 +23,16 @@ def _backproject(cam, depth):
     return (Xc - t) @ R
 
 
-def test_shapes_and_determinism():
+@pytest.fixture
+def no_memo(monkeypatch):
+    """An empty in-process memo (restored afterwards): every call below renders or reads the disk."""
+    monkeypatch.setattr(P, "_MEMO", {})
+    return P._MEMO
+
+
+def test_shapes_and_determinism(no_memo):
     a = make_procedural_scene(n_views=4, width=40, height=30, seed=3, supersample=1)
+    no_memo.clear()  # b ray traced again, not a's memo
     b = make_procedural_scene(n_views=4, width=40, height=30, seed=3, supersample=1)
     c = make_procedural_scene(n_views=4, width=40, height=30, seed=4, supersample=1)
     assert a.kind == "procedural" and len(a) == 4 and a.names[0] == "view000.png"
@@ -34,8 +45,8 @@ def test_shapes_and_determinism():
     np.testing.assert_allclose(a.bounds[:, 0], [d.min() for d in a.depths])
 
 
-def test_default_is_fast():
-    t = time.perf_counter()
+def test_default_is_fast(no_memo):
+    t = time.perf_counter()  # the ray tracing itself: no memo, no disk cache
     sc = make_procedural_scene()
     dt = time.perf_counter() - t
     assert len(sc) == 24 and sc.images[0].shape == (150, 200, 3)
@@ -73,3 +84,141 @@ def test_depth_consistent_across_views():
     # occlusion makes view 2 see *nearer* surfaces; seeing farther happens only at depth edges
     nearest4 = np.minimum(np.minimum(D[y0, x0], D[y0, x0 + 1]), np.minimum(D[y0 + 1, x0], D[y0 + 1, x0 + 1]))
     assert np.mean(nearest4 > Xc[ok, 2] * 1.01) < 0.002
+
+
+SMALL = dict(n_views=3, width=40, height=30, seed=2, supersample=1)
+
+
+def _same_scene(a, b):
+    assert a.names == b.names and len(a) == len(b)
+    for f in ("images", "depths"):
+        for x, y in zip(getattr(a, f), getattr(b, f)):
+            assert x.dtype == y.dtype == np.float32
+            np.testing.assert_array_equal(x, y)
+    for ca, cb in zip(a.cameras, b.cameras):
+        np.testing.assert_array_equal(ca.K, cb.K)
+        np.testing.assert_array_equal(ca.viewmat, cb.viewmat)
+    np.testing.assert_array_equal(a.bounds, b.bounds)
+
+
+def _no_render(monkeypatch):
+    def fail(*a, **k):
+        raise AssertionError("rendered again")
+    monkeypatch.setattr(P, "_render_views", fail)
+
+
+def test_disk_cache_gives_the_rendered_bits(no_memo, tmp_path, monkeypatch):
+    """The first disk_cache call renders and writes one file; a later process (here: an empty
+    memo, the renderer disabled) reads the same bits from it. Without disk_cache nothing is written."""
+    monkeypatch.setenv("REINGS_CACHE_DIR", str(tmp_path))
+    fresh = make_procedural_scene(**SMALL)
+    assert not (tmp_path / "procedural").exists()
+    no_memo.clear()
+    first = make_procedural_scene(**SMALL, disk_cache=True)
+    files = list((tmp_path / "procedural").iterdir())
+    assert [f.name for f in files] == [P.procedural_cache_path(next(iter(no_memo))).name]
+    no_memo.clear()
+    with monkeypatch.context() as m:
+        _no_render(m)
+        cached = make_procedural_scene(**SMALL, disk_cache=True)
+    _same_scene(fresh, first)
+    _same_scene(fresh, cached)
+    # every call returns its own writeable copies
+    cached.images[0][:] = 0.0
+    cached.depths[0][:] = 0.0
+    again = make_procedural_scene(**SMALL, disk_cache=True)
+    _same_scene(fresh, again)
+
+
+def test_the_memo_returns_copies_without_rendering(no_memo, monkeypatch):
+    a = make_procedural_scene(**SMALL)
+    _no_render(monkeypatch)
+    a.images[1][:] = 1.0
+    b = make_procedural_scene(**SMALL)
+    assert b.images[1].flags.writeable and not np.array_equal(a.images[1], b.images[1])
+    with pytest.raises(AssertionError, match="rendered again"):
+        make_procedural_scene(**{**SMALL, "seed": 3})  # other settings: not the memo's
+
+
+def test_the_memo_keeps_the_last_few_settings(no_memo):
+    for seed in range(P._MEMO_SIZE + 2):
+        make_procedural_scene(**{**SMALL, "width": 8, "height": 6, "seed": seed})
+    assert len(no_memo) == P._MEMO_SIZE
+    assert [k[3] for k in no_memo] == list(range(2, P._MEMO_SIZE + 2))
+
+
+@pytest.mark.parametrize("damage", ["garbage", "truncated", "other_key", "other_shape"])
+def test_a_bad_cache_file_is_rendered_again(no_memo, tmp_path, monkeypatch, damage):
+    monkeypatch.setenv("REINGS_CACHE_DIR", str(tmp_path))
+    fresh = make_procedural_scene(**SMALL, disk_cache=True)
+    settings = next(iter(no_memo))
+    path = P.procedural_cache_path(settings)
+    good = path.read_bytes()
+    if damage == "garbage":
+        path.write_bytes(b"not an npz")
+    elif damage == "truncated":
+        path.write_bytes(good[: len(good) // 2])
+    else:
+        with np.load(path) as z:
+            ims, deps, key = z["images"], z["depths"], str(z["key"])
+        if damage == "other_key":
+            key = "0" * 64
+        else:
+            ims, deps = ims[:, :-1], deps[:, :-1]
+        with open(path, "wb") as f:
+            np.savez(f, key=np.array(key), images=ims, depths=deps)
+    no_memo.clear()
+    _same_scene(fresh, make_procedural_scene(**SMALL, disk_cache=True))
+    assert path.read_bytes() == good  # rewritten
+
+
+def test_a_refused_cache_write_is_ignored(no_memo, tmp_path, monkeypatch):
+    """A cache folder that cannot be made (a file in its place), or a write the disk refuses
+    half way: the scene still comes, and no file (or temporary file) is left behind."""
+    blocker = tmp_path / "file"
+    blocker.write_text("x")
+    monkeypatch.setenv("REINGS_CACHE_DIR", str(blocker))
+    fresh = make_procedural_scene(**SMALL, disk_cache=True)
+    monkeypatch.setenv("REINGS_CACHE_DIR", str(tmp_path / "full"))
+    no_memo.clear()
+
+    def full(f, **arrays):
+        f.write(b"x" * 100)
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(np, "savez", full)
+    _same_scene(fresh, make_procedural_scene(**SMALL, disk_cache=True))
+    assert list((tmp_path / "full" / "procedural").iterdir()) == []
+
+
+def test_the_cache_key_names_the_settings():
+    keys = {P.procedural_cache_key((3, 40, 30, s, 1, 30.0)) for s in range(3)}
+    keys |= {P.procedural_cache_key((3, 40, 30, 0, 2, 30.0)), P.procedural_cache_key((3, 40, 30, 0, 1, 31.0))}
+    assert len(keys) == 5
+
+
+def test_a_run_reads_the_scene_through_the_disk_cache(no_memo, tmp_path, monkeypatch):
+    from reings.pipeline import load_run_scene
+
+    monkeypatch.setenv("REINGS_CACHE_DIR", str(tmp_path))
+    calls = []
+    real = P.make_procedural_scene
+    monkeypatch.setattr(P, "make_procedural_scene", lambda **k: calls.append(k) or real(**{**k, **SMALL}))
+    scene = load_run_scene(None)
+    assert calls == [{"disk_cache": True}] and len(scene) == 3
+    assert len(list((tmp_path / "procedural").iterdir())) == 1
+
+
+def test_views_renders_only_those_and_the_same_bits(no_memo):
+    full = make_procedural_scene(n_views=6, width=24, height=18, seed=1, supersample=2)
+    no_memo.clear()
+    part = make_procedural_scene(n_views=6, width=24, height=18, seed=1, supersample=2, views=(4, 1))
+    assert part.names == ["view004.png", "view001.png"] and len(part) == 2
+    for k, v in enumerate((4, 1)):
+        np.testing.assert_array_equal(part.images[k], full.images[v])
+        np.testing.assert_array_equal(part.depths[k], full.depths[v])
+        np.testing.assert_array_equal(part.cameras[k].viewmat, full.cameras[v].viewmat)
+        np.testing.assert_array_equal(part.bounds[k], full.bounds[v])
+    for bad in ((), (6,), (-1,)):
+        with pytest.raises(ValueError, match=r"views .* must be indices in \[0, 6\)"):
+            make_procedural_scene(n_views=6, width=24, height=18, views=bad)

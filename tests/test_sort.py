@@ -665,8 +665,8 @@ def download(buf, like):
 # The GPU schedule's host-count sorts go through radix_global_hist + radix_onesweep (the default) and,
 # in the small blocks, through radix_hist + radix_scan + radix_scatter too (onesweep=False).
 CONFIGS = {"cpu": [(True, dict(wg=32, items=4), (1, 2, 129, 300))],
-           "gpu_small_blocks": [(False, dict(wg=32, items=4), (1, 2, 129, 300)),
-                                (False, dict(wg=32, items=4, onesweep=False), (129, 300))],
+           "gpu_small_blocks": [(False, dict(wg=32, items=4), (1, 129, 300)),
+                                (False, dict(wg=32, items=4, onesweep=False), (300,))],
            "gpu_default": [(False, dict(wg=256, items=8), (300,))]}
 # one stream per part (each runs in its own process): the parts sort and scan different keys
 rng = np.random.default_rng([0, list(CONFIGS).index(PART)])

@@ -241,21 +241,114 @@ def render_view(cam: Camera, layout: dict, noise: _Noise, supersample: int = 2):
 
 
 def make_procedural_scene(n_views: int = 24, width: int = 200, height: int = 150, seed: int = 0,
-                          supersample: int = 2, arc_degrees: float = 30.0) -> Scene:
+                          supersample: int = 2, arc_degrees: float = 30.0, disk_cache: bool = False,
+                          views=None) -> Scene:
     """The built-in scene: `n_views` images with exact depths (`Scene.depths`) and cameras.
 
     Per-view bounds are the view's own depth range (min, max). Names are view000.png, ...
+    `views`: only these of the arc's `n_views` cameras (indices, in this order; names keep the
+    arc's index), the others not rendered.
+
+    The ray tracing takes seconds (~4-9 s for the default on one core), so the images and depths
+    of the last few settings are kept in the process (every call returns its own copies), and with
+    `disk_cache` (what `reings run` / `eval` load: `pipeline.load_run_scene`) also in one .npz per
+    setting under `cache_dir("procedural")` ($REINGS_CACHE_DIR/procedural, else the user cache
+    folder), named by a hash of the settings, this module's source and numpy's version, written
+    atomically; an unreadable or mismatching file is rendered again, a refused write ignored.
     """
+    idx = tuple(range(int(n_views))) if views is None else tuple(int(v) for v in views)
+    if not idx or not all(0 <= v < n_views for v in idx):
+        raise ValueError(f"make_procedural_scene: views {views!r} must be indices in [0, {n_views})")
+    settings = (int(n_views), int(width), int(height), int(seed), max(1, int(supersample)), float(arc_degrees), idx)
+    arc = procedural_cameras(n_views, width, height, arc_degrees)
+    cams = [arc[v] for v in idx]
+    views = _MEMO.get(settings)
+    if views is None and disk_cache:
+        views = _load_cached(settings)
+    if views is None:
+        views = _render_views(settings, cams)
+        if disk_cache:
+            _store_cached(settings, views)
+    _MEMO.pop(settings, None)
+    _MEMO[settings] = views  # the most recent last
+    while len(_MEMO) > _MEMO_SIZE:
+        _MEMO.pop(next(iter(_MEMO)))
+    ims, deps = [im.copy() for im in views[0]], [d.copy() for d in views[1]]
+    bounds = np.array([[d.min(), d.max()] for d in deps], dtype=np.float64)
+    names = [f"view{v:03d}.png" for v in idx]
+    return Scene(ims, cams, names, kind="procedural", bounds=bounds, depths=deps, source="procedural",
+                 meta={"seed": int(seed), "supersample": int(supersample)})
+
+
+# {{{ the scene's views, rendered or cached
+
+_MEMO: dict = {}  # settings -> (images, depths): read-only arrays, the most recent last
+_MEMO_SIZE = 4
+PROCEDURAL_CACHE_VERSION = 1
+
+
+def _render_views(settings: tuple, cams) -> tuple:
+    """(images, depths) of `make_procedural_scene`'s settings, ray traced; arrays read-only."""
+    seed, supersample = settings[3], settings[4]
     rng = np.random.default_rng(seed)
     layout = _layout(rng)
     noise = _Noise(rng)
-    cams = procedural_cameras(n_views, width, height, arc_degrees)
     ims, deps = [], []
     for cam in cams:
         rgb, dep = render_view(cam, layout, noise, supersample)
+        rgb.flags.writeable = dep.flags.writeable = False
         ims.append(rgb)
         deps.append(dep)
-    bounds = np.array([[d.min(), d.max()] for d in deps], dtype=np.float64)
-    names = [f"view{i:03d}.png" for i in range(n_views)]
-    return Scene(ims, cams, names, kind="procedural", bounds=bounds, depths=deps, source="procedural",
-                 meta={"seed": int(seed), "supersample": int(supersample)})
+    return tuple(ims), tuple(deps)
+
+
+def procedural_cache_key(settings: tuple) -> str:
+    """sha256 of the settings, this module's source and numpy's version (the images' bits)."""
+    import hashlib
+
+    h = hashlib.sha256(f"procedural v{PROCEDURAL_CACHE_VERSION} {settings!r} numpy {np.__version__}".encode())
+    with open(__file__, "rb") as f:
+        h.update(f.read())
+    return h.hexdigest()
+
+
+def procedural_cache_path(settings: tuple):
+    from ..io.files import cache_dir
+
+    return cache_dir("procedural") / f"procedural-{procedural_cache_key(settings)[:40]}.npz"
+
+
+def _load_cached(settings: tuple):
+    """The cached (images, depths) of `settings`, or None (missing, unreadable, another key or shape)."""
+    n, w, h = len(settings[6]), settings[1], settings[2]
+    try:
+        p = procedural_cache_path(settings)
+        if not p.is_file():
+            return None
+        with np.load(p, allow_pickle=False) as z:
+            if str(z["key"]) != procedural_cache_key(settings):
+                return None
+            ims, deps = z["images"], z["depths"]
+        if ims.shape != (n, h, w, 3) or deps.shape != (n, h, w) or ims.dtype != np.float32 or deps.dtype != np.float32:
+            return None
+    except Exception:  # corrupt, truncated or foreign file: render again
+        return None
+    ims.flags.writeable = deps.flags.writeable = False
+    return tuple(ims), tuple(deps)
+
+
+def _store_cached(settings: tuple, views) -> None:
+    """Write `views` under `settings`' key atomically; a refused write (read-only or full disk,
+    a size limit) leaves no file and is ignored: the cache only saves time."""
+    from ..io.files import atomic_write
+
+    try:
+        p = procedural_cache_path(settings)
+        p.parent.mkdir(parents=True, exist_ok=True)
+        with atomic_write(p, binary=True) as f:
+            np.savez(f, key=np.array(procedural_cache_key(settings)), images=np.stack(views[0]),
+                     depths=np.stack(views[1]))
+    except OSError:
+        pass
+
+# }}}
