@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import errno
+import os
 import time
 
 import numpy as np
@@ -50,7 +51,7 @@ def test_default_is_fast(no_memo):
     sc = make_procedural_scene()
     dt = time.perf_counter() - t
     assert len(sc) == 24 and sc.images[0].shape == (150, 200, 3)
-    assert dt < 20.0, dt  # ~3-5 s on one free core; generous for shared CI machines
+    assert dt < 30.0, dt  # 6-12 s on one core of the machines measured (docs/data.md); generous for shared CI
 
 
 def test_depth_is_exact_geometry():
@@ -140,14 +141,42 @@ def test_the_memo_returns_copies_without_rendering(no_memo, monkeypatch):
         make_procedural_scene(**{**SMALL, "seed": 3})  # other settings: not the memo's
 
 
-def test_the_memo_keeps_the_last_few_settings(no_memo):
-    for seed in range(P._MEMO_SIZE + 2):
-        make_procedural_scene(**{**SMALL, "width": 8, "height": 6, "seed": seed})
+def test_the_memo_keeps_the_most_recently_used_settings(no_memo):
+    tiny = {**SMALL, "width": 8, "height": 6}
+    for seed in range(P._MEMO_SIZE):
+        make_procedural_scene(**{**tiny, "seed": seed})
+    make_procedural_scene(**{**tiny, "seed": 0})  # used again: the most recent now
+    make_procedural_scene(**{**tiny, "seed": 99})  # evicts the least recently used, seed 1
     assert len(no_memo) == P._MEMO_SIZE
-    assert [k[3] for k in no_memo] == list(range(2, P._MEMO_SIZE + 2))
+    assert [k[3] for k in no_memo] == [*range(2, P._MEMO_SIZE), 0, 99]
 
 
-@pytest.mark.parametrize("damage", ["garbage", "truncated", "other_key", "other_shape"])
+def test_the_disk_cache_keeps_the_most_recently_used_files(no_memo, tmp_path, monkeypatch):
+    import time
+
+    monkeypatch.setenv("REINGS_CACHE_DIR", str(tmp_path))
+    monkeypatch.setattr(P, "_DISK_KEEP", 2)
+    folder = tmp_path / "procedural"
+    folder.mkdir()
+    stale, fresh = folder / ".tmp-killed.npz", folder / ".tmp-writing.npz"
+    stale.write_bytes(b"x")
+    fresh.write_bytes(b"x")
+    os.utime(stale, (time.time() - 7200,) * 2)
+    tiny = {**SMALL, "width": 8, "height": 6}
+    paths = []
+    for seed in range(3):
+        make_procedural_scene(**{**tiny, "seed": seed}, disk_cache=True)
+        paths.append(P.procedural_cache_path(next(reversed(no_memo))))
+        os.utime(paths[-1], (time.time() - 100 + seed,) * 2)  # distinct ages, oldest first
+    assert not paths[0].exists() and paths[1].exists() and paths[2].exists()
+    assert not stale.exists() and fresh.exists()  # a write killed an hour ago; one that may be running
+    no_memo.clear()
+    make_procedural_scene(**{**tiny, "seed": 1}, disk_cache=True)  # read: marked as used
+    make_procedural_scene(**{**tiny, "seed": 0}, disk_cache=True)  # rendered, written: seed 2's file goes
+    assert paths[0].exists() and paths[1].exists() and not paths[2].exists()
+
+
+@pytest.mark.parametrize("damage", ["garbage", "truncated", "other_key", "other_shape", "other_type"])
 def test_a_bad_cache_file_is_rendered_again(no_memo, tmp_path, monkeypatch, damage):
     monkeypatch.setenv("REINGS_CACHE_DIR", str(tmp_path))
     fresh = make_procedural_scene(**SMALL, disk_cache=True)
@@ -163,6 +192,8 @@ def test_a_bad_cache_file_is_rendered_again(no_memo, tmp_path, monkeypatch, dama
             ims, deps, key = z["images"], z["depths"], str(z["key"])
         if damage == "other_key":
             key = "0" * 64
+        elif damage == "other_type":
+            ims = ims.astype(np.float64)
         else:
             ims, deps = ims[:, :-1], deps[:, :-1]
         with open(path, "wb") as f:
@@ -191,10 +222,36 @@ def test_a_refused_cache_write_is_ignored(no_memo, tmp_path, monkeypatch):
     assert list((tmp_path / "full" / "procedural").iterdir()) == []
 
 
-def test_the_cache_key_names_the_settings():
-    keys = {P.procedural_cache_key((3, 40, 30, s, 1, 30.0)) for s in range(3)}
-    keys |= {P.procedural_cache_key((3, 40, 30, 0, 2, 30.0)), P.procedural_cache_key((3, 40, 30, 0, 1, 31.0))}
-    assert len(keys) == 5
+def test_the_cache_key_names_the_settings_and_the_bits_sources(monkeypatch):
+    base = (3, 40, 30, 0, 1, 30.0, (0, 1, 2))
+    others = [(3, 40, 30, s, 1, 30.0, (0, 1, 2)) for s in (1, 2)] + [
+        (3, 40, 30, 0, 2, 30.0, (0, 1, 2)), (3, 40, 30, 0, 1, 31.0, (0, 1, 2)), (3, 40, 30, 0, 1, 30.0, (2, 1, 0)),
+        (3, 41, 30, 0, 1, 30.0, (0, 1, 2)), (4, 40, 30, 0, 1, 30.0, (0, 1, 2))]
+    keys = {P.procedural_cache_key(k) for k in [base, *others]}
+    assert len(keys) == 1 + len(others)
+    k0 = P.procedural_cache_key(base)
+    monkeypatch.setattr(P, "_numpy_fingerprint", lambda: "another numpy")
+    assert P.procedural_cache_key(base) != k0
+    monkeypatch.undo()
+    import platform
+    monkeypatch.setattr(platform, "machine", lambda: "another machine")
+    assert P.procedural_cache_key(base) != k0
+    fp = P._numpy_fingerprint()
+    assert np.__version__ in fp and "|" in fp
+
+
+def test_the_cache_key_reads_the_sources(monkeypatch, tmp_path):
+    """The key hashes procedural.py and types.py (the cameras): an edit of either is another key."""
+    from reings import types
+
+    base = (3, 40, 30, 0, 1, 30.0, (0, 1, 2))
+    k0 = P.procedural_cache_key(base)
+    for mod, name in ((P, "procedural.py"), (types, "types.py")):
+        edited = tmp_path / name
+        edited.write_bytes(open(mod.__file__, "rb").read() + b"\n# an edit\n")
+        with monkeypatch.context() as m:
+            m.setattr(mod, "__file__", str(edited))
+            assert P.procedural_cache_key(base) != k0, name
 
 
 def test_a_run_reads_the_scene_through_the_disk_cache(no_memo, tmp_path, monkeypatch):
@@ -207,6 +264,15 @@ def test_a_run_reads_the_scene_through_the_disk_cache(no_memo, tmp_path, monkeyp
     scene = load_run_scene(None)
     assert calls == [{"disk_cache": True}] and len(scene) == 3
     assert len(list((tmp_path / "procedural").iterdir())) == 1
+    load_run_scene("procedural", "procedural")
+    assert calls[1:] == [{"disk_cache": True}]
+    # a folder named "procedural" read as another format is that format's (a missing folder here)
+    from reings.data.loader import SceneError
+
+    for data, dataset in (("procedural", "llff"), (None, "colmap")):
+        with pytest.raises(SceneError):
+            load_run_scene(data, dataset)
+    assert len(calls) == 2
 
 
 def test_views_renders_only_those_and_the_same_bits(no_memo):
@@ -219,6 +285,12 @@ def test_views_renders_only_those_and_the_same_bits(no_memo):
         np.testing.assert_array_equal(part.depths[k], full.depths[v])
         np.testing.assert_array_equal(part.cameras[k].viewmat, full.cameras[v].viewmat)
         np.testing.assert_array_equal(part.bounds[k], full.bounds[v])
-    for bad in ((), (6,), (-1,)):
-        with pytest.raises(ValueError, match=r"views .* must be indices in \[0, 6\)"):
+    assert part.meta["views"] == [4, 1] and part.meta["n_views"] == 6 and "views" not in full.meta
+    for bad in ((), (6,), (-1,), (1, 1)):
+        with pytest.raises(ValueError, match=r"views .* must be distinct indices in \[0, 6\)"):
             make_procedural_scene(n_views=6, width=24, height=18, views=bad)
+    for bad in ((1.5,), "12", (None,)):
+        with pytest.raises(ValueError, match=r"views .* must be integer indices in \[0, 6\)"):
+            make_procedural_scene(n_views=6, width=24, height=18, views=bad)
+    with pytest.raises(TypeError):
+        make_procedural_scene(n_views=6, width=24, height=18, seed=1.5)

@@ -28,13 +28,12 @@ def test_quiet_cli_prints_only_the_summary_then_stage_lines_without_bars(tmp_pat
     """One fresh kernel cache for both runs (each compile of every kernel costs ~40 s of CI): the
     --quiet run compiles them all and must print nothing on stderr (no stage lines, warnings,
     compiler output or bars; the compiler's output is held back whatever --quiet says:
-    program._compiler_output); then a run without --quiet prints its stage lines and, its stderr a
-    pipe, no progress bars."""
+    program._compiler_output); then a run without --quiet, on the kernels the first compiled, prints
+    its stage lines and, its stderr a pipe, no progress bars."""
     r = _cli(tmp_path, "--quiet")
     assert r.returncode == 0, r.stderr
     assert r.stderr == "", r.stderr  # no stage lines, warnings, compiler output or bars
     assert r.stdout.startswith("dngaussian on procedural")
-    assert list((tmp_path / "kcache").iterdir())  # the kernels were compiled into the fresh cache
 
     r = _cli(tmp_path, out="o2")
     assert r.returncode == 0, r.stderr

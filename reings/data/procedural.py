@@ -12,6 +12,9 @@ World frame: y up, ground at y = 0, cameras at z ~ -4.5 looking towards +z; came
 """
 from __future__ import annotations
 
+import operator
+import os
+
 import numpy as np
 
 from ..types import Camera
@@ -246,44 +249,60 @@ def make_procedural_scene(n_views: int = 24, width: int = 200, height: int = 150
     """The built-in scene: `n_views` images with exact depths (`Scene.depths`) and cameras.
 
     Per-view bounds are the view's own depth range (min, max). Names are view000.png, ...
-    `views`: only these of the arc's `n_views` cameras (indices, in this order; names keep the
-    arc's index), the others not rendered.
+    `views`: only these of the arc's `n_views` cameras (distinct integer indices, in this order;
+    names keep the arc's index, `meta["views"]` lists them), the others not rendered. A split of
+    such a scene (`few_shot_split`) counts its positions, not the arc's indices.
 
-    The ray tracing takes seconds (~4-9 s for the default on one core), so the images and depths
-    of the last few settings are kept in the process (every call returns its own copies), and with
-    `disk_cache` (what `reings run` / `eval` load: `pipeline.load_run_scene`) also in one .npz per
-    setting under `cache_dir("procedural")` ($REINGS_CACHE_DIR/procedural, else the user cache
-    folder), named by a hash of the settings, this module's source and numpy's version, written
-    atomically; an unreadable or mismatching file is rendered again, a refused write ignored.
+    The ray tracing takes seconds (6-12 s for the default on one core of the machines measured),
+    so the images and depths of the last few settings are kept in the process (every call returns
+    its own copies), and with `disk_cache` (what `reings run` / `eval` load:
+    `pipeline.load_run_scene`) also in one .npz per setting under `cache_dir("procedural")`
+    ($REINGS_CACHE_DIR/procedural, else the user cache folder), named by a hash of the settings
+    and of what the bits depend on (`procedural_cache_key`), written atomically, the 8 most
+    recently used kept; an unreadable or mismatching file is rendered again, a refused write ignored.
     """
-    idx = tuple(range(int(n_views))) if views is None else tuple(int(v) for v in views)
-    if not idx or not all(0 <= v < n_views for v in idx):
-        raise ValueError(f"make_procedural_scene: views {views!r} must be indices in [0, {n_views})")
-    settings = (int(n_views), int(width), int(height), int(seed), max(1, int(supersample)), float(arc_degrees), idx)
+    n_views, width, height, seed, supersample = (operator.index(v) for v in (n_views, width, height, seed,
+                                                                              supersample))
+    idx = tuple(range(n_views)) if views is None else _view_indices(views, n_views)
+    settings = (n_views, width, height, seed, max(1, supersample), float(arc_degrees), idx)
     arc = procedural_cameras(n_views, width, height, arc_degrees)
     cams = [arc[v] for v in idx]
-    views = _MEMO.get(settings)
-    if views is None and disk_cache:
-        views = _load_cached(settings)
-    if views is None:
-        views = _render_views(settings, cams)
+    rendered = _MEMO.get(settings)
+    if rendered is None and disk_cache:
+        rendered = _load_cached(settings)
+    if rendered is None:
+        rendered = _render_views(settings, cams)
         if disk_cache:
-            _store_cached(settings, views)
+            _store_cached(settings, rendered)
     _MEMO.pop(settings, None)
-    _MEMO[settings] = views  # the most recent last
+    _MEMO[settings] = rendered  # the most recently used last
     while len(_MEMO) > _MEMO_SIZE:
         _MEMO.pop(next(iter(_MEMO)))
-    ims, deps = [im.copy() for im in views[0]], [d.copy() for d in views[1]]
+    ims, deps = [im.copy() for im in rendered[0]], [d.copy() for d in rendered[1]]
     bounds = np.array([[d.min(), d.max()] for d in deps], dtype=np.float64)
     names = [f"view{v:03d}.png" for v in idx]
-    return Scene(ims, cams, names, kind="procedural", bounds=bounds, depths=deps, source="procedural",
-                 meta={"seed": int(seed), "supersample": int(supersample)})
+    meta = {"seed": seed, "supersample": supersample}
+    if views is not None:
+        meta.update(n_views=n_views, views=list(idx))
+    return Scene(ims, cams, names, kind="procedural", bounds=bounds, depths=deps, source="procedural", meta=meta)
+
+
+def _view_indices(views, n_views: int) -> tuple:
+    """`views` as a tuple of distinct ints in [0, n_views), or ValueError naming the problem."""
+    try:
+        idx = tuple(operator.index(v) for v in views)
+    except TypeError:
+        raise ValueError(f"make_procedural_scene: views {views!r} must be integer indices in [0, {n_views})") from None
+    if not idx or not all(0 <= v < n_views for v in idx) or len(set(idx)) != len(idx):
+        raise ValueError(f"make_procedural_scene: views {views!r} must be distinct indices in [0, {n_views})")
+    return idx
 
 
 # {{{ the scene's views, rendered or cached
 
-_MEMO: dict = {}  # settings -> (images, depths): read-only arrays, the most recent last
+_MEMO: dict = {}  # settings -> (images, depths): read-only arrays, the most recently used last
 _MEMO_SIZE = 4
+_DISK_KEEP = 8  # cache files kept in the folder, the most recently used
 PROCEDURAL_CACHE_VERSION = 1
 
 
@@ -303,13 +322,36 @@ def _render_views(settings: tuple, cams) -> tuple:
 
 
 def procedural_cache_key(settings: tuple) -> str:
-    """sha256 of the settings, this module's source and numpy's version (the images' bits)."""
+    """sha256 of the settings and of what the images' bits depend on besides them: the source of
+    this module and of reings/types.py (the cameras), numpy's version and BLAS, the machine and
+    the CPU features numpy dispatches on (float64 sin / arccos / matmul kernels differ between
+    CPUs). A file is this machine's: another machine computes its own."""
     import hashlib
+    import platform
 
-    h = hashlib.sha256(f"procedural v{PROCEDURAL_CACHE_VERSION} {settings!r} numpy {np.__version__}".encode())
-    with open(__file__, "rb") as f:
-        h.update(f.read())
+    from .. import types
+
+    h = hashlib.sha256(f"procedural v{PROCEDURAL_CACHE_VERSION} {settings!r}".encode())
+    for mod in (__file__, types.__file__):
+        with open(mod, "rb") as f:
+            h.update(f.read())
+    h.update(_numpy_fingerprint().encode())
+    h.update(platform.machine().encode())
     return h.hexdigest()
+
+
+def _numpy_fingerprint() -> str:
+    try:
+        from numpy._core import _multiarray_umath as um  # numpy >= 2
+    except ImportError:  # pragma: no cover - numpy 1.x
+        from numpy.core import _multiarray_umath as um
+    feats = sorted(k for k, v in getattr(um, "__cpu_features__", {}).items() if v)
+    try:
+        blas = np.show_config(mode="dicts")["Build Dependencies"]["blas"]
+        blas = f"{blas.get('name')} {blas.get('version')} {blas.get('openblas configuration', '')}"
+    except Exception:  # pragma: no cover - a numpy without the dicts form
+        blas = "?"
+    return f"numpy {np.__version__} | {blas} | {' '.join(feats)}"
 
 
 def procedural_cache_path(settings: tuple):
@@ -319,27 +361,35 @@ def procedural_cache_path(settings: tuple):
 
 
 def _load_cached(settings: tuple):
-    """The cached (images, depths) of `settings`, or None (missing, unreadable, another key or shape)."""
+    """The cached (images, depths) of `settings`, or None (missing, unreadable, another key, shape
+    or type: logged at debug level). A file read is marked as used (its mtime)."""
     n, w, h = len(settings[6]), settings[1], settings[2]
-    try:
-        p = procedural_cache_path(settings)
-        if not p.is_file():
-            return None
-        with np.load(p, allow_pickle=False) as z:
-            if str(z["key"]) != procedural_cache_key(settings):
-                return None
-            ims, deps = z["images"], z["depths"]
-        if ims.shape != (n, h, w, 3) or deps.shape != (n, h, w) or ims.dtype != np.float32 or deps.dtype != np.float32:
-            return None
-    except Exception:  # corrupt, truncated or foreign file: render again
+    p = procedural_cache_path(settings)
+    if not p.is_file():
         return None
+    try:
+        with np.load(p, allow_pickle=False) as z:
+            key, ims, deps = str(z["key"]), z["images"], z["depths"]
+        ok = (key == procedural_cache_key(settings) and ims.shape == (n, h, w, 3) and deps.shape == (n, h, w)
+              and ims.dtype == np.float32 and deps.dtype == np.float32)
+    except Exception as e:  # corrupt, truncated or foreign file: render again
+        _log().debug("procedural scene cache: %s unreadable (%s); rendering again", p, e)
+        return None
+    if not ok:
+        _log().debug("procedural scene cache: %s is another key, shape or type; rendering again", p)
+        return None
+    try:
+        os.utime(p)
+    except OSError:
+        pass
     ims.flags.writeable = deps.flags.writeable = False
     return tuple(ims), tuple(deps)
 
 
 def _store_cached(settings: tuple, views) -> None:
-    """Write `views` under `settings`' key atomically; a refused write (read-only or full disk,
-    a size limit) leaves no file and is ignored: the cache only saves time."""
+    """Write `views` under `settings`' key atomically, then keep the `_DISK_KEEP` most recently
+    used files (and no temporary file of a write killed an hour or more ago); a refused write
+    (read-only or full disk, a size limit) leaves no file and is ignored: the cache only saves time."""
     from ..io.files import atomic_write
 
     try:
@@ -348,7 +398,26 @@ def _store_cached(settings: tuple, views) -> None:
         with atomic_write(p, binary=True) as f:
             np.savez(f, key=np.array(procedural_cache_key(settings)), images=np.stack(views[0]),
                      depths=np.stack(views[1]))
-    except OSError:
-        pass
+        _prune(p.parent, keep=_DISK_KEEP)
+    except OSError as e:
+        _log().debug("procedural scene cache: not written (%s)", e)
+
+
+def _prune(folder, keep: int) -> None:
+    import time
+
+    files = sorted(folder.glob("procedural-*.npz"), key=lambda f: f.stat().st_mtime, reverse=True)
+    old = files[keep:] + [t for t in folder.glob(".tmp-*.npz") if time.time() - t.stat().st_mtime > 3600]
+    for f in old:
+        try:
+            f.unlink()
+        except OSError:
+            pass
+
+
+def _log():
+    import logging
+
+    return logging.getLogger("reings")
 
 # }}}
