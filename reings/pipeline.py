@@ -186,7 +186,7 @@ def load_run_scene(data, dataset=None, factor=8):
     procedural scene comes from the on-disk cache when it is there (`make_procedural_scene`)."""
     from .data.loader import canonical_kind, detect_format, load_scene
 
-    if canonical_kind(dataset) == "procedural" if dataset else (data is None or str(data) == "procedural"):
+    if (canonical_kind(dataset) == "procedural") if dataset else (data is None or str(data) == "procedural"):
         return load_scene(data, dataset, factor=factor, disk_cache=True)  # load_scene's rule for the built-in scene
     kind = canonical_kind(dataset) if dataset else detect_format(os.fspath(data))
     kw = {"load_points": False} if kind in ("llff", "llff_nex") else {}

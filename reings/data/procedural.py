@@ -14,9 +14,11 @@ from __future__ import annotations
 
 import operator
 import os
+from typing import NamedTuple
 
 import numpy as np
 
+from ..log import logger
 from ..types import Camera
 from .types import Scene
 
@@ -264,16 +266,17 @@ def make_procedural_scene(n_views: int = 24, width: int = 200, height: int = 150
     n_views, width, height, seed, supersample = (operator.index(v) for v in (n_views, width, height, seed,
                                                                               supersample))
     idx = tuple(range(n_views)) if views is None else _view_indices(views, n_views)
-    settings = (n_views, width, height, seed, max(1, supersample), float(arc_degrees), idx)
+    settings = _Settings(n_views, width, height, seed, max(1, supersample), float(arc_degrees), idx)
     arc = procedural_cameras(n_views, width, height, arc_degrees)
     cams = [arc[v] for v in idx]
     rendered = _MEMO.get(settings)
-    if rendered is None and disk_cache:
-        rendered = _load_cached(settings)
+    key = procedural_cache_key(settings) if rendered is None and disk_cache else None
+    if key is not None:
+        rendered = _load_cached(settings, key)
     if rendered is None:
         rendered = _render_views(settings, cams)
-        if disk_cache:
-            _store_cached(settings, rendered)
+        if key is not None:
+            _store_cached(key, rendered)
     _MEMO.pop(settings, None)
     _MEMO[settings] = rendered  # the most recently used last
     while len(_MEMO) > _MEMO_SIZE:
@@ -300,6 +303,17 @@ def _view_indices(views, n_views: int) -> tuple:
 
 # {{{ the scene's views, rendered or cached
 
+class _Settings(NamedTuple):
+    """What a scene's views depend on (the memo's key; hashed into the disk cache's)."""
+    n_views: int
+    width: int
+    height: int
+    seed: int
+    supersample: int
+    arc_degrees: float
+    views: tuple
+
+
 _MEMO: dict = {}  # settings -> (images, depths): read-only arrays, the most recently used last
 _MEMO_SIZE = 4
 _DISK_KEEP = 8  # cache files kept in the folder, the most recently used
@@ -308,13 +322,12 @@ PROCEDURAL_CACHE_VERSION = 1
 
 def _render_views(settings: tuple, cams) -> tuple:
     """(images, depths) of `make_procedural_scene`'s settings, ray traced; arrays read-only."""
-    seed, supersample = settings[3], settings[4]
-    rng = np.random.default_rng(seed)
+    rng = np.random.default_rng(settings.seed)
     layout = _layout(rng)
     noise = _Noise(rng)
     ims, deps = [], []
     for cam in cams:
-        rgb, dep = render_view(cam, layout, noise, supersample)
+        rgb, dep = render_view(cam, layout, noise, settings.supersample)
         rgb.flags.writeable = dep.flags.writeable = False
         ims.append(rgb)
         deps.append(dep)
@@ -331,7 +344,7 @@ def procedural_cache_key(settings: tuple) -> str:
 
     from .. import types
 
-    h = hashlib.sha256(f"procedural v{PROCEDURAL_CACHE_VERSION} {settings!r}".encode())
+    h = hashlib.sha256(f"procedural v{PROCEDURAL_CACHE_VERSION} {tuple(settings)!r}".encode())
     for mod in (__file__, types.__file__):
         with open(mod, "rb") as f:
             h.update(f.read())
@@ -354,29 +367,31 @@ def _numpy_fingerprint() -> str:
     return f"numpy {np.__version__} | {blas} | {' '.join(feats)}"
 
 
-def procedural_cache_path(settings: tuple):
+def procedural_cache_path(settings: tuple, key: str | None = None):
+    """The cache file of `settings` (`key`: its procedural_cache_key, when already computed)."""
     from ..io.files import cache_dir
 
-    return cache_dir("procedural") / f"procedural-{procedural_cache_key(settings)[:40]}.npz"
+    return cache_dir("procedural") / f"procedural-{(key or procedural_cache_key(settings))[:40]}.npz"
 
 
-def _load_cached(settings: tuple):
-    """The cached (images, depths) of `settings`, or None (missing, unreadable, another key, shape
-    or type: logged at debug level). A file read is marked as used (its mtime)."""
-    n, w, h = len(settings[6]), settings[1], settings[2]
-    p = procedural_cache_path(settings)
+def _load_cached(settings: _Settings, key: str):
+    """The cached (images, depths) of `settings` (whose cache key is `key`), or None (missing,
+    unreadable, another key, shape or type: logged at debug level). A file read is marked as used
+    (its mtime)."""
+    n, w, h = len(settings.views), settings.width, settings.height
+    p = procedural_cache_path(settings, key)
     if not p.is_file():
         return None
     try:
         with np.load(p, allow_pickle=False) as z:
-            key, ims, deps = str(z["key"]), z["images"], z["depths"]
-        ok = (key == procedural_cache_key(settings) and ims.shape == (n, h, w, 3) and deps.shape == (n, h, w)
+            stored, ims, deps = str(z["key"]), z["images"], z["depths"]
+        ok = (stored == key and ims.shape == (n, h, w, 3) and deps.shape == (n, h, w)
               and ims.dtype == np.float32 and deps.dtype == np.float32)
     except Exception as e:  # corrupt, truncated or foreign file: render again
-        _log().debug("procedural scene cache: %s unreadable (%s); rendering again", p, e)
+        logger.debug("procedural scene cache: %s unreadable (%s); rendering again", p, e)
         return None
     if not ok:
-        _log().debug("procedural scene cache: %s is another key, shape or type; rendering again", p)
+        logger.debug("procedural scene cache: %s is another key, shape or type; rendering again", p)
         return None
     try:
         os.utime(p)
@@ -386,21 +401,20 @@ def _load_cached(settings: tuple):
     return tuple(ims), tuple(deps)
 
 
-def _store_cached(settings: tuple, views) -> None:
-    """Write `views` under `settings`' key atomically, then keep the `_DISK_KEEP` most recently
+def _store_cached(key: str, views) -> None:
+    """Write `views` under the cache key `key` atomically, then keep the `_DISK_KEEP` most recently
     used files (and no temporary file of a write killed an hour or more ago); a refused write
     (read-only or full disk, a size limit) leaves no file and is ignored: the cache only saves time."""
     from ..io.files import atomic_write
 
     try:
-        p = procedural_cache_path(settings)
+        p = procedural_cache_path(None, key)
         p.parent.mkdir(parents=True, exist_ok=True)
         with atomic_write(p, binary=True) as f:
-            np.savez(f, key=np.array(procedural_cache_key(settings)), images=np.stack(views[0]),
-                     depths=np.stack(views[1]))
+            np.savez(f, key=np.array(key), images=np.stack(views[0]), depths=np.stack(views[1]))
         _prune(p.parent, keep=_DISK_KEEP)
     except OSError as e:
-        _log().debug("procedural scene cache: not written (%s)", e)
+        logger.debug("procedural scene cache: not written (%s)", e)
 
 
 def _prune(folder, keep: int) -> None:
@@ -414,10 +428,5 @@ def _prune(folder, keep: int) -> None:
         except OSError:
             pass
 
-
-def _log():
-    import logging
-
-    return logging.getLogger("reings")
 
 # }}}
