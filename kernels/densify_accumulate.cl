@@ -6,7 +6,9 @@
    accum += |(v_u W/2, v_v H/2)|, count += 1, max_radii = max(max_radii, radius).
 
    Kernels
-     densify_accumulate   one work-item per Gaussian.
+     densify_accumulate   one work-item per Gaussian: densify.h's densify_accumulate_one (which
+                          project_bwd also runs, with stats = 1: the device trainer's
+                          backward(stats=True); this kernel serves `accumulate`).
 
    Defines
      DENSIFY_FP64   1: the norm in double (as numpy); 0 (default): in float.
@@ -14,33 +16,18 @@
 */
 #pragma OPENCL FP_CONTRACT OFF
 
-#ifndef DENSIFY_FP64
-#define DENSIFY_FP64 0
-#endif
-#if DENSIFY_FP64
-#pragma OPENCL EXTENSION cl_khr_fp64 : enable
-typedef double real;
-#else
-typedef float real;
-#endif
-
 #define V_PROJ 10             /* record width of v_proj (project.cl, base.V_RECORD) */
+#include "densify.h"
 
 __kernel void densify_accumulate(const int n,
                                  __global const int *radii,      /* [N] from project_fwd */
                                  __global const float *v_proj,   /* [N, V_PROJ] (culled rows unread) */
-                                 const real half_w, const real half_h,
+                                 const dens_real half_w, const dens_real half_h,
                                  __global float *accum,          /* [N] += */
                                  __global int *count,            /* [N] += */
                                  __global float *max_radii)      /* [N] max= */
 {
     const int i = get_global_id(0);
     if (!(i < n)) return;
-    const int r = radii[i];
-    if (!(r > 0)) return;
-    const real x = (real)v_proj[(size_t)i * V_PROJ] * half_w;
-    const real y = (real)v_proj[(size_t)i * V_PROJ + 1] * half_h;
-    accum[i] = accum[i] + (float)hypot(x, y);
-    count[i] = count[i] + 1;
-    max_radii[i] = fmax(max_radii[i], (float)r);
+    densify_accumulate_one(i, radii, v_proj, half_w, half_h, accum, count, max_radii);
 }

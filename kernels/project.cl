@@ -30,10 +30,14 @@
                    back to the raw fields (true derivative of project_fwd, clamps included). With
                    grad_acc 1 it adds the gradients of the fields in grad_mask into its outputs and
                    leaves the other fields alone (GRAD_F: a second backward into held gradients,
-                   the device trainer's `backward(into=)`, with no separate add).
+                   the device trainer's `backward(into=)`, with no separate add). With stats 1
+                   it also adds each Gaussian's densification statistics (densify.h, the same
+                   bits as densify_accumulate.cl: the photometric backward's, one launch fewer).
 
    Defines
      SH_K          number of SH coefficients per channel (1, 4, 9 or 16); default 1.
+     DENSIFY_FP64  project_bwd's statistics in double (densify.h; the host sets it where the device
+                   has cl_khr_fp64, as for densify_accumulate.cl).
      PROJ_VW       Gaussians per work-item, 1 or 8 (default 1). 8 on CPU devices (PoCL): the math
                    runs on float8 lanes (AVX2 through PoCL's vector builtins, ~8x the scalar code,
                    which PoCL 3.0 does not vectorize across work-items); 1 on GPUs. The code is
@@ -75,6 +79,7 @@
    [19] near, [20] lim_x_pos, [21] lim_x_neg, [22] lim_y_pos, [23] lim_y_neg */
 #define CAM_RECORD 24
 #define V_PROJ 10 /* v record: v_mean2d xy, v_conic ABC, v_colour rgb, v_opacity, v_depth */
+#include "densify.h" /* project_bwd with stats = 1: the densification statistics */
 
 #define SH_C0 0.28209479177387814f
 #define SH_C1 0.4886025119029199f
@@ -821,7 +826,12 @@ __kernel PROJ_ATTR void project_bwd(const int n,
                           __global float *v_quats,              /* [N, 4] */
                           __global float *v_log_scales,         /* [N, 3] */
                           __global float *v_opacity_logits,     /* [N] */
-                          __global float *v_sh) {
+                          __global float *v_sh,
+                          const int stats,                      /* 1: densify_accumulate_one per Gaussian */
+                          const dens_real half_w, const dens_real half_h, /* (W/2, H/2), stats only */
+                          __global float *accum,                /* [N] += (stats only) */
+                          __global int *count,                  /* [N] += (stats only) */
+                          __global float *max_radii) {          /* [N] max= (stats only) */
     const sh_in_t sh = SH_IN_OF_ARGS;
 #if PROJ_SH_STAGE
     __local float sh_rows[PROJ_WG * SH_LSTRIDE];
@@ -834,4 +844,9 @@ __kernel PROJ_ATTR void project_bwd(const int n,
     project_bwd_one(n, means, quats, log_scales, opacity_logits, sh, cam, width, height, opacity_override, drop_scale,
                     grad_mask, grad_acc, radii, v_proj, v_means, v_quats, v_log_scales, v_opacity_logits, v_sh);
 #endif
+    if (stats) { /* the densification statistics of this work-item's Gaussians (densify.h) */
+        const int g0 = (int)get_global_id(0) * PROJ_VW;
+        for (int l = 0; l < PROJ_VW; ++l)
+            if (g0 + l < n) densify_accumulate_one(g0 + l, radii, v_proj, half_w, half_h, accum, count, max_radii);
+    }
 }

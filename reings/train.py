@@ -713,13 +713,12 @@ class _Iteration:
         vd_soft = None
         if soft:  # the soft term's cotangent first: the photometric backward may make its records (below)
             vd_soft, _ = self.depth_cotangent(it, fr, vi, False)
-        with ph("photo_backward"):  # held (soft / warp): written where the later backwards add into
-            gr = tr.backward(fr, v_rgb, v_depth, v_depth_opacity=vd_soft, hold=soft or warp)
+        with ph("photo_backward"):  # held (soft / warp): written where the later backwards add into;
+            # the densification statistics from this backward's screen gradients (stats)
+            gr = tr.backward(fr, v_rgb, v_depth, v_depth_opacity=vd_soft, hold=soft or warp, stats=True)
         with ph("regularize"):
             if self.reg_on:  # logging: the penalties' value at the parameters before the step, too
                 tr.regularize(gr, L.shape_pena, L.scale_pena, L.opa_pena, value=log)
-        with ph("accumulate"):
-            tr.accumulate(fr)
         if soft:  # the frame's depth is this render's; the statistics above came from the photometric backward
             with ph("soft_backward"):  # on the device engine: the records announced above, reduced
                 tr.backward(fr, None, vd_soft, None, ("opacity_logits",), into=gr)

@@ -353,3 +353,50 @@ def test_opacity_only_backward_is_wired(device, case):
     np.testing.assert_array_equal(only[:, 8].view(np.uint32), full[:, 8].view(np.uint32))
     assert not np.delete(only, 8, axis=1).any()
     np.testing.assert_array_equal(two.view(np.uint32), full.view(np.uint32))
+
+
+@pytest.mark.parametrize("vw", [1, 8])
+def test_backward_stats_adds_what_accumulate_adds(device, case, vw):
+    """backward(stats=True) (project_bwd adds the densification statistics, densify.h) leaves the same
+    statistics, bit for bit, as backward() then accumulate(fr) (densify_accumulate.cl), and the same
+    gradients: a plain, a held and an into backward, two views, at SH 4 (PROJ_SH_STAGE with one Gaussian
+    per work-item) and with eight per work-item (the CPU layout). An opacity-only backward refuses it."""
+    from reings import densify as D
+    from reings.state import TrainState
+
+    scene, init, _ = case
+    be = get_backend(device)
+    old_vw, be.proj_vw = be.proj_vw, vw
+    try:
+        states, grads = [], []
+        for fused in (False, True):
+            st = TrainState.from_gaussians(init)
+            st.params["sh_rest"] = np.random.default_rng(5).normal(0, 0.1, (len(st), 3, 3)).astype(np.float32)
+            tr = be.trainer(list(scene.images), engine="device")
+            tr.upload(st)
+            got = []
+            for view, kw in ((0, {}), (1, {"hold": True}), (2, None)):
+                fr = tr.forward(scene.cameras[view], 4, (0.0, 0.0, 0.0), 0.01)
+                v_rgb = tr.photometric(fr, view, 0.8, 0.2)
+                if kw is None:  # into the held gradients of the previous backward
+                    g = tr.backward(fr, v_rgb, None, into=held, stats=fused)
+                else:
+                    g = tr.backward(fr, v_rgb, None, stats=fused, **kw)
+                    held = g
+                if not fused:
+                    tr.accumulate(fr)
+                got.append(be._read(g["means"], (tr.n, 3), np.float32))
+                be._finish()
+            with pytest.raises(ValueError, match="opacity-only"):
+                tr.backward(fr, v_rgb, None, None, ("opacity_logits",), stats=True)
+            out = TrainState.from_gaussians(init)
+            tr.download(out)
+            states.append(out.stats)
+            grads.append(got)
+        for k in (D.ACCUM, D.COUNT, D.RADII):
+            np.testing.assert_array_equal(states[1][k], states[0][k], err_msg=k)
+        assert states[0][D.COUNT].max() == 3 and states[0][D.ACCUM].max() > 0
+        for a, b in zip(*grads):
+            np.testing.assert_array_equal(a, b)
+    finally:
+        be.proj_vw = old_vw

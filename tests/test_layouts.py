@@ -200,6 +200,7 @@ CONSTANTS = [
     ("common.h", "V_RECORD", "V_RECORD", None, "floats per gradient record"),
     ("project.cl", "V_PROJ", "V_RECORD", None, "width of the v_proj record project_bwd reads"),
     ("densify_accumulate.cl", "V_PROJ", "V_RECORD", None, "width of the v_proj record densify_accumulate.cl reads"),
+    ("densify.h", "V_PROJ", "V_RECORD", None, "width of the v_proj record densify.h reads (unless its includer set it)"),
     ("project.cl", "PROJ_EPS2D", "EPS2D", None, "projection's dilation"),
     ("project.cl", "CAM_RECORD", "CAM_RECORD", None, "floats per camera record"),
     ("project.cl", "DEPTH_KEY_CULLED", "DEPTH_KEY_CULLED", None, "sort key of a culled Gaussian"),
@@ -396,12 +397,16 @@ def test_rasterize_bwd_writes_the_record_in_comment_order():
 
 
 def test_densify_accumulate_reads_means2d_gradient_from_the_record():
-    """densify_accumulate.cl's densification statistic reads v_proj[i*V_PROJ + 0 / + 1] as the 2D mean gradient."""
-    src = _strip_comments(c_text("densify_accumulate.cl"))
+    """The densification statistic (densify.h, run by densify_accumulate.cl and by project_bwd with stats)
+    reads v_proj[i*V_PROJ + 0 / + 1] as the 2D mean gradient; both kernel files take it from there."""
+    src = _strip_comments(c_text("densify.h"))
     offs = [int(o or 0) for o in re.findall(r"v_proj\[\(size_t\)i \* V_PROJ(?: \+ (\d+))?\]", src)]
-    assert offs, "densify_accumulate.cl: no v_proj[(size_t)i * V_PROJ + k] reads"
+    assert offs, "densify.h: no v_proj[(size_t)i * V_PROJ + k] reads"
     a, b = _field_slices()["v_means2d"]
-    assert sorted(offs) == list(range(a, b)), f"densify_accumulate.cl reads offsets {offs}, v_means2d is [{a}, {b})"
+    assert sorted(offs) == list(range(a, b)), f"densify.h reads offsets {offs}, v_means2d is [{a}, {b})"
+    for name in ("densify_accumulate.cl", "project.cl"):
+        text = _strip_comments(c_text(name))
+        assert '#include "densify.h"' in text and "densify_accumulate_one(" in text, name
 
 
 def _slice_of(node) -> tuple[int, int] | None:

@@ -281,7 +281,8 @@ class Trainer(Protocol):
 
     def backward(self, frame: Frame, v_rgb: Any = None, v_depth: Any = None,
                  opacity_override: float | None = None, grad_fields: Sequence[str] | None = None,
-                 into: Any = None, v_alpha: Any = None, v_depth_opacity: Any = None, hold: bool = False) -> Any:
+                 into: Any = None, v_alpha: Any = None, v_depth_opacity: Any = None, hold: bool = False,
+                 stats: bool = False) -> Any:
         """The VJP of the frame's render (with the DropGaussian mask its `forward` had, if any)
         for the cotangents v_rgb / v_depth (from the loss methods; None: zero) and the frame's
         `opacity_override`, restricted to `grad_fields` (None: every field). Returns the
@@ -296,7 +297,10 @@ class Trainer(Protocol):
         pass (the device engine does, with the same bits: docs/perf_notes.md §13) or ignore it. It
         changes nothing in this call's result. hold (without `into`): return the gradients as `hold`
         would (a handle that survives the next backward, until the next `hold` or backward with hold,
-        which reuse it); the device engine writes them there directly, with no copy."""
+        which reuse it); the device engine writes them there directly, with no copy. stats: also add
+        this backward's densification statistics, as `accumulate(frame)` right after it would (a
+        photometric backward of every field); the device engine adds them in its projection's
+        backward, with no launch of their own."""
 
     def upload_bg_masks(self, masks: Sequence) -> None:
         """The training views' background masks ([H,W] bool each, or None), once per fit
@@ -391,7 +395,7 @@ class Trainer(Protocol):
     def accumulate(self, frame: Frame) -> None:
         """Add the densification statistics of the frame's last backward (a photometric one, every
         field) to the held statistics: reference_state.densify_accumulate of ndc_grad_norm
-        (kernels/densify_accumulate.cl)."""
+        (kernels/densify_accumulate.cl). The fit loop asks `backward(..., stats=True)` instead."""
 
     def adam_step(self, opt: Any, grads: Any, groups: Iterable[str]) -> None:
         """One Adam step of each parameter group in `groups` with `grads`, using `opt`'s learning

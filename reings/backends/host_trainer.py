@@ -180,12 +180,12 @@ class HostTrainer(HeldRows):
 
     def backward(self, fr: HostFrame, v_rgb=None, v_depth=None, opacity_override: float | None = None,
                  grad_fields=None, into: dict | None = None, v_alpha=None, v_depth_opacity=None,
-                 hold: bool = False) -> dict:
+                 hold: bool = False, stats: bool = False) -> dict:
         """Trainer.backward: backend.render_vjp of the frame's Gaussians; returns {group: gradient}
         for the groups of `grad_fields` (SH gradients of inactive coefficients zero), or adds them
         into `into` (reference_state.grad_add) and returns it. The frame's DropGaussian mask
         applies. v_depth_opacity is ignored (the next backward computes its own pass). hold: the
-        result as `hold` returns it (copies)."""
+        result as `hold` returns it (copies). stats: `accumulate(fr)` once the backward is done."""
         del v_depth_opacity
         if v_rgb is None:
             key = (fr.height, fr.width)
@@ -205,10 +205,12 @@ class HostTrainer(HeldRows):
             sh[:, : vg.sh.shape[1]] = vg.sh
             out["sh_dc"], out["sh_rest"] = sh[:, :1], sh[:, 1:]
         res = {k: out[k] for k in groups}
+        if into is not None and not set(res) <= set(into):
+            raise ValueError(f"backward into: held groups {sorted(into)} lack {sorted(set(res) - set(into))}")
+        if stats:
+            self.accumulate(fr)
         if into is None:
             return self.hold(res) if hold else res
-        if not set(res) <= set(into):
-            raise ValueError(f"backward into: held groups {sorted(into)} lack {sorted(set(res) - set(into))}")
         for k, g in res.items():
             grad_add(into[k], g)
         return into

@@ -198,6 +198,11 @@ class _Frame:
         return c.get() if isinstance(c, DeviceCounts) else c
 
 
+# project_fwd's per-Gaussian outputs (name, bytes per row): OpenCLBackend._proj_buffers
+_PROJ_BUFFERS = (("means2d", 8), ("conics", 12), ("depths", 4), ("radii", 4), ("tile_rect", 16), ("colors", 12),
+                 ("opacities", 4), ("depth_keys", 4), ("gid_vals", 4))
+
+
 @dataclass
 class _Slot:
     """The buffers of one frame slot (module docstring): the scratch names, the tile sorter (a
@@ -209,6 +214,7 @@ class _Slot:
     raster: Any = None  # Rasterizer, built on first use (OpenCLBackend._raster)
     isects: deque = field(default_factory=lambda: deque(maxlen=ISECT_HISTORY))  # its last known K's
     frame: Any = None  # the last frame made in this slot (_new_frame)
+    proj: Any = None  # (n, the scratch's allocation count, the projection's buffers): _proj_buffers
 
 
 def opacity_only_fields(grad_fields) -> bool:
@@ -255,6 +261,7 @@ class OpenCLBackend:
             raise ValueError(f"REINGS_PROJ_STAGE must be 0 or 1, got {stage!r}")
         self.proj_stage = not self.cpu if stage == "" else stage == "1"
         self.local_mem = int(self.handle.device.local_mem_size)
+        self.fp64 = "cl_khr_fp64" in self.handle.device.extensions  # project_bwd's statistics (densify.h)
         self._kernels: dict = {}
         self._frame: _Frame | None = None
         self._keep: list = []  # host arrays referenced by non-blocking copies still in flight
@@ -263,6 +270,8 @@ class OpenCLBackend:
         self._ring: CountsRing | None = None  # the sync-free binning's pinned count words, on first use
         self.binned = {"sync": 0, "async": 0}  # forwards binned in each mode
         self._events: list = []  # (stage, event) of the current call
+        self._sizes: dict = {}  # id(buffer) -> (buffer, bytes): _nbytes
+        self._sizes_gen = -1  # the scratch's allocation count they were taken at
         self.last_profile: dict[str, float] = {}
         self._last_counts: Any = None  # the last forward's (visible, K) or DeviceCounts (last_stats)
         self.last_screen = None  # Backend.last_screen: (v_means2d, radii) of the last full render_vjp
@@ -290,7 +299,8 @@ class OpenCLBackend:
     # plumbing
     # ------------------------------------------------------------------------------------------
     def kernel(self, filename: str, name: str, **defines):
-        key = (filename, name, tuple(sorted(defines.items())))
+        # sorted only when there is an order to lose (a launch's host time: docs/perf_notes.md §25)
+        key = (filename, name, tuple(sorted(defines.items())) if len(defines) > 1 else tuple(defines.items()))
         k = self._kernels.get(key)
         if k is None:
             k = self._kernels[key] = self.lib.get(filename, name, **defines)
@@ -310,10 +320,25 @@ class OpenCLBackend:
             typed_invoker(k, args)
         return k(self.queue, (gsize,), (wg,), *args)
 
+    def _nbytes(self, buf) -> int:
+        """buf.size (a driver query through pyopencl, ~1 us), remembered per buffer object while it
+        is held here (so that its id cannot pass to another); forgotten, and the buffers let go,
+        whenever the scratch allocates (a replaced buffer is not kept alive) or 16 are held."""
+        gen = self.scratch.allocations
+        if gen != self._sizes_gen or len(self._sizes) >= 16:
+            self._sizes, self._sizes_gen = {}, gen
+        e = self._sizes.get(id(buf))
+        if e is not None and e[0] is buf:
+            return e[1]
+        size = int(buf.size)
+        self._sizes[id(buf)] = (buf, size)
+        return size
+
     def _mark(self, stage: str, ev, span: bool = False):
         """Record the last event of a stage. span=True: the stage enqueued several commands and only
-        the last event is known, so its time is measured from the end of the previous stage."""
-        if ev is not None:
+        the last event is known, so its time is measured from the end of the previous stage. Nothing
+        is recorded on a queue without profiling timestamps (there is nothing to read from them)."""
+        if ev is not None and self.handle.profiling:
             self._events.append((stage, ev, span))
 
     def pending_events(self) -> list:
@@ -400,20 +425,11 @@ class OpenCLBackend:
                         drop: Drop | None = None) -> None:
         if drop is not None and override is not None:
             raise ValueError("project_fwd: a DropGaussian mask is never combined with an opacity override")
-        n, s = fr.n, self._slot(fr.slot).mem
+        n = fr.n
         fr.drop = drop
         b = fr.bufs
         b["cam"] = self._camera_buffer(cam, near)
-        b["means2d"] = s.get("gauss", "means2d", n, 8)
-        b["conics"] = s.get("gauss", "conics", n, 12)
-        b["depths"] = s.get("gauss", "depths", n, 4)
-        b["radii"] = s.get("gauss", "radii", n, 4)
-        b["tile_rect"] = s.get("gauss", "tile_rect", n, 16)
-        b["colors"] = s.get("gauss", "colors", n, 12)
-        b["opacities"] = s.get("gauss", "opacities", n, 4)
-        b["depth_keys"] = s.get("gauss", "depth_keys", n, 4)
-        b["gid_vals"] = s.get("gauss", "gid_vals", n, 4)
-        b["ctrl"] = s.get("small", "ctrl", CTRL_WORDS, 4)  # the binning's words (project_fwd zeroes ctrl[2])
+        b.update(self._proj_buffers(self._slot(fr.slot), n))
         k = self.kernel("project.cl", "project_fwd", **self._proj_defines(fr.sh_k))
         ov = _F32(override if override is not None else 0.0)
         ev = self.launch(k, -(-n // self.proj_vw), _I32(n), inp["means"], inp["quats"], inp["log_scales"],
@@ -423,6 +439,18 @@ class OpenCLBackend:
                           self._raster(fr).packed_for(n), wg=self.proj_wg)
         fr.packed = True  # the rasterizer's records too: _raster_fwd launches no rasterize_prep
         self._mark("project_fwd", ev)
+
+    def _proj_buffers(self, sl: _Slot, n: int) -> dict:
+        """project_fwd's output buffers of n Gaussians in slot `sl` (_PROJ_BUFFERS, and the binning's
+        control words: project_fwd zeroes ctrl[2]), looked up in the scratch once per n and kept until
+        the scratch allocates again (a buffer found stays the one of its name until then)."""
+        s = sl.mem
+        c = sl.proj
+        if c is None or c[0] != n or c[1] != s.allocations:
+            bufs = {name: s.get("gauss", name, n, row) for name, row in _PROJ_BUFFERS}
+            bufs["ctrl"] = s.get("small", "ctrl", CTRL_WORDS, 4)
+            c = sl.proj = (n, s.allocations, bufs)
+        return c[2]
 
     def _camera_buffer(self, cam: Camera, near: float):
         """The camera record of (cam, near) in its own read-only buffer, made once per distinct
@@ -579,10 +607,9 @@ class OpenCLBackend:
         r, b = self._raster(fr), fr.bufs
         ev = r.fwd(b["means2d"], b["conics"], b["colors"], b["opacities"], b["depths"], fr.n, b["tile_ranges"],
                    b["gid_from_isect"], b["emit_from_isect"], fr.cap, fr.width, fr.height,
-                   tuple(float(x) for x in background), importance=want_importance, prepared=fr.packed)
+                   background, importance=want_importance, prepared=fr.packed)
         self._mark("rasterize_fwd", ev, span=True)
-        b["out_rgb"], b["out_depth"], b["out_alpha"] = r.rgb, r.depth, r.alpha
-        b["out_T"], b["out_last"] = r.final_T, r.last
+        b["out_rgb"], b["out_depth"], b["out_alpha"], b["out_T"], b["out_last"] = r.pixel_buffers()
         if want_importance:
             imp = b["importance"] = self._slot(fr.slot).mem.get("gauss", "importance", fr.n, 4)
             if fr.n:  # culled rows are not written by the reduce: zero them all first
@@ -666,7 +693,8 @@ class OpenCLBackend:
 
     def backward_device(self, fr: _Frame, v_rgb=None, v_depth=None, v_alpha=None,
                         opacity_override: float | None = None, grad_fields: Sequence[str] | None = None,
-                        v_depth_opacity=None, out: dict | None = None, accumulate: bool = False) -> dict:
+                        v_depth_opacity=None, out: dict | None = None, accumulate: bool = False,
+                        stats: tuple | None = None) -> dict:
         """`render_vjp`'s backward for a frame of `forward_device`, with the cotangent images as
         device buffers ([H,W,3], [H,W], [H,W]; None = zero). Returns the gradient buffers
         {field: buffer} ([N,3], [N,4], [N,3], [N], [N,sh_k,3]; fields outside `grad_fields` are
@@ -686,16 +714,23 @@ class OpenCLBackend:
         the gradients into instead of this backend's own buffers (returned, then: the device trainer's
         held gradients, so that the next backward leaves them alone with no copy). accumulate (with out):
         the gradients of the `grad_fields` are added into `out` (one float32 add per element, as
-        reference_state.grad_add) and its other fields are left as they are."""
+        reference_state.grad_add) and its other fields are left as they are.
+
+        stats: None, or the densification statistics' buffers (accum [N] float32, count [N] int32,
+        max_radii [N] float32) that this backward's screen-space gradients are added to, in
+        project_bwd (densify.h: what kernels/densify_accumulate.cl adds, the same bits, with no
+        launch of its own); not with an opacity-only backward (its records carry no mean gradient)."""
         if self._slot(fr.slot).frame is not fr:
             raise RuntimeError(f"backward_device: a later forward replaced the frame (slot {fr.slot})")
         if accumulate and out is None:
             raise ValueError("backward_device: accumulate needs the buffers to add into (out=)")
         if out is not None:  # before anything is enqueued or announced
-            short = [f for f, cols in grad_columns(fr.sh_k).items() if f not in out or out[f].size < 4 * cols * fr.n]
+            short = [f for f, cols in grad_columns(fr.sh_k).items() if f not in out or self._nbytes(out[f]) < 4 * cols * fr.n]
             if short:
                 raise ValueError(f"backward_device: out= lacks room for {short} ({fr.n} rows, SH count {fr.sh_k})")
         only = opacity_only_fields(grad_fields)
+        if stats is not None and only:
+            raise ValueError("backward_device: stats= needs a backward of the mean gradients, not an opacity-only one")
         held, self._pending_o = self._pending_o, None
         if (held is not None and held[0] is fr and held[1] is v_depth and v_depth is not None and v_rgb is None
                 and v_alpha is None and only):
@@ -706,7 +741,7 @@ class OpenCLBackend:
         self._raster_bwd_buffers(fr, v_rgb, v_depth, v_alpha, only, v_depth_opacity if fuse else None)
         if fuse:
             self._pending_o = (fr, v_depth_opacity)
-        return self._project_bwd_device(fr, opacity_override, grad_fields, out, accumulate)
+        return self._project_bwd_device(fr, opacity_override, grad_fields, out, accumulate, stats)
 
     # ------------------------------------------------------------------------------------------
     # training: the trainer factory and the loss kernels (reings/backends/opencl/losses.py)
@@ -875,20 +910,32 @@ class OpenCLBackend:
         self._last_counts = fr.counts
         return Gaussians(**res)
 
+    def _stats_args(self, fr: _Frame, stats: tuple | None) -> tuple:
+        """project_bwd's last arguments: (stats flag, W/2, H/2 in densify.h's type, accum, count,
+        max_radii); without stats the flag is 0 and the radii buffer stands in (never accessed)."""
+        real = np.float64 if self.fp64 else _F32
+        if stats is None:
+            r = fr.bufs["radii"]
+            return _I32(0), real(0), real(0), r, r, r
+        return (_I32(1), real(0.5 * fr.width), real(0.5 * fr.height), *stats)
+
     def _proj_defines(self, sh_k: int) -> dict:
         """project.cl's build defines at sh_k coefficients: the GPU schedule stages SH rows through
         local memory when there is more than one coefficient (PROJ_SH_STAGE, a work-group of
         proj_wg Gaussians; the same bits; docs/perf_notes.md §15), unless REINGS_PROJ_STAGE=0 or
-        the device's local memory is too small."""
-        d = dict(SH_K=sh_k, PROJ_VW=self.proj_vw)
+        the device's local memory is too small. DENSIFY_FP64: project_bwd's densification statistics
+        in double where the device has it (as the device trainer builds densify_accumulate.cl)."""
+        d = dict(SH_K=sh_k, PROJ_VW=self.proj_vw, DENSIFY_FP64=int(self.fp64))
         if self.proj_stage and self.proj_vw == 1 and sh_k > 1 and self.proj_wg * ((3 * sh_k) | 1) * 4 <= self.local_mem:
             d.update(PROJ_SH_STAGE=1, PROJ_WG=self.proj_wg)
         return d
 
     def _project_bwd_device(self, fr: _Frame, override, grad_fields, out: dict | None = None,
-                            accumulate: bool = False) -> dict:
+                            accumulate: bool = False, stats: tuple | None = None) -> dict:
         """project_bwd into `out` (default: this backend's gradient buffers); accumulate: added into
-        `out`'s rows, the fields outside `grad_fields` left untouched (project.cl GRAD_F)."""
+        `out`'s rows, the fields outside `grad_fields` left untouched (project.cl GRAD_F); stats:
+        (accum, count, max_radii) buffers the densification statistics are added to (densify.h;
+        otherwise the radii buffer stands in for them, never touched)."""
         n, s, b = fr.n, self.scratch, fr.bufs
         mask = 0
         for f in (FIELDS if grad_fields is None else grad_fields):
@@ -902,7 +949,7 @@ class OpenCLBackend:
                           *_sh_args(inp, fr.sh_k), b["cam"], _I32(fr.width), _I32(fr.height), ov, drop_args(fr.drop)[2],
                           _I32(mask), _I32(1 if accumulate else 0), b["radii"],
                           b["v_proj"], out["means"], out["quats"], out["log_scales"], out["opacity_logits"],
-                          out["sh"], wg=self.proj_wg)
+                          out["sh"], *self._stats_args(fr, stats), wg=self.proj_wg)
         self._mark("project_bwd", ev)
         return out
 

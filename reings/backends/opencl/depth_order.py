@@ -105,7 +105,7 @@ class DepthOrders:
         for a sort of n pairs: buffers of n pairs, the tag cleared (the caller tags it once its
         sort is enqueued), the generation bumped (frames bound to its earlier contents, none of
         them live, can no longer be backpropagated)."""
-        free = [o for o in self.orders if all(o is not h for h in held)]
+        free = [o for o in self.orders if not any(o is h for h in held)] if held else list(self.orders)
         if not free:  # cannot happen with ORDERS >= the frame slots (module docstring)
             raise RuntimeError(f"depth orders: all {len(self.orders)} are held by live frames")
         o = min(free, key=lambda o: o.used)

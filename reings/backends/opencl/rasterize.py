@@ -72,6 +72,9 @@ def _nd(n: int, local: int) -> int:
     return max(local, (n + local - 1) // local * local)
 
 
+_PIXELS = (("rgb", 3), ("depth", 1), ("alpha", 1), ("final_T", 1), ("last", 1))  # Rasterizer.pixel_buffers
+
+
 class Rasterizer:
     """The rasterizer kernels of one device. `cpu_schedule` overrides REINGS_CPU_SCHEDULE (tests run
     both schedules on PoCL); extra `defines` (e.g. RASTER_VEC=16, BWD_BATCH=64) go to every build;
@@ -112,30 +115,39 @@ class Rasterizer:
         self.local = 1 if self.cpu_schedule else TILE_PIXELS
         self._dummy = self.scratch.get("small", "raster_dummy", 16, 4)
         self.n = self.n_isect = self.width = self.height = 0
+        self._pix_cache = None  # (width * height, the scratch's allocation count, the buffers): pixel_buffers
 
     # -- buffers ----------------------------------------------------------------------------
-    def _pix(self, name: str, ch: int = 1):
-        return self.scratch.get("pixel", f"raster_{name}", self.width * self.height, 4 * ch)
+    def pixel_buffers(self) -> tuple:
+        """The output images' buffers (rgb, depth, alpha, final_T, last) at the current size, looked
+        up in the scratch once per size and kept until the scratch allocates again (a buffer found
+        stays the one of its name until then; a launch's host time: docs/perf_notes.md §25)."""
+        hw = self.width * self.height
+        c = self._pix_cache
+        if c is None or c[0] != hw or c[1] != self.scratch.allocations:
+            bufs = tuple(self.scratch.get("pixel", "raster_" + name, hw, 4 * ch) for name, ch in _PIXELS)
+            c = self._pix_cache = (hw, self.scratch.allocations, bufs)
+        return c[2]
 
     @property
     def rgb(self):
-        return self._pix("rgb", 3)
+        return self.pixel_buffers()[0]
 
     @property
     def depth(self):
-        return self._pix("depth")
+        return self.pixel_buffers()[1]
 
     @property
     def alpha(self):
-        return self._pix("alpha")
+        return self.pixel_buffers()[2]
 
     @property
     def final_T(self):
-        return self._pix("final_T")
+        return self.pixel_buffers()[3]
 
     @property
     def last(self):
-        return self._pix("last")
+        return self.pixel_buffers()[4]
 
     @property
     def packed(self):
@@ -213,7 +225,7 @@ class Rasterizer:
         imp = self.imp_emit if importance else self._dummy
         return k(self.queue, *self._range(width, height), self.packed, tile_ranges,
                  gid, emit, np.int32(width), np.int32(height), np.int32(tiles_x), np.int32(n_tiles),
-                 *bg, self.rgb, self.depth, self.alpha, self.final_T, self.last, imp, wait_for=wait_for)
+                 *bg, *self.pixel_buffers(), imp, wait_for=wait_for)
 
     def _bwd_kernel(self, opacity_only: bool, depth_o: bool = False):
         """The rasterize_bwd build: the full one, RASTER_BWD_OPACITY or RASTER_BWD_DEPTH_O (built on first use)."""
@@ -236,7 +248,11 @@ class Rasterizer:
             raise ValueError("Rasterizer.bwd: image size differs from the last fwd; pass fwd_out")
         self.n_isect = int(n_isect)
         tiles_x, n_tiles = self._tiles(width, height)
-        rgb, depth, final_T, last, packed = fwd_out or (self.rgb, self.depth, self.final_T, self.last, self.packed)
+        if fwd_out is None:
+            rgb, depth, _, final_T, last = self.pixel_buffers()
+            packed = self.packed
+        else:
+            rgb, depth, final_T, last, packed = fwd_out
         mask = (1 if v_rgb is not None else 0) | (2 if v_depth is not None else 0) | (4 if v_alpha is not None else 0)
         d = self._dummy
         gid = gid_from_isect if self.n_isect else d

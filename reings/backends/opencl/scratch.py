@@ -146,3 +146,8 @@ class SuffixedScratch:
 
     def get(self, space: str, name: str, rows: int, row_bytes: int):
         return self.base.get(space, name + self.suffix, rows, row_bytes)
+
+    @property
+    def allocations(self) -> int:
+        """The base scratch's allocation count (a lookup kept while it is unchanged is still valid)."""
+        return self.base.allocations

@@ -138,9 +138,22 @@ def _cpu_schedule(handle, cpu_schedule):
     return bool(cpu_schedule)
 
 
+_UNITS: dict = {}  # device -> CL_DEVICE_MAX_COMPUTE_UNITS (a driver query per call otherwise)
+
+
+def _compute_units(device) -> int:
+    try:
+        return _UNITS[device]
+    except KeyError:
+        u = _UNITS[device] = max(1, int(device.max_compute_units))
+        return u
+    except TypeError:  # an unhashable stand-in (tests)
+        return max(1, int(device.max_compute_units))
+
+
 def _blocks_cpu(handle, n: int, min_chunk: int, per_core: int) -> tuple[int, int]:
     """(nblocks, chunk) for the CPU schedule: about per_core blocks per core, each >= min_chunk."""
-    cores = max(1, int(handle.device.max_compute_units))
+    cores = _compute_units(handle.device)
     nblocks = max(1, min(cores * per_core, -(-n // min_chunk)))
     chunk = -(-n // nblocks)
     nblocks = -(-n // chunk)  # drop trailing empty blocks
@@ -533,7 +546,7 @@ class RadixSort:
         at most `capacity` pairs, launched for `estimate` of them (module docstring); items None:
         `launch_items(estimate, device_count=True)`, as sort_pairs chooses them."""
         if self.cpu:
-            nblocks = max(1, int(self.handle.device.max_compute_units)) * self.per_core
+            nblocks = _compute_units(self.handle.device) * self.per_core
             return nblocks, nblocks
         block = self.wg * (items or self.launch_items(estimate, device_count=True))
         cap_blocks = max(1, -(-capacity // block))
@@ -588,7 +601,7 @@ class RadixSort:
         else:
             nblocks, hist_blocks = self.device_geometry(n, est, items)
             chunk, (counts, count_at) = 0, (count[0], np.int32(count[1]))
-        maxbins = 1 << max(w for _, w in passes)
+        maxbins = 1 << max([w for _, w in passes])
         kt = self._keys_tmp.get(n * ksize)
         vt = self._vals_tmp.get(n * 4)
         hist = self._hist.get(4 * maxbins * hist_blocks)

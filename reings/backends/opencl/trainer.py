@@ -654,7 +654,7 @@ class DeviceTrainer:
 
     def backward(self, fr, v_rgb=None, v_depth=None, opacity_override: float | None = None,
                  grad_fields=None, into: dict | None = None, v_alpha=None, v_depth_opacity=None,
-                 hold: bool = False) -> dict:
+                 hold: bool = False, stats: bool = False) -> dict:
         """Trainer.backward of `fr` with v_rgb (a device buffer) and/or v_depth (a device buffer,
         e.g. from `depth_loss`, or a host [H,W] array, uploaded). Returns the gradient buffers
         {field: buffer} of backend.backward_device plus "sh_k" (`adam_step` reads the SH groups
@@ -665,7 +665,9 @@ class DeviceTrainer:
         (no copy). The frame's
         DropGaussian mask (from `forward`) applies. v_depth_opacity (a device buffer;
         Trainer.backward): with `fuse_soft_backward`, this pass also makes the records of the
-        announced opacity-only backward of that cotangent (backend.backward_device)."""
+        announced opacity-only backward of that cotangent (backend.backward_device). stats: the
+        densification statistics of this backward too (Trainer.backward), added by its project_bwd
+        (no densify_accumulate launch: docs/perf_notes.md §25)."""
         vd = v_depth
         if isinstance(v_depth, np.ndarray):  # its own buffer: never the depth loss's (an announced cotangent)
             vd = self.mem.get("pixel", "v_depth_host", fr.width * fr.height, 4)
@@ -675,16 +677,17 @@ class DeviceTrainer:
             self._write(vdo_buf, np.asarray(v_depth_opacity, _F32))
             v_depth_opacity = vdo_buf
         vdo = v_depth_opacity if self.fuse_soft_backward else None
+        st = (self.buf("stat", ACCUM), self.buf("stat", COUNT), self.buf("stat", RADII)) if stats else None
         cols = grad_columns(fr.sh_k)
         if into is not None:  # project_bwd adds the grad_fields into the held buffers (no second launch)
             if into.get("sh_k") != fr.sh_k or set(into) != {*cols, "sh_k"}:
                 raise ValueError("backward into: the held gradients are of another SH count or field set")
             self.b.backward_device(fr, v_rgb, vd, v_alpha, opacity_override, grad_fields, v_depth_opacity=vdo,
-                                   out={f: into[f] for f in cols}, accumulate=True)
+                                   out={f: into[f] for f in cols}, accumulate=True, stats=st)
             return into
         out = self._held(fr.sh_k) if hold else None
         g = dict(self.b.backward_device(fr, v_rgb, vd, v_alpha, opacity_override, grad_fields, v_depth_opacity=vdo,
-                                        out=None if out is None else {f: out[f] for f in cols}))
+                                        out=None if out is None else {f: out[f] for f in cols}, stats=st))
         g["sh_k"] = fr.sh_k
         return g
 
@@ -971,12 +974,14 @@ class DeviceTrainer:
         n = self.n
         multi = self.adam == "kernel" and self.adam_multi
         batch: list = []  # the groups of the next adam_step_multi launch
+        named: set = set()  # their names
         try:
             for name in groups:
                 if name not in opt.lr:
                     raise KeyError(f"adam_step: {name!r} is not a parameter group ({opt.groups})")
-                if multi and (len(batch) == ADAM_SLOTS or any(b[0] == name for b in batch)):
+                if multi and (len(batch) == ADAM_SLOTS or name in named):
                     pending, batch = batch, []
+                    named = set()
                     self._adam_multi(opt, pending)  # a repeated group steps after its first step
                 t = opt.state.step[name] + 1
                 opt.state.step[name] = t
@@ -986,6 +991,7 @@ class DeviceTrainer:
                 view = self._grad_view(grads, name)
                 if multi:
                     batch.append((name, t, view))
+                    named.add(name)
                 elif self.adam == "kernel":
                     self._adam_group(opt, name, t, view)
                 else:

@@ -1,0 +1,47 @@
+/* densify.h: the densification statistics of one Gaussian after a photometric backward (3DGS
+   add_densification_stats with ndc_grad_norm): for a row with radius > 0,
+   accum += |(v_u W/2, v_v H/2)|, count += 1, max_radii = max(max_radii, radius).
+
+   Must match reings.backends.reference_state.densify_accumulate with ndc_grad_norm
+   (tests/test_adam_kernel.py). One function, two callers with the same bits: densify_accumulate.cl
+   (the device trainer's `accumulate`, a launch of its own) and project.cl's project_bwd with
+   stats = 1 (the device trainer's `backward(stats=True)`: the photometric pass's statistics taken
+   where its v_proj rows are read anyway, one launch fewer per step; docs/perf_notes.md §25).
+   The expressions hold no a * b + c, and contraction is off inside the function whatever the
+   includer's setting (project.cl's is the default), as in densify_accumulate.cl.
+
+   Defines
+     DENSIFY_FP64   1: the norm in double (as numpy); 0 (default): in float.
+     V_PROJ         the v_proj record's width (10, base.V_RECORD), unless the includer set it. */
+#ifndef REINGS_DENSIFY_H
+#define REINGS_DENSIFY_H
+
+#ifndef DENSIFY_FP64
+#define DENSIFY_FP64 0
+#endif
+#if DENSIFY_FP64
+#pragma OPENCL EXTENSION cl_khr_fp64 : enable
+typedef double dens_real;
+#else
+typedef float dens_real;
+#endif
+#ifndef V_PROJ
+#define V_PROJ 10
+#endif
+
+/* Row i's statistics from its record v_proj[i] (the 2D mean gradient is its first two floats);
+   rows with radius <= 0 (culled, dropped; NaN fails the guard) are left alone. */
+inline void densify_accumulate_one(const int i, __global const int *radii, __global const float *v_proj,
+                                   const dens_real half_w, const dens_real half_h, __global float *accum,
+                                   __global int *count, __global float *max_radii) {
+#pragma OPENCL FP_CONTRACT OFF /* in this block only (C99 6.10.6): as densify_accumulate.cl builds it */
+    const int r = radii[i];
+    if (!(r > 0)) return;
+    const dens_real x = (dens_real)v_proj[(size_t)i * V_PROJ] * half_w;
+    const dens_real y = (dens_real)v_proj[(size_t)i * V_PROJ + 1] * half_h;
+    accum[i] = accum[i] + (float)hypot(x, y);
+    count[i] = count[i] + 1;
+    max_radii[i] = fmax(max_radii[i], (float)r);
+}
+
+#endif
