@@ -31,9 +31,9 @@ typedef float dens_real;
 
 /* Row i's statistics from its record v_proj[i] (the 2D mean gradient is its first two floats);
    rows with radius <= 0 (culled, dropped; NaN fails the guard) are left alone. */
-inline void densify_accumulate_one(const int i, __global const int *radii, __global const float *v_proj,
-                                   const dens_real half_w, const dens_real half_h, __global float *accum,
-                                   __global int *count, __global float *max_radii) {
+static inline void densify_accumulate_one(const int i, __global const int *radii, __global const float *v_proj,
+                                          const dens_real half_w, const dens_real half_h, __global float *accum,
+                                          __global int *count, __global float *max_radii) {
 #pragma OPENCL FP_CONTRACT OFF /* in this block only (C99 6.10.6): as densify_accumulate.cl builds it */
     const int r = radii[i];
     if (!(r > 0)) return;
