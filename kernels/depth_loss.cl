@@ -22,7 +22,8 @@
  * as in the reference.
  *
  * Kernels, launched in this order by reings.backends.opencl.losses.DepthLossCL (5 launches per
- * call). Blocks of "job" j: j = 0 the p_local patches, j = 1 the p_global patches, j = 2 the image
+ * call; 3 with DL_FUSE, where each reduce runs in the last work-group of the kernel before it).
+ * Blocks of "job" j: j = 0 the p_local patches, j = 1 the p_global patches, j = 2 the image
  * rows (1 x W blocks: the whole-image std of the global term).
  *   dl_block_stats   global (>= max blocks, 6): item (b, 2 j + input) -> the mean and the sum of
  *                    squared deviations of block b (two passes over the block, in `real`)
@@ -54,6 +55,13 @@
  *
  * Defines
  *   DL_FP64  1: double statistics (needs cl_khr_fp64); 0 (default): float with the shift
+ *   DL_FUSE  1: dl_block_stats and dl_patch_terms run in work-groups of DL_WG, count their finished
+ *            groups atomically (`done`, after each group's stores and a global fence), and the last
+ *            group runs the following reduce (reduce_stats_one / reduce_terms_one, the functions the
+ *            separate kernels run, with the same lanes: the same bits), reading the other groups'
+ *            stores through volatile pointers; two launches fewer per call. The host sets it on the
+ *            GPU schedule where such cross-group reads are known to work (quirks.volatile_status_words:
+ *            NVIDIA, PoCL's CPUs); 0 (default) elsewhere and under Oclgrind (docs/perf_notes.md §26)
  *   DL_WG    work-group size of the two reduce kernels, a power of two (host: 1 on CPU devices,
  *            256 on GPUs; 64 here by default)
  * Per-pixel weights (has_wt = 1, `wt` [H, W] float32 in [0, 1]: the depth prior's confidence
@@ -85,6 +93,17 @@ typedef float real;
 
 #define DL_RATIO RC(0.01)  /* DNGaussian: scale + 0.01 * std(all patch values) */
 
+#ifndef DL_FUSE
+#define DL_FUSE 0
+#endif
+#if DL_FUSE
+/* what the last work-group reads of the other groups' stores: volatile (NVIDIA's volatile global
+ * loads are not served from L1; PoCL's CPUs are coherent; docs/perf_notes.md §20, §26) */
+#define XWG __global volatile
+#else
+#define XWG __global
+#endif
+
 /* Block geometry of job j: bw x bh blocks, nbx per block row, M blocks. */
 static void job_geom(const int job, const int W, const int H, const int pl, const int pg,
                      int *bw, int *bh, int *nbx, int *M)
@@ -115,13 +134,11 @@ static void tree_sum(__local real *s, const int lane)
     barrier(CLK_LOCAL_MEM_FENCE);
 }
 
-__kernel void dl_block_stats(__global const float *depth,   // [H, W] rendered depth
-                             __global const float *target,  // [H, W] target (mono depth)
-                             __global real *bstats,         // [6, Bcap, 2] (mean - shift, sum (x - mean)^2)
-                             const int W, const int H, const int pl, const int pg, const int Bcap)
+/* Block b of (job, input) ji: its mean (- shift) and sum of squared deviations into bstats. */
+static void block_stats_one(__global const float *depth, __global const float *target, __global real *bstats,
+                            const int b, const int ji, const int W, const int H, const int pl, const int pg,
+                            const int Bcap)
 {
-    const int b = get_global_id(0), ji = get_global_id(1);
-    if (!(ji < 6)) return;
     int bw, bh, nbx, M;
     job_geom(ji >> 1, W, H, pl, pg, &bw, &bh, &nbx, &M);
     if (!(b < M)) return;
@@ -144,15 +161,14 @@ __kernel void dl_block_stats(__global const float *depth,   // [H, W] rendered d
     bstats[2 * (ji * Bcap + b) + 1] = ss;
 }
 
-__kernel void dl_reduce_stats(__global const real *bstats,  // [6, Bcap, 2]
-                              __global real *sstats,        // [6, 2] (mean - shift, unbiased std)
-                              const int W, const int H, const int pl, const int pg, const int Bcap)
+/* The statistics of (job, input) ji over all its blocks, by one work-group of DL_WG lanes (s: its
+ * local array): sstats[ji] = (mean - shift, unbiased std). */
+static void reduce_stats_one(XWG const real *bstats, __global real *sstats, __local real *s, const int lane,
+                             const int ji, const int W, const int H, const int pl, const int pg, const int Bcap)
 {
-    __local real s[DL_WG];
-    const int lane = get_local_id(0), ji = get_group_id(1);
     int bw, bh, nbx, M;
     job_geom(ji >> 1, W, H, pl, pg, &bw, &bh, &nbx, &M);
-    __global const real *bs = bstats + 2 * ji * Bcap;
+    XWG const real *bs = bstats + 2 * ji * Bcap;
     real acc = 0;
     for (int b = lane; b < M; b += DL_WG) acc += bs[2 * b];
     s[lane] = acc;
@@ -171,6 +187,59 @@ __kernel void dl_reduce_stats(__global const real *bstats,  // [6, Bcap, 2]
         sstats[2 * ji] = mean;
         sstats[2 * ji + 1] = sqrt(s[0] / ((real)M * n - (real)1));
     }
+    barrier(CLK_LOCAL_MEM_FENCE);  /* s[0] read before a next call writes s */
+}
+
+#if DL_FUSE
+/* The last of the launch's work-groups to finish (an atomic count of finished groups, after each
+ * group's stores and a global fence) returns 1, and resets the count for the next launch. */
+static int last_group(__global int *done, const int lane, __local int *flag)
+{
+    barrier(CLK_GLOBAL_MEM_FENCE | CLK_LOCAL_MEM_FENCE);  /* this group's stores before its count */
+    if (lane == 0) {
+        mem_fence(CLK_GLOBAL_MEM_FENCE);
+        const int total = (int)(get_num_groups(0) * get_num_groups(1));
+        const int prev = atomic_inc(done);
+        *flag = prev == total - 1;
+        if (*flag) *done = 0;  /* every other group has counted: the next launch starts from 0 */
+    }
+    barrier(CLK_LOCAL_MEM_FENCE);
+    const int last = *flag;
+    if (last) mem_fence(CLK_GLOBAL_MEM_FENCE);
+    return last;
+}
+#endif
+
+/* DL_FUSE 0: item (b, ji) of a (>= max blocks, 6) range; dl_reduce_stats follows.
+ * DL_FUSE 1: the same items in work-groups of (DL_WG, 1), and the last group to finish runs
+ * dl_reduce_stats's six reductions in turn (the same lanes and order: the same bits). */
+__kernel void dl_block_stats(__global const float *depth,   // [H, W] rendered depth
+                             __global const float *target,  // [H, W] target (mono depth)
+                             __global real *bstats,         // [6, Bcap, 2] (mean - shift, sum (x - mean)^2)
+                             const int W, const int H, const int pl, const int pg, const int Bcap,
+                             __global real *sstats,         // [6, 2] (DL_FUSE only)
+                             __global int *done)            // [2] finished-group counts, 0 between launches (DL_FUSE only)
+{
+    const int b = get_global_id(0), ji = get_global_id(1);
+    if (ji < 6) block_stats_one(depth, target, bstats, b, ji, W, H, pl, pg, Bcap);
+#if DL_FUSE
+    __local real s[DL_WG];
+    __local int flag;
+    const int lane = get_local_id(0);
+    if (!last_group(done, lane, &flag)) return;
+    for (int j = 0; j < 6; ++j) reduce_stats_one(bstats, sstats, s, lane, j, W, H, pl, pg, Bcap);
+#else
+    (void)sstats;
+    (void)done;
+#endif
+}
+
+__kernel void dl_reduce_stats(__global const real *bstats,  // [6, Bcap, 2]
+                              __global real *sstats,        // [6, 2] (mean - shift, unbiased std)
+                              const int W, const int H, const int pl, const int pg, const int Bcap)
+{
+    __local real s[DL_WG];
+    reduce_stats_one(bstats, sstats, s, get_local_id(0), get_group_id(1), W, H, pl, pg, Bcap);
 }
 
 /* d of patch m of input inp (0 depth, 1 target) in term t; *sp = its per-patch std (local term). */
@@ -197,19 +266,12 @@ static real patch_scale(__global const real *bstats, __global const real *sstats
 #define R_A 6    /* sum of mdiff */
 #define R_B 7    /* sum of mdiff * u */
 
-__kernel void dl_patch_terms(__global const float *depth,   // [H, W]
-                             __global const float *target,  // [H, W]
-                             __global const real *bstats,   // [6, Bcap, 2]
-                             __global const real *sstats,   // [6, 2]
-                             __global int *pcnt,            // [2, Bcap] #mask per patch
-                             __global real *prec,           // [2, Bcap, REC] per-patch record (R_*)
-                             const real margin,
-                             const int W, const int H, const int pl, const int pg, const int Bcap,
-                             __global const float *wt,      // [H, W] per-pixel weights (read if has_wt)
-                             const int has_wt)
+/* Patch m of term t: its record (means, 1/d of both inputs, per-patch std, #mask, sums). */
+static void patch_terms_one(__global const float *depth, __global const float *target, __global const real *bstats,
+                            __global const real *sstats, __global int *pcnt, __global real *prec, const real margin,
+                            const int m, const int t, const int W, const int H, const int pl, const int pg,
+                            const int Bcap, __global const float *wt, const int has_wt)
 {
-    const int m = get_global_id(0), t = get_global_id(1);
-    if (!(t < 2)) return;
     int p, unused, pw, M;
     job_geom(t, W, H, pl, pg, &p, &unused, &pw, &M);
     if (!(m < M)) return;
@@ -249,21 +311,16 @@ __kernel void dl_patch_terms(__global const float *depth,   // [H, W]
  *   A_m = (2/cnt) / d_m,  B_m = [local, s_patch > 0] gd_m / ((n - 1) s_patch),
  *   C_m = -mean_m(g / d) = -(2/cnt) sum_m(mdiff) / (d_m n),
  *   E   = [s_all > 0] 0.01 sum_m gd_m / ((N - 1) s_all),   gd_m = -(2/cnt) sum_m(mdiff u) / d_m^2;
- * all zero when cnt == 0. */
-__kernel void dl_reduce_terms(__global const real *sstats,  // [6, 2]
-                              __global const int *pcnt,     // [2, Bcap]
-                              __global const real *prec,    // [2, Bcap, REC]
-                              __global real *pcoef,         // [2, Bcap, 3] (A, B, C) per patch
-                              __global real *tstats,        // [2, 4] (cnt, term loss, E, mean_all - shift)
-                              const int W, const int H, const int pl, const int pg, const int Bcap)
+ * all zero when cnt == 0. One work-group of DL_WG lanes per term (s, c: its local arrays). */
+static void reduce_terms_one(__global const real *sstats, XWG const int *pcnt, XWG const real *prec,
+                             __global real *pcoef, __global real *tstats, __local real *s, __local int *c,
+                             const int lane, const int t, const int W, const int H, const int pl, const int pg,
+                             const int Bcap)
 {
-    __local real s[DL_WG];
-    __local int c[DL_WG];
-    const int lane = get_local_id(0), t = get_group_id(1);
     int p, unused, pw, M;
     job_geom(t, W, H, pl, pg, &p, &unused, &pw, &M);
     const int n = p * p;
-    __global const real *rec = prec + REC * t * Bcap;
+    XWG const real *rec = prec + REC * t * Bcap;
     __global real *co = pcoef + 3 * t * Bcap;
     int ci = 0;
     for (int m = lane; m < M; m += DL_WG) ci += pcnt[t * Bcap + m];
@@ -283,7 +340,7 @@ __kernel void dl_reduce_terms(__global const real *sstats,  // [6, 2]
     const real scale = cnt > 0 ? (real)2 / (real)cnt : (real)0;
     acc = 0;
     for (int m = lane; m < M; m += DL_WG) {
-        __global const real *r = rec + REC * m;
+        XWG const real *r = rec + REC * m;
         real a = 0, b = 0, cc = 0;
         if (cnt > 0) {  /* then every depth d_m > 0 (a zero d makes every element unselected) */
             const real d = (real)1 / r[R_DD], sp = r[R_SP];
@@ -304,6 +361,52 @@ __kernel void dl_reduce_terms(__global const real *sstats,  // [6, 2]
         tstats[4 * t + 2] = (cnt > 0 && s_all > (real)0) ? DL_RATIO * s[0] / ((real)(M * n - 1) * s_all) : (real)0;
         tstats[4 * t + 3] = sstats[2 * (2 * t)];
     }
+    barrier(CLK_LOCAL_MEM_FENCE);  /* s[0] and c[0] read before a next call writes them */
+}
+
+/* DL_FUSE 0: item (m, t) of a (>= max patches, 2) range; dl_reduce_terms follows.
+ * DL_FUSE 1: the same items in work-groups of (DL_WG, 1), and the last group to finish runs
+ * dl_reduce_terms's two reductions in turn (the same lanes and order: the same bits). */
+__kernel void dl_patch_terms(__global const float *depth,   // [H, W]
+                             __global const float *target,  // [H, W]
+                             __global const real *bstats,   // [6, Bcap, 2]
+                             __global const real *sstats,   // [6, 2]
+                             __global int *pcnt,            // [2, Bcap] #mask per patch
+                             __global real *prec,           // [2, Bcap, REC] per-patch record (R_*)
+                             const real margin,
+                             const int W, const int H, const int pl, const int pg, const int Bcap,
+                             __global const float *wt,      // [H, W] per-pixel weights (read if has_wt)
+                             const int has_wt,
+                             __global real *pcoef,          // [2, Bcap, 3] (DL_FUSE only)
+                             __global real *tstats,         // [2, 4] (DL_FUSE only)
+                             __global int *done)            // [2] finished-group counts (DL_FUSE only)
+{
+    const int m = get_global_id(0), t = get_global_id(1);
+    if (t < 2) patch_terms_one(depth, target, bstats, sstats, pcnt, prec, margin, m, t, W, H, pl, pg, Bcap, wt, has_wt);
+#if DL_FUSE
+    __local real s[DL_WG];
+    __local int c[DL_WG];
+    __local int flag;
+    const int lane = get_local_id(0);
+    if (!last_group(done + 1, lane, &flag)) return;
+    for (int j = 0; j < 2; ++j) reduce_terms_one(sstats, pcnt, prec, pcoef, tstats, s, c, lane, j, W, H, pl, pg, Bcap);
+#else
+    (void)pcoef;
+    (void)tstats;
+    (void)done;
+#endif
+}
+
+__kernel void dl_reduce_terms(__global const real *sstats,  // [6, 2]
+                              __global const int *pcnt,     // [2, Bcap]
+                              __global const real *prec,    // [2, Bcap, REC]
+                              __global real *pcoef,         // [2, Bcap, 3] (A, B, C) per patch
+                              __global real *tstats,        // [2, 4] (cnt, term loss, E, mean_all - shift)
+                              const int W, const int H, const int pl, const int pg, const int Bcap)
+{
+    __local real s[DL_WG];
+    __local int c[DL_WG];
+    reduce_terms_one(sstats, pcnt, prec, pcoef, tstats, s, c, get_local_id(0), get_group_id(1), W, H, pl, pg, Bcap);
 }
 
 /* The gradient of term t at a pixel of patch m (xd, xt: the shifted depth and target there). */

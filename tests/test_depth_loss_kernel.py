@@ -36,6 +36,7 @@ from oclgrind_util import oclgrind_available, run_oclgrind
 from reings import losses
 from reings.backends import reference_loss as R
 from reings.backends.opencl.losses import DepthLossCL
+from reings.backends.opencl import quirks
 
 MARGIN = 0.00025  # DNGaussian's
 LOSS_RTOL64, GRAD_RTOL64 = 1e-10, 1e-6
@@ -157,6 +158,33 @@ def test_deterministic_and_work_group_independent(device):
     want = _ref(d, t, 5, 17)
     for wg in (1, 16, 256):  # other reduction trees: other rounding, same result within tolerance
         _check(_dl(device, wg=wg, lwg=8)(d, t, 5, 17, MARGIN), want, LOSS_RTOL64, GRAD_RTOL64)
+
+
+@pytest.mark.parametrize("fp64", [True, False])
+def test_fused_reduces_keep_the_bits(device, fp64):
+    """DL_FUSE (each reduce in the last work-group to finish of the kernel before it: 3 launches
+    instead of 5) gives the separate kernels' bits on the GPU schedule: reduce trees of 4 / 16 / 256
+    lanes, launches of 1 to ~190 work-groups, weights and the smoothness term, one instance called
+    again and again with other sizes (its finished-group counts go back to zero after each launch)."""
+    if fp64 and "cl_khr_fp64" not in DepthLossCL(device).handle.device.extensions:
+        pytest.skip("no cl_khr_fp64")
+    rng = np.random.default_rng(11)
+    assert _dl(device, cpu_schedule=False, wg=16).fused == quirks.volatile_status_words(_dl(device).handle.device)
+    assert not _dl(device, cpu_schedule=True).fused and not _dl(device, cpu_schedule=False, wg=1).fused
+    for wg in (4, 16, 256):
+        ref = DepthLossCL(device, wg=wg, fp64=fp64, cpu_schedule=False, fused=False)
+        fus = DepthLossCL(device, wg=wg, fp64=fp64, cpu_schedule=False, fused=True)
+        assert fus.fused
+        for h, w, pl, pg in ((20, 20, 20, 20), (45, 70, 5, 17), (378, 504, 3, 9), (61, 83, 17, 5)):
+            d, t = _inputs("random", h, w, rng)
+            wt = rng.uniform(0, 1, (h, w)).astype(np.float32)
+            sw = R.DepthSmoothWeights(t)
+            for kw in ({}, {"weight": wt}, {"smooth": (sw, 0.1)}):
+                want = ref(d, t, pl, pg, MARGIN, **kw)
+                got = fus(d, t, pl, pg, MARGIN, **kw)
+                assert got[0] == want[0], (wg, h, w, pl, pg, sorted(kw))
+                np.testing.assert_array_equal(got[1], want[1], err_msg=f"{wg} {h}x{w} {pl} {pg} {sorted(kw)}")
+                np.testing.assert_array_equal(fus.term_stats(), ref.term_stats())
 
 
 # {{{ edge cases

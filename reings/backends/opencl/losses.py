@@ -156,7 +156,8 @@ class PhotometricCL:
 
 
 class DepthLossCL:
-    """DNGaussian's global-local depth loss on an OpenCL device (kernels/depth_loss.cl, 5 launches);
+    """DNGaussian's global-local depth loss on an OpenCL device (kernels/depth_loss.cl, 5 launches, 3
+    fused);
     the device-resident form is `enqueue` (device buffers in and out) then `read_loss`. `device`:
     a DeviceHandle or a device string.
 
@@ -165,11 +166,13 @@ class DepthLossCL:
     without fp64 they are float with each input shifted by its first pixel (kernel header). All
     reductions are fixed-order (deterministic). `wg`: the reduce kernels' work-group size (default
     1 on CPU devices, 256 on GPUs); `lwg`: the other kernels' (default 64); `cpu_schedule`: dl_grad's
-    row-per-work-item form (default: the device's REINGS_CPU_SCHEDULE). The overrides are for tests
-    (every schedule on PoCL and Oclgrind)."""
+    row-per-work-item form (default: the device's REINGS_CPU_SCHEDULE); `fused`: each reduce in the
+    last work-group of the kernel before it (DL_FUSE, 3 launches instead of 5, the same bits; default:
+    on the GPU schedule where cross-group reads are known to work, `quirks.volatile_status_words`,
+    and wg > 1). The overrides are for tests (every schedule on PoCL and Oclgrind)."""
 
     def __init__(self, device, wg: int | None = None, fp64: bool | None = None, lwg: int | None = None,
-                 cpu_schedule: bool | None = None):
+                 cpu_schedule: bool | None = None, fused: bool | None = None):
         import pyopencl as cl
 
         from . import quirks
@@ -191,12 +194,18 @@ class DepthLossCL:
         if cpu_schedule is None:
             cpu_schedule = bool(quirks.build_defines(dev)["REINGS_CPU_SCHEDULE"])
         self.cpu_schedule = bool(cpu_schedule)  # dl_grad: a row per work-item (else a pixel per work-item)
+        if fused is None:
+            fused = not self.cpu_schedule and self.wg > 1 and quirks.volatile_status_words(dev)
+        self.fused = bool(fused)
         prg = library_for(self.handle).program("depth_loss.cl", DL_FP64=int(self.fp64), DL_WG=self.wg,
-                                               REINGS_CPU_SCHEDULE=int(self.cpu_schedule))
+                                               REINGS_CPU_SCHEDULE=int(self.cpu_schedule), DL_FUSE=int(self.fused))
         self.k = {n: cl.Kernel(prg, n) for n in  # own kernel objects: several instances may share prg
                   ("dl_block_stats", "dl_reduce_stats", "dl_patch_terms", "dl_reduce_terms", "dl_grad",
                   "depth_smooth_rows")}
         self.mem = Scratch(self.handle)
+        # the fused kernels' finished-group counts: zero now, and back to zero at the end of every launch
+        self._done = self.mem.get("small", "dl_done", 2, 4)
+        cl.enqueue_fill_buffer(self.handle.queue, self._done, np.int32(0), 0, 8)
         self._weights = None
         self._smooth = None  # (depth_buf, wx_buf, wy_buf, h, w, w_smooth / sum of weights) of the last call
         self._t = np.empty(8, self.real)  # read_loss's host words
@@ -228,14 +237,18 @@ class DepthLossCL:
         tstats = self.mem.get("small", "dl_tstats", 8, rs)
         q, r, i32 = self.handle.queue, self.real, np.int32
         geo = (i32(w), i32(h), i32(pl), i32(pg), i32(bcap))
-        lw, wg = self.lwg, self.wg
-        self._call("dl_block_stats", q, (-(-bcap // lw) * lw, 6), (lw, 1), depth_buf, target_buf, bstats, *geo)
-        self._call("dl_reduce_stats", q, (wg, 6), (wg, 1), bstats, sstats, *geo)
+        lw, wg, done = self.lwg, self.wg, self._done
+        bw = wg if self.fused else lw  # DL_FUSE: work-groups of DL_WG lanes (the last one reduces)
+        self._call("dl_block_stats", q, (-(-bcap // bw) * bw, 6), (bw, 1), depth_buf, target_buf, bstats, *geo,
+                   sstats, done)
+        if not self.fused:
+            self._call("dl_reduce_stats", q, (wg, 6), (wg, 1), bstats, sstats, *geo)
         mt = max(ml, mg)
         wb, has_wt = (target_buf, i32(0)) if weight_buf is None else (weight_buf, i32(1))  # a dummy is never read
-        self._call("dl_patch_terms", q, (-(-mt // lw) * lw, 2), (lw, 1), depth_buf, target_buf, bstats, sstats,
-                   pcnt, prec, r(margin), *geo, wb, has_wt)
-        self._call("dl_reduce_terms", q, (wg, 2), (wg, 1), sstats, pcnt, prec, pcoef, tstats, *geo)
+        self._call("dl_patch_terms", q, (-(-mt // bw) * bw, 2), (bw, 1), depth_buf, target_buf, bstats, sstats,
+                   pcnt, prec, r(margin), *geo, wb, has_wt, pcoef, tstats, done)
+        if not self.fused:
+            self._call("dl_reduce_terms", q, (wg, 2), (wg, 1), sstats, pcnt, prec, pcoef, tstats, *geo)
         gg, gl = ((-(-h // lw) * lw,), (lw,)) if self.cpu_schedule else ((-(-w // lw) * lw, h), (lw, 1))
         swx, swy, ss = (target_buf, target_buf, 0.0) if smooth is None else smooth  # dummies are never read
         ev = self._call("dl_grad", q, gg, gl, depth_buf, target_buf, prec, pcoef, tstats, v_buf, r(margin),
