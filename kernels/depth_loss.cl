@@ -96,6 +96,30 @@ typedef float real;
 #ifndef DL_FUSE
 #define DL_FUSE 0
 #endif
+#ifndef DL_UNROLL
+#define DL_UNROLL 8 /* lane-strided sums: loads issued this many at a time, then added in order */
+#endif
+
+/* acc += EXPR(i) for i = lane, lane + DL_WG, ... < M, in that order (the same rounding as the plain
+ * loop), with the loads of DL_UNROLL terms issued before their adds: a volatile load (DL_FUSE) is
+ * never reordered or merged by the compiler, and one at a time each would wait a memory latency. */
+#define STRIDED_SUM(T, acc, lane, M, EXPR)                                           \
+    do {                                                                             \
+        int i_ = (lane);                                                             \
+        for (; i_ + (DL_UNROLL - 1) * DL_WG < (M); i_ += DL_UNROLL * DL_WG) {        \
+            T v_[DL_UNROLL];                                                         \
+            for (int k_ = 0; k_ < DL_UNROLL; ++k_) {                                 \
+                const int i = i_ + k_ * DL_WG;                                       \
+                v_[k_] = (EXPR);                                                     \
+            }                                                                        \
+            for (int k_ = 0; k_ < DL_UNROLL; ++k_) (acc) += v_[k_];                  \
+        }                                                                            \
+        for (; i_ < (M); i_ += DL_WG) {                                              \
+            const int i = i_;                                                        \
+            (acc) += (EXPR);                                                         \
+        }                                                                            \
+    } while (0)
+
 #if DL_FUSE
 /* what the last work-group reads of the other groups' stores: volatile (NVIDIA's volatile global
  * loads are not served from L1; PoCL's CPUs are coherent; docs/perf_notes.md §20, §26) */
@@ -170,17 +194,14 @@ static void reduce_stats_one(XWG const real *bstats, __global real *sstats, __lo
     job_geom(ji >> 1, W, H, pl, pg, &bw, &bh, &nbx, &M);
     XWG const real *bs = bstats + 2 * ji * Bcap;
     real acc = 0;
-    for (int b = lane; b < M; b += DL_WG) acc += bs[2 * b];
+    STRIDED_SUM(real, acc, lane, M, bs[2 * i]);
     s[lane] = acc;
     tree_sum(s, lane);
     const real mean = s[0] / (real)M;
     barrier(CLK_LOCAL_MEM_FENCE);  /* everyone has read s[0] before it is overwritten */
     const real n = (real)(bw * bh);
     acc = 0;
-    for (int b = lane; b < M; b += DL_WG) {
-        const real dm = bs[2 * b] - mean;
-        acc += bs[2 * b + 1] + n * dm * dm;
-    }
+    STRIDED_SUM(real, acc, lane, M, bs[2 * i + 1] + n * (bs[2 * i] - mean) * (bs[2 * i] - mean));
     s[lane] = acc;
     tree_sum(s, lane);
     if (lane == 0) {
@@ -323,7 +344,7 @@ static void reduce_terms_one(__global const real *sstats, XWG const int *pcnt, X
     XWG const real *rec = prec + REC * t * Bcap;
     __global real *co = pcoef + 3 * t * Bcap;
     int ci = 0;
-    for (int m = lane; m < M; m += DL_WG) ci += pcnt[t * Bcap + m];
+    STRIDED_SUM(int, ci, lane, M, pcnt[t * Bcap + i]);
     c[lane] = ci;
     for (int off = DL_WG / 2; off > 0; off >>= 1) {
         barrier(CLK_LOCAL_MEM_FENCE);
@@ -332,25 +353,38 @@ static void reduce_terms_one(__global const real *sstats, XWG const int *pcnt, X
     barrier(CLK_LOCAL_MEM_FENCE);
     const int cnt = c[0];
     real acc = 0;
-    for (int m = lane; m < M; m += DL_WG) acc += rec[REC * m + R_SQ];
+    STRIDED_SUM(real, acc, lane, M, rec[REC * i + R_SQ]);
     s[lane] = acc;
     tree_sum(s, lane);
     const real sq = s[0];
     barrier(CLK_LOCAL_MEM_FENCE);
     const real scale = cnt > 0 ? (real)2 / (real)cnt : (real)0;
     acc = 0;
-    for (int m = lane; m < M; m += DL_WG) {
-        XWG const real *r = rec + REC * m;
-        real a = 0, b = 0, cc = 0;
-        if (cnt > 0) {  /* then every depth d_m > 0 (a zero d makes every element unselected) */
-            const real d = (real)1 / r[R_DD], sp = r[R_SP];
-            const real gd = -(scale * r[R_B]) / (d * d);
-            acc += gd;
-            a = scale / d;
-            b = (t == 0 && sp > (real)0) ? gd / ((real)(n - 1) * sp) : (real)0;
-            cc = -(scale * r[R_A]) / (d * (real)n);
+    for (int m0 = lane; m0 < M; m0 += DL_UNROLL * DL_WG) {
+        /* the records of up to DL_UNROLL patches loaded first (see STRIDED_SUM), then used in order */
+        real rdd[DL_UNROLL], rsp[DL_UNROLL], rb[DL_UNROLL], ra[DL_UNROLL];
+        if (cnt > 0)
+            for (int k = 0; k < DL_UNROLL; ++k) {
+                const int m = m0 + k * DL_WG;
+                if (m < M) {
+                    XWG const real *r = rec + REC * m;
+                    rdd[k] = r[R_DD]; rsp[k] = r[R_SP]; rb[k] = r[R_B]; ra[k] = r[R_A];
+                }
+            }
+        for (int k = 0; k < DL_UNROLL; ++k) {
+            const int m = m0 + k * DL_WG;
+            if (!(m < M)) break;
+            real a = 0, b = 0, cc = 0;
+            if (cnt > 0) {  /* then every depth d_m > 0 (a zero d makes every element unselected) */
+                const real d = (real)1 / rdd[k], sp = rsp[k];
+                const real gd = -(scale * rb[k]) / (d * d);
+                acc += gd;
+                a = scale / d;
+                b = (t == 0 && sp > (real)0) ? gd / ((real)(n - 1) * sp) : (real)0;
+                cc = -(scale * ra[k]) / (d * (real)n);
+            }
+            co[3 * m] = a; co[3 * m + 1] = b; co[3 * m + 2] = cc;
         }
-        co[3 * m] = a; co[3 * m + 1] = b; co[3 * m + 2] = cc;
     }
     s[lane] = acc;
     tree_sum(s, lane);

@@ -205,7 +205,7 @@ class DepthLossCL:
         self.mem = Scratch(self.handle)
         # the fused kernels' finished-group counts: zero now, and back to zero at the end of every launch
         self._done = self.mem.get("small", "dl_done", 2, 4)
-        cl.enqueue_fill_buffer(self.handle.queue, self._done, np.int32(0), 0, 8)
+        cl.enqueue_copy(self.handle.queue, self._done, np.zeros(2, np.int32))  # blocking
         self._weights = None
         self._smooth = None  # (depth_buf, wx_buf, wy_buf, h, w, w_smooth / sum of weights) of the last call
         self._t = np.empty(8, self.real)  # read_loss's host words
