@@ -13,6 +13,8 @@ references are `reings.backends.reference_loss`; the host-facing loss functions 
 """
 from __future__ import annotations
 
+import os
+
 import numpy as np
 
 from ..reference_loss import gaussian_taps
@@ -194,8 +196,9 @@ class DepthLossCL:
         if cpu_schedule is None:
             cpu_schedule = bool(quirks.build_defines(dev)["REINGS_CPU_SCHEDULE"])
         self.cpu_schedule = bool(cpu_schedule)  # dl_grad: a row per work-item (else a pixel per work-item)
-        if fused is None:
-            fused = not self.cpu_schedule and self.wg > 1 and quirks.volatile_status_words(dev)
+        if fused is None:  # $REINGS_DL_FUSE=0 turns it off (A/B measurements)
+            fused = (not self.cpu_schedule and self.wg > 1 and quirks.volatile_status_words(dev)
+                     and os.environ.get("REINGS_DL_FUSE", "1").strip() != "0")
         self.fused = bool(fused)
         prg = library_for(self.handle).program("depth_loss.cl", DL_FP64=int(self.fp64), DL_WG=self.wg,
                                                REINGS_CPU_SCHEDULE=int(self.cpu_schedule), DL_FUSE=int(self.fused))
