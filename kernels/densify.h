@@ -34,7 +34,7 @@ typedef float dens_real;
 static inline void densify_accumulate_one(const int i, __global const int *radii, __global const float *v_proj,
                                           const dens_real half_w, const dens_real half_h, __global float *accum,
                                           __global int *count, __global float *max_radii) {
-#pragma OPENCL FP_CONTRACT OFF /* in this block only (C99 6.10.6): as densify_accumulate.cl builds it */
+#pragma OPENCL FP_CONTRACT OFF /* in this block only (C99 7.12.2): as densify_accumulate.cl builds it */
     const int r = radii[i];
     if (!(r > 0)) return;
     const dens_real x = (dens_real)v_proj[(size_t)i * V_PROJ] * half_w;

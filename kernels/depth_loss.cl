@@ -185,6 +185,13 @@ static void block_stats_one(__global const float *depth, __global const float *t
     bstats[2 * (ji * Bcap + b) + 1] = ss;
 }
 
+/* A block's share of the combined sum of squares, SS_b + n (mean_b - mean)^2 (each record word loaded once). */
+static real ss_term(const real ss_b, const real mean_b, const real mean, const real n)
+{
+    const real dm = mean_b - mean;
+    return ss_b + n * dm * dm;
+}
+
 /* The statistics of (job, input) ji over all its blocks, by one work-group of DL_WG lanes (s: its
  * local array): sstats[ji] = (mean - shift, unbiased std). */
 static void reduce_stats_one(XWG const real *bstats, __global real *sstats, __local real *s, const int lane,
@@ -201,7 +208,7 @@ static void reduce_stats_one(XWG const real *bstats, __global real *sstats, __lo
     barrier(CLK_LOCAL_MEM_FENCE);  /* everyone has read s[0] before it is overwritten */
     const real n = (real)(bw * bh);
     acc = 0;
-    STRIDED_SUM(real, acc, lane, M, bs[2 * i + 1] + n * (bs[2 * i] - mean) * (bs[2 * i] - mean));
+    STRIDED_SUM(real, acc, lane, M, ss_term(bs[2 * i + 1], bs[2 * i], mean, n));
     s[lane] = acc;
     tree_sum(s, lane);
     if (lane == 0) {
@@ -216,6 +223,7 @@ static void reduce_stats_one(XWG const real *bstats, __global real *sstats, __lo
  * group's stores and a global fence) returns 1, and resets the count for the next launch. */
 static int last_group(__global int *done, const int lane, __local int *flag)
 {
+    mem_fence(CLK_GLOBAL_MEM_FENCE);  /* every lane orders its own stores (the writer fences, as in CUDA's pattern) */
     barrier(CLK_GLOBAL_MEM_FENCE | CLK_LOCAL_MEM_FENCE);  /* this group's stores before its count */
     if (lane == 0) {
         mem_fence(CLK_GLOBAL_MEM_FENCE);

@@ -355,12 +355,15 @@ def test_opacity_only_backward_is_wired(device, case):
     np.testing.assert_array_equal(two.view(np.uint32), full.view(np.uint32))
 
 
-@pytest.mark.parametrize("vw", [1, 8])
-def test_backward_stats_adds_what_accumulate_adds(device, case, vw):
+@pytest.mark.parametrize("vw,fuse", [(1, True), (8, True), (8, False)])
+def test_backward_stats_adds_what_accumulate_adds(device, case, vw, fuse):
     """backward(stats=True) (project_bwd adds the densification statistics, densify.h) leaves the same
     statistics, bit for bit, as backward() then accumulate(fr) (densify_accumulate.cl), and the same
-    gradients: a plain, a held and an into backward, two views, at SH 4 (PROJ_SH_STAGE with one Gaussian
-    per work-item) and with eight per work-item (the CPU layout). An opacity-only backward refuses it."""
+    gradients: a plain, a held and an into backward, three views, at SH 4, with one Gaussian per
+    work-item (the GPU layout; PROJ_SH_STAGE where the backend stages SH rows, as on GPUs) and with
+    eight (the CPU layout). fuse False: a trainer without doubles takes the separate launch after the
+    backward (its float statistics are densify_accumulate.cl's, built correctly rounded). A backward
+    of some fields only refuses stats."""
     from reings import densify as D
     from reings.state import TrainState
 
@@ -373,6 +376,7 @@ def test_backward_stats_adds_what_accumulate_adds(device, case, vw):
             st = TrainState.from_gaussians(init)
             st.params["sh_rest"] = np.random.default_rng(5).normal(0, 0.1, (len(st), 3, 3)).astype(np.float32)
             tr = be.trainer(list(scene.images), engine="device")
+            tr.fuse_stats = tr.fuse_stats and fuse
             tr.upload(st)
             got = []
             for view, kw in ((0, {}), (1, {"hold": True}), (2, None)):
@@ -387,8 +391,11 @@ def test_backward_stats_adds_what_accumulate_adds(device, case, vw):
                     tr.accumulate(fr)
                 got.append(be._read(g["means"], (tr.n, 3), np.float32))
                 be._finish()
-            with pytest.raises(ValueError, match="opacity-only"):
-                tr.backward(fr, v_rgb, None, None, ("opacity_logits",), stats=True)
+            for fields in (("opacity_logits",), ("means", "quats")):
+                with pytest.raises(ValueError, match="every field"):
+                    tr.backward(fr, v_rgb, None, None, fields, stats=True)
+            with pytest.raises(ValueError, match="opacity-only"):  # the backend's own check
+                be.backward_device(fr, v_rgb, None, None, None, ("opacity_logits",), stats=(None, None, None))
             out = TrainState.from_gaussians(init)
             tr.download(out)
             states.append(out.stats)

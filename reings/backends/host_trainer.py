@@ -185,8 +185,11 @@ class HostTrainer(HeldRows):
         for the groups of `grad_fields` (SH gradients of inactive coefficients zero), or adds them
         into `into` (reference_state.grad_add) and returns it. The frame's DropGaussian mask
         applies. v_depth_opacity is ignored (the next backward computes its own pass). hold: the
-        result as `hold` returns it (copies). stats: `accumulate(fr)` once the backward is done."""
+        result as `hold` returns it (copies). stats: `accumulate(fr)` once the backward is done (every
+        field: grad_fields None)."""
         del v_depth_opacity
+        if stats and grad_fields is not None:
+            raise ValueError("backward: stats=True needs a backward of every field (grad_fields=None)")
         if v_rgb is None:
             key = (fr.height, fr.width)
             if key not in self._zeros:

@@ -270,8 +270,6 @@ class OpenCLBackend:
         self._ring: CountsRing | None = None  # the sync-free binning's pinned count words, on first use
         self.binned = {"sync": 0, "async": 0}  # forwards binned in each mode
         self._events: list = []  # (stage, event) of the current call
-        self._sizes: dict = {}  # id(buffer) -> (buffer, bytes): _nbytes
-        self._sizes_gen = -1  # the scratch's allocation count they were taken at
         self.last_profile: dict[str, float] = {}
         self._last_counts: Any = None  # the last forward's (visible, K) or DeviceCounts (last_stats)
         self.last_screen = None  # Backend.last_screen: (v_means2d, radii) of the last full render_vjp
@@ -320,19 +318,18 @@ class OpenCLBackend:
             typed_invoker(k, args)
         return k(self.queue, (gsize,), (wg,), *args)
 
-    def _nbytes(self, buf) -> int:
-        """buf.size (a driver query through pyopencl, ~1 us), remembered per buffer object while it
-        is held here (so that its id cannot pass to another); forgotten, and the buffers let go,
-        whenever the scratch allocates (a replaced buffer is not kept alive) or 16 are held."""
-        gen = self.scratch.allocations
-        if gen != self._sizes_gen or len(self._sizes) >= 16:
-            self._sizes, self._sizes_gen = {}, gen
-        e = self._sizes.get(id(buf))
-        if e is not None and e[0] is buf:
-            return e[1]
-        size = int(buf.size)
-        self._sizes[id(buf)] = (buf, size)
-        return size
+    @staticmethod
+    def _nbytes(buf) -> int:
+        """buf.size (a driver query through pyopencl, ~1 us), remembered on the buffer object itself
+        (a buffer's size never changes; nothing here keeps a buffer alive)."""
+        n = getattr(buf, "_reings_nbytes", None)
+        if n is None:
+            n = int(buf.size)
+            try:
+                buf._reings_nbytes = n
+            except AttributeError:  # an object that takes no attributes: asked each time
+                pass
+        return n
 
     def _mark(self, stage: str, ev, span: bool = False):
         """Record the last event of a stage. span=True: the stage enqueued several commands and only
@@ -981,11 +978,12 @@ class OpenCLBackend:
         radii = np.asarray(proj.radii, _I32)
         depths = np.asarray(proj.depths, _F32)
         keys = np.where(radii > 0, depths.view(_U32), _U32(DEPTH_KEY_CULLED)).astype(_U32)
-        for name, arr, dt in (("means2d", proj.means2d, _F32), ("conics", proj.conics, _F32),
-                              ("depths", depths, _F32), ("radii", radii, _I32),
-                              ("tile_rect", proj.tile_rect, _I32), ("colors", proj.colors, _F32),
-                              ("opacities", proj.opacities, _F32), ("depth_keys", keys, _U32),
-                              ("gid_vals", np.arange(fr.n, dtype=_U32), _U32)):
+        arrays = {"means2d": (proj.means2d, _F32), "conics": (proj.conics, _F32), "depths": (depths, _F32),
+                  "radii": (radii, _I32), "tile_rect": (proj.tile_rect, _I32), "colors": (proj.colors, _F32),
+                  "opacities": (proj.opacities, _F32), "depth_keys": (keys, _U32),
+                  "gid_vals": (np.arange(fr.n, dtype=_U32), _U32)}
+        for name, _ in _PROJ_BUFFERS:  # the buffers project_fwd would have written (_proj_buffers' names)
+            arr, dt = arrays[name]
             b[name] = self._upload("gauss", name, np.asarray(arr, dt))
         b["ctrl"] = self._upload("small", "ctrl", np.zeros(CTRL_WORDS, _U32))  # as project_fwd leaves it
 

@@ -171,7 +171,8 @@ class DepthLossCL:
     row-per-work-item form (default: the device's REINGS_CPU_SCHEDULE); `fused`: each reduce in the
     last work-group of the kernel before it (DL_FUSE, 3 launches instead of 5, the same bits; default:
     on the GPU schedule where cross-group reads are known to work, `quirks.volatile_status_words`,
-    and wg > 1). The overrides are for tests (every schedule on PoCL and Oclgrind)."""
+    and wg > 1, unless $REINGS_DL_FUSE=0). The overrides are for tests (every schedule on PoCL and
+    Oclgrind); `fused=True` elsewhere (another vendor's GPU) is untested there."""
 
     def __init__(self, device, wg: int | None = None, fp64: bool | None = None, lwg: int | None = None,
                  cpu_schedule: bool | None = None, fused: bool | None = None):
@@ -197,8 +198,10 @@ class DepthLossCL:
             cpu_schedule = bool(quirks.build_defines(dev)["REINGS_CPU_SCHEDULE"])
         self.cpu_schedule = bool(cpu_schedule)  # dl_grad: a row per work-item (else a pixel per work-item)
         if fused is None:  # $REINGS_DL_FUSE=0 turns it off (A/B measurements)
-            fused = (not self.cpu_schedule and self.wg > 1 and quirks.volatile_status_words(dev)
-                     and os.environ.get("REINGS_DL_FUSE", "1").strip() != "0")
+            env = os.environ.get("REINGS_DL_FUSE", "").strip()
+            if env not in ("", "0", "1"):
+                raise ValueError(f"REINGS_DL_FUSE must be 0 or 1, got {env!r}")
+            fused = not self.cpu_schedule and self.wg > 1 and quirks.volatile_status_words(dev) and env != "0"
         self.fused = bool(fused)
         prg = library_for(self.handle).program("depth_loss.cl", DL_FP64=int(self.fp64), DL_WG=self.wg,
                                                REINGS_CPU_SCHEDULE=int(self.cpu_schedule), DL_FUSE=int(self.fused))

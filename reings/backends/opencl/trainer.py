@@ -193,6 +193,9 @@ class DeviceTrainer:
         self._held_depth = 0  # hold_depth calls: a held depth is valid while its count is the last
         self.bg: list = []  # per view: (mask buffer, float32 2 / count) or None (upload_bg_masks)
         self.real = _F64 if self.fp64 else _F32
+        # backward(stats=True) adds the statistics in project_bwd where they are double (no float32
+        # division or square root in them); float ones are densify_accumulate.cl's (correctly rounded)
+        self.fuse_stats = self.fp64
         self.l1_wg = 1 if backend.cpu else 64  # L1-only loss work-group (kernels/l1.cl)
         self.k_l1_rows = backend.kernel("l1.cl", "l1_rows", L1_WG=self.l1_wg)
         self.k_l1_total = backend.kernel("l1.cl", "l1_total", L1_WG=self.l1_wg)
@@ -666,8 +669,13 @@ class DeviceTrainer:
         DropGaussian mask (from `forward`) applies. v_depth_opacity (a device buffer;
         Trainer.backward): with `fuse_soft_backward`, this pass also makes the records of the
         announced opacity-only backward of that cotangent (backend.backward_device). stats: the
-        densification statistics of this backward too (Trainer.backward), added by its project_bwd
-        (no densify_accumulate launch: docs/perf_notes.md §25)."""
+        densification statistics of this backward too (Trainer.backward; every field: grad_fields
+        None), added by its project_bwd (no densify_accumulate launch: docs/perf_notes.md §25) where
+        the statistics are double (cl_khr_fp64: no float32 division or square root in them, so the
+        build options of project.cl and densify_accumulate.cl cannot tell them apart), else by
+        `accumulate` after it."""
+        if stats and grad_fields is not None:
+            raise ValueError("backward: stats=True needs a backward of every field (grad_fields=None)")
         vd = v_depth
         if isinstance(v_depth, np.ndarray):  # its own buffer: never the depth loss's (an announced cotangent)
             vd = self.mem.get("pixel", "v_depth_host", fr.width * fr.height, 4)
@@ -677,17 +685,22 @@ class DeviceTrainer:
             self._write(vdo_buf, np.asarray(v_depth_opacity, _F32))
             v_depth_opacity = vdo_buf
         vdo = v_depth_opacity if self.fuse_soft_backward else None
-        st = (self.buf("stat", ACCUM), self.buf("stat", COUNT), self.buf("stat", RADII)) if stats else None
+        fused = stats and self.fuse_stats
+        st = (self.buf("stat", ACCUM), self.buf("stat", COUNT), self.buf("stat", RADII)) if fused else None
         cols = grad_columns(fr.sh_k)
         if into is not None:  # project_bwd adds the grad_fields into the held buffers (no second launch)
             if into.get("sh_k") != fr.sh_k or set(into) != {*cols, "sh_k"}:
                 raise ValueError("backward into: the held gradients are of another SH count or field set")
             self.b.backward_device(fr, v_rgb, vd, v_alpha, opacity_override, grad_fields, v_depth_opacity=vdo,
                                    out={f: into[f] for f in cols}, accumulate=True, stats=st)
+            if stats and not fused:
+                self.accumulate(fr)
             return into
         out = self._held(fr.sh_k) if hold else None
         g = dict(self.b.backward_device(fr, v_rgb, vd, v_alpha, opacity_override, grad_fields, v_depth_opacity=vdo,
                                         out=None if out is None else {f: out[f] for f in cols}, stats=st))
+        if stats and not fused:
+            self.accumulate(fr)
         g["sh_k"] = fr.sh_k
         return g
 
