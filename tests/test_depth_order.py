@@ -389,3 +389,40 @@ def test_shared_order_oclgrind():
             assert all(np.array_equal(a, b) for a, b in zip(first, out)), key
         assert be.depth_sorts["shared"] == 2
     """, extra_env={"OCLGRIND_UNINITIALIZED": "0"})
+
+
+def test_buffer_lookups_follow_the_scratch(device):
+    """The projection's and the rasterizer's buffers, looked up once per size and kept while the scratch
+    has not allocated (OpenCLBackend._proj_buffers, Rasterizer.pixel_buffers), are the scratch's
+    current ones after it grows them: a larger N and image in between, in slot 0 and in the kept slot,
+    and the stage API's upload of a larger projection (the same names in the base scratch) while slot 0's
+    lookups are kept at the first N; the first scene renders the same bytes every time."""
+    from reings.backends.opencl.backend import _PROJ_BUFFERS
+    from reings.backends.opencl.rasterize import _PIXELS
+
+    be = get_backend(device)
+    g1, cam1 = random_scene(200, 48, 32, seed=5, sh_degree=0, scale_median=0.15)
+    g2, cam2 = random_scene(900, 96, 64, seed=6, sh_degree=0, scale_median=0.15)
+    inp1, inp2 = ({f: be.scratch.upload("gauss", f"test{k}_{f}", np.ascontiguousarray(getattr(g, f))) for f in FIELDS}
+                  for k, g in ((1, g1), (2, g2)))
+
+    def check(fr):
+        s = be._slot(fr.slot).mem
+        for name, row in _PROJ_BUFFERS:
+            assert fr.bufs[name] is s.get("gauss", name, fr.n, row), name
+        r = be._raster(fr)
+        for (name, ch), buf in zip(_PIXELS, r.pixel_buffers()):
+            assert buf is r.scratch.get("pixel", "raster_" + name, fr.width * fr.height, 4 * ch), name
+        img = be._read(fr.bufs["out_rgb"], (fr.height, fr.width, 3), np.float32)
+        be._finish()
+        return img
+
+    for keep in (False, True):
+        first = check(be.forward_device(inp1, len(g1), 1, cam1, keep=keep))
+        check(be.forward_device(inp2, len(g2), 1, cam2, keep=keep))  # grows every buffer of the slot
+        np.testing.assert_array_equal(check(be.forward_device(inp1, len(g1), 1, cam1, keep=keep)), first)
+    check(be.forward_device(inp1, len(g1), 1, cam1))  # slot 0's lookups kept at N = 200 ...
+    g3, _ = random_scene(3000, 96, 64, seed=7, sh_degree=0, scale_median=0.15)
+    be.bin(ref.project_fwd(g3, cam2), cam2.width, cam2.height)  # ... then a larger projection uploaded under their names
+    be._finish()
+    np.testing.assert_array_equal(check(be.forward_device(inp1, len(g1), 1, cam1)), first)
