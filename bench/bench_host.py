@@ -4,6 +4,7 @@
     python bench/bench_host.py --device pocl --mode stubbed   # the same loop, every kernel launch a no-op
     python bench/bench_host.py --device pocl --mode calls     # OpenCL commands and host syncs per iteration
     python bench/bench_host.py --device pocl --mode cprofile  # the host's top costs per iteration
+    python bench/bench_host.py --device pocl --mode pycalls   # Python / C-level calls per iteration, launches stubbed
     python bench/bench_host.py --device pocl --mode wall --save /tmp/p.npz   # final state, for a bitcheck
     REINGS_BIN=async python bench/bench_host.py --device pocl --mode calls  # the sync-free binning
     REINGS_DEPTH_ORDER=sort python bench/bench_host.py --device pocl --mode calls  # every forward sorts
@@ -60,7 +61,7 @@ def recipe(iterations: int, sh_degree: int, drop: float, view_warp: bool):
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--device", default="pocl")
-    ap.add_argument("--mode", default="wall", choices=("wall", "stubbed", "calls", "cprofile"))
+    ap.add_argument("--mode", default="wall", choices=("wall", "stubbed", "calls", "cprofile", "pycalls"))
     ap.add_argument("--iterations", type=int, default=41)
     ap.add_argument("--warmup", type=int, default=3)
     ap.add_argument("--gaussians", type=int, default=30_000)
@@ -95,7 +96,7 @@ def main(argv=None):
     run(args.warmup)
     its = args.iterations
     sorts0 = dict(be.depth_sorts)
-    calls = prof = None
+    calls = prof = per = None
     t = time.perf_counter()
     if args.mode == "wall":
         r = run(its)
@@ -105,6 +106,25 @@ def main(argv=None):
     elif args.mode == "calls":
         with ClCalls() as calls:
             r = run(its)
+    elif args.mode == "pycalls":  # sys.setprofile's call events of a fit of its and of 2 its - 1 iterations: the
+        counts = []               # difference per iteration leaves the fit's own setup out (docs/perf_notes.md §25)
+        with launches_stubbed():
+            for n_its in (its, 2 * its - 1):
+                c = {"call": 0, "c_call": 0}
+
+                def count(frame, event, arg, c=c):
+                    if event in c:
+                        c[event] += 1
+
+                sys.setprofile(count)
+                try:
+                    r = run(n_its)
+                finally:
+                    sys.setprofile(None)
+                counts.append(c)
+        per = {k: (counts[1][k] - counts[0][k]) / (its - 1) for k in ("call", "c_call")}
+        print(f"pycalls  {args.label}: {per['call']:.1f} Python and {per['c_call']:.1f} C-level calls per iteration "
+              f"(launches stubbed)", flush=True)
     else:
         prof = cProfile.Profile()
         prof.enable()
@@ -125,6 +145,8 @@ def main(argv=None):
     print(f"{args.mode:8s} {args.label}: {steady:8.2f} ms/iteration (steady, its {h.iteration[0]}..{h.iteration[-1]}); "
           f"fit {wall:.2f} s; loss {h.loss[-1]:.6f} psnr {h.train_psnr[-1]:.4f}; "
           f"binning {be.bin_mode} {be.binned}; depth order {be.depth_order} {rec['depth_sorts']}", flush=True)
+    if per is not None:
+        rec["python_calls_per_iteration"] = per
     if calls is not None:
         rec["calls_per_iteration"] = calls.as_dict(per=its)
         print("  per iteration: " + ", ".join(f"{k} {v:.1f}" for k, v in rec["calls_per_iteration"].items() if v),

@@ -978,12 +978,11 @@ class OpenCLBackend:
         radii = np.asarray(proj.radii, _I32)
         depths = np.asarray(proj.depths, _F32)
         keys = np.where(radii > 0, depths.view(_U32), _U32(DEPTH_KEY_CULLED)).astype(_U32)
-        arrays = {"means2d": (proj.means2d, _F32), "conics": (proj.conics, _F32), "depths": (depths, _F32),
-                  "radii": (radii, _I32), "tile_rect": (proj.tile_rect, _I32), "colors": (proj.colors, _F32),
-                  "opacities": (proj.opacities, _F32), "depth_keys": (keys, _U32),
-                  "gid_vals": (np.arange(fr.n, dtype=_U32), _U32)}
-        for name, _ in _PROJ_BUFFERS:  # the buffers project_fwd would have written (_proj_buffers' names)
-            arr, dt = arrays[name]
+        for name, arr, dt in (("means2d", proj.means2d, _F32), ("conics", proj.conics, _F32),
+                              ("depths", depths, _F32), ("radii", radii, _I32),
+                              ("tile_rect", proj.tile_rect, _I32), ("colors", proj.colors, _F32),
+                              ("opacities", proj.opacities, _F32), ("depth_keys", keys, _U32),
+                              ("gid_vals", np.arange(fr.n, dtype=_U32), _U32)):
             b[name] = self._upload("gauss", name, np.asarray(arr, dt))
         b["ctrl"] = self._upload("small", "ctrl", np.zeros(CTRL_WORDS, _U32))  # as project_fwd leaves it
 

@@ -138,22 +138,9 @@ def _cpu_schedule(handle, cpu_schedule):
     return bool(cpu_schedule)
 
 
-_UNITS: dict = {}  # device -> CL_DEVICE_MAX_COMPUTE_UNITS (a driver query per call otherwise)
-
-
-def _compute_units(device) -> int:
-    try:
-        return _UNITS[device]
-    except KeyError:
-        u = _UNITS[device] = max(1, int(device.max_compute_units))
-        return u
-    except TypeError:  # an unhashable stand-in (tests)
-        return max(1, int(device.max_compute_units))
-
-
-def _blocks_cpu(handle, n: int, min_chunk: int, per_core: int) -> tuple[int, int]:
-    """(nblocks, chunk) for the CPU schedule: about per_core blocks per core, each >= min_chunk."""
-    cores = _compute_units(handle.device)
+def _blocks_cpu(cores: int, n: int, min_chunk: int, per_core: int) -> tuple[int, int]:
+    """(nblocks, chunk) for the CPU schedule: about per_core blocks per core (the caller's compute
+    units, read from the device once), each >= min_chunk."""
     nblocks = max(1, min(cores * per_core, -(-n // min_chunk)))
     chunk = -(-n // nblocks)
     nblocks = -(-n // chunk)  # drop trailing empty blocks
@@ -286,6 +273,7 @@ class ExclusiveScan:
         self.handle = handle
         self.cpu = _cpu_schedule(handle, cpu_schedule)
         self.wg, self.items, self.per_core = wg, items, blocks_per_core
+        self.compute_units = max(1, int(handle.device.max_compute_units))  # a driver query: once
         self.defines = {"REINGS_CPU_SCHEDULE": int(self.cpu)}  # a block-sum writer builds with these too
         if not self.cpu:
             self.defines.update(SCAN_WG=wg, SCAN_ITEMS=items)
@@ -300,7 +288,7 @@ class ExclusiveScan:
         schedule: a work-item per block of `chunk` elements; GPU: a work-group of `wg` per block of
         wg * items elements (chunk 0)."""
         if self.cpu:
-            nblocks, chunk = _blocks_cpu(self.handle, n, 4096, self.per_core)
+            nblocks, chunk = _blocks_cpu(self.compute_units, n, 4096, self.per_core)
             return nblocks, chunk, nblocks, 1
         nblocks = -(-n // (self.wg * self.items))
         return nblocks, 0, nblocks * self.wg, self.wg
@@ -537,7 +525,7 @@ class RadixSort:
     def geometry(self, n: int, items: int | None = None) -> tuple[int, int]:
         """(nblocks, chunk): blocks per pass and elements per block (items None: `launch_items(n)`)."""
         if self.cpu:
-            return _blocks_cpu(self.handle, n, 1024, self.per_core)
+            return _blocks_cpu(self.compute_units, n, 1024, self.per_core)
         block = self.wg * (items or self.launch_items(n))
         return -(-n // block), block
 
@@ -546,7 +534,7 @@ class RadixSort:
         at most `capacity` pairs, launched for `estimate` of them (module docstring); items None:
         `launch_items(estimate, device_count=True)`, as sort_pairs chooses them."""
         if self.cpu:
-            nblocks = _compute_units(self.handle.device) * self.per_core
+            nblocks = self.compute_units * self.per_core
             return nblocks, nblocks
         block = self.wg * (items or self.launch_items(estimate, device_count=True))
         cap_blocks = max(1, -(-capacity // block))

@@ -157,7 +157,7 @@ class DeviceTrainer:
         self.handle = backend.handle
         self.queue = backend.queue
         self.mem = Scratch(self.handle)
-        self.fp64 = "cl_khr_fp64" in self.handle.device.extensions
+        self.fp64 = backend.fp64  # cl_khr_fp64
         self.adam = adam if adam != "auto" else (CPU_DEFAULT_ADAM if backend.cpu else "kernel")
         self.profile = profile
         self.photo = backend.photometric_kernels
