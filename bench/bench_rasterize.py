@@ -43,7 +43,30 @@ def _upload(h, proj, bins, W: int, H: int):
     for f in ("tile_ranges", "gid_from_isect", "emit_from_isect", "gid_from_rank", "offset_from_rank"):
         b[f] = up(getattr(bins, f), i32)
     rng = np.random.default_rng(0)
-    return b, up(rng.normal(size=(H, W, 3)) / (H * W), f32)
+    b["v_rgb"] = up(rng.normal(size=(H, W, 3)) / (H * W), f32)
+    b["v_depth"] = up(rng.normal(size=(H, W)) / (H * W), f32)
+    return b
+
+
+def _scene(args):
+    """(Gaussians, Camera) of --scene, or of a reings checkpoint (--checkpoint, a fit's
+    checkpoints/STAGE.npz) seen from --view of the run's cameras.json (--cameras), opacities
+    overridden by --opacity (0.99: the coarse fit's hard depth pass)."""
+    if not args.checkpoint:
+        return perf_scene(args.scene, n=args.n)
+    from reings.io.cameras import read_cameras_json
+    from reings.types import Gaussians
+
+    z = np.load(args.checkpoint, allow_pickle=False)
+    sh = z["param/sh_dc"]
+    if "param/sh_rest" in z and z["param/sh_rest"].size:
+        sh = np.concatenate([sh, z["param/sh_rest"]], axis=1)
+    logits = z["param/opacity_logits"]
+    if args.opacity is not None:
+        logits = np.full_like(logits, np.log(args.opacity / (1.0 - args.opacity)))
+    g = Gaussians(z["param/means"], z["param/quats"], z["param/log_scales"], logits, sh)
+    cams = read_cameras_json(args.cameras or str(Path(args.checkpoint).parents[1] / "cameras.json"))
+    return g, cams[args.view].camera
 
 
 def _ms(ev) -> float:
@@ -59,6 +82,12 @@ def main(argv=None):
     ap.add_argument("--schedule", choices=["auto", "cpu", "gpu"], default="auto")
     ap.add_argument("--define", action="append", default=[], help="extra kernel define NAME=VALUE")
     ap.add_argument("--n", type=int, default=None, help="override the Gaussian count (smoke runs)")
+    ap.add_argument("--checkpoint", default=None, help="a reings fit's checkpoints/STAGE.npz instead of --scene")
+    ap.add_argument("--cameras", default=None, help="cameras.json of --checkpoint's run (default: the run's)")
+    ap.add_argument("--view", type=int, default=0, help="the camera of --cameras (its order)")
+    ap.add_argument("--opacity", type=float, default=None, help="every opacity set to this (0.99: the hard pass)")
+    ap.add_argument("--cotangent", choices=("rgb", "depth"), default="rgb",
+                    help="the backward's cotangent: the image's (photometric) or the depth's (depth passes)")
     ap.add_argument("--no-count", action="store_true", help="skip the reference pair count (slow)")
     ap.add_argument("--against", action="append", default=[], metavar="NAME=VALUE",
                     help="A/B: a second build with these defines (over --define), its runs alternating with "
@@ -72,7 +101,7 @@ def main(argv=None):
     from reings.backends.opencl.device import open_device
     from reings.backends.opencl.rasterize import Rasterizer
 
-    g, cam = perf_scene(args.scene, n=args.n)
+    g, cam = _scene(args)
     W, H = cam.width, cam.height
     t0 = time.perf_counter()
     proj = ref.project_fwd(g, cam)
@@ -85,7 +114,8 @@ def main(argv=None):
     sched = None if args.schedule == "auto" else args.schedule == "cpu"
     r = Rasterizer(h, cpu_schedule=sched, **defines)
     ctx, q = h.context, h.queue
-    b, vr = _upload(h, proj, bins, W, H)
+    b = _upload(h, proj, bins, W, H)
+    cot = {"v_" + args.cotangent: b["v_" + args.cotangent]}
     grads = cl.Buffer(ctx, cl.mem_flags.READ_WRITE, n * V_RECORD * 4)
 
     def fwd():
@@ -95,7 +125,7 @@ def main(argv=None):
         return e0, e1
 
     def bwd():
-        e2 = r.bwd(b["tile_ranges"], b["gid_from_isect"], b["emit_from_isect"], k, W, H, v_rgb=vr)
+        e2 = r.bwd(b["tile_ranges"], b["gid_from_isect"], b["emit_from_isect"], k, W, H, **cot)
         e3 = r.reduce(r.v_emit, V_RECORD, b["offset_from_rank"], b["gid_from_rank"], v, grads)
         return e2, e3
 
@@ -152,7 +182,7 @@ def against(args):
 
     if any(d.split("=", 1)[0] == "REINGS_CPU_SCHEDULE" for d in args.against + args.define):
         raise SystemExit("bench_rasterize: the schedule is --schedule's, not a define's")
-    g, cam = perf_scene(args.scene, n=args.n)
+    g, cam = _scene(args)
     W, H = cam.width, cam.height
     proj = ref.project_fwd(g, cam)
     bins = ref.bin(proj, W, H)
@@ -163,7 +193,8 @@ def against(args):
     db = dict(da, **dict(d.split("=", 1) for d in args.against))
     rs = [Rasterizer(h, cpu_schedule=sched, **da), Rasterizer(h, cpu_schedule=sched, **db)]
     q = h.queue
-    b, vr = _upload(h, proj, bins, W, H)
+    b = _upload(h, proj, bins, W, H)
+    cot = {"v_" + args.cotangent: b["v_" + args.cotangent]}
     times = [{"fwd": [], "bwd": []} for _ in rs]
     for it in range(args.warmup + args.runs):
         for j in ((0, 1) if it % 2 == 0 else (1, 0)):  # A, B then B, A: no build always runs first
@@ -171,7 +202,7 @@ def against(args):
             r.prep(b["means2d"], b["conics"], b["colors"], b["opacities"], b["depths"], n)
             e1 = r.fwd(None, None, None, None, None, n, b["tile_ranges"], b["gid_from_isect"],
                        b["emit_from_isect"], k, W, H, (0, 0, 0), prepared=True)
-            e2 = r.bwd(b["tile_ranges"], b["gid_from_isect"], b["emit_from_isect"], k, W, H, v_rgb=vr)
+            e2 = r.bwd(b["tile_ranges"], b["gid_from_isect"], b["emit_from_isect"], k, W, H, **cot)
             q.finish()
             if it >= args.warmup:
                 times[j]["fwd"].append(_ms(e1))

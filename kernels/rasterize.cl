@@ -32,7 +32,11 @@
  *
  * Defines (defaults): REINGS_CPU_SCHEDULE (0), REINGS_NV_PTX (0) from quirks.build_defines;
  *   RASTER_IMPORTANCE (0); RASTER_VEC (8, CPU pixel lanes: 8 = AVX2, 16 = AVX-512; the host passes
- *   $REINGS_RASTER_VEC, else 8: reings.backends.opencl.rasterize.raster_vec);
+ *   $REINGS_RASTER_VEC, else 16 where the device's native float vector is 16 wide: rasterize.raster_vec);
+ *   RASTER_BLOCK_H (RASTER_VEC / 4, CPU schedule): a pixel vector is RASTER_BLOCK_H rows of
+ *   RASTER_VEC / RASTER_BLOCK_H pixels (4 x 2 or 4 x 4: fewer vectors per Gaussian than one row of 8 or
+ *   16, docs/perf_notes.md §27); every shape gives each pixel the same values (the same bytes of the
+ *   forward's images), only the order of a tile's per-Gaussian sums differs;
  *   FWD_BATCH (256) / BWD_BATCH (32): Gaussians staged in local memory per batch (GPU schedule);
  *   REDUCE_UNROLL (8): gradient records isect_reduce loads before adding them (the same order);
  *   RASTER_BWD_OPACITY (0): 1 builds rasterize_bwd for a backward whose only wanted gradient is the
@@ -56,7 +60,7 @@
  *   (tests/test_rasterize.py; docs/perf_notes.md §22).
  * Schedules (same algorithm, same results up to float rounding of sums):
  *   CPU: one work-item per tile (local size 1), no barriers; the tile's 256 pixels are
- *        RASTER_VEC-wide vectors in private arrays; Gaussians are the outer loop (uniform scalar
+ *        RASTER_VEC-wide vectors (blocks of RASTER_BLOCK_H rows) in private arrays; Gaussians are the outer loop (uniform scalar
  *        loads), each visits only the pixel rows/vectors of its box; per-pixel and whole-tile
  *        early exit; per-(tile, Gaussian) sums stay in registers and are written once.
  *   GPU: one 256-work-item group per tile, a work-item per pixel, Gaussians staged in local memory
@@ -91,6 +95,9 @@
 #endif
 #ifndef RASTER_VEC
 #define RASTER_VEC 8
+#endif
+#ifndef RASTER_BLOCK_H
+#define RASTER_BLOCK_H (RASTER_VEC / 4)
 #endif
 #ifndef FWD_BATCH
 #define FWD_BATCH 256
@@ -242,9 +249,9 @@ __kernel void isect_reduce(__global const float *records,       // [K_emit, widt
 #if RASTER_VEC == 8
 typedef float8 vf;
 typedef int8 vi;
-#define LANES ((vf)(0.5f, 1.5f, 2.5f, 3.5f, 4.5f, 5.5f, 6.5f, 7.5f))
 #define ILANES ((vi)(0, 1, 2, 3, 4, 5, 6, 7))
 #define VLOAD vload8
+#define VCVT convert_float8
 #define VSTORE vstore8
 inline float hsum(vf x) {
     float4 a = x.lo + x.hi;
@@ -265,9 +272,9 @@ inline int vany(vi m) { return any8(m); } /* any(m) */
 #elif RASTER_VEC == 16
 typedef float16 vf;
 typedef int16 vi;
-#define LANES ((vf)(0.5f, 1.5f, 2.5f, 3.5f, 4.5f, 5.5f, 6.5f, 7.5f, 8.5f, 9.5f, 10.5f, 11.5f, 12.5f, 13.5f, 14.5f, 15.5f))
 #define ILANES ((vi)(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15))
 #define VLOAD vload16
+#define VCVT convert_float16
 #define VSTORE vstore16
 inline float hsum(vf x) {
     float8 a8 = x.lo + x.hi;
@@ -292,21 +299,43 @@ inline int vany(vi m) { return any8(m.lo | m.hi); } /* any(m) */
 #error "RASTER_VEC must be 8 or 16"
 #endif
 
-#define CPR (TILE_SIZE / RASTER_VEC)   /* pixel vectors per tile row */
+/* A pixel vector is a block of BW x BH pixels (RASTER_BLOCK_H rows of RASTER_VEC / RASTER_BLOCK_H);
+ * lane l is the block's pixel (l % BW, l / BW). Vector c is block row c / BPR, block column c % BPR. */
+#if RASTER_VEC % RASTER_BLOCK_H || TILE_SIZE % RASTER_BLOCK_H || TILE_SIZE % (RASTER_VEC / RASTER_BLOCK_H)
+#error "RASTER_BLOCK_H must divide RASTER_VEC and the tile, and RASTER_VEC / RASTER_BLOCK_H the tile"
+#endif
+#define BH RASTER_BLOCK_H
+#define BW (RASTER_VEC / RASTER_BLOCK_H)
+#define BPR (TILE_SIZE / BW)            /* pixel vectors per block row */
 #define NVEC (TILE_PIXELS / RASTER_VEC) /* pixel vectors per tile */
+#define VEC_X(c) (((c) % BPR) * BW)     /* tile-relative pixel column of vector c's lane 0 */
+#define VEC_Y(c) (((c) / BPR) * BH)     /* tile-relative pixel row of vector c's lane 0 */
+#if BH == 1
+#define ILX ILANES
+#define ILY ((vi)(0))
+#else
+#define ILX (ILANES % BW)
+#define ILY (ILANES / BW)
+#endif
 
-/* The rows [*r0, *r1] and vector columns [*c0, *c1] (tile-relative) of a Gaussian's box;
+/* The block rows [*r0, *r1] and block columns [*c0, *c1] (tile-relative) of a Gaussian's box;
  * returns 0 when the box misses the tile. */
 inline int box_in_tile(float16 g, int x0, int y0, int *r0, int *r1, int *c0, int *c1) {
     const int xlo = (int)g.sa - x0, xhi = (int)g.sb - x0, ylo = (int)g.sc - y0, yhi = (int)g.sd - y0;
-    *r0 = IMAX(ylo, 0);
+    *r0 = IMAX(ylo, 0) / BH;
     *r1 = IMIN(yhi, TILE_SIZE - 1);
-    *c0 = IMAX(xlo, 0) / RASTER_VEC;
+    *c0 = IMAX(xlo, 0) / BW;
     *c1 = IMIN(xhi, TILE_SIZE - 1);
-    if (xhi < xlo || *c1 < 0 || *r1 < *r0 || xlo > TILE_SIZE - 1) return 0;
-    *c1 /= RASTER_VEC;
+    if (xhi < xlo || *c1 < 0 || *r1 < IMAX(ylo, 0) || xlo > TILE_SIZE - 1) return 0;
+    *r1 /= BH;
+    *c1 /= BW;
     return 1;
 }
+
+/* A vector's offsets from the Gaussian's centre to its pixels' centres, g - (pixel + 0.5), the centre
+ * exact: each pixel gets the same value, and so the same power, at every block shape. */
+#define VEC_DX(g, x) ((vf)((g).s0) - ((vf)((float)(x)) + (VCVT(ILX) + 0.5f)))
+#define VEC_DY(g, y) ((vf)((g).s1) - ((vf)((float)(y)) + (VCVT(ILY) + 0.5f)))
 
 __kernel void rasterize_fwd(__global const float16 *packed,      // [N] records of raster_prep_one (project_fwd or rasterize_prep)
                             __global const int *tile_ranges,     // [T, 2]
@@ -331,8 +360,8 @@ __kernel void rasterize_fwd(__global const float16 *packed,      // [N] records 
     vi Lv[NVEC];
     int n_active = 0;
     for (int c = 0; c < NVEC; ++c) {
-        const int py = y0 + (int)((uint)c / CPR), px = x0 + (int)((uint)c % CPR) * RASTER_VEC;
-        const vi inside = (ILANES + px < width) & (vi)(py < height ? -1 : 0);
+        const int py = y0 + VEC_Y(c), px = x0 + VEC_X(c);
+        const vi inside = (ILX + px < width) & (ILY + py < height);
         Tv[c] = SEL((vf)(-1.0f), (vf)(1.0f), inside);
         Rv[c] = Gv[c] = Bv[c] = Dv[c] = (vf)(0.0f);
         Lv[c] = (vi)(0);
@@ -347,11 +376,11 @@ __kernel void rasterize_fwd(__global const float16 *packed,      // [N] records 
         vf imp = (vf)(0.0f);
         if (box_in_tile(g, x0, y0, &r0, &r1, &c0, &c1)) {
             for (int r = r0; r <= r1; ++r) {
-                const float dy = g.s1 - ((float)(y0 + r) + 0.5f);
+                const vf dy = VEC_DY(g, y0 + r * BH);
                 for (int cc = c0; cc <= c1; ++cc) {
-                    const int c = r * CPR + cc;
+                    const int c = r * BPR + cc;
                     const vf T = Tv[c];
-                    const vf dx = (vf)(g.s0 - (float)(x0 + cc * RASTER_VEC)) - LANES;
+                    const vf dx = VEC_DX(g, x0 + cc * BW);
                     const vf power = -0.5f * (g.s2 * dx * dx + g.s4 * dy * dy) - g.s3 * dx * dy;
 #if RASTER_ALPHA_CUT
                     /* ALPHA_CUT, and the lanes already stopped (T < 0): every lane fails ok below */
@@ -384,8 +413,8 @@ __kernel void rasterize_fwd(__global const float16 *packed,      // [N] records 
     for (; i < end; ++i) imp_emit[emit_from_isect[i]] = 0.0f;
 #endif
     for (int c = 0; c < NVEC; ++c) {
-        const int py = y0 + (int)((uint)c / CPR), px0 = x0 + (int)((uint)c % CPR) * RASTER_VEC;
-        if (py >= height) break;
+        const int py0 = y0 + VEC_Y(c), px0 = x0 + VEC_X(c);
+        if (py0 >= height) break;
         const vf T = fabs(Tv[c]);
         float tT[RASTER_VEC], tD[RASTER_VEC], tA[RASTER_VEC], tR[RASTER_VEC], tG[RASTER_VEC], tB[RASTER_VEC];
         int tL[RASTER_VEC];
@@ -396,9 +425,10 @@ __kernel void rasterize_fwd(__global const float16 *packed,      // [N] records 
         VSTORE(Gv[c] + T * bg_g, 0, tG);
         VSTORE(Bv[c] + T * bg_b, 0, tB);
         VSTORE(Lv[c], 0, tL);
-        const int nl = min(RASTER_VEC, width - px0);
-        for (int l = 0; l < nl; ++l) {
-            const int p = py * width + px0 + l;
+        for (int l = 0; l < RASTER_VEC; ++l) {
+            const int px = px0 + l % BW, py = py0 + l / BW;
+            if (px >= width || py >= height) continue;
+            const int p = py * width + px;
             out_T[p] = tT[l];
             out_depth[p] = tD[l];
             out_alpha[p] = tA[l];
@@ -433,7 +463,7 @@ bwd_tile(__global const float16 *packed, __global const int *gid_from_isect, __g
     vi Lv[NVEC];
     vi lmax = (vi)(0);
     for (int c = 0; c < NVEC; ++c) {
-        const int py = y0 + (int)((uint)c / CPR), px0 = x0 + (int)((uint)c % CPR) * RASTER_VEC;
+        const int py0 = y0 + VEC_Y(c), px0 = x0 + VEC_X(c);
         float vr[RASTER_VEC], vg[RASTER_VEC], vb[RASTER_VEC], vd[RASTER_VEC], R[RASTER_VEC];
         float vo[RASTER_VEC], ro[RASTER_VEC];
         int L[RASTER_VEC];
@@ -442,10 +472,11 @@ bwd_tile(__global const float16 *packed, __global const int *gid_from_isect, __g
             vo[l] = ro[l] = 0.0f;
             L[l] = 0;
         }
-        if (py < height) {
-            const int nl = min(RASTER_VEC, width - px0);
-            for (int l = 0; l < nl; ++l) {
-                const int p = py * width + px0 + l;
+        {
+            for (int l = 0; l < RASTER_VEC; ++l) {
+                const int px = px0 + l % BW, py = py0 + l / BW;
+                if (px >= width || py >= height) continue;
+                const int p = py * width + px;
                 float r = 0.0f;
                 if (v_mask & 1) {
                     vr[l] = scaled(v_rgb[3 * p], sv);
@@ -503,12 +534,12 @@ bwd_tile(__global const float16 *packed, __global const int *gid_from_isect, __g
         int r0, r1, c0, c1;
         if (box_in_tile(g, x0, y0, &r0, &r1, &c0, &c1)) {
             for (int r = r0; r <= r1; ++r) {
-                const float dy = g.s1 - ((float)(y0 + r) + 0.5f);
+                const vf dy = VEC_DY(g, y0 + r * BH);
                 for (int cc = c0; cc <= c1; ++cc) {
-                    const int c = r * CPR + cc;
+                    const int c = r * BPR + cc;
                     const vi valid = (vi)(k) < Lv[c];
                     if (!vany(valid)) continue;
-                    const vf dx = (vf)(g.s0 - (float)(x0 + cc * RASTER_VEC)) - LANES;
+                    const vf dx = VEC_DX(g, x0 + cc * BW);
                     const vf power = -0.5f * (g.s2 * dx * dx + g.s4 * dy * dy) - g.s3 * dx * dy;
 #if RASTER_ALPHA_CUT
                     if (!vany(power >= g.se)) continue; /* ALPHA_CUT: every lane fails ok below */

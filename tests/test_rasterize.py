@@ -279,39 +279,65 @@ def test_alpha_cut_is_below_every_kept_pair():
     assert np.all(alpha64 < ALPHA_MIN * np.exp(-pad / 2))
 
 
-@pytest.mark.parametrize("vec", [8, 16])
+@pytest.mark.parametrize("vec,block_h", [(8, 1), (8, 2), (16, 1), (16, 4)])
 @pytest.mark.parametrize("name", ["random", "size_70x45", "many_in_one_tile", "needles"])
-def test_cpu_lane_widths_match_reference(device, vec, name):
-    """The CPU schedule at both pixel-lane widths (RASTER_VEC 8, the default, and 16, `REINGS_RASTER_VEC`)
-    against the float64 reference: the same `last`, images and
-    gradients to float rounding; the two widths agree with each other the same way."""
+def test_cpu_lane_widths_match_reference(device, vec, block_h, name):
+    """The CPU schedule at both pixel-lane widths (RASTER_VEC 8 and 16) in one-row vectors and in the
+    default blocks (RASTER_BLOCK_H = RASTER_VEC / 4: 4 x 2 and 4 x 4 pixels) against the float64
+    reference: the same `last`, images and gradients to float rounding."""
     from reings.backends.opencl.rasterize import rasterize_bwd_host, rasterize_fwd_host
 
     proj, bins, w, h = _scene(name)
-    got = rasterize_fwd_host(proj, bins, w, h, BG, True, device=device, cpu_schedule=True, RASTER_VEC=vec)
-    other = rasterize_fwd_host(proj, bins, w, h, BG, True, device=device, cpu_schedule=True,
-                               RASTER_VEC=24 - vec)
-    exp = ref.rasterize_fwd(proj, bins, w, h, BG)
-    assert np.array_equal(got.last, other.last)
+    on = dict(device=device, cpu_schedule=True, RASTER_VEC=vec, RASTER_BLOCK_H=block_h)
+    got = rasterize_fwd_host(proj, bins, w, h, BG, True, **on)
+    exp = ref.rasterize_fwd(proj, bins, w, h, BG, want_importance=True)
+    assert np.array_equal(got.last, exp.last)
     for f in ("rgb", "depth", "alpha"):
         assert_close(getattr(got, f), getattr(exp, f), 1e-5, 1e-5, name=f)
-        assert_close(getattr(got, f), getattr(other, f), 1e-5, 1e-5, name=f)
+    assert_close(got.importance, exp.importance, 1e-5, 1e-5, name="importance")
     vr, vd, va = _cotangents(w, h)
-    g = rasterize_bwd_host(proj, bins, w, h, vr, vd, va, BG, device=device, cpu_schedule=True, RASTER_VEC=vec)
+    g = rasterize_bwd_host(proj, bins, w, h, vr, vd, va, BG, **on)
     e = ref.rasterize_bwd(proj, bins, exp, vr, vd, va, w, h, BG)
     for f in ("v_means2d", "v_conics", "v_colors", "v_opacities", "v_depths"):
         assert_grad_close(getattr(g, f), getattr(e, f), f, MIN_COSINE, MAX_REL_L2)
 
 
-def test_raster_vec_is_8_unless_asked(monkeypatch):
-    from reings.backends.opencl.rasterize import Rasterizer, raster_vec
+@pytest.mark.parametrize("name", ["random", "size_70x45", "many_in_one_tile", "needles", "tile_corner"])
+def test_cpu_pixel_blocks_keep_the_forward_bytes(device, name):
+    """Every pixel vector shape of the CPU schedule (8 lanes as 8 x 1, 4 x 2, 2 x 4, 1 x 8; 16 lanes as
+    16 x 1, 8 x 2, 4 x 4) gives each pixel the same offsets, powers and blending order, so the forward's
+    images and `last` are the same bytes (only per-Gaussian sums, the importance here, change order)."""
+    from reings.backends.opencl.rasterize import rasterize_fwd_host
+
+    proj, bins, w, h = _scene(name)
+    shapes = [(8, 1), (8, 2), (8, 4), (8, 8), (16, 1), (16, 2), (16, 4)]
+    outs = [rasterize_fwd_host(proj, bins, w, h, BG, True, device=device, cpu_schedule=True, RASTER_VEC=v,
+                               RASTER_BLOCK_H=bh) for v, bh in shapes]
+    for shape, o in zip(shapes[1:], outs[1:]):
+        for f in ("rgb", "depth", "alpha", "final_T", "last"):
+            assert np.array_equal(np.asarray(getattr(o, f)).view(np.uint32),
+                                  np.asarray(getattr(outs[0], f)).view(np.uint32)), (shape, f)
+        assert_close(o.importance, outs[0].importance, 1e-5, 1e-6, name=f"importance {shape}")
+
+
+def test_raster_vec_follows_the_device(monkeypatch):
+    """RASTER_VEC: $REINGS_RASTER_VEC if set (8 or 16), else 16 where the device's native float vector is
+    16 wide or more (PoCL on AVX-512), else 8; the choice reaches the build."""
+    from types import SimpleNamespace
+
     from reings.backends.opencl.device import open_device
+    from reings.backends.opencl.rasterize import Rasterizer, raster_vec
 
     monkeypatch.delenv("REINGS_RASTER_VEC", raising=False)
     assert raster_vec() == 8
-    monkeypatch.setenv("REINGS_RASTER_VEC", "16")
-    assert raster_vec() == 16
-    assert Rasterizer(open_device("pocl"), cpu_schedule=True)._defines["RASTER_VEC"] == 16  # reaches the build
+    assert raster_vec(SimpleNamespace(native_vector_width_float=8)) == 8
+    assert raster_vec(SimpleNamespace(native_vector_width_float=16)) == 16
+    h = open_device("pocl")
+    want = 16 if h.device.native_vector_width_float >= 16 else 8
+    assert Rasterizer(h, cpu_schedule=True)._defines["RASTER_VEC"] == want
+    monkeypatch.setenv("REINGS_RASTER_VEC", "8")
+    assert raster_vec(SimpleNamespace(native_vector_width_float=16)) == 8
+    assert Rasterizer(open_device("pocl"), cpu_schedule=True)._defines["RASTER_VEC"] == 8  # reaches the build
     monkeypatch.setenv("REINGS_RASTER_VEC", "12")
     with pytest.raises(ValueError, match="REINGS_RASTER_VEC must be 8 or 16, got '12'"):
         raster_vec()

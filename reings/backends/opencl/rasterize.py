@@ -49,15 +49,15 @@ PACKED_BYTES = 64  # one float16 record per Gaussian (rasterize_prep)
 _BWD_TYPES = [None] * 4 + [np.int32] * 4 + [None] * 7 + [np.int32] + [None] * 3  # rasterize_bwd's scalar arguments
 
 
-def raster_vec() -> int:
-    """The CPU schedule's pixel lanes (RASTER_VEC): $REINGS_RASTER_VEC (8 or 16), else 8.
+def raster_vec(device=None) -> int:
+    """The CPU schedule's pixel lanes (RASTER_VEC): $REINGS_RASTER_VEC (8 or 16), else 16 where the
+    device's native float vector is 16 wide or more (PoCL on AVX-512), else 8.
 
-    16 suits AVX-512 (the device's native float vector 16 wide under PoCL) and measured faster on
-    the rasterizer alone (2-core AVX-512 Xeon, PoCL 3.0, scene A forward + backward 144.5 -> 131.8 ms)
-    but not on a whole quick run (`make run`: 39.9 / 49.9 s against 39.0 / 50.1 s), where it moved
-    the test PSNR 22.884 -> 22.124 dB: the widths sum a tile's per-Gaussian records in other orders
-    (float rounding), and a few-shot fit with densification amplifies that (docs/results.md §28). So
-    it is opt-in."""
+    A pixel vector is a block of 4 x RASTER_VEC / 4 pixels (RASTER_BLOCK_H, kernels/rasterize.cl): every
+    pixel gets the same values at every width and block shape, and only the sums of a tile's
+    per-Gaussian records change order. On a 2-core AVX-512 Xeon (PoCL 3.0) 16 lanes in 4 x 4 blocks
+    took 0.67-0.74 of the forward's time and 0.77-0.81 of the backward's of 8 lanes in 4 x 2 blocks on
+    fern's fitted states (docs/perf_notes.md §27)."""
     import os
 
     env = os.environ.get("REINGS_RASTER_VEC", "").strip()
@@ -65,7 +65,8 @@ def raster_vec() -> int:
         if env not in ("8", "16"):
             raise ValueError(f"REINGS_RASTER_VEC must be 8 or 16, got {env!r}")
         return int(env)
-    return 8
+    width = int(getattr(device, "native_vector_width_float", 0) or 0) if device is not None else 0
+    return 16 if width >= 16 else 8
 
 
 def _nd(n: int, local: int) -> int:
@@ -97,7 +98,7 @@ class Rasterizer:
         self.scratch = scratch
         self.shared = scratch if shared is None else shared
         if self.cpu_schedule and "RASTER_VEC" not in d:
-            d["RASTER_VEC"] = raster_vec()
+            d["RASTER_VEC"] = raster_vec(handle.device)
         self._lib, self._defines = lib, d
         self.k_prep = lib.get(FILE, "rasterize_prep", RASTER_IMPORTANCE=0, **d)
         self.k_fwd = lib.get(FILE, "rasterize_fwd", RASTER_IMPORTANCE=0, **d)
