@@ -63,6 +63,8 @@ def _scene(args):
         sh = np.concatenate([sh, z["param/sh_rest"]], axis=1)
     logits = z["param/opacity_logits"]
     if args.opacity is not None:
+        if not 0.0 < args.opacity < 1.0:
+            raise SystemExit(f"bench_rasterize: --opacity must be in (0, 1), got {args.opacity}")
         logits = np.full_like(logits, np.log(args.opacity / (1.0 - args.opacity)))
     g = Gaussians(z["param/means"], z["param/quats"], z["param/log_scales"], logits, sh)
     cams = read_cameras_json(args.cameras or str(Path(args.checkpoint).parents[1] / "cameras.json"))

@@ -31,8 +31,9 @@
  *                   a sum that overflows is redone scaled (see Overflow): +-inf or finite, never NaN.
  *
  * Defines (defaults): REINGS_CPU_SCHEDULE (0), REINGS_NV_PTX (0) from quirks.build_defines;
- *   RASTER_IMPORTANCE (0); RASTER_VEC (8, CPU pixel lanes: 8 = AVX2, 16 = AVX-512; the host passes
- *   $REINGS_RASTER_VEC, else 16 where the device's native float vector is 16 wide: rasterize.raster_vec);
+ *   RASTER_IMPORTANCE (0); RASTER_VEC (8 here; CPU pixel lanes, 8 = AVX2, 16 = AVX-512: the host always
+ *   passes it, $REINGS_RASTER_VEC, else 16 where the device's native float vector is 16 wide, else 8:
+ *   reings.backends.opencl.rasterize.raster_vec);
  *   RASTER_BLOCK_H (RASTER_VEC / 4, CPU schedule): a pixel vector is RASTER_BLOCK_H rows of
  *   RASTER_VEC / RASTER_BLOCK_H pixels (4 x 2 or 4 x 4: fewer vectors per Gaussian than one row of 8 or
  *   16, docs/perf_notes.md §27); every shape gives each pixel the same values (the same bytes of the
@@ -60,8 +61,9 @@
  *   (tests/test_rasterize.py; docs/perf_notes.md §22).
  * Schedules (same algorithm, same results up to float rounding of sums):
  *   CPU: one work-item per tile (local size 1), no barriers; the tile's 256 pixels are
- *        RASTER_VEC-wide vectors (blocks of RASTER_BLOCK_H rows) in private arrays; Gaussians are the outer loop (uniform scalar
- *        loads), each visits only the pixel rows/vectors of its box; per-pixel and whole-tile
+ *        RASTER_VEC-wide vectors (blocks of RASTER_BLOCK_H pixel rows) in private arrays; Gaussians
+ *        are the outer loop (uniform scalar loads), each visits only the block rows and columns of
+ *        its box; per-pixel and whole-tile
  *        early exit; per-(tile, Gaussian) sums stay in registers and are written once.
  *   GPU: one 256-work-item group per tile, a work-item per pixel, Gaussians staged in local memory
  *        by batches, whole-tile early exit; per-Gaussian work-group sums by warp shuffles
@@ -473,35 +475,33 @@ bwd_tile(__global const float16 *packed, __global const int *gid_from_isect, __g
             vo[l] = ro[l] = 0.0f;
             L[l] = 0;
         }
-        {
-            for (int l = 0; l < RASTER_VEC; ++l) {
-                const int px = px0 + l % BW, py = py0 + l / BW;
-                if (px >= width || py >= height) continue;
-                const int p = py * width + px;
-                float r = 0.0f;
-                if (v_mask & 1) {
-                    vr[l] = scaled(v_rgb[3 * p], sv);
-                    vg[l] = scaled(v_rgb[3 * p + 1], sv);
-                    vb[l] = scaled(v_rgb[3 * p + 2], sv);
-                    r += vr[l] * scaled(out_rgb[3 * p], sk) + vg[l] * scaled(out_rgb[3 * p + 1], sk) +
-                         vb[l] * scaled(out_rgb[3 * p + 2], sk);
-                }
-                if (v_mask & 2) {
-                    vd[l] = scaled(v_depth[p], sv);
-                    r += vd[l] * scaled(out_depth[p], sk);
-                }
-                if (v_mask & 4) r -= scaled(v_alpha[p], sv) * scaled(out_T[p], sk);
-                R[l] = r;
-#if RASTER_BWD_DEPTH_O
-                {   /* as a depth-only backward forms its R: 0 + v d */
-                    float q = 0.0f;
-                    vo[l] = scaled(v_depth_o[p], sv);
-                    q += vo[l] * scaled(out_depth[p], sk);
-                    ro[l] = q;
-                }
-#endif
-                L[l] = out_last[p];
+        for (int l = 0; l < RASTER_VEC; ++l) {
+            const int px = px0 + l % BW, py = py0 + l / BW;
+            if (px >= width || py >= height) continue;
+            const int p = py * width + px;
+            float r = 0.0f;
+            if (v_mask & 1) {
+                vr[l] = scaled(v_rgb[3 * p], sv);
+                vg[l] = scaled(v_rgb[3 * p + 1], sv);
+                vb[l] = scaled(v_rgb[3 * p + 2], sv);
+                r += vr[l] * scaled(out_rgb[3 * p], sk) + vg[l] * scaled(out_rgb[3 * p + 1], sk) +
+                     vb[l] * scaled(out_rgb[3 * p + 2], sk);
             }
+            if (v_mask & 2) {
+                vd[l] = scaled(v_depth[p], sv);
+                r += vd[l] * scaled(out_depth[p], sk);
+            }
+            if (v_mask & 4) r -= scaled(v_alpha[p], sv) * scaled(out_T[p], sk);
+            R[l] = r;
+#if RASTER_BWD_DEPTH_O
+            {   /* as a depth-only backward forms its R: 0 + v d */
+                float q = 0.0f;
+                vo[l] = scaled(v_depth_o[p], sv);
+                q += vo[l] * scaled(out_depth[p], sk);
+                ro[l] = q;
+            }
+#endif
+            L[l] = out_last[p];
         }
         Tv[c] = (vf)(1.0f);
         Rv[c] = VLOAD(0, R);
@@ -545,7 +545,10 @@ bwd_tile(__global const float16 *packed, __global const int *gid_from_isect, __g
 #if RASTER_ALPHA_CUT
                     if (!vany(power >= g.se)) continue; /* ALPHA_CUT: every lane fails ok below */
 #endif
-                    const vf G = exp(power);
+                    /* power <= 0 in every ok lane (the same G there); a lane that is not ok (a conic that is
+                     * not positive definite, uploaded through the stage API, can give power > 88) must not
+                     * make G = inf, which its zero va would turn into a NaN in a_o */
+                    const vf G = exp(VMIN(power, (vf)(0.0f)));
                     const vf a = g.s5 * G;
                     const vf alpha = VMIN(a, (vf)(ALPHA_MAX));
                     const vi ok = valid & (power <= 0.0f) & (alpha >= ALPHA_MIN);

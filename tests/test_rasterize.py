@@ -279,19 +279,22 @@ def test_alpha_cut_is_below_every_kept_pair():
     assert np.all(alpha64 < ALPHA_MIN * np.exp(-pad / 2))
 
 
-@pytest.mark.parametrize("vec,block_h", [(8, 1), (8, 2), (16, 1), (16, 4)])
+@pytest.mark.parametrize("vec,block_h", [(8, 1), (8, 2), (8, 4), (16, 1), (16, 2), (16, 4)])
 @pytest.mark.parametrize("name", ["random", "size_70x45", "many_in_one_tile", "needles"])
 def test_cpu_lane_widths_match_reference(device, vec, block_h, name):
     """The CPU schedule at both pixel-lane widths (RASTER_VEC 8 and 16) in one-row vectors and in the
-    default blocks (RASTER_BLOCK_H = RASTER_VEC / 4: 4 x 2 and 4 x 4 pixels) against the float64
-    reference: the same `last`, images and gradients to float rounding."""
+    default blocks (RASTER_BLOCK_H = RASTER_VEC / 4: 4 x 2 and 4 x 4 pixels) and two more shapes against the
+    float64 reference: images, importance and gradients to float rounding (`last` against the one-row
+    8-lane layout: a pair at the reference's ALPHA_MIN or T_MIN boundary may flip in float32)."""
     from reings.backends.opencl.rasterize import rasterize_bwd_host, rasterize_fwd_host
 
     proj, bins, w, h = _scene(name)
     on = dict(device=device, cpu_schedule=True, RASTER_VEC=vec, RASTER_BLOCK_H=block_h)
     got = rasterize_fwd_host(proj, bins, w, h, BG, True, **on)
+    rows = rasterize_fwd_host(proj, bins, w, h, BG, True, device=device, cpu_schedule=True, RASTER_VEC=8,
+                              RASTER_BLOCK_H=1)
     exp = ref.rasterize_fwd(proj, bins, w, h, BG, want_importance=True)
-    assert np.array_equal(got.last, exp.last)
+    assert np.array_equal(got.last, rows.last)
     for f in ("rgb", "depth", "alpha"):
         assert_close(getattr(got, f), getattr(exp, f), 1e-5, 1e-5, name=f)
     assert_close(got.importance, exp.importance, 1e-5, 1e-5, name="importance")
@@ -320,24 +323,48 @@ def test_cpu_pixel_blocks_keep_the_forward_bytes(device, name):
         assert_close(o.importance, outs[0].importance, 1e-5, 1e-6, name=f"importance {shape}")
 
 
+@pytest.mark.parametrize("vec", [8, 16])
+def test_cpu_indefinite_conic_keeps_the_gradients_finite(device, vec):
+    """A conic that is not positive definite (accepted by raster_prep_one for projections uploaded through the
+    stage API: no box, the pixel test decides) reaches powers far above 0 inside its tile (here up to ~225 on
+    the diagonal from its centre): those lanes fail the pixel test, but exp(power) = inf there must not
+    reach the records through their zero cotangents (0 * inf = NaN: the CPU backward gave NaN opacity
+    gradients until session 32). The CPU schedule against the float64 reference."""
+    import dataclasses
+
+    from reings.backends.opencl.rasterize import rasterize_bwd_host
+
+    proj, bins, w, h = _scene("random")
+    conics, means = proj.conics.copy(), proj.means2d.copy()
+    conics[0], means[0] = (1.0, -2.0, 1.0), (0.6, 0.7)  # power = -(dx^2 + dy^2) / 2 + 2 dx dy: d^2 at dx = dy = d
+    proj = dataclasses.replace(proj, conics=conics, means2d=means)
+    bins = ref.bin(proj, w, h)
+    assert (bins.gid_from_isect == 0).any()
+    exp = ref.rasterize_fwd(proj, bins, w, h, BG)
+    vr, vd, va = _cotangents(w, h)
+    e = ref.rasterize_bwd(proj, bins, exp, vr, vd, va, w, h, BG)
+    g = rasterize_bwd_host(proj, bins, w, h, vr, vd, va, BG, device=device, cpu_schedule=True, RASTER_VEC=vec)
+    for f in ("v_means2d", "v_conics", "v_colors", "v_opacities", "v_depths"):
+        assert np.isfinite(getattr(g, f)).all(), f
+        assert_grad_close(getattr(g, f), getattr(e, f), f, MIN_COSINE, MAX_REL_L2)
+
+
 def test_raster_vec_follows_the_device(monkeypatch):
-    """RASTER_VEC: $REINGS_RASTER_VEC if set (8 or 16), else 16 where the device's native float vector is
-    16 wide or more (PoCL on AVX-512), else 8; the choice reaches the build."""
+    """RASTER_VEC: $REINGS_RASTER_VEC if set (8 or 16, over the device's width either way), else 16 where the
+    device's native float vector is 16 wide or more (PoCL on AVX-512), else 8; the choice reaches the build."""
     from types import SimpleNamespace
 
     from reings.backends.opencl.device import open_device
     from reings.backends.opencl.rasterize import Rasterizer, raster_vec
 
+    narrow, wide = SimpleNamespace(native_vector_width_float=8), SimpleNamespace(native_vector_width_float=16)
     monkeypatch.delenv("REINGS_RASTER_VEC", raising=False)
-    assert raster_vec() == 8
-    assert raster_vec(SimpleNamespace(native_vector_width_float=8)) == 8
-    assert raster_vec(SimpleNamespace(native_vector_width_float=16)) == 16
-    h = open_device("pocl")
-    want = 16 if h.device.native_vector_width_float >= 16 else 8
-    assert Rasterizer(h, cpu_schedule=True)._defines["RASTER_VEC"] == want
-    monkeypatch.setenv("REINGS_RASTER_VEC", "8")
-    assert raster_vec(SimpleNamespace(native_vector_width_float=16)) == 8
-    assert Rasterizer(open_device("pocl"), cpu_schedule=True)._defines["RASTER_VEC"] == 8  # reaches the build
+    assert (raster_vec(), raster_vec(narrow), raster_vec(wide)) == (8, 8, 16)
+    assert raster_vec(SimpleNamespace(native_vector_width_float=32)) == 16
+    for env in ("8", "16"):
+        monkeypatch.setenv("REINGS_RASTER_VEC", env)
+        assert raster_vec(narrow) == raster_vec(wide) == int(env)
+        assert Rasterizer(open_device("pocl"), cpu_schedule=True)._defines["RASTER_VEC"] == int(env)  # the build
     monkeypatch.setenv("REINGS_RASTER_VEC", "12")
     with pytest.raises(ValueError, match="REINGS_RASTER_VEC must be 8 or 16, got '12'"):
         raster_vec()

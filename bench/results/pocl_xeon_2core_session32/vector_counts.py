@@ -15,7 +15,10 @@ ck, opac = sys.argv[1], (float(sys.argv[2]) if len(sys.argv)>2 else None)
 z = np.load(ck)
 lg = z["param/opacity_logits"]
 if opac: lg = np.full_like(lg, np.log(opac/(1-opac)))
-g = Gaussians(z["param/means"], z["param/quats"], z["param/log_scales"], lg, np.concatenate([z["param/sh_dc"], z["param/sh_rest"]],1) if z["param/sh_rest"].size else z["param/sh_dc"])
+sh = z["param/sh_dc"]
+if "param/sh_rest" in z and z["param/sh_rest"].size:
+    sh = np.concatenate([sh, z["param/sh_rest"]], 1)
+g = Gaussians(z["param/means"], z["param/quats"], z["param/log_scales"], lg, sh)
 cam = read_cameras_json(Path(ck).resolve().parents[1] / 'cameras.json')[0].camera
 W,H = cam.width, cam.height
 proj = ref.project_fwd(g, cam); bins = ref.bin(proj, W, H)

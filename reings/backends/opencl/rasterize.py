@@ -55,9 +55,9 @@ def raster_vec(device=None) -> int:
 
     A pixel vector is a block of 4 x RASTER_VEC / 4 pixels (RASTER_BLOCK_H, kernels/rasterize.cl): every
     pixel gets the same values at every width and block shape, and only the sums of a tile's
-    per-Gaussian records change order. On a 2-core AVX-512 Xeon (PoCL 3.0) 16 lanes in 4 x 4 blocks
-    took 0.67-0.74 of the forward's time and 0.77-0.81 of the backward's of 8 lanes in 4 x 2 blocks on
-    fern's fitted states (docs/perf_notes.md §27)."""
+    per-Gaussian records change order. On a 2-core AVX-512 Xeon (PoCL 3.0), on fern's fitted states, 16
+    lanes in 4 x 4 blocks took 0.68-0.74 of the forward's and 0.80-0.81 of the backward's time of 8 lanes
+    in 4 x 2 blocks (docs/perf_notes.md §27; the quality of whole runs at both widths: docs/results.md §42)."""
     import os
 
     env = os.environ.get("REINGS_RASTER_VEC", "").strip()
