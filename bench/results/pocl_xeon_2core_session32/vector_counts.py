@@ -1,6 +1,7 @@
 """Pixel vectors a CPU rasterizer forward evaluates (an exp) per vector shape, on a reings checkpoint.
 
     python vector_counts.py RUN/checkpoints/coarse.npz [0.99]   # the second argument: every opacity (hard pass)
+    python vector_counts.py A                                   # a perf scene (reings.bench_scenes)
 
 float64 numpy: per tile, front to back, the pixels still active (not stopped by T_MIN) whose power is above
 the alpha cut, grouped by vector shape; util = active pairs / (vectors x lanes)."""
@@ -12,14 +13,18 @@ from reings.backends import reference as ref
 from reings.io.cameras import read_cameras_json
 from reings.types import Gaussians
 ck, opac = sys.argv[1], (float(sys.argv[2]) if len(sys.argv)>2 else None)
-z = np.load(ck)
-lg = z["param/opacity_logits"]
-if opac: lg = np.full_like(lg, np.log(opac/(1-opac)))
-sh = z["param/sh_dc"]
-if "param/sh_rest" in z and z["param/sh_rest"].size:
-    sh = np.concatenate([sh, z["param/sh_rest"]], 1)
-g = Gaussians(z["param/means"], z["param/quats"], z["param/log_scales"], lg, sh)
-cam = read_cameras_json(Path(ck).resolve().parents[1] / 'cameras.json')[0].camera
+if ck in ("A", "B", "C"):  # a perf scene (reings.bench_scenes): the "ignoring T" column is its count
+    from reings.bench_scenes import perf_scene
+    g, cam = perf_scene(ck)
+else:
+    z = np.load(ck)
+    lg = z["param/opacity_logits"]
+    if opac: lg = np.full_like(lg, np.log(opac/(1-opac)))
+    sh = z["param/sh_dc"]
+    if "param/sh_rest" in z and z["param/sh_rest"].size:
+        sh = np.concatenate([sh, z["param/sh_rest"]], 1)
+    g = Gaussians(z["param/means"], z["param/quats"], z["param/log_scales"], lg, sh)
+    cam = read_cameras_json(Path(ck).resolve().parents[1] / 'cameras.json')[0].camera
 W,H = cam.width, cam.height
 proj = ref.project_fwd(g, cam); bins = ref.bin(proj, W, H)
 tr = bins.tile_ranges; tiles_x = (W+15)//16
