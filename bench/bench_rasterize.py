@@ -54,6 +54,8 @@ def _scene(args):
     overridden by --opacity (0.99: the coarse fit's hard depth pass)."""
     if not args.checkpoint:
         return perf_scene(args.scene, n=args.n)
+    if args.n is not None:
+        raise SystemExit("bench_rasterize: --n is for --scene, not --checkpoint")
     from reings.io.cameras import read_cameras_json
     from reings.types import Gaussians
 

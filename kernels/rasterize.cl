@@ -312,13 +312,8 @@ inline int vany(vi m) { return any8(m.lo | m.hi); } /* any(m) */
 #define NVEC (TILE_PIXELS / RASTER_VEC) /* pixel vectors per tile */
 #define VEC_X(c) (((c) % BPR) * BW)     /* tile-relative pixel column of vector c's lane 0 */
 #define VEC_Y(c) (((c) / BPR) * BH)     /* tile-relative pixel row of vector c's lane 0 */
-#if BH == 1
-#define ILX ILANES
-#define ILY ((vi)(0))
-#else
-#define ILX (ILANES % BW)
+#define ILX (ILANES % BW) /* lane l's column and row in its block */
 #define ILY (ILANES / BW)
-#endif
 
 /* The block rows [*r0, *r1] and block columns [*c0, *c1] (tile-relative) of a Gaussian's box;
  * returns 0 when the box misses the tile. */

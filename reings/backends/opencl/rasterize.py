@@ -65,8 +65,7 @@ def raster_vec(device=None) -> int:
         if env not in ("8", "16"):
             raise ValueError(f"REINGS_RASTER_VEC must be 8 or 16, got {env!r}")
         return int(env)
-    width = int(getattr(device, "native_vector_width_float", 0) or 0) if device is not None else 0
-    return 16 if width >= 16 else 8
+    return 16 if int(getattr(device, "native_vector_width_float", 0) or 0) >= 16 else 8
 
 
 def _nd(n: int, local: int) -> int:
