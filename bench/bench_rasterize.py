@@ -179,7 +179,7 @@ def main(argv=None):
 def against(args):
     """Alternate two builds run by run (A, B, B, A, ...) so that a machine's drift (other tenants, clock)
     falls on both: the per-run ratio B / A is the measurement. Times rasterize_fwd and rasterize_bwd only
-    (not rasterize_prep); a schedule switch (REINGS_CPU_SCHEDULE) is --schedule's, not a define's."""
+    and isect_reduce (not rasterize_prep); a schedule switch (REINGS_CPU_SCHEDULE) is --schedule's, not a define's."""
 
     from reings.backends.opencl.device import open_device
     from reings.backends.opencl.rasterize import Rasterizer
@@ -190,7 +190,7 @@ def against(args):
     W, H = cam.width, cam.height
     proj = ref.project_fwd(g, cam)
     bins = ref.bin(proj, W, H)
-    n, k = len(g), len(bins.gid_from_isect)
+    n, k, v = len(g), len(bins.gid_from_isect), len(bins.gid_from_rank)
     h = open_device(args.device, profiling=True)
     sched = None if args.schedule == "auto" else args.schedule == "cpu"
     da = dict(d.split("=", 1) for d in args.define)
@@ -199,7 +199,10 @@ def against(args):
     q = h.queue
     b = _upload(h, proj, bins, W, H)
     cot = {"v_" + args.cotangent: b["v_" + args.cotangent]}
-    times = [{"fwd": [], "bwd": []} for _ in rs]
+    import pyopencl as cl
+
+    grads = cl.Buffer(h.context, cl.mem_flags.READ_WRITE, max(n, 1) * V_RECORD * 4)
+    times = [{"fwd": [], "bwd": [], "reduce": []} for _ in rs]
     for it in range(args.warmup + args.runs):
         for j in ((0, 1) if it % 2 == 0 else (1, 0)):  # A, B then B, A: no build always runs first
             r = rs[j]
@@ -207,12 +210,14 @@ def against(args):
             e1 = r.fwd(None, None, None, None, None, n, b["tile_ranges"], b["gid_from_isect"],
                        b["emit_from_isect"], k, W, H, (0, 0, 0), prepared=True)
             e2 = r.bwd(b["tile_ranges"], b["gid_from_isect"], b["emit_from_isect"], k, W, H, **cot)
+            e3 = r.reduce(r.v_emit, V_RECORD, b["offset_from_rank"], b["gid_from_rank"], v, grads)
             q.finish()
             if it >= args.warmup:
                 times[j]["fwd"].append(_ms(e1))
                 times[j]["bwd"].append(_ms(e2))
+                times[j]["reduce"].append(_ms(e3))
     print(f"{h.name} | scene {args.scene} {W}x{H} | N={n} K={k} | A {da or '{}'} | B {db}")
-    for stage in ("fwd", "bwd"):
+    for stage in ("fwd", "bwd", "reduce"):
         a, bb = np.array(times[0][stage]), np.array(times[1][stage])
         ratio = bb / a
         print(json.dumps(dict(bench="rasterize_ab", scene=args.scene, stage=stage, a_defines=da, b_defines=db,

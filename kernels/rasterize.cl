@@ -29,6 +29,9 @@
  *                   for r < V: the scalar n_rank, or the device's ctrl[0] (sync-free binning, counts /
  *                   count_at, common.h launch_count);
  *                   a sum that overflows is redone scaled (see Overflow): +-inf or finite, never NaN.
+ *                   CPU schedule: a work-item walks its rank's records; GPU schedule: RED_LANES
+ *                   work-items per rank stage them in local memory, lane f adds field f in record
+ *                   order (the same bits as the CPU schedule's walk).
  *
  * Defines (defaults): REINGS_CPU_SCHEDULE (0), REINGS_NV_PTX (0) from quirks.build_defines;
  *   RASTER_IMPORTANCE (0); RASTER_VEC (8 here; CPU pixel lanes, 8 = AVX2, 16 = AVX-512: the host always
@@ -39,7 +42,12 @@
  *   16, docs/perf_notes.md §27); every shape gives each pixel the same values (the same bytes of the
  *   forward's images), only the order of a tile's per-Gaussian sums differs;
  *   FWD_BATCH (256) / BWD_BATCH (32): Gaussians staged in local memory per batch (GPU schedule);
- *   REDUCE_UNROLL (8): gradient records isect_reduce loads before adding them (the same order);
+ *   REDUCE_UNROLL (8): gradient records isect_reduce loads before adding them (the same order; CPU schedule);
+ *   RED_LANES (16) / RED_WG (256) / RED_STAGE (320): isect_reduce's GPU schedule, work-items per rank,
+ *   per work-group, and floats staged per rank and round (the host passes the first two);
+ *   BWD_PIX (1): rasterize_bwd's GPU schedule, pixels per work-item (1, 2 or 4; work-groups of
+ *   256 / BWD_PIX): each work-item adds its pixels' values before the per-Gaussian group sum, so 2
+ *   halves the warp sums (docs/perf_notes.md §28); the host passes $REINGS_BWD_PIX, else 1;
  *   RASTER_BWD_OPACITY (0): 1 builds rasterize_bwd for a backward whose only wanted gradient is the
  *   opacities' (the soft depth term's and the DTU background pass's backward, grad_fields =
  *   opacity_logits): the same d out / d alpha recursion, but only record field 8 (d/d opacity) is
@@ -186,6 +194,8 @@ inline float reduce_rescaled(__global const float *records, const int a, const i
     return t * (1.0f / sc);
 }
 
+#if REINGS_CPU_SCHEDULE
+/* CPU schedule: one work-item per rank walks its segment */
 __kernel void isect_reduce(__global const float *records,       // [K_emit, width]
                            __global const int *offset_from_rank, // [V + 1]
                            __global const int *gid_from_rank,    // [V]
@@ -234,6 +244,74 @@ __kernel void isect_reduce(__global const float *records,       // [K_emit, widt
         out[gid * width + f] = s;
     }
 }
+#else
+/* GPU schedule: RED_LANES work-items per rank, RED_WG / RED_LANES ranks per work-group. A rank's
+ * records come to local memory in rounds of RED_STAGE floats, loaded by its lanes together
+ * (consecutive lanes, consecutive floats); then lane f < width adds field f of the round's records
+ * in record order. So every field is s0 + records[a] + records[a + 1] + ... in that order, the CPU
+ * schedule's bits, while a long segment's loads (a Gaussian over hundreds of tiles) are issued
+ * RED_LANES at a time instead of one work-item's chain, and a short one's are coalesced.
+ * width <= RED_LANES (the host checks). The group's ranks all take as many rounds as its longest
+ * (barriers); a rank >= V takes none of its own. (docs/perf_notes.md §28: 16 lanes against 32 and
+ * against a work-item per rank over the group's staged block, on an H100.) */
+#ifndef RED_LANES
+#define RED_LANES 16
+#endif
+#ifndef RED_WG
+#define RED_WG 256
+#endif
+#ifndef RED_STAGE
+#define RED_STAGE 320 /* floats per rank and round: 32 gradient records, 320 importance records */
+#endif
+#if V_RECORD > RED_LANES || RED_WG % RED_LANES || RED_STAGE < RED_LANES
+#error "isect_reduce: RED_LANES must hold a gradient record's fields and divide RED_WG"
+#endif
+#define RED_RANKS (RED_WG / RED_LANES)
+__kernel __attribute__((reqd_work_group_size(RED_WG, 1, 1))) void
+isect_reduce(__global const float *records,       // [K_emit, width]
+             __global const int *offset_from_rank, // [V + 1]
+             __global const int *gid_from_rank,    // [V]
+             __global float *out,                  // [N, width]
+             const int n_rank, const int width, const int accumulate,
+             __global const uint *counts,          // V = counts[count_at] when count_at >= 0
+             const int count_at) {                 //   (n_rank: the launch bound; common.h)
+    __local float stage[RED_RANKS * RED_STAGE];
+    __local int rounds;
+    const int lid = get_local_id(0);
+    const int sub = lid / RED_LANES, lane = lid - sub * RED_LANES;
+    const int r = get_group_id(0) * RED_RANKS + sub;
+    const int live = r < (int)launch_count((uint)n_rank, counts, count_at);
+    const int per = RED_STAGE / width; /* records per round */
+    int a = 0, b = 0, gid = 0;
+    if (live) {
+        a = offset_from_rank[r];
+        b = offset_from_rank[r + 1];
+        gid = gid_from_rank[r];
+    }
+    if (lid == 0) rounds = 0;
+    barrier(CLK_LOCAL_MEM_FENCE);
+    if (live && lane == 0 && b > a) atomic_max(&rounds, (b - a + per - 1) / per);
+    barrier(CLK_LOCAL_MEM_FENCE);
+    const int n_rounds = rounds;
+    const int mine = live && lane < width;
+    const float s0 = mine && accumulate ? out[gid * width + lane] : 0.0f;
+    float s = s0;
+    __local float *st = stage + sub * RED_STAGE;
+    for (int c = 0; c < n_rounds; ++c) {
+        const int e0 = a + c * per;
+        const int ne = live ? clamp(b - e0, 0, per) : 0; /* this rank's records in this round */
+        barrier(CLK_LOCAL_MEM_FENCE);                   /* the previous round's adds are done */
+        for (int q = lane; q < ne * width; q += RED_LANES) st[q] = records[(size_t)e0 * width + q];
+        barrier(CLK_LOCAL_MEM_FENCE);
+        if (mine)
+            for (int e = 0; e < ne; ++e) s += st[e * width + lane];
+    }
+    if (mine) {
+        if (!FINITE(s)) s = reduce_rescaled(records, a, b, width, lane, s0);
+        out[gid * width + lane] = s;
+    }
+}
+#endif
 
 #if REINGS_CPU_SCHEDULE
 /* ========================================================================================== */
@@ -750,12 +828,12 @@ inline float warp_sum16(const float *x, const int lane) {
 #define NPART 1
 #endif
 
-/* Sum NF values over the work-group into part[(p * batch + j) * NF + f] (p: partial index).
+/* Sum NF values over the work-group (nthreads work-items) into part[(p * batch + j) * NF + f] (p: partial index).
  * NVIDIA: butterfly shuffles per warp (skipped when no lane contributes), lane 0 stores.
  * Portable: a local-memory tree (red: [NF * TILE_PIXELS]), barriers inside; every work-item
  * must call it (uniform control flow). */
 inline void group_sum(const float *vals, const int NF, const int any_nz, const int j, const int batch,
-                      __local float *part, __local float *red, const int lid) {
+                      __local float *part, __local float *red, const int lid, const int nthreads) {
 #if REINGS_NV_PTX
     const int w = lid / WARP, lane = lid % WARP;
     (void)red;
@@ -779,15 +857,16 @@ inline void group_sum(const float *vals, const int NF, const int any_nz, const i
     }
 #else
     (void)any_nz;
-    for (int f = 0; f < NF; ++f) red[f * TILE_PIXELS + lid] = vals[f];
+    (void)nthreads;
+    for (int f = 0; f < NF; ++f) red[f * nthreads + lid] = vals[f];
     barrier(CLK_LOCAL_MEM_FENCE);
-    for (int s = TILE_PIXELS / 2; s > 0; s >>= 1) {
+    for (int s = nthreads / 2; s > 0; s >>= 1) {
         if (lid < s)
-            for (int f = 0; f < NF; ++f) red[f * TILE_PIXELS + lid] += red[f * TILE_PIXELS + lid + s];
+            for (int f = 0; f < NF; ++f) red[f * nthreads + lid] += red[f * nthreads + lid + s];
         barrier(CLK_LOCAL_MEM_FENCE);
     }
     if (lid == 0)
-        for (int f = 0; f < NF; ++f) part[j * NF + f] = red[f * TILE_PIXELS];
+        for (int f = 0; f < NF; ++f) part[j * NF + f] = red[f * nthreads];
     /* the next call's first write to red[lid] follows this barrier */
     barrier(CLK_LOCAL_MEM_FENCE);
 #endif
@@ -867,7 +946,7 @@ rasterize_fwd(__global const float16 *packed,      // [N] records of raster_prep
                 }
             }
 #if RASTER_IMPORTANCE
-            group_sum(&w, 1, w != 0.0f, j, FWD_BATCH, part, red, lid);
+            group_sum(&w, 1, w != 0.0f, j, FWD_BATCH, part, red, lid, TILE_PIXELS);
 #endif
         }
 #if RASTER_IMPORTANCE
@@ -895,48 +974,81 @@ rasterize_fwd(__global const float16 *packed,      // [N] records of raster_prep
     }
 }
 
+/* BWD_PIX pixels per work-item in rasterize_bwd (GPU schedule): a work-group of BWD_THREADS =
+ * TILE_PIXELS / BWD_PIX work-items per tile; work-item lid holds the pixels of column lid % TILE_SIZE
+ * in rows (lid / TILE_SIZE) * BWD_PIX + q, q < BWD_PIX (a warp: 2 * BWD_PIX whole rows), adds its
+ * pixels' values of a Gaussian (pixel 0's, then + pixel 1's, ...) and takes part in one group sum per
+ * Gaussian for all of them: the per-Gaussian warp sums (~20-25 % of the backward on an H100,
+ * docs/perf_notes.md §28) are done once per BWD_PIX pixels. BWD_PIX 1: one pixel per work-item, the
+ * records of earlier sessions byte for byte. */
+#ifndef BWD_PIX
+#define BWD_PIX 1
+#endif
+#if BWD_PIX != 1 && BWD_PIX != 2 && BWD_PIX != 4
+#error "BWD_PIX must be 1, 2 or 4"
+#endif
+#define BWD_THREADS (TILE_PIXELS / BWD_PIX)
+#if BWD_BATCH > BWD_THREADS
+#error "BWD_BATCH must not exceed the backward's work-group (TILE_PIXELS / BWD_PIX)"
+#endif
+#if REINGS_NV_PTX
+#define BWD_NPART (BWD_THREADS / WARP) /* one partial per warp */
+#else
+#define BWD_NPART 1
+#endif
+
 /* One tile of rasterize_bwd (the calling work-group) with the cotangents scaled by sv and the
  * colours, depths and outputs by sk (see "Overflow" at the top): writes the records of positions
  * [start, stop_at) and sets *bad if one is not finite. Every work-item calls it (barriers inside).
- * Called with literal 1s first, so that the common case compiles to the unscaled loop. */
+ * Called with literal 1s first, so that the common case compiles to the unscaled loop. The
+ * per-pixel arguments are the work-item's BWD_PIX pixels. */
 static inline __attribute__((always_inline)) void
 bwd_group(__global const float16 *packed, __global const int *gid_from_isect,
           __global const int *emit_from_isect, __global const float *out_rgb, __global const float *out_depth,
           __global const float *out_T, __global const float *v_rgb, __global const float *v_depth,
           __global const float *v_alpha, const int v_mask, __global float *v_emit,
-          __global const float *v_depth_o, __global float *v_emit_o, const int inside, const int pix,
-          const int px, const int py, const int last, const int start, const int stop_at, const int lid,
+          __global const float *v_depth_o, __global float *v_emit_o, const int *inside, const int *pix,
+          const int *px, const int *py, const int *last, const int start, const int stop_at, const int lid,
           __local float16 *sh, __local float *part, __local float *red, volatile __local int *bad, const float sv,
           const float sk) {
-    const float fx = (float)px + 0.5f, fy = (float)py + 0.5f;
-    /* the pixel's cotangents (scaled by sv), R = v.(output - blended so far) - v_alpha T_final
+    /* per pixel: the cotangents (scaled by sv), R = v.(output - blended so far) - v_alpha T_final
      * (scaled by sv sk), T before the current Gaussian */
-    float vr = 0.0f, vg = 0.0f, vb = 0.0f, vd = 0.0f, R = 0.0f, T = 1.0f;
-    if (inside) {
-        if (v_mask & 1) {
-            vr = scaled(v_rgb[3 * pix], sv);
-            vg = scaled(v_rgb[3 * pix + 1], sv);
-            vb = scaled(v_rgb[3 * pix + 2], sv);
-            R += vr * scaled(out_rgb[3 * pix], sk) + vg * scaled(out_rgb[3 * pix + 1], sk) +
-                 vb * scaled(out_rgb[3 * pix + 2], sk);
-        }
-        if (v_mask & 2) {
-            vd = scaled(v_depth[pix], sv);
-            R += vd * scaled(out_depth[pix], sk);
-        }
-        if (v_mask & 4) R -= scaled(v_alpha[pix], sv) * scaled(out_T[pix], sk);
-    }
+    float fx[BWD_PIX], fy[BWD_PIX], vr[BWD_PIX], vg[BWD_PIX], vb[BWD_PIX], vd[BWD_PIX], R[BWD_PIX], T[BWD_PIX];
 #if RASTER_BWD_DEPTH_O
     /* v_depth_o's own cotangent and R, formed as a depth-only backward forms them: 0 + v d */
-    float vo = 0.0f, Ro = 0.0f;
-    if (inside) {
-        vo = scaled(v_depth_o[pix], sv);
-        Ro += vo * scaled(out_depth[pix], sk);
-    }
+    float vo[BWD_PIX], Ro[BWD_PIX];
 #else
     (void)v_depth_o;
     (void)v_emit_o;
 #endif
+    for (int q = 0; q < BWD_PIX; ++q) {
+        fx[q] = (float)px[q] + 0.5f;
+        fy[q] = (float)py[q] + 0.5f;
+        vr[q] = vg[q] = vb[q] = vd[q] = R[q] = 0.0f;
+        T[q] = 1.0f;
+        const int p = pix[q];
+        if (inside[q]) {
+            if (v_mask & 1) {
+                vr[q] = scaled(v_rgb[3 * p], sv);
+                vg[q] = scaled(v_rgb[3 * p + 1], sv);
+                vb[q] = scaled(v_rgb[3 * p + 2], sv);
+                R[q] += vr[q] * scaled(out_rgb[3 * p], sk) + vg[q] * scaled(out_rgb[3 * p + 1], sk) +
+                        vb[q] * scaled(out_rgb[3 * p + 2], sk);
+            }
+            if (v_mask & 2) {
+                vd[q] = scaled(v_depth[p], sv);
+                R[q] += vd[q] * scaled(out_depth[p], sk);
+            }
+            if (v_mask & 4) R[q] -= scaled(v_alpha[p], sv) * scaled(out_T[p], sk);
+        }
+#if RASTER_BWD_DEPTH_O
+        vo[q] = Ro[q] = 0.0f;
+        if (inside[q]) {
+            vo[q] = scaled(v_depth_o[p], sv);
+            Ro[q] += vo[q] * scaled(out_depth[p], sk);
+        }
+#endif
+    }
     const float iv = 1.0f / sv, ik = 1.0f / sk; /* exact: powers of two */
     for (int b0 = start; b0 < stop_at; b0 += BWD_BATCH) {
         const int nb = min(BWD_BATCH, stop_at - b0);
@@ -956,69 +1068,72 @@ bwd_group(__global const float16 *packed, __global const int *gid_from_isect,
             float vals[BWD_FIELDS];
             for (int f = 0; f < BWD_FIELDS; ++f) vals[f] = 0.0f;
             int nz = 0;
-            if (k < last && in_box(g, px, py)) {
-                const float dx = g.s0 - fx, dy = g.s1 - fy;
+            for (int q = 0; q < BWD_PIX; ++q) {
+                if (!(k < last[q] && in_box(g, px[q], py[q]))) continue;
+                const float dx = g.s0 - fx[q], dy = g.s1 - fy[q];
                 const float power = -0.5f * (g.s2 * dx * dx + g.s4 * dy * dy) - g.s3 * dx * dy;
                 const float G = exp(power);
                 const float a = g.s5 * G;
                 const float alpha = fmin(ALPHA_MAX, a);
-                if (power <= 0.0f && alpha >= ALPHA_MIN) {
-                    nz = 1;
-                    const float w = alpha * T;
-                    const float vc = vr * g.s6 + vg * g.s7 + vb * g.s8 + vd * g.s9;
-                    const float Rn = R - vc * w;
-                    /* no gradient through the ALPHA_MAX clamp */
-                    const float va = a <= ALPHA_MAX ? T * vc - Rn / (1.0f - alpha) : 0.0f;
+                if (!(power <= 0.0f && alpha >= ALPHA_MIN)) continue;
+                /* pixel 0's value, then + each later pixel's (BWD_PIX 1: the value itself) */
+#define ACC(f, x) vals[f] = q ? vals[f] + (x) : (x)
+                nz = 1;
+                const float w = alpha * T[q];
+                const float vc = vr[q] * g.s6 + vg[q] * g.s7 + vb[q] * g.s8 + vd[q] * g.s9;
+                const float Rn = R[q] - vc * w;
+                /* no gradient through the ALPHA_MAX clamp */
+                const float va = a <= ALPHA_MAX ? T[q] * vc - Rn / (1.0f - alpha) : 0.0f;
 #if RASTER_BWD_DEPTH_O
-                    {   /* the same recursion on v_depth_o alone (its colour cotangents are 0) */
-                        const float vco = vo * g.s9;
-                        const float Ron = Ro - vco * w;
-                        const float vao = a <= ALPHA_MAX ? T * vco - Ron / (1.0f - alpha) : 0.0f;
-                        vals[V_RECORD] = vao * G;
-                        Ro = Ron;
-                    }
+                {   /* the same recursion on v_depth_o alone (its colour cotangents are 0) */
+                    const float vco = vo[q] * g.s9;
+                    const float Ron = Ro[q] - vco * w;
+                    const float vao = a <= ALPHA_MAX ? T[q] * vco - Ron / (1.0f - alpha) : 0.0f;
+                    ACC(V_RECORD, vao * G);
+                    Ro[q] = Ron;
+                }
 #endif
 #if RASTER_BWD_OPACITY
-                    vals[0] = va * G; /* field 8 only */
+                ACC(0, va * G); /* field 8 only */
 #else
-                    vals[5] = vr * w;
-                    vals[6] = vg * w;
-                    vals[7] = vb * w;
-                    vals[9] = vd * w;
-                    vals[8] = va * G;
-                    const float vp = va * alpha;
-                    vals[2] = -0.5f * dx * dx * vp;
-                    vals[3] = -dx * dy * vp;
-                    vals[4] = -0.5f * dy * dy * vp;
-                    vals[0] = -(g.s2 * dx + g.s3 * dy) * vp;
-                    vals[1] = -(g.s3 * dx + g.s4 * dy) * vp;
+                ACC(5, vr[q] * w);
+                ACC(6, vg[q] * w);
+                ACC(7, vb[q] * w);
+                ACC(9, vd[q] * w);
+                ACC(8, va * G);
+                const float vp = va * alpha;
+                ACC(2, -0.5f * dx * dx * vp);
+                ACC(3, -dx * dy * vp);
+                ACC(4, -0.5f * dy * dy * vp);
+                ACC(0, -(g.s2 * dx + g.s3 * dy) * vp);
+                ACC(1, -(g.s3 * dx + g.s4 * dy) * vp);
 #endif
-                    T *= 1.0f - alpha;
-                    R = Rn;
-                }
+#undef ACC
+                T[q] *= 1.0f - alpha;
+                R[q] = Rn;
             }
-            group_sum(vals, BWD_FIELDS, nz, j, BWD_BATCH, part, red, lid);
+            group_sum(vals, BWD_FIELDS, nz, j, BWD_BATCH, part, red, lid, BWD_THREADS);
         }
         barrier(CLK_LOCAL_MEM_FENCE);
 #if RASTER_BWD_OPACITY
-        for (int e = lid; e < nb * V_RECORD; e += TILE_PIXELS) { /* fields other than 8: 0 */
+        for (int e = lid; e < nb * V_RECORD; e += BWD_THREADS) { /* fields other than 8: 0 */
             const int j = e / V_RECORD, f = e - j * V_RECORD;
             if (f == 8) continue;
             v_emit[(size_t)emit_from_isect[b0 + j] * V_RECORD + f] = 0.0f;
         }
-        for (int j = lid; j < nb; j += TILE_PIXELS) {
+        for (int j = lid; j < nb; j += BWD_THREADS) {
             float s = 0.0f;
-            for (int p = 0; p < NPART; ++p) s += part[p * BWD_BATCH + j];
+            for (int p = 0; p < BWD_NPART; ++p) s += part[p * BWD_BATCH + j];
             s *= iv;
             s *= ik;
             if (!isfinite(s)) atomic_or(bad, 1);
             v_emit[(size_t)emit_from_isect[b0 + j] * V_RECORD + 8] = s;
         }
 #else
-        for (int e = lid; e < nb * V_RECORD; e += TILE_PIXELS) {
+        for (int e = lid; e < nb * V_RECORD; e += BWD_THREADS) {
             const int j = e / V_RECORD, f = e - j * V_RECORD;
             float s = 0.0f;
-            for (int p = 0; p < NPART; ++p) s += part[(p * BWD_BATCH + j) * BWD_FIELDS + f];
+            for (int p = 0; p < BWD_NPART; ++p) s += part[(p * BWD_BATCH + j) * BWD_FIELDS + f];
             /* back to unscaled units: the colour/depth fields (5, 6, 7, 9) carry sv, the rest sv sk */
             s *= iv;
             if (f < 5 || f == 8) s *= ik;
@@ -1027,14 +1142,14 @@ bwd_group(__global const float16 *packed, __global const int *gid_from_isect,
         }
 #if RASTER_BWD_DEPTH_O
         /* v_depth_o's records, as a RASTER_BWD_OPACITY backward writes them */
-        for (int e = lid; e < nb * V_RECORD; e += TILE_PIXELS) {
+        for (int e = lid; e < nb * V_RECORD; e += BWD_THREADS) {
             const int j = e / V_RECORD, f = e - j * V_RECORD;
             if (f == 8) continue;
             v_emit_o[(size_t)emit_from_isect[b0 + j] * V_RECORD + f] = 0.0f;
         }
-        for (int j = lid; j < nb; j += TILE_PIXELS) {
+        for (int j = lid; j < nb; j += BWD_THREADS) {
             float s = 0.0f;
-            for (int p = 0; p < NPART; ++p) s += part[(p * BWD_BATCH + j) * BWD_FIELDS + V_RECORD];
+            for (int p = 0; p < BWD_NPART; ++p) s += part[(p * BWD_BATCH + j) * BWD_FIELDS + V_RECORD];
             s *= iv;
             s *= ik;
             if (!isfinite(s)) atomic_or(bad, 1);
@@ -1045,7 +1160,7 @@ bwd_group(__global const float16 *packed, __global const int *gid_from_isect,
     }
 }
 
-__kernel __attribute__((reqd_work_group_size(TILE_PIXELS, 1, 1))) void
+__kernel __attribute__((reqd_work_group_size(BWD_THREADS, 1, 1))) void
 rasterize_bwd(__global const float16 *packed,      // [N] records of raster_prep_one (project_fwd or rasterize_prep)
               __global const int *tile_ranges,     // [T, 2]
               __global const int *gid_from_isect,  // [K]
@@ -1064,9 +1179,9 @@ rasterize_bwd(__global const float16 *packed,      // [N] records of raster_prep
               __global float *v_emit_o)        // [K, V_RECORD] (RASTER_BWD_DEPTH_O)
 {
     __local float16 sh[BWD_BATCH];
-    __local float part[NPART * BWD_BATCH * BWD_FIELDS];
+    __local float part[BWD_NPART * BWD_BATCH * BWD_FIELDS];
 #if !REINGS_NV_PTX
-    __local float red[BWD_FIELDS * TILE_PIXELS];
+    __local float red[BWD_FIELDS * BWD_THREADS];
 #else
     __local float *red = 0;
 #endif
@@ -1076,11 +1191,18 @@ rasterize_bwd(__global const float16 *packed,      // [N] records of raster_prep
     const int tile = ty * tiles_x + tx;
     const int lid = get_local_id(0);
     const int x0 = tx * TILE_SIZE, y0 = ty * TILE_SIZE;
-    /* unsigned: a signed div/rem pair turns into LLVM `freeze` (Oclgrind rejects it) */
-    const int px = x0 + (int)((uint)lid % TILE_SIZE), py = y0 + (int)((uint)lid / TILE_SIZE);
-    const int inside = px < width && py < height;
-    const int pix = py * width + px; /* read only when inside */
-    const int last = inside ? out_last[pix] : 0;
+    /* this work-item's pixels: column lid % TILE_SIZE, rows (lid / TILE_SIZE) * BWD_PIX + q
+     * (unsigned: a signed div/rem pair turns into LLVM `freeze`, which Oclgrind rejects) */
+    int inside[BWD_PIX], pix[BWD_PIX], px[BWD_PIX], py[BWD_PIX], last[BWD_PIX];
+    int my_last = 0;
+    for (int q = 0; q < BWD_PIX; ++q) {
+        px[q] = x0 + (int)((uint)lid % TILE_SIZE);
+        py[q] = y0 + (int)((uint)lid / TILE_SIZE) * BWD_PIX + q;
+        inside[q] = px[q] < width && py[q] < height;
+        pix[q] = py[q] * width + px[q]; /* read only when inside */
+        last[q] = inside[q] ? out_last[pix[q]] : 0;
+        my_last = max(my_last, last[q]);
+    }
     if (lid == 0) {
         max_last = 0;
         bad = 0;
@@ -1088,7 +1210,7 @@ rasterize_bwd(__global const float16 *packed,      // [N] records of raster_prep
         mk_bits = as_int(1.0f);
     }
     barrier(CLK_LOCAL_MEM_FENCE);
-    atomic_max(&max_last, last);
+    atomic_max(&max_last, my_last);
     barrier(CLK_LOCAL_MEM_FENCE);
     const int start = tile_ranges[2 * tile], end = tile_ranges[2 * tile + 1];
     const int stop_at = start + max_last; /* positions >= max(last) touch no pixel */
@@ -1102,23 +1224,25 @@ rasterize_bwd(__global const float16 *packed,      // [N] records of raster_prep
     if (bad) {
         /* bounds of |v| and of |colour, depth, output, 1| over the tile; fmax skips NaN */
         float mv = 0.0f, mk = 0.0f;
-        if (inside) {
+        for (int q = 0; q < BWD_PIX; ++q) {
+            if (!inside[q]) continue;
+            const int p = pix[q];
             if (v_mask & 1)
                 for (int ch = 0; ch < 3; ++ch) {
-                    mv = fmax(mv, fabs(sat_inf(v_rgb[3 * pix + ch])));
-                    mk = fmax(mk, fabs(sat_inf(out_rgb[3 * pix + ch])));
+                    mv = fmax(mv, fabs(sat_inf(v_rgb[3 * p + ch])));
+                    mk = fmax(mk, fabs(sat_inf(out_rgb[3 * p + ch])));
                 }
             if (v_mask & 2) {
-                mv = fmax(mv, fabs(sat_inf(v_depth[pix])));
-                mk = fmax(mk, fabs(sat_inf(out_depth[pix])));
+                mv = fmax(mv, fabs(sat_inf(v_depth[p])));
+                mk = fmax(mk, fabs(sat_inf(out_depth[p])));
             }
-            if (v_mask & 4) mv = fmax(mv, fabs(sat_inf(v_alpha[pix])));
+            if (v_mask & 4) mv = fmax(mv, fabs(sat_inf(v_alpha[p])));
 #if RASTER_BWD_DEPTH_O
-            mv = fmax(mv, fabs(sat_inf(v_depth_o[pix])));
-            mk = fmax(mk, fabs(sat_inf(out_depth[pix])));
+            mv = fmax(mv, fabs(sat_inf(v_depth_o[p])));
+            mk = fmax(mk, fabs(sat_inf(out_depth[p])));
 #endif
         }
-        for (int e = start + lid; e < stop_at; e += TILE_PIXELS) {
+        for (int e = start + lid; e < stop_at; e += BWD_THREADS) {
             const float16 g = packed[gid_from_isect[e]];
             mk = fmax(mk, fmax(fmax(fabs(sat_inf(g.s6)), fabs(sat_inf(g.s7))),
                                fmax(fabs(sat_inf(g.s8)), fabs(sat_inf(g.s9)))));
@@ -1133,7 +1257,7 @@ rasterize_bwd(__global const float16 *packed,      // [N] records of raster_prep
                       red, &bad, sv, sk);
     }
     /* Gaussians at positions >= max(last): zero records */
-    for (int e = stop_at + lid; e < end; e += TILE_PIXELS) {
+    for (int e = stop_at + lid; e < end; e += BWD_THREADS) {
         __global float *rec = v_emit + (size_t)emit_from_isect[e] * V_RECORD;
         for (int f = 0; f < V_RECORD; ++f) rec[f] = 0.0f;
 #if RASTER_BWD_DEPTH_O

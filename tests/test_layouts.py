@@ -383,15 +383,15 @@ def test_project_bwd_reads_the_record_in_rasterize_order():
 
 
 def test_rasterize_bwd_writes_the_record_in_comment_order():
-    """The CPU schedule's `o[k] = hsum(a_<x>)` and the GPU schedule's per-channel `vals[k] = v<x> * ...`
-    store each scalar at its commented position."""
+    """The CPU schedule's `o[k] = hsum(a_<x>)` and the GPU schedule's per-channel `ACC(k, v<x>[q] * ...)`
+    (vals[k], summed over a work-item's BWD_PIX pixels) store each scalar at its commented position."""
     order = {n: i for i, n in enumerate(_record_order())}
     src = _strip_comments(c_text("rasterize.cl"))
     cpu = {f"v_{x}": int(k) for k, x in re.findall(r"\bo\[(\d+)\]\s*=\s*hsum\(a_(\w+)\)", src)}
     cpu = {{"v_o": "v_opacity"}.get(n, n): k for n, k in cpu.items()}
     assert cpu == order, f"rasterize.cl CPU writer: {cpu}, comment order {order}"
     gpu_names = {"vr": "v_r", "vg": "v_g", "vb": "v_b", "vd": "v_z", "va": "v_opacity"}
-    gpu = {gpu_names[x]: int(k) for k, x in re.findall(r"\bvals\[(\d+)\]\s*=\s*(v[rgbda])\b", src)}
+    gpu = {gpu_names[x]: int(k) for k, x in re.findall(r"\bACC\((\d+),\s*(v[rgbda])\b", src)}
     assert set(gpu) == set(gpu_names.values()), f"rasterize.cl GPU writer: found {gpu}"
     assert all(order[n] == k for n, k in gpu.items()), f"rasterize.cl GPU writer: {gpu}, comment order {order}"
 

@@ -27,6 +27,14 @@ from reings.backends import reference as ref
 from reings.backends.base import ALPHA_MIN, V_RECORD
 
 SCHEDULES = [pytest.param(1, id="cpu_schedule"), pytest.param(0, id="gpu_schedule")]
+# the backward's schedules: also the GPU schedule with 2 and 4 pixels per work-item (BWD_PIX)
+BWD_SCHEDULES = SCHEDULES + [pytest.param(2, id="gpu_schedule_pix2"), pytest.param(4, id="gpu_schedule_pix4")]
+
+
+def _sched(cpu) -> dict:
+    """The rasterizer options of a (BWD_)SCHEDULES value: 1 the CPU schedule, 0 the GPU schedule,
+    2 / 4 the GPU schedule with BWD_PIX pixels per backward work-item."""
+    return {"cpu_schedule": True} if cpu == 1 else {"cpu_schedule": False, **({"BWD_PIX": cpu} if cpu else {})}
 BG = (0.1, 0.2, 0.3)
 ALPHA_BAND_REL = 1e-4  # the 1/255 cut: pairs within this relative distance of ALPHA_MIN may flip in float32
 
@@ -65,7 +73,7 @@ def _band(proj, bins, w, h, out, exp):
 def _device_fwd(device, proj, bins, w, h, cpu, importance=True):
     from reings.backends.opencl.rasterize import rasterize_fwd_host
 
-    return rasterize_fwd_host(proj, bins, w, h, BG, importance, device=device, cpu_schedule=bool(cpu))
+    return rasterize_fwd_host(proj, bins, w, h, BG, importance, device=device, cpu_schedule=cpu == 1)
 
 
 def _check_fwd(device, name, cpu):
@@ -96,7 +104,7 @@ def test_fwd_matches_reference(device, name, cpu):
     _check_fwd(device, name, cpu)
 
 
-@pytest.mark.parametrize("cpu", SCHEDULES)
+@pytest.mark.parametrize("cpu", BWD_SCHEDULES)
 @pytest.mark.parametrize("name", ["random", "saturated", "depth_ties", "size_70x45", "alpha_clamp",
                                   "many_in_one_tile", "one", "empty", "tile_corner"])
 def test_bwd_matches_reference(device, name, cpu):
@@ -104,14 +112,14 @@ def test_bwd_matches_reference(device, name, cpu):
 
     proj, bins, w, h = _scene(name)
     vr, vd, va = _cotangents(w, h)
-    got = rasterize_bwd_host(proj, bins, w, h, vr, vd, va, BG, device=device, cpu_schedule=bool(cpu))
+    got = rasterize_bwd_host(proj, bins, w, h, vr, vd, va, BG, device=device, **_sched(cpu))
     e_fwd = ref.rasterize_fwd(proj, bins, w, h, BG)
     exp = ref.rasterize_bwd(proj, bins, e_fwd, vr, vd, va, w, h, BG)
     for f in ("v_means2d", "v_conics", "v_colors", "v_opacities", "v_depths"):
         assert_grad_close(getattr(got, f), getattr(exp, f), f, MIN_COSINE, MAX_REL_L2)
 
 
-@pytest.mark.parametrize("cpu", SCHEDULES)
+@pytest.mark.parametrize("cpu", BWD_SCHEDULES)
 def test_bwd_partial_cotangents(device, cpu):
     """Absent cotangents are zero: alpha-only gives no colour/depth gradient, rgb-only matches."""
     from reings.backends.opencl.rasterize import rasterize_bwd_host
@@ -120,7 +128,7 @@ def test_bwd_partial_cotangents(device, cpu):
     vr, vd, va = _cotangents(w, h, seed=1)
     e_fwd = ref.rasterize_fwd(proj, bins, w, h, BG)
     for kw in ({"v_alpha": va}, {"v_rgb": vr}, {"v_depth": vd}):
-        got = rasterize_bwd_host(proj, bins, w, h, background=BG, device=device, cpu_schedule=bool(cpu), **kw)
+        got = rasterize_bwd_host(proj, bins, w, h, background=BG, device=device, **_sched(cpu), **kw)
         exp = ref.rasterize_bwd(proj, bins, e_fwd, kw.get("v_rgb"), kw.get("v_depth"), kw.get("v_alpha"), w, h, BG)
         for f in ("v_means2d", "v_conics", "v_colors", "v_opacities", "v_depths"):
             assert_grad_close(getattr(got, f), getattr(exp, f), f"{f} with {list(kw)}", MIN_COSINE, MAX_REL_L2)
@@ -128,7 +136,7 @@ def test_bwd_partial_cotangents(device, cpu):
             assert not got.v_colors.any() and not got.v_depths.any()
 
 
-@pytest.mark.parametrize("cpu", SCHEDULES)
+@pytest.mark.parametrize("cpu", BWD_SCHEDULES)
 def test_deterministic(device, cpu):
     from reings.backends.opencl.rasterize import rasterize_bwd_host
 
@@ -138,12 +146,12 @@ def test_deterministic(device, cpu):
     for f in ("rgb", "depth", "alpha", "final_T", "last", "importance", "imp_emit"):
         assert np.array_equal(getattr(a, f), getattr(b, f)), f
     vr, vd, va = _cotangents(w, h)
-    g1 = rasterize_bwd_host(proj, bins, w, h, vr, vd, va, BG, device=device, cpu_schedule=bool(cpu))
-    g2 = rasterize_bwd_host(proj, bins, w, h, vr, vd, va, BG, device=device, cpu_schedule=bool(cpu))
+    g1 = rasterize_bwd_host(proj, bins, w, h, vr, vd, va, BG, device=device, **_sched(cpu))
+    g2 = rasterize_bwd_host(proj, bins, w, h, vr, vd, va, BG, device=device, **_sched(cpu))
     assert np.array_equal(g1.v_emit, g2.v_emit)
 
 
-@pytest.mark.parametrize("cpu", SCHEDULES)
+@pytest.mark.parametrize("cpu", BWD_SCHEDULES)
 @pytest.mark.parametrize("name", ["random", "saturated", "depth_ties", "size_70x45", "alpha_clamp",
                                   "many_in_one_tile", "one", "empty", "tile_corner", "needles"])
 def test_bwd_opacity_only_keeps_the_bits(device, name, cpu):
@@ -155,8 +163,8 @@ def test_bwd_opacity_only_keeps_the_bits(device, name, cpu):
     proj, bins, w, h = _scene(name)
     vr, vd, va = _cotangents(w, h, seed=2)
     for kw in ({"v_depth": vd}, {"v_alpha": va}, {"v_rgb": vr, "v_depth": vd, "v_alpha": va}):
-        full = rasterize_bwd_host(proj, bins, w, h, background=BG, device=device, cpu_schedule=bool(cpu), **kw)
-        only = rasterize_bwd_host(proj, bins, w, h, background=BG, device=device, cpu_schedule=bool(cpu),
+        full = rasterize_bwd_host(proj, bins, w, h, background=BG, device=device, **_sched(cpu), **kw)
+        only = rasterize_bwd_host(proj, bins, w, h, background=BG, device=device, **_sched(cpu),
                                   opacity_only=True, **kw)
         assert np.array_equal(only.v_emit[:, 8].view(np.uint32), full.v_emit[:, 8].view(np.uint32)), list(kw)
         assert np.array_equal(only.v_opacities.view(np.uint32), full.v_opacities.view(np.uint32)), list(kw)
@@ -165,7 +173,7 @@ def test_bwd_opacity_only_keeps_the_bits(device, name, cpu):
             assert np.abs(full.v_opacities).max() > 0 and np.abs(full.v_means2d).max() > 0
 
 
-@pytest.mark.parametrize("cpu", SCHEDULES)
+@pytest.mark.parametrize("cpu", BWD_SCHEDULES)
 @pytest.mark.parametrize("name", ["random", "saturated", "depth_ties", "size_70x45", "alpha_clamp",
                                   "many_in_one_tile", "one", "empty", "tile_corner", "needles"])
 def test_bwd_second_depth_cotangent_keeps_the_bits(device, name, cpu):
@@ -178,7 +186,7 @@ def test_bwd_second_depth_cotangent_keeps_the_bits(device, name, cpu):
     proj, bins, w, h = _scene(name)
     vr, vd, va = _cotangents(w, h, seed=2)
     _, vo, _ = _cotangents(w, h, seed=7)
-    on = dict(background=BG, device=device, cpu_schedule=bool(cpu))
+    on = dict(background=BG, device=device, **_sched(cpu))
     sep = rasterize_bwd_host(proj, bins, w, h, v_depth=vo, opacity_only=True, **on)
     for kw in ({"v_rgb": vr}, {"v_rgb": vr, "v_depth": vd}, {"v_rgb": vr, "v_depth": vd, "v_alpha": va}):
         plain = rasterize_bwd_host(proj, bins, w, h, **kw, **on)
@@ -407,7 +415,7 @@ def _overflow_inputs(what: str, w: int, h: int, proj):
     return dataclasses.replace(proj, colors=colors), vr, vd, va
 
 
-@pytest.mark.parametrize("cpu", SCHEDULES)
+@pytest.mark.parametrize("cpu", BWD_SCHEDULES)
 @pytest.mark.parametrize("what", ["colour", "all_colours", "cotangent", "inf_cotangent"])
 def test_bwd_overflow_never_nan(device, what, cpu):
     """Gradients whose float32 value (or an intermediate of it) overflows come out +-inf or finite,
@@ -417,7 +425,7 @@ def test_bwd_overflow_never_nan(device, what, cpu):
 
     proj, bins, w, h = _scene("random")
     proj, vr, vd, va = _overflow_inputs(what, w, h, proj)
-    got = rasterize_bwd_host(proj, bins, w, h, vr, vd, va, BG, device=device, cpu_schedule=bool(cpu))
+    got = rasterize_bwd_host(proj, bins, w, h, vr, vd, va, BG, device=device, **_sched(cpu))
     assert not np.isnan(got.v_emit).any(), "NaN in a rasterize_bwd record"
     for f in ("v_means2d", "v_conics", "v_colors", "v_opacities", "v_depths"):
         assert not np.isnan(getattr(got, f)).any(), f"NaN in {f}"
@@ -426,13 +434,14 @@ def test_bwd_overflow_never_nan(device, what, cpu):
         assert np.all(np.isfinite(got.v_colors)) and np.all(np.isfinite(got.v_depths))
     # with a second, opacity-only depth cotangent (huge where the test's are): neither record set has NaN
     vo = (vd * 1e37).astype(np.float32) if what == "cotangent" else vd[::-1].copy()
-    two = rasterize_bwd_host(proj, bins, w, h, vr, vd, va, BG, device=device, cpu_schedule=bool(cpu), v_depth_o=vo)
+    two = rasterize_bwd_host(proj, bins, w, h, vr, vd, va, BG, device=device, **_sched(cpu), v_depth_o=vo)
     assert not np.isnan(two.v_emit).any() and not np.isnan(two.v_emit_o).any(), "NaN with v_depth_o"
     assert not np.isnan(two.grads_o.v_opacities).any()
 
 
+@pytest.mark.parametrize("cpu", SCHEDULES)
 @pytest.mark.parametrize("width", [1, V_RECORD])
-def test_isect_reduce_overflow(device, width):
+def test_isect_reduce_overflow(device, width, cpu):
     """isect_reduce: +inf and -inf records of one Gaussian (or huge finite ones whose partial sums
     overflow both ways) sum to +-inf or a finite value, never NaN; a NaN record stays NaN. Width
     V_RECORD (the gradient records, summed in registers in one pass): the overflowing field is
@@ -441,7 +450,7 @@ def test_isect_reduce_overflow(device, width):
 
     from reings.backends.opencl.rasterize import rasterizer_for
 
-    r = rasterizer_for(device)
+    r = rasterizer_for(device, cpu_schedule=bool(cpu))
     ctx, q = r.handle.context, r.queue
     col = np.array([[np.inf], [-np.inf], [1.0],                    # rank 0: inf - inf
                     [FLT_MAX], [FLT_MAX], [-FLT_MAX], [-FLT_MAX],  # rank 1: partial sums overflow both ways
@@ -467,19 +476,24 @@ def test_isect_reduce_overflow(device, width):
     np.testing.assert_array_equal(others, want)
 
 
-def test_isect_reduce_sums_in_record_order(device):
+@pytest.mark.parametrize("cpu", SCHEDULES)
+def test_isect_reduce_sums_in_record_order(device, cpu):
     """Each field of a rank is s0 + records[a] + records[a + 1] + ... in float32, in that order
-    (the register pass of width V_RECORD keeps the order of the per-field loop): bit for bit
-    against a sequential float32 sum, for values whose sums round differently in other orders."""
+    (the CPU schedule's register pass of width V_RECORD keeps the order of the per-field loop; the
+    GPU schedule's lanes add a round's staged records in that order): bit for bit against a
+    sequential float32 sum, for values whose sums round differently in other orders. 600 ranks of
+    0 to 2100 records: the GPU schedule's ranks (16 per work-group) stage their records in rounds
+    (32 gradient or 320 importance records), one to 66 per rank, unequal within a work-group."""
     import pyopencl as cl
 
     from reings.backends.opencl.rasterize import rasterizer_for
 
-    r = rasterizer_for(device)
+    r = rasterizer_for(device, cpu_schedule=bool(cpu))
     ctx, q = r.handle.context, r.queue
     rng = np.random.default_rng(11)
-    n = 40
-    counts = rng.integers(0, 40, n)
+    n = 600
+    counts = rng.integers(0, 12, n)
+    counts[[3, 17, 300, 599]] = (700, 321, 2100, 64)  # segments over several windows
     offs = np.concatenate([[0], np.cumsum(counts)]).astype(np.int32)
     gid = rng.permutation(n).astype(np.int32)
     mf = cl.mem_flags
@@ -501,7 +515,8 @@ def test_isect_reduce_sums_in_record_order(device):
         np.testing.assert_array_equal(got, want, err_msg=f"width {width}")
 
 
-def test_isect_reduce(device):
+@pytest.mark.parametrize("cpu", SCHEDULES)
+def test_isect_reduce(device, cpu):
     """Segmented sum per rank into its gid, width 1 and 10, plain and accumulating; others untouched;
     with the rank count from the host, and from the device (count=(ctrl, 0): the sync-free
     binning's V, launched over a bound of N ranks, docs/perf_notes.md §8)."""
@@ -509,7 +524,7 @@ def test_isect_reduce(device):
 
     from reings.backends.opencl.rasterize import rasterizer_for
 
-    r = rasterizer_for(device)
+    r = rasterizer_for(device, cpu_schedule=bool(cpu))
     ctx, q = r.handle.context, r.queue
     rng = np.random.default_rng(5)
     n, v = 50, 37
@@ -619,12 +634,12 @@ _OCLGRIND_SCRIPT = """
     elif "{part}" == "reduce":
         # the width-V_RECORD register pass of isect_reduce in record order
         from test_rasterize import test_isect_reduce_sums_in_record_order
-        test_isect_reduce_sums_in_record_order("oclgrind")
+        test_isect_reduce_sums_in_record_order("oclgrind", int({cpu}))
         # on fresh scratch sized for this case alone (a read past a buffer's end is out of bounds)
         overflow_rerun()
         # isect_reduce with the rank count from the host and from the device (sync-free binning)
         from test_rasterize import test_isect_reduce
-        test_isect_reduce("oclgrind")
+        test_isect_reduce("oclgrind", int({cpu}))
     else:
         raise ValueError("unknown part {part}")
 """

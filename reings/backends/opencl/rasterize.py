@@ -68,6 +68,26 @@ def raster_vec(device=None) -> int:
     return 16 if int(getattr(device, "native_vector_width_float", 0) or 0) >= 16 else 8
 
 
+# isect_reduce's GPU schedule: work-items per rank (>= V_RECORD) and per work-group (RED_LANES / RED_WG,
+# kernels/rasterize.cl)
+REDUCE_LANES, REDUCE_WG = 16, 256
+# rasterize_bwd's GPU schedule: pixels per work-item (BWD_PIX, kernels/rasterize.cl; docs/perf_notes.md §28)
+BWD_PIX = 1
+
+
+def bwd_pix() -> int:
+    """The GPU schedule's pixels per rasterize_bwd work-item (BWD_PIX): $REINGS_BWD_PIX (1, 2 or 4),
+    else the default BWD_PIX."""
+    import os
+
+    env = os.environ.get("REINGS_BWD_PIX", "").strip()
+    if env:
+        if env not in ("1", "2", "4"):
+            raise ValueError(f"REINGS_BWD_PIX must be 1, 2 or 4, got {env!r}")
+        return int(env)
+    return BWD_PIX
+
+
 def _nd(n: int, local: int) -> int:
     return max(local, (n + local - 1) // local * local)
 
@@ -98,6 +118,13 @@ class Rasterizer:
         self.shared = scratch if shared is None else shared
         if self.cpu_schedule and "RASTER_VEC" not in d:
             d["RASTER_VEC"] = raster_vec(handle.device)
+        if not self.cpu_schedule:  # GPU schedule: isect_reduce's group, rasterize_bwd's pixels per work-item
+            d.setdefault("RED_LANES", REDUCE_LANES)
+            d.setdefault("RED_WG", REDUCE_WG)
+            d.setdefault("BWD_PIX", bwd_pix())
+            self.red_lanes, self.red_wg = int(d["RED_LANES"]), int(d["RED_WG"])
+            if int(d["BWD_PIX"]) not in (1, 2, 4):
+                raise ValueError(f"Rasterizer: BWD_PIX must be 1, 2 or 4, got {d['BWD_PIX']}")
         self._lib, self._defines = lib, d
         self.k_prep = lib.get(FILE, "rasterize_prep", RASTER_IMPORTANCE=0, **d)
         self.k_fwd = lib.get(FILE, "rasterize_fwd", RASTER_IMPORTANCE=0, **d)
@@ -113,6 +140,7 @@ class Rasterizer:
         self._k_bwd_variants: dict = {}  # RASTER_BWD_OPACITY / RASTER_BWD_DEPTH_O builds, on first use
         self.k_reduce.set_scalar_arg_dtypes([None] * 4 + [i32] * 3 + [None, i32])
         self.local = 1 if self.cpu_schedule else TILE_PIXELS
+        self.bwd_local = 1 if self.cpu_schedule else TILE_PIXELS // int(d["BWD_PIX"])  # rasterize_bwd's group
         self._dummy = self.scratch.get("small", "raster_dummy", 16, 4)
         self.n = self.n_isect = self.width = self.height = 0
         self._pix_cache = None  # (width * height, the scratch's allocation count, the buffers): pixel_buffers
@@ -193,10 +221,12 @@ class Rasterizer:
         tx, ty = tile_grid(width, height)
         return tx, tx * ty
 
-    def _range(self, width, height):
-        """(global, local): a 2D range of tiles, one work-item (CPU) or 256 (GPU) per tile."""
+    def _range(self, width, height, local: int | None = None):
+        """(global, local): a 2D range of tiles, one work-item (CPU) or 256 (GPU; rasterize_bwd
+        256 / BWD_PIX) per tile."""
         tx, ty = tile_grid(width, height)
-        return (max(tx, 1) * self.local, max(ty, 1)), (self.local, 1)
+        local = self.local if local is None else local
+        return (max(tx, 1) * local, max(ty, 1)), (local, 1)
 
     # -- kernels ----------------------------------------------------------------------------
     def prep(self, means2d, conics, colors, opacities, depths, n: int, wait_for=None):
@@ -259,7 +289,7 @@ class Rasterizer:
         emit = emit_from_isect if self.n_isect else d
         depth_o = v_depth_o is not None
         return self._bwd_kernel(opacity_only, depth_o)(
-            self.queue, *self._range(width, height), packed, tile_ranges,
+            self.queue, *self._range(width, height, self.bwd_local), packed, tile_ranges,
             gid, emit, np.int32(width), np.int32(height), np.int32(tiles_x), np.int32(n_tiles),
             rgb, depth, final_T, last, v_rgb if v_rgb is not None else d,
             v_depth if v_depth is not None else d, v_alpha if v_alpha is not None else d,
@@ -271,7 +301,14 @@ class Rasterizer:
         if n_rank == 0:
             return self.cl.enqueue_marker(self.queue, wait_for=wait_for)
         counts, count_at = (self._dummy, -1) if count is None else count
-        return self.k_reduce(self.queue, (_nd(n_rank, 64),), None, records, offset_from_rank, gid_from_rank,
+        if self.cpu_schedule:
+            gsize, lsize = (_nd(n_rank, 64),), None
+        else:  # RED_WG // RED_LANES ranks per work-group, each over RED_LANES work-items
+            if not 1 <= width <= self.red_lanes:
+                raise ValueError(f"isect_reduce: record width {width} outside 1..{self.red_lanes} (RED_LANES)")
+            per = self.red_wg // self.red_lanes
+            gsize, lsize = (-(-n_rank // per) * self.red_wg,), (self.red_wg,)
+        return self.k_reduce(self.queue, gsize, lsize, records, offset_from_rank, gid_from_rank,
                              out, np.int32(n_rank), np.int32(width), np.int32(bool(accumulate)),
                              counts, np.int32(count_at), wait_for=wait_for)
 
