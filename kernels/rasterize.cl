@@ -41,7 +41,8 @@
  *   RASTER_VEC / RASTER_BLOCK_H pixels (4 x 2 or 4 x 4: fewer vectors per Gaussian than one row of 8 or
  *   16, docs/perf_notes.md §27); every shape gives each pixel the same values (the same bytes of the
  *   forward's images), only the order of a tile's per-Gaussian sums differs;
- *   FWD_BATCH (256) / BWD_BATCH (32): Gaussians staged in local memory per batch (GPU schedule);
+ *   FWD_BATCH (256) / BWD_BATCH (64): Gaussians staged in local memory per batch (GPU schedule; the batch
+ *   only partitions a tile's list: any BWD_BATCH gives the same records, docs/perf_notes.md §28);
  *   REDUCE_UNROLL (8): gradient records isect_reduce loads before adding them (the same order; CPU schedule);
  *   RED_LANES (16) / RED_WG (256) / RED_STAGE (320): isect_reduce's GPU schedule, work-items per rank,
  *   per work-group, and floats staged per rank and round (the host passes the first two);
@@ -113,7 +114,7 @@
 #define FWD_BATCH 256
 #endif
 #ifndef BWD_BATCH
-#define BWD_BATCH 32
+#define BWD_BATCH 64
 #endif
 #ifndef RASTER_BWD_OPACITY
 #define RASTER_BWD_OPACITY 0

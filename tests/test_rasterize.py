@@ -221,6 +221,29 @@ def test_bwd_transposed_warp_sum_keeps_the_bits(device, name):
         assert np.abs(out[1].v_emit).max() > 0
 
 
+@pytest.mark.parametrize("name", ["random_large", "many_in_one_tile"])
+def test_bwd_batch_keeps_the_bits(device, name, pix=1):
+    """The GPU schedule's BWD_BATCH (Gaussians staged per batch) only partitions a tile's list: every
+    (tile, Gaussian) record is the same group sum whatever the batch, so BWD_BATCH 16 gives the
+    bytes of 64 (the default) for the full, opacity-only and second-cotangent backwards (random_large:
+    tiles of up to ~150 Gaussians; many_in_one_tile: 300 in one tile)."""
+    from reings.backends.opencl.rasterize import rasterize_bwd_host
+
+    proj, bins, w, h = _bits_scene(name)
+    vr, vd, va = _cotangents(w, h, seed=2)
+    _, vo, _ = _cotangents(w, h, seed=7)
+    for kw in ({"v_rgb": vr, "v_depth": vd, "v_alpha": va}, {"v_depth": vd, "opacity_only": True},
+               {"v_rgb": vr, "v_depth_o": vo}):
+        out = {b: rasterize_bwd_host(proj, bins, w, h, background=BG, device=device, cpu_schedule=False,
+                                     BWD_PIX=pix, BWD_BATCH=b, **kw) for b in (16, 64)}
+        for b in (16,):
+            assert np.array_equal(out[b].v_emit.view(np.uint32), out[64].v_emit.view(np.uint32)), (b, list(kw))
+            if "v_depth_o" in kw:
+                assert np.array_equal(out[b].v_emit_o.view(np.uint32), out[64].v_emit_o.view(np.uint32)), b
+    if name.startswith("random"):
+        assert np.abs(out[64].v_emit).max() > 0
+
+
 def _bits_scene(name: str):
     """_scene, or "random_large": many tiles, skewed and large splats (boxes much wider than their
     ellipses, warps with a few contributing lanes)."""
