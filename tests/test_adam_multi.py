@@ -1,5 +1,5 @@
 """kernels/adam.cl adam_step_multi: the device trainer's Adam step of every group of an `adam_step`
-call in one launch (DeviceTrainer.adam_multi, the default) against one launch per group
+call in one launch (DeviceTrainer.adam_multi, the default on GPUs) against one launch per group
 (adam_multi False: adam_step_flat / the strided adam_step), bit for bit: parameters and both
 moments after several steps with per-group lrs changing between steps, for several group subsets
 (all six; means only; opacity_logits only; the SH groups with one and with several active
@@ -162,11 +162,12 @@ def test_adam_multi_repeated_group(device):
 
 
 def test_adam_multi_side_effects(device):
-    """Besides the launch: means steps bump the geometry version (other groups do not), the
+    """adam_step_multi, besides the launch: means steps bump the geometry version (other groups do not), the
     profile gets one "adam" event per launch, an unknown group raises after the groups before it
     were stepped."""
     st = _state(np.random.default_rng(4), 64, 4)
     t = _trainer(device, st, "kernel")
+    t.adam_multi = True  # the default on GPUs only (CPU devices: one launch per group)
     t.profile = {}
     opt = Adam(st.params, dict(_LRS), state=st.adam)
     rng = np.random.default_rng(6)
@@ -215,3 +216,11 @@ def test_adam_multi_oclgrind():
     from oclgrind_util import check_script
 
     check_script(_MULTI_OCLGRIND)
+
+
+def test_adam_multi_default_follows_the_device(device):
+    """One adam_step_multi launch per call on GPUs; one launch per group on CPU devices (PoCL runs the
+    multi kernel's 2-D work-groups slower than the per-group kernels: docs/perf_notes.md §29)."""
+    st = _state(np.random.default_rng(4), 16, 1)
+    t = _trainer(device, st, "kernel")
+    assert t.adam_multi == (not t.b.cpu)

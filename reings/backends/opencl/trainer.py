@@ -159,6 +159,11 @@ class DeviceTrainer:
         self.mem = Scratch(self.handle)
         self.fp64 = backend.fp64  # cl_khr_fp64
         self.adam = adam if adam != "auto" else (CPU_DEFAULT_ADAM if backend.cpu else "kernel")
+        if backend.cpu:
+            # one launch per group on CPU devices (the same bits): PoCL runs adam_step_multi's 2-D work-groups
+            # ~4x slower than the per-group kernels (2 Xeon cores, 54k Gaussians at SH degree 1: Adam 10.8 ->
+            # 2.6 ms of device time, the step's wall 0.948x in one process; docs/perf_notes.md §29)
+            self.adam_multi = False
         self.profile = profile
         self.photo = backend.photometric_kernels
         adam_defs = {"ADAM_FP64": int(self.fp64), "ADAM_MULTI_SPLIT": int(bool(backend.cpu))}  # one build
