@@ -74,7 +74,8 @@
  *        are the outer loop (uniform scalar loads), each visits only the block rows and columns of
  *        its box; per-pixel and whole-tile
  *        early exit; per-(tile, Gaussian) sums stay in registers and are written once.
- *   GPU: one 256-work-item group per tile, a work-item per pixel, Gaussians staged in local memory
+ *   GPU: one 256-work-item group per tile, a work-item per pixel (rasterize_bwd: BWD_PIX pixels per
+ *        work-item, groups of 256 / BWD_PIX), Gaussians staged in local memory
  *        by batches, whole-tile early exit; per-Gaussian work-group sums by warp shuffles
  *        (shfl.sync.bfly, REINGS_NV_PTX) + a local combine across warps, else a local tree.
  * Overflow (rasterize_bwd, isect_reduce): finite inputs can still overflow float32 in the backward.
@@ -831,13 +832,14 @@ inline float warp_sum16(const float *x, const int lane) {
 
 /* Sum NF values over the work-group (nthreads work-items) into part[(p * batch + j) * NF + f] (p: partial index).
  * NVIDIA: butterfly shuffles per warp (skipped when no lane contributes), lane 0 stores.
- * Portable: a local-memory tree (red: [NF * TILE_PIXELS]), barriers inside; every work-item
+ * Portable: a local-memory tree (red: [NF * nthreads]), barriers inside; every work-item
  * must call it (uniform control flow). */
 inline void group_sum(const float *vals, const int NF, const int any_nz, const int j, const int batch,
                       __local float *part, __local float *red, const int lid, const int nthreads) {
 #if REINGS_NV_PTX
     const int w = lid / WARP, lane = lid % WARP;
     (void)red;
+    (void)nthreads;
 #if RASTER_BWD_TRANSPOSE
     if (NF > 1) { /* one transposed sum of all fields (at most 16); lanes 2f write field f */
         float x[16];
@@ -858,7 +860,6 @@ inline void group_sum(const float *vals, const int NF, const int any_nz, const i
     }
 #else
     (void)any_nz;
-    (void)nthreads;
     for (int f = 0; f < NF; ++f) red[f * nthreads + lid] = vals[f];
     barrier(CLK_LOCAL_MEM_FENCE);
     for (int s = nthreads / 2; s > 0; s >>= 1) {
@@ -979,7 +980,7 @@ rasterize_fwd(__global const float16 *packed,      // [N] records of raster_prep
  * TILE_PIXELS / BWD_PIX work-items per tile; work-item lid holds the pixels of column lid % TILE_SIZE
  * in rows (lid / TILE_SIZE) * BWD_PIX + q, q < BWD_PIX (a warp: 2 * BWD_PIX whole rows), adds its
  * pixels' values of a Gaussian (pixel 0's, then + pixel 1's, ...) and takes part in one group sum per
- * Gaussian for all of them: the per-Gaussian warp sums (~20-25 % of the backward on an H100,
+ * Gaussian for all of them: the per-Gaussian warp sums (19-25 % of the backward on an H100,
  * docs/perf_notes.md §28) are done once per BWD_PIX pixels. BWD_PIX 1: one pixel per work-item, the
  * records of earlier sessions byte for byte. */
 #ifndef BWD_PIX

@@ -221,12 +221,13 @@ def test_bwd_transposed_warp_sum_keeps_the_bits(device, name):
         assert np.abs(out[1].v_emit).max() > 0
 
 
+@pytest.mark.parametrize("pix", [1, 2])
 @pytest.mark.parametrize("name", ["random_large", "many_in_one_tile"])
-def test_bwd_batch_keeps_the_bits(device, name, pix=1):
+def test_bwd_batch_keeps_the_bits(device, name, pix):
     """The GPU schedule's BWD_BATCH (Gaussians staged per batch) only partitions a tile's list: every
     (tile, Gaussian) record is the same group sum whatever the batch, so BWD_BATCH 16 gives the
     bytes of 64 (the default) for the full, opacity-only and second-cotangent backwards (random_large:
-    tiles of up to ~150 Gaussians; many_in_one_tile: 300 in one tile)."""
+    tiles of up to 123 Gaussians; many_in_one_tile: 300 in one tile), at 1 and 2 pixels per work-item."""
     from reings.backends.opencl.rasterize import rasterize_bwd_host
 
     proj, bins, w, h = _bits_scene(name)
@@ -236,10 +237,9 @@ def test_bwd_batch_keeps_the_bits(device, name, pix=1):
                {"v_rgb": vr, "v_depth_o": vo}):
         out = {b: rasterize_bwd_host(proj, bins, w, h, background=BG, device=device, cpu_schedule=False,
                                      BWD_PIX=pix, BWD_BATCH=b, **kw) for b in (16, 64)}
-        for b in (16,):
-            assert np.array_equal(out[b].v_emit.view(np.uint32), out[64].v_emit.view(np.uint32)), (b, list(kw))
-            if "v_depth_o" in kw:
-                assert np.array_equal(out[b].v_emit_o.view(np.uint32), out[64].v_emit_o.view(np.uint32)), b
+        assert np.array_equal(out[16].v_emit.view(np.uint32), out[64].v_emit.view(np.uint32)), list(kw)
+        if "v_depth_o" in kw:
+            assert np.array_equal(out[16].v_emit_o.view(np.uint32), out[64].v_emit_o.view(np.uint32))
     if name.startswith("random"):
         assert np.abs(out[64].v_emit).max() > 0
 
@@ -402,6 +402,22 @@ def test_raster_vec_follows_the_device(monkeypatch):
     monkeypatch.setenv("REINGS_RASTER_VEC", "12")
     with pytest.raises(ValueError, match="REINGS_RASTER_VEC must be 8 or 16, got '12'"):
         raster_vec()
+
+
+def test_bwd_pix_follows_the_environment(monkeypatch):
+    """REINGS_BWD_PIX picks the GPU schedule's pixels per backward work-item (1, 2 or 4), unset: 1;
+    anything else is refused by name."""
+    from reings.backends.opencl.rasterize import BWD_PIX, bwd_pix
+
+    monkeypatch.delenv("REINGS_BWD_PIX", raising=False)
+    assert bwd_pix() == BWD_PIX == 1
+    for v in ("1", "2", "4"):
+        monkeypatch.setenv("REINGS_BWD_PIX", v)
+        assert bwd_pix() == int(v)
+    for bad in ("3", "0", "two"):
+        monkeypatch.setenv("REINGS_BWD_PIX", bad)
+        with pytest.raises(ValueError, match="REINGS_BWD_PIX"):
+            bwd_pix()
 
 
 def test_schedules_agree(device):
@@ -623,8 +639,8 @@ _OCLGRIND_SCRIPT = """
 
 
     def first_of(name, n):
-        # the case's first n Gaussians (many_in_one_tile's backward: 2 of BWD_BATCH's batches are enough to
-        # check the loop over batches, and the simulator takes ~50 s for all 10)
+        # the case's first n Gaussians (many_in_one_tile's backward: 40 Gaussians in 3 batches of BWD_BATCH 16
+        # check the loop over batches, and the simulator takes ~50 s for all 300)
         from cases import case
         from reings.backends import reference as ref
         c = case(name)
@@ -638,9 +654,12 @@ _OCLGRIND_SCRIPT = """
             proj, bins, w, h = _scene(name)
             vr, vd, va = _cotangents(w, h)
             o = rasterize_fwd_host(proj, bins, w, h, BG, True, device="oclgrind", cpu_schedule=cpu)
+            extra = {{}}
             if name == "many_in_one_tile":  # the forward above took all 300 (two of FWD_BATCH's batches)
                 proj, bins = first_of(name, 40)
-            g = rasterize_bwd_host(proj, bins, w, h, vr, vd, va, BG, device="oclgrind", cpu_schedule=cpu)
+                if not cpu:  # several batches (BWD_BATCH 64 is one), two pixels per work-item
+                    extra = dict(BWD_BATCH=16, BWD_PIX=2)
+            g = rasterize_bwd_host(proj, bins, w, h, vr, vd, va, BG, device="oclgrind", cpu_schedule=cpu, **extra)
             assert np.all(np.isfinite(o.rgb)) and np.all(np.isfinite(g.v_emit))
             if name != "size_17x15":  # the builds below share the backward's code: one case each under the
                 continue              # simulator (every case on PoCL: test_bwd_*_keeps_the_bits)
