@@ -196,15 +196,16 @@ inline float reduce_rescaled(__global const float *records, const int a, const i
     return t * (1.0f / sc);
 }
 
+/* isect_reduce's arguments (both schedules): records [K_emit, width], offset_from_rank [V + 1], gid_from_rank
+ * [V], out [N, width]; V = counts[count_at] when count_at >= 0, else n_rank (the launch bound; common.h) */
+#define ISECT_REDUCE_PARAMS                                                                                \
+    __global const float *records, __global const int *offset_from_rank, __global const int *gid_from_rank, \
+        __global float *out, const int n_rank, const int width, const int accumulate,                      \
+        __global const uint *counts, const int count_at
+
 #if REINGS_CPU_SCHEDULE
 /* CPU schedule: one work-item per rank walks its segment */
-__kernel void isect_reduce(__global const float *records,       // [K_emit, width]
-                           __global const int *offset_from_rank, // [V + 1]
-                           __global const int *gid_from_rank,    // [V]
-                           __global float *out,                  // [N, width]
-                           const int n_rank, const int width, const int accumulate,
-                           __global const uint *counts,          // V = counts[count_at] when count_at >= 0
-                           const int count_at) {                 //   (n_rank: the launch bound; common.h)
+__kernel void isect_reduce(ISECT_REDUCE_PARAMS) {
     const int r = get_global_id(0);
     if (r >= (int)launch_count((uint)n_rank, counts, count_at)) return;
     const int a = offset_from_rank[r], b = offset_from_rank[r + 1];
@@ -270,13 +271,7 @@ __kernel void isect_reduce(__global const float *records,       // [K_emit, widt
 #endif
 #define RED_RANKS (RED_WG / RED_LANES)
 __kernel __attribute__((reqd_work_group_size(RED_WG, 1, 1))) void
-isect_reduce(__global const float *records,       // [K_emit, width]
-             __global const int *offset_from_rank, // [V + 1]
-             __global const int *gid_from_rank,    // [V]
-             __global float *out,                  // [N, width]
-             const int n_rank, const int width, const int accumulate,
-             __global const uint *counts,          // V = counts[count_at] when count_at >= 0
-             const int count_at) {                 //   (n_rank: the launch bound; common.h)
+isect_reduce(ISECT_REDUCE_PARAMS) {
     __local float stage[RED_RANKS * RED_STAGE];
     __local int rounds;
     const int lid = get_local_id(0);

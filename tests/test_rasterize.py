@@ -406,7 +406,7 @@ def test_raster_vec_follows_the_device(monkeypatch):
 
 def test_bwd_pix_follows_the_environment(monkeypatch):
     """REINGS_BWD_PIX picks the GPU schedule's pixels per backward work-item (1, 2 or 4), unset: 1;
-    anything else is refused by name."""
+    anything else is refused by name; rasterizer_for follows a changed value."""
     from reings.backends.opencl.rasterize import BWD_PIX, bwd_pix
 
     monkeypatch.delenv("REINGS_BWD_PIX", raising=False)
@@ -418,6 +418,12 @@ def test_bwd_pix_follows_the_environment(monkeypatch):
         monkeypatch.setenv("REINGS_BWD_PIX", bad)
         with pytest.raises(ValueError, match="REINGS_BWD_PIX"):
             bwd_pix()
+    # rasterizer_for keys its cache by the variable too: a changed value gets its own build
+    from reings.backends.opencl.rasterize import TILE_PIXELS, rasterizer_for
+
+    for v in (2, 1):
+        monkeypatch.setenv("REINGS_BWD_PIX", str(v))
+        assert rasterizer_for("pocl", False).bwd_local == TILE_PIXELS // v
 
 
 def test_schedules_agree(device):

@@ -320,7 +320,11 @@ _RASTERIZERS: dict[tuple, Rasterizer] = {}
 
 
 def rasterizer_for(device: str = "pocl", cpu_schedule: bool | None = None, **defines) -> Rasterizer:
-    key = (device, cpu_schedule, tuple(sorted(defines.items())))
+    import os
+
+    # the environment's choices (raster_vec, bwd_pix) are part of the build: a changed one gets its own
+    env = tuple(os.environ.get(k, "") for k in ("REINGS_RASTER_VEC", "REINGS_BWD_PIX"))
+    key = (device, cpu_schedule, tuple(sorted(defines.items())), env)
     if key not in _RASTERIZERS:
         _RASTERIZERS[key] = Rasterizer(open_device(device), cpu_schedule=cpu_schedule, **defines)
     return _RASTERIZERS[key]

@@ -172,7 +172,10 @@ class DeviceTrainer:
         self.adam_flat_views = not backend.cpu
         self.k_adam = backend.kernel("adam.cl", "adam_step", **adam_defs)
         self.k_adam_flat = backend.kernel("adam.cl", "adam_step_flat", **adam_defs)
-        self.k_adam_multi = backend.kernel("adam.cl", "adam_step_multi", **adam_defs)
+        # built here where it is the default (GPUs: no build on the training clock), on first use elsewhere
+        # (CPU devices step one group per launch: adam_multi False below)
+        self._adam_defs = adam_defs
+        self.k_adam_multi = None if backend.cpu else backend.kernel("adam.cl", "adam_step_multi", **adam_defs)
         self._adam_multi_wg = None  # its CL_KERNEL_WORK_GROUP_SIZE, queried once
         self.k_reg_count = backend.kernel("regularize.cl", "regularize_opacity_count", REGULARIZE_FP64=int(self.fp64))
         self.k_reg_grads = backend.kernel("regularize.cl", "regularize_grads", REGULARIZE_FP64=int(self.fp64))
@@ -1041,6 +1044,8 @@ class DeviceTrainer:
             if not flat and not self.adam_flat_views:
                 wide = max(wide, cols)
         lx = -(-wide // ADAM_LX) * ADAM_LX
+        if self.k_adam_multi is None:
+            self.k_adam_multi = self.b.kernel("adam.cl", "adam_step_multi", **self._adam_defs)
         if self._adam_multi_wg is None:  # the kernel's own limit (CL_KERNEL_WORK_GROUP_SIZE) bounds lx * ly too
             cl = self.cl
             self._adam_multi_wg = int(self.k_adam_multi.get_work_group_info(cl.kernel_work_group_info.WORK_GROUP_SIZE,
