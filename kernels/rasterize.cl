@@ -371,7 +371,7 @@ inline int hmax(vi x) {
     int2 b = IMAX(a.lo, a.hi);
     return IMAX(b.x, b.y);
 }
-inline int vany(vi m) { return any8(m.lo | m.hi); } /* any(m) */
+inline int vany(vi m) { return any16(m); } /* any(m) */
 #else
 #error "RASTER_VEC must be 8 or 16"
 #endif
