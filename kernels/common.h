@@ -136,17 +136,17 @@ inline void atomic_add_f32(volatile __global float *p, float v) {
  * vector register around each call (docs/perf_notes.md §17). Plain-operator forms with the same value:
  * SEL(a, b, c) is select(a, b, c) (a vector condition selects by its sign bit, as select; a scalar one by
  * != 0), any8(m) / any16(m) are any(m) of an int8 / int16.
- * With REINGS_ANY_BUILTIN (quirks.build_defines: 1 on PoCL's CPU devices) any8 / any16 take clang's
+ * With REINGS_CLANG_BUILTINS (quirks.build_defines: 1 on PoCL's CPU devices) any8 / any16 take clang's
  * __builtin_reduce_or where the compiler has it: LLVM lowers the OR reduce of a compare's mask to one mask
  * test (AVX-512: kortestw) where the tree of halves below was a chain of extracts and shuffles
  * (docs/perf_notes.md §30). The same value either way. Not for Oclgrind: its interpreter has no
  * vector-reduce intrinsic. */
 #define SEL(a, b, c) ((c) ? (b) : (a))
-#ifndef REINGS_ANY_BUILTIN
-#define REINGS_ANY_BUILTIN 0
+#ifndef REINGS_CLANG_BUILTINS
+#define REINGS_CLANG_BUILTINS 0
 #endif
 #define REINGS_ANY_REDUCE 0
-#if REINGS_ANY_BUILTIN && defined(__has_builtin)
+#if REINGS_CLANG_BUILTINS && defined(__has_builtin)
 #if __has_builtin(__builtin_reduce_or)
 #undef REINGS_ANY_REDUCE
 #define REINGS_ANY_REDUCE 1

@@ -33,7 +33,11 @@
  *                   work-items per rank stage them in local memory, lane f adds field f in record
  *                   order (the same bits as the CPU schedule's walk).
  *
- * Defines (defaults): REINGS_CPU_SCHEDULE (0), REINGS_NV_PTX (0) from quirks.build_defines;
+ * Defines (defaults): REINGS_CPU_SCHEDULE (0), REINGS_NV_PTX (0), REINGS_CLANG_BUILTINS (0) from
+ *   quirks.build_defines;
+ *   RASTER_PREFETCH (4 where REINGS_CLANG_BUILTINS and the compiler has __builtin_prefetch, else 0; CPU
+ *   schedule): the forward and backward prefetch the record this many list positions ahead (the loads of
+ *   random records were ~5-8 % of their time; docs/perf_notes.md §30; no value changes);
  *   RASTER_IMPORTANCE (0); RASTER_VEC (8 here; CPU pixel lanes, 8 = AVX2, 16 = AVX-512: the host always
  *   passes it, $REINGS_RASTER_VEC, else 16 where the device's native float vector is 16 wide, else 8:
  *   reings.backends.opencl.rasterize.raster_vec);
@@ -107,6 +111,16 @@
 #endif
 #ifndef RASTER_VEC
 #define RASTER_VEC 8
+#endif
+#ifndef RASTER_PREFETCH /* CPU schedule: prefetch the record this many list positions ahead (0: none) */
+#if REINGS_CLANG_BUILTINS && defined(__has_builtin)
+#if __has_builtin(__builtin_prefetch)
+#define RASTER_PREFETCH 4
+#endif
+#endif
+#endif
+#ifndef RASTER_PREFETCH
+#define RASTER_PREFETCH 0
 #endif
 #ifndef RASTER_BLOCK_H
 #define RASTER_BLOCK_H (RASTER_VEC / 4)
@@ -442,6 +456,9 @@ __kernel void rasterize_fwd(__global const float16 *packed,      // [N] records 
     const int start = tile_ranges[2 * tile], end = tile_ranges[2 * tile + 1];
     int i = start;
     for (; i < end && n_active > 0; ++i) {
+#if RASTER_PREFETCH
+        if (i + RASTER_PREFETCH < end) __builtin_prefetch(packed + gid_from_isect[i + RASTER_PREFETCH]);
+#endif
         const float16 g = packed[gid_from_isect[i]];
         const int kk = i - start + 1;
         int r0, r1, c0, c1;
@@ -593,6 +610,9 @@ bwd_tile(__global const float16 *packed, __global const int *gid_from_isect, __g
     const float iv = 1.0f / sv, ik = 1.0f / sk; /* exact: powers of two */
     int bad = 0;
     for (int i = start; i < *stop_at; ++i) {
+#if RASTER_PREFETCH
+        if (i + RASTER_PREFETCH < *stop_at) __builtin_prefetch(packed + gid_from_isect[i + RASTER_PREFETCH]);
+#endif
         const float16 g = packed[gid_from_isect[i]];
         const float cr = scaled(g.s6, sk), cg = scaled(g.s7, sk), cb = scaled(g.s8, sk);
         const float cz = scaled(g.s9, sk);

@@ -298,21 +298,22 @@ def test_cpu_alpha_cut_keeps_the_bits(device, name, vec):
 
 @pytest.mark.parametrize("vec", [8, 16])
 @pytest.mark.parametrize("name", ["random_large", "saturated", "many_in_one_tile", "needles", "size_70x45"])
-def test_cpu_any_builtin_keeps_the_bits(device, name, vec):
-    """The CPU schedule's mask tests through clang's __builtin_reduce_or (REINGS_ANY_BUILTIN=1, PoCL's default:
-    kernels/common.h any8 / any16) give the bytes of the tree of halves (0): the forward's images, `last` and
-    importance, and the records of the full, opacity-only and second-cotangent backwards; at both widths."""
+def test_cpu_clang_builtins_keep_the_bits(device, name, vec):
+    """The CPU schedule with clang's builtins (REINGS_CLANG_BUILTINS=1, PoCL's default: the mask tests through
+    __builtin_reduce_or, kernels/common.h any8 / any16; the records prefetched RASTER_PREFETCH positions ahead)
+    gives the bytes of the tree of halves without prefetches (0): the forward's images, `last` and importance,
+    and the records of the full, opacity-only and second-cotangent backwards; at both widths."""
     from reings.backends.opencl.rasterize import rasterize_fwd_host, rasterizer_for
 
     # the device's default (PoCL: 1) is one of the two builds compared
-    assert rasterizer_for(device, True)._lib.base_defines["REINGS_ANY_BUILTIN"] in (0, 1)
+    assert rasterizer_for(device, True)._lib.base_defines["REINGS_CLANG_BUILTINS"] in (0, 1)
     proj, bins, w, h = _bits_scene(name)
     on = dict(device=device, cpu_schedule=True, RASTER_VEC=vec)
-    fwd = {c: rasterize_fwd_host(proj, bins, w, h, BG, True, REINGS_ANY_BUILTIN=c, **on) for c in (0, 1)}
+    fwd = {c: rasterize_fwd_host(proj, bins, w, h, BG, True, REINGS_CLANG_BUILTINS=c, **on) for c in (0, 1)}
     for f in ("rgb", "depth", "alpha", "final_T", "last", "importance"):
         assert np.array_equal(np.asarray(getattr(fwd[1], f)).view(np.uint32),
                               np.asarray(getattr(fwd[0], f)).view(np.uint32)), f
-    out = _backwards_by_define(proj, bins, w, h, "REINGS_ANY_BUILTIN", **on)
+    out = _backwards_by_define(proj, bins, w, h, "REINGS_CLANG_BUILTINS", **on)
     assert np.abs(out[1].v_emit).max() > 0
 
 

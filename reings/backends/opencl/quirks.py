@@ -38,11 +38,12 @@ def volatile_status_words(device) -> bool:
     return is_nvidia(device) or (is_pocl(device) and is_cpu(device))
 
 
-def reduce_or_builtin(device) -> bool:
-    """PoCL on a CPU: its clang (LLVM 14 in pip's PoCL 3.0) has __builtin_reduce_or, which the kernels' mask
-    tests (any8 / any16, common.h) take when the compiler has it (`__has_builtin`), a single AVX-512 mask test
-    instead of a shuffle tree (docs/perf_notes.md §30). Not Oclgrind (no vector-reduce intrinsic in its
-    interpreter) nor GPUs (no kernel of theirs reduces a vector mask)."""
+def clang_builtins(device) -> bool:
+    """PoCL on a CPU: its clang (LLVM 14 in pip's PoCL 3.0) compiles two builtins the CPU schedule takes where
+    the compiler has them (`__has_builtin`): __builtin_reduce_or for the mask tests (any8 / any16, common.h: one
+    AVX-512 mask test instead of a shuffle tree) and __builtin_prefetch for the rasterizer's next records
+    (RASTER_PREFETCH, rasterize.cl); docs/perf_notes.md §30. Not Oclgrind (its interpreter has neither
+    intrinsic) nor GPUs (their schedules use neither)."""
     return is_pocl(device) and is_cpu(device)
 
 
@@ -81,11 +82,11 @@ def build_defines(device) -> dict[str, int]:
     REINGS_CPU_SCHEDULE  1 on CPU devices (PoCL): row/tile-per-work-item schedules, no barriers.
     REINGS_NV_PTX        1 on NVIDIA: inline PTX red.global.add.f32 and shfl.sync are allowed.
     REINGS_FLOAT_ATOMICS 1 where cl_ext_float_atomics provides a native fp32 global add.
-    REINGS_ANY_BUILTIN   1 where any() of a vector mask may be clang's __builtin_reduce_or (common.h).
+    REINGS_CLANG_BUILTINS 1 where the CPU schedule may take clang's __builtin_reduce_or / __builtin_prefetch.
     """
     return {
         "REINGS_CPU_SCHEDULE": int(is_cpu(device)),
         "REINGS_NV_PTX": int(is_nvidia(device)),
         "REINGS_FLOAT_ATOMICS": int(has_fp32_global_atomic_add(device)),
-        "REINGS_ANY_BUILTIN": int(reduce_or_builtin(device)),
+        "REINGS_CLANG_BUILTINS": int(clang_builtins(device)),
     }
