@@ -43,7 +43,8 @@ def clang_builtins(device) -> bool:
     the compiler has them (`__has_builtin`): __builtin_reduce_or for the mask tests (any8 / any16, common.h: one
     AVX-512 mask test instead of a shuffle tree) and __builtin_prefetch for the rasterizer's next records
     (RASTER_PREFETCH, rasterize.cl); docs/perf_notes.md §30. Not Oclgrind (its interpreter has neither
-    intrinsic) nor GPUs (their schedules use neither)."""
+    intrinsic) nor GPUs (their schedules use neither; NVIDIA's compiler refuses __builtin_prefetch of a __global
+    pointer: OpenCL C's address spaces are distinct there, PoCL's CPUs have one flat space)."""
     return is_pocl(device) and is_cpu(device)
 
 
