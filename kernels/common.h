@@ -49,13 +49,15 @@ inline uint launch_count(const uint n, __global const uint *counts, const int co
 #define ALPHA_BOX_REL 1.01f
 #define ALPHA_BOX_PAD 0.5f
 #define ALPHA_BOX_LO(o) ((o) * 255.0f)
-#define ALPHA_BOX_HALF(lo, q, det, rel) (sqrt(2.0f * log(lo) * (q) / (det)) * (rel) + ALPHA_BOX_PAD)
+/* The half-width from ln(lo), computed once per splat for both axes and the cut (PoCL calls its log, Sleef's,
+ * and on a vector once per lane; docs/perf_notes.md §30). */
+#define ALPHA_BOX_HALF_LN(ln_lo, q, det, rel) (sqrt(2.0f * (ln_lo) * (q) / (det)) * (rel) + ALPHA_BOX_PAD)
 /* The power below which alpha = o exp(power) < ALPHA_MIN for certain: -ln(lo) less ALPHA_CUT_PAD (a
  * factor e^-0.001 in alpha, far above float32's rounding of log, exp and the product). The CPU
  * rasterizer skips a pixel vector's exp where every lane's power is below it: those lanes fail the
  * alpha >= ALPHA_MIN test anyway, so the outputs keep their bits (record field 14). */
 #define ALPHA_CUT_PAD 1e-3f
-#define ALPHA_CUT(lo) (-log(lo) - ALPHA_CUT_PAD)
+#define ALPHA_CUT_LN(ln_lo) (-(ln_lo) - ALPHA_CUT_PAD) /* ln_lo = ln(lo) */
 
 /* The rasterizer's record of Gaussian g, from the projection's stored floats: (u, v, A, B, C, o, r, g,
  * b, z), the pixel box outside of which alpha < ALPHA_MIN ([xlo, xhi] x [ylo, yhi], empty where
@@ -75,18 +77,19 @@ static inline void raster_prep_one(const int g, __global const float *means2d, _
     /* o < 1/255 (or NaN): alpha < ALPHA_MIN everywhere -> never blended */
     if (lo >= 1.0f && isfinite(u) && isfinite(v) && isfinite(lo)) {
         const float det = A * C - B * B;
+        const float ln_lo = log(lo);
         /* the alpha box: project_fwd cuts the tile rect to it (a little wider) */
         float ex = 1e7f, ey = 1e7f; /* not positive definite: no box, the pixel test decides */
         if (det > 0.0f && A > 0.0f && C > 0.0f && isfinite(det)) {
-            ex = fmin(ALPHA_BOX_HALF(lo, C, det, ALPHA_BOX_REL), 1e7f);
-            ey = fmin(ALPHA_BOX_HALF(lo, A, det, ALPHA_BOX_REL), 1e7f);
+            ex = fmin(ALPHA_BOX_HALF_LN(ln_lo, C, det, ALPHA_BOX_REL), 1e7f);
+            ey = fmin(ALPHA_BOX_HALF_LN(ln_lo, A, det, ALPHA_BOX_REL), 1e7f);
         }
         /* pixel i (centre i + 0.5) is inside when |u - (i + 0.5)| <= ex */
         xlo = clamp(ceil(u - ex - 0.5f), -2.0f, 1e7f);
         xhi = clamp(floor(u + ex - 0.5f), -2.0f, 1e7f);
         ylo = clamp(ceil(v - ey - 0.5f), -2.0f, 1e7f);
         yhi = clamp(floor(v + ey - 0.5f), -2.0f, 1e7f);
-        cut = ALPHA_CUT(lo);
+        cut = ALPHA_CUT_LN(ln_lo);
     }
     __global float *rec = packed + (size_t)g * 16;
     rec[0] = u;

@@ -438,7 +438,7 @@ PROJ_INLINE vi project_one(vi gid, __global const float *means, __global const f
    depths, alphas and every gradient are therefore those of the 3-sigma rect (up to the sign of a
    zero sum), and no switch is needed. Pixels are tested against rasterize_prep's box computed from
    the same stored floats (u, v, A, B, C, o), so the cut must contain that box:
-     - same formula (ALPHA_BOX_HALF) with the half-widths PROJ_BOX_SLACK (2^-12) wider, which
+     - same formula (ALPHA_BOX_HALF_LN) with the half-widths PROJ_BOX_SLACK (2^-12) wider, which
        absorbs the rounding differences between the two kernels (FMA contraction of det, vector
        and scalar log / sqrt: < 2^-15 relative where det >= 2^-8 A C);
      - the box only where it is well conditioned: lo = 255 o finite, A, C > 0, det > 0 finite,
@@ -459,8 +459,9 @@ PROJ_INLINE void alpha_rect(proj_t *p, vf o) {
     const vf det = ac - B * B;
     const vi box = (lo >= 1.0f) & FINITE(lo) & (A > 0.0f) & (C > 0.0f) & (det > 0.0f) & FINITE(det) &
                    (det >= PROJ_BOX_COND * ac) & (ac >= PROJ_BOX_AC_MIN);
-    const vf ex = ALPHA_BOX_HALF(lo, C, det, ALPHA_BOX_REL * PROJ_BOX_SLACK);
-    const vf ey = ALPHA_BOX_HALF(lo, A, det, ALPHA_BOX_REL * PROJ_BOX_SLACK);
+    const vf ln_lo = log(lo);
+    const vf ex = ALPHA_BOX_HALF_LN(ln_lo, C, det, ALPHA_BOX_REL * PROJ_BOX_SLACK);
+    const vf ey = ALPHA_BOX_HALF_LN(ln_lo, A, det, ALPHA_BOX_REL * PROJ_BOX_SLACK);
     const float inv_tile = 1.0f / (float)TILE_SIZE;
     const vf bx0 = floor(ceil(p->u - ex - 0.5f) * inv_tile), bx1 = floor(floor(p->u + ex - 0.5f) * inv_tile) + 1.0f;
     const vf by0 = floor(ceil(p->v - ey - 0.5f) * inv_tile), by1 = floor(floor(p->v + ey - 0.5f) * inv_tile) + 1.0f;

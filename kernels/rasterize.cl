@@ -112,6 +112,9 @@
 #ifndef RASTER_VEC
 #define RASTER_VEC 8
 #endif
+#ifndef RASTER_ROW_IO /* CPU schedule: a pixel block inside the image read / written a row of 4 pixels at a time */
+#define RASTER_ROW_IO 1
+#endif
 #ifndef RASTER_PREFETCH /* CPU schedule: prefetch the record this many list positions ahead (0: none) */
 #if REINGS_CLANG_BUILTINS && defined(__has_builtin)
 #if __has_builtin(__builtin_prefetch)
@@ -515,6 +518,22 @@ __kernel void rasterize_fwd(__global const float16 *packed,      // [N] records 
         VSTORE(Gv[c] + T * bg_g, 0, tG);
         VSTORE(Bv[c] + T * bg_b, 0, tB);
         VSTORE(Lv[c], 0, tL);
+#if RASTER_ROW_IO && BW == 4
+        if (px0 + BW <= width && py0 + BH <= height) { /* the whole block inside: a row of 4 pixels at a time */
+            for (int r = 0; r < BH; ++r) {
+                const int p = (py0 + r) * width + px0;
+                vstore4(vload4(r, tT), 0, out_T + p);
+                vstore4(vload4(r, tD), 0, out_depth + p);
+                vstore4(vload4(r, tA), 0, out_alpha + p);
+                vstore4(vload4(r, tL), 0, out_last + p);
+                const float4 R4 = vload4(r, tR), G4 = vload4(r, tG), B4 = vload4(r, tB);
+                vstore4((float4)(R4.x, G4.x, B4.x, R4.y), 0, out_rgb + 3 * p);
+                vstore4((float4)(G4.y, B4.y, R4.z, G4.z), 0, out_rgb + 3 * p + 4);
+                vstore4((float4)(B4.z, R4.w, G4.w, B4.w), 0, out_rgb + 3 * p + 8);
+            }
+            continue;
+        }
+#endif
         for (int l = 0; l < RASTER_VEC; ++l) {
             const int px = px0 + l % BW, py = py0 + l / BW;
             if (px >= width || py >= height) continue;
@@ -562,7 +581,47 @@ bwd_tile(__global const float16 *packed, __global const int *gid_from_isect, __g
             vo[l] = ro[l] = 0.0f;
             L[l] = 0;
         }
+#if RASTER_ROW_IO && BW == 4
+        /* the whole block inside the image and no scaling (the first, literal-1 instance): a row of 4
+         * pixels at a time, each lane's R formed by the scalar loop's expression (the same bits) */
+        const int rows = sv == 1.0f && sk == 1.0f && px0 + BW <= width && py0 + BH <= height ? BH : 0;
+        for (int r = 0; r < rows; ++r) {
+            const int p = (py0 + r) * width + px0;
+            float4 r4 = (float4)(0.0f);
+            if (v_mask & 1) {
+                const float4 a = vload4(0, v_rgb + 3 * p), b = vload4(1, v_rgb + 3 * p), e = vload4(2, v_rgb + 3 * p);
+                const float4 oa = vload4(0, out_rgb + 3 * p), ob = vload4(1, out_rgb + 3 * p),
+                             oe = vload4(2, out_rgb + 3 * p);
+                const float4 vr4 = (float4)(a.x, a.w, b.z, e.y), vg4 = (float4)(a.y, b.x, b.w, e.z),
+                             vb4 = (float4)(a.z, b.y, e.x, e.w);
+                r4 += vr4 * (float4)(oa.x, oa.w, ob.z, oe.y) + vg4 * (float4)(oa.y, ob.x, ob.w, oe.z) +
+                      vb4 * (float4)(oa.z, ob.y, oe.x, oe.w);
+                vstore4(vr4, r, vr);
+                vstore4(vg4, r, vg);
+                vstore4(vb4, r, vb);
+            }
+            if (v_mask & 2) {
+                const float4 vd4 = vload4(0, v_depth + p);
+                r4 += vd4 * vload4(0, out_depth + p);
+                vstore4(vd4, r, vd);
+            }
+            if (v_mask & 4) r4 -= vload4(0, v_alpha + p) * vload4(0, out_T + p);
+            vstore4(r4, r, R);
+#if RASTER_BWD_DEPTH_O
+            {
+                float4 q4 = (float4)(0.0f);
+                const float4 vo4 = vload4(0, v_depth_o + p);
+                q4 += vo4 * vload4(0, out_depth + p);
+                vstore4(vo4, r, vo);
+                vstore4(q4, r, ro);
+            }
+#endif
+            vstore4(vload4(0, out_last + p), r, L);
+        }
+        for (int l = rows ? RASTER_VEC : 0; l < RASTER_VEC; ++l) {
+#else
         for (int l = 0; l < RASTER_VEC; ++l) {
+#endif
             const int px = px0 + l % BW, py = py0 + l / BW;
             if (px >= width || py >= height) continue;
             const int p = py * width + px;

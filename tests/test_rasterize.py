@@ -284,39 +284,44 @@ def test_cpu_alpha_cut_keeps_the_bits(device, name, vec):
     power is below the record's cut skips its exp) gives the bytes of evaluating every vector of the box
     (0): the forward's images, `last` and importance, and the records of the full, opacity-only and
     second-cotangent backwards; at both pixel-lane widths (RASTER_VEC)."""
+    _cpu_define_keeps_the_bits(device, name, vec, "RASTER_ALPHA_CUT")
+
+
+def _cpu_define_keeps_the_bits(device, name, vec, define):
+    """The CPU schedule with `define` 0 and 1 at RASTER_VEC `vec` on _bits_scene(name): the forward's images,
+    `last` and importance, and the records of the full, opacity-only and second-cotangent backwards, byte
+    for byte equal."""
     from reings.backends.opencl.rasterize import rasterize_fwd_host
 
     proj, bins, w, h = _bits_scene(name)
     on = dict(device=device, cpu_schedule=True, RASTER_VEC=vec)
-    fwd = {c: rasterize_fwd_host(proj, bins, w, h, BG, True, RASTER_ALPHA_CUT=c, **on) for c in (0, 1)}
+    fwd = {c: rasterize_fwd_host(proj, bins, w, h, BG, True, **{define: c}, **on) for c in (0, 1)}
     for f in ("rgb", "depth", "alpha", "final_T", "last", "importance"):
         assert np.array_equal(np.asarray(getattr(fwd[1], f)).view(np.uint32),
                               np.asarray(getattr(fwd[0], f)).view(np.uint32)), f
-    out = _backwards_by_define(proj, bins, w, h, "RASTER_ALPHA_CUT", **on)
+    out = _backwards_by_define(proj, bins, w, h, define, **on)
     assert np.abs(out[1].v_emit).max() > 0
 
 
+@pytest.mark.parametrize("define", ["REINGS_CLANG_BUILTINS", "RASTER_ROW_IO"])
 @pytest.mark.parametrize("vec", [8, 16])
-@pytest.mark.parametrize("name", ["random_large", "saturated", "many_in_one_tile", "needles", "size_70x45"])
-def test_cpu_clang_builtins_keep_the_bits(device, name, vec):
-    """The CPU schedule with clang's builtins (REINGS_CLANG_BUILTINS=1, PoCL's default: the mask tests through
-    __builtin_reduce_or, kernels/common.h any8 / any16; the records prefetched RASTER_PREFETCH positions ahead)
-    gives the bytes of the tree of halves without prefetches (0): the forward's images, `last` and importance,
-    and the records of the full, opacity-only and second-cotangent backwards; at both widths."""
-    from reings.backends.opencl.rasterize import rasterize_fwd_host, rasterizer_for
+@pytest.mark.parametrize("name", ["random_large", "saturated", "many_in_one_tile", "needles", "size_70x45", "one"])
+def test_cpu_io_and_builtins_keep_the_bits(device, name, vec, define):
+    """Two CPU-schedule choices that must not change a value, each on (1, the default where it applies) against
+    off (0), byte for byte: the forward's images, `last` and importance, and the records of the full,
+    opacity-only and second-cotangent backwards, at both widths, on scenes with partial blocks at the image's
+    edges (size_70x45, one) and whole ones.
+    REINGS_CLANG_BUILTINS: the mask tests through clang's __builtin_reduce_or (kernels/common.h any8 / any16) and
+    the records prefetched RASTER_PREFETCH positions ahead; PoCL's CPUs only (quirks.clang_builtins).
+    RASTER_ROW_IO: a pixel block inside the image read (the backward's cotangents and forward outputs) and
+    written (the forward's outputs) a row of 4 pixels at a time instead of pixel by pixel."""
+    from reings.backends.opencl.rasterize import rasterizer_for
 
     # the builtins are PoCL's CPU schedule's (quirks.clang_builtins): elsewhere (NVIDIA, whose OpenCL C has
     # distinct address spaces, Oclgrind) the kernels are never built with them
-    if not rasterizer_for(device, True)._lib.base_defines["REINGS_CLANG_BUILTINS"]:
+    if define == "REINGS_CLANG_BUILTINS" and not rasterizer_for(device, True)._lib.base_defines[define]:
         pytest.skip("clang's builtins are taken on PoCL's CPU devices only")
-    proj, bins, w, h = _bits_scene(name)
-    on = dict(device=device, cpu_schedule=True, RASTER_VEC=vec)
-    fwd = {c: rasterize_fwd_host(proj, bins, w, h, BG, True, REINGS_CLANG_BUILTINS=c, **on) for c in (0, 1)}
-    for f in ("rgb", "depth", "alpha", "final_T", "last", "importance"):
-        assert np.array_equal(np.asarray(getattr(fwd[1], f)).view(np.uint32),
-                              np.asarray(getattr(fwd[0], f)).view(np.uint32)), f
-    out = _backwards_by_define(proj, bins, w, h, "REINGS_CLANG_BUILTINS", **on)
-    assert np.abs(out[1].v_emit).max() > 0
+    _cpu_define_keeps_the_bits(device, name, vec, define)
 
 
 def test_alpha_cut_is_below_every_kept_pair():
