@@ -62,7 +62,7 @@ inline uint launch_count(const uint n, __global const uint *counts, const int co
 /* The rasterizer's record of Gaussian g, from the projection's stored floats: (u, v, A, B, C, o, r, g,
  * b, z), the pixel box outside of which alpha < ALPHA_MIN ([xlo, xhi] x [ylo, yhi], empty where
  * o < 1/255 or not finite; no box, 1e7 wide, where the conic is not positive definite) and the power
- * cut ALPHA_CUT (0 with an empty box), 16 floats (the last 0).
+ * cut ALPHA_CUT_LN (0 with an empty box), 16 floats (the last 0).
  * rasterize.cl's rasterize_prep (an uploaded projection) and project.cl's project_fwd (a forward on
  * the device, which writes the record itself: one launch fewer) both call this. */
 static inline void raster_prep_one(const int g, __global const float *means2d, __global const float *conics,
@@ -72,7 +72,7 @@ static inline void raster_prep_one(const int g, __global const float *means2d, _
     const float A = conics[3 * g], B = conics[3 * g + 1], C = conics[3 * g + 2];
     const float o = opacities[g];
     float xlo = 1.0f, xhi = 0.0f, ylo = 1.0f, yhi = 0.0f; /* empty box */
-    float cut = 0.0f;                                    /* ALPHA_CUT: none (an empty box) */
+    float cut = 0.0f;                                    /* the power cut: none (an empty box) */
     const float lo = ALPHA_BOX_LO(o);
     /* o < 1/255 (or NaN): alpha < ALPHA_MIN everywhere -> never blended */
     if (lo >= 1.0f && isfinite(u) && isfinite(v) && isfinite(lo)) {

@@ -35,6 +35,9 @@
  *
  * Defines (defaults): REINGS_CPU_SCHEDULE (0), REINGS_NV_PTX (0), REINGS_CLANG_BUILTINS (0) from
  *   quirks.build_defines;
+ *   RASTER_ROW_IO (1; CPU schedule at 4-pixel-wide blocks): a block wholly inside the image reads (backward) and
+ *   writes (forward) its pixels a row of 4 at a time, each lane's values by the scalar loop's expressions (the
+ *   same bits; docs/perf_notes.md §30);
  *   RASTER_PREFETCH (4 where REINGS_CLANG_BUILTINS and the compiler has __builtin_prefetch, else 0; CPU
  *   schedule): the forward and backward prefetch the record this many list positions ahead (the loads of
  *   random records were ~5-8 % of their time; docs/perf_notes.md §30; no value changes);
@@ -68,7 +71,7 @@
  *   (Finite colours assumed: the separate pass multiplies its zero colour cotangents by them.) The
  *   overflow rerun of a tile scales by the bounds of all four cotangents. (docs/perf_notes.md §13)
  *   RASTER_ALPHA_CUT (1, CPU schedule): skip a pixel vector's exp and blend where every lane's power
- *   is below the record's ALPHA_CUT (common.h: alpha < ALPHA_MIN there for certain, so those lanes
+ *   is below the record's power cut (ALPHA_CUT_LN, common.h: alpha < ALPHA_MIN there for certain, so those lanes
  *   fail the pixel test anyway) or, in the forward, has already stopped (T < 0: fails it too); 0
  *   evaluates every vector of the box. The same bits either way
  *   (tests/test_rasterize.py; docs/perf_notes.md §22).
@@ -475,7 +478,7 @@ __kernel void rasterize_fwd(__global const float16 *packed,      // [N] records 
                     const vf dx = VEC_DX(g, x0 + cc * BW);
                     const vf power = -0.5f * (g.s2 * dx * dx + g.s4 * dy * dy) - g.s3 * dx * dy;
 #if RASTER_ALPHA_CUT
-                    /* ALPHA_CUT, and the lanes already stopped (T < 0): every lane fails ok below */
+                    /* the power cut (ALPHA_CUT_LN), and the lanes already stopped (T < 0): every lane fails ok below */
                     if (!vany((power >= g.se) & (T > 0.0f))) continue;
 #endif
                     const vf a = g.s5 * exp(power); /* once: VMIN names its argument twice */
@@ -692,7 +695,7 @@ bwd_tile(__global const float16 *packed, __global const int *gid_from_isect, __g
                     const vf dx = VEC_DX(g, x0 + cc * BW);
                     const vf power = -0.5f * (g.s2 * dx * dx + g.s4 * dy * dy) - g.s3 * dx * dy;
 #if RASTER_ALPHA_CUT
-                    if (!vany(power >= g.se)) continue; /* ALPHA_CUT: every lane fails ok below */
+                    if (!vany(power >= g.se)) continue; /* the power cut (ALPHA_CUT_LN): every lane fails ok below */
 #endif
                     /* power <= 0 in every ok lane (the same G there); a lane that is not ok (a conic that is
                      * not positive definite, uploaded through the stage API, can give power > 88) must not
