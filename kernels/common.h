@@ -148,11 +148,18 @@ inline void atomic_add_f32(volatile __global float *p, float v) {
 #ifndef REINGS_CLANG_BUILTINS
 #define REINGS_CLANG_BUILTINS 0
 #endif
+/* which of the builtins this compiler has (both 0 without REINGS_CLANG_BUILTINS): REINGS_ANY_REDUCE for any8 / any16
+ * below, REINGS_HAS_PREFETCH for rasterize.cl's RASTER_PREFETCH */
 #define REINGS_ANY_REDUCE 0
+#define REINGS_HAS_PREFETCH 0
 #if REINGS_CLANG_BUILTINS && defined(__has_builtin)
 #if __has_builtin(__builtin_reduce_or)
 #undef REINGS_ANY_REDUCE
 #define REINGS_ANY_REDUCE 1
+#endif
+#if __has_builtin(__builtin_prefetch)
+#undef REINGS_HAS_PREFETCH
+#define REINGS_HAS_PREFETCH 1
 #endif
 #endif
 #if REINGS_ANY_REDUCE

@@ -119,14 +119,7 @@
 #define RASTER_ROW_IO 1
 #endif
 #ifndef RASTER_PREFETCH /* CPU schedule: prefetch the record this many list positions ahead (0: none) */
-#if REINGS_CLANG_BUILTINS && defined(__has_builtin)
-#if __has_builtin(__builtin_prefetch)
-#define RASTER_PREFETCH 4
-#endif
-#endif
-#endif
-#ifndef RASTER_PREFETCH
-#define RASTER_PREFETCH 0
+#define RASTER_PREFETCH (REINGS_HAS_PREFETCH ? 4 : 0)
 #endif
 #ifndef RASTER_BLOCK_H
 #define RASTER_BLOCK_H (RASTER_VEC / 4)

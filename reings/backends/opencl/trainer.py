@@ -173,7 +173,7 @@ class DeviceTrainer:
         self.k_adam = backend.kernel("adam.cl", "adam_step", **adam_defs)
         self.k_adam_flat = backend.kernel("adam.cl", "adam_step_flat", **adam_defs)
         # built here where it is the default (GPUs: no build on the training clock), on first use elsewhere
-        # (CPU devices step one group per launch: adam_multi False below)
+        # (CPU devices step one group per launch: adam_multi False above)
         self._adam_defs = adam_defs
         self.k_adam_multi = None if backend.cpu else backend.kernel("adam.cl", "adam_step_multi", **adam_defs)
         self._adam_multi_wg = None  # its CL_KERNEL_WORK_GROUP_SIZE, queried once
