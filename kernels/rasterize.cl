@@ -75,6 +75,10 @@
  *   fail the pixel test anyway) or, in the forward, has already stopped (T < 0: fails it too); 0
  *   evaluates every vector of the box. The same bits either way
  *   (tests/test_rasterize.py; docs/perf_notes.md §22).
+ *   RASTER_CUT_MASK (1, CPU schedule): a Gaussian's box is walked twice: first its vectors' powers and
+ *   skip tests, with no branch per vector (the tests' outcomes set bits of a vset; a branch on each was
+ *   often mispredicted), then the vectors whose bit is set, in the same order (low_bit, common.h). A vector
+ *   skipped either way has no ok lane, so the same bits (docs/perf_notes.md §31); 0 branches per vector.
  * Schedules (same algorithm, same results up to float rounding of sums):
  *   CPU: one work-item per tile (local size 1), no barriers; the tile's 256 pixels are
  *        RASTER_VEC-wide vectors (blocks of RASTER_BLOCK_H pixel rows) in private arrays; Gaussians
@@ -117,6 +121,9 @@
 #endif
 #ifndef RASTER_ROW_IO /* CPU schedule: a pixel block inside the image read / written a row of 4 pixels at a time */
 #define RASTER_ROW_IO 1
+#endif
+#ifndef RASTER_CUT_MASK /* CPU schedule: the cut tests of a Gaussian's box first, without branches, then its vectors past them */
+#define RASTER_CUT_MASK 1
 #endif
 #ifndef RASTER_PREFETCH /* CPU schedule: prefetch the record this many list positions ahead (0: none) */
 #define RASTER_PREFETCH (REINGS_HAS_PREFETCH ? 4 : 0)
@@ -400,6 +407,17 @@ inline int vany(vi m) { return any16(m); } /* any(m) */
 #define NVEC (TILE_PIXELS / RASTER_VEC) /* pixel vectors per tile */
 #define VEC_X(c) (((c) % BPR) * BW)     /* tile-relative pixel column of vector c's lane 0 */
 #define VEC_Y(c) (((c) / BPR) * BH)     /* tile-relative pixel row of vector c's lane 0 */
+#if NVEC <= 32 /* a set of a tile's vectors as the bits of an integer (RASTER_CUT_MASK) */
+typedef uint vset;
+#define VBIT(c) (1u << (c))
+#define VSET_LOW(m) low_bit(m)
+#elif NVEC <= 64
+typedef ulong vset;
+#define VBIT(c) ((ulong)1 << (c))
+#define VSET_LOW(m) low_bit64(m)
+#else
+#error "the CPU schedule keeps a set of a tile's vectors in 64 bits: TILE_PIXELS / RASTER_VEC <= 64"
+#endif
 #define ILX (ILANES % BW) /* lane l's column and row in its block */
 #define ILY (ILANES / BW)
 
@@ -463,6 +481,31 @@ __kernel void rasterize_fwd(__global const float16 *packed,      // [N] records 
         int r0, r1, c0, c1;
         vf imp = (vf)(0.0f);
         if (box_in_tile(g, x0, y0, &r0, &r1, &c0, &c1)) {
+#if RASTER_CUT_MASK
+            /* the box's powers and cut tests first, without a branch per vector (each test's outcome is data, and
+             * a branch on it was mispredicted often); then the vectors that passed, in the same order */
+            vf pw[NVEC];
+            vset hit = 0;
+            for (int r = r0; r <= r1; ++r) {
+                const vf dy = VEC_DY(g, y0 + r * BH);
+                for (int cc = c0; cc <= c1; ++cc) {
+                    const int c = r * BPR + cc;
+                    const vf dx = VEC_DX(g, x0 + cc * BW);
+                    const vf power = -0.5f * (g.s2 * dx * dx + g.s4 * dy * dy) - g.s3 * dx * dy;
+                    pw[c] = power;
+#if RASTER_ALPHA_CUT
+                    hit |= (vset)vany((power >= g.se) & (Tv[c] > 0.0f)) << c;
+#else
+                    hit |= VBIT(c);
+#endif
+                }
+            }
+            for (; hit; hit &= hit - 1) {
+                {
+                    const int c = VSET_LOW(hit);
+                    const vf T = Tv[c];
+                    const vf power = pw[c];
+#else
             for (int r = r0; r <= r1; ++r) {
                 const vf dy = VEC_DY(g, y0 + r * BH);
                 for (int cc = c0; cc <= c1; ++cc) {
@@ -473,6 +516,7 @@ __kernel void rasterize_fwd(__global const float16 *packed,      // [N] records 
 #if RASTER_ALPHA_CUT
                     /* the power cut (ALPHA_CUT_LN), and the lanes already stopped (T < 0): every lane fails ok below */
                     if (!vany((power >= g.se) & (T > 0.0f))) continue;
+#endif
 #endif
                     const vf a = g.s5 * exp(power); /* once: VMIN names its argument twice */
                     const vf alpha = VMIN(a, (vf)(ALPHA_MAX));
@@ -679,6 +723,33 @@ bwd_tile(__global const float16 *packed, __global const int *gid_from_isect, __g
 #endif
         int r0, r1, c0, c1;
         if (box_in_tile(g, x0, y0, &r0, &r1, &c0, &c1)) {
+#if RASTER_CUT_MASK
+            /* as the forward: the box's tests first, without branches (a vector with no lane both before its
+             * pixel's last and above the cut has no ok lane, and would add zeros), then the vectors past them */
+            vf pw[NVEC];
+            vset hit = 0;
+            for (int r = r0; r <= r1; ++r) {
+                const vf dy = VEC_DY(g, y0 + r * BH);
+                for (int cc = c0; cc <= c1; ++cc) {
+                    const int c = r * BPR + cc;
+                    const vf dx = VEC_DX(g, x0 + cc * BW);
+                    const vf power = -0.5f * (g.s2 * dx * dx + g.s4 * dy * dy) - g.s3 * dx * dy;
+                    pw[c] = power;
+#if RASTER_ALPHA_CUT
+                    hit |= (vset)vany(((vi)(k) < Lv[c]) & (power >= g.se)) << c;
+#else
+                    hit |= (vset)vany((vi)(k) < Lv[c]) << c;
+#endif
+                }
+            }
+            for (; hit; hit &= hit - 1) {
+                {
+                    const int c = VSET_LOW(hit);
+                    const vi valid = (vi)(k) < Lv[c];
+                    const vf dy = VEC_DY(g, y0 + (c / BPR) * BH);
+                    const vf dx = VEC_DX(g, x0 + (c % BPR) * BW);
+                    const vf power = pw[c];
+#else
             for (int r = r0; r <= r1; ++r) {
                 const vf dy = VEC_DY(g, y0 + r * BH);
                 for (int cc = c0; cc <= c1; ++cc) {
@@ -689,6 +760,7 @@ bwd_tile(__global const float16 *packed, __global const int *gid_from_isect, __g
                     const vf power = -0.5f * (g.s2 * dx * dx + g.s4 * dy * dy) - g.s3 * dx * dy;
 #if RASTER_ALPHA_CUT
                     if (!vany(power >= g.se)) continue; /* the power cut (ALPHA_CUT_LN): every lane fails ok below */
+#endif
 #endif
                     /* power <= 0 in every ok lane (the same G there); a lane that is not ok (a conic that is
                      * not positive definite, uploaded through the stage API, can give power > 88) must not

@@ -304,7 +304,7 @@ def _cpu_define_keeps_the_bits(device, name, vec, define):
     assert np.abs(out[1].v_emit).max() > 0
 
 
-@pytest.mark.parametrize("define", ["REINGS_CLANG_BUILTINS", "RASTER_ROW_IO"])
+@pytest.mark.parametrize("define", ["REINGS_CLANG_BUILTINS", "RASTER_ROW_IO", "RASTER_CUT_MASK"])
 @pytest.mark.parametrize("vec", [8, 16])
 @pytest.mark.parametrize("name", ["random_large", "saturated", "many_in_one_tile", "needles", "size_70x45", "one"])
 def test_cpu_io_and_builtins_keep_the_bits(device, name, vec, define):
