@@ -38,8 +38,9 @@
      SH_K          number of SH coefficients per channel (1, 4, 9 or 16); default 1.
      DENSIFY_FP64  project_bwd's statistics in double (densify.h; the host sets it where the device
                    has cl_khr_fp64, as for densify_accumulate.cl).
-     PROJ_VW       Gaussians per work-item, 1 or 8 (default 1). 8 on CPU devices (PoCL): the math
-                   runs on float8 lanes (AVX2 through PoCL's vector builtins, ~8x the scalar code,
+     PROJ_VW       Gaussians per work-item, 1, 8 or 16 (default 1). 8 or 16 on CPU devices (PoCL; 16
+                   where the native float vector is 16 wide, AVX-512: backend.proj_lanes): the math
+                   runs on float8 / float16 lanes (through PoCL's vector builtins, ~8x the scalar code,
                    which PoCL 3.0 does not vectorize across work-items); 1 on GPUs. The code is
                    written once over the lane types vf / vi; culling is a lane mask, never a branch.
 
@@ -193,8 +194,38 @@ typedef uint8 vu;
         (tmp)[4] = (x).s4; (tmp)[5] = (x).s5; (tmp)[6] = (x).s6; (tmp)[7] = (x).s7;       \
     } while (0)
 #define STORE_F(x, tmp) STORE8(x, tmp)
+#define VFROM(t) ((vf)((t)[0], (t)[1], (t)[2], (t)[3], (t)[4], (t)[5], (t)[6], (t)[7])) /* lanes from t[0..7] */
 #define STORE_I(x, tmp) STORE8(x, tmp)
 #define STORE_U(x, tmp) STORE8(x, tmp)
+#elif PROJ_VW == 16
+typedef float16 vf;
+typedef int16 vi;
+typedef uint16 vu;
+#define VLANES ((vi)(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15))
+#define ANY(m) any16(m)
+#define CVT_I(x) convert_int16(x)
+#define AS_U(x) as_uint16(x)
+#define AS_I(x) as_int16(x)
+#define AS_F(x) as_float16(x)
+#define GATHER16_(T, base, idx)                                                                    \
+    ((T)((base)[(idx).s0], (base)[(idx).s1], (base)[(idx).s2], (base)[(idx).s3], (base)[(idx).s4],  \
+         (base)[(idx).s5], (base)[(idx).s6], (base)[(idx).s7], (base)[(idx).s8], (base)[(idx).s9],  \
+         (base)[(idx).sa], (base)[(idx).sb], (base)[(idx).sc], (base)[(idx).sd], (base)[(idx).se],  \
+         (base)[(idx).sf]))
+#define GATHER(base, idx) GATHER16_(vf, base, idx)
+#define GATHER_I(base, idx) GATHER16_(vi, base, idx)
+#define STORE16(x, tmp)                                                                   \
+    do {                                                                                  \
+        (tmp)[0] = (x).s0; (tmp)[1] = (x).s1; (tmp)[2] = (x).s2; (tmp)[3] = (x).s3;       \
+        (tmp)[4] = (x).s4; (tmp)[5] = (x).s5; (tmp)[6] = (x).s6; (tmp)[7] = (x).s7;       \
+        (tmp)[8] = (x).s8; (tmp)[9] = (x).s9; (tmp)[10] = (x).sa; (tmp)[11] = (x).sb;     \
+        (tmp)[12] = (x).sc; (tmp)[13] = (x).sd; (tmp)[14] = (x).se; (tmp)[15] = (x).sf;   \
+    } while (0)
+#define STORE_F(x, tmp) STORE16(x, tmp)
+#define VFROM(t) ((vf)((t)[0], (t)[1], (t)[2], (t)[3], (t)[4], (t)[5], (t)[6], (t)[7], (t)[8], (t)[9], (t)[10], \
+                       (t)[11], (t)[12], (t)[13], (t)[14], (t)[15]))
+#define STORE_I(x, tmp) STORE16(x, tmp)
+#define STORE_U(x, tmp) STORE16(x, tmp)
 #elif PROJ_VW == 1
 typedef float vf;
 typedef int vi;
@@ -211,7 +242,7 @@ typedef uint vu;
 #define STORE_I(x, tmp) ((tmp)[0] = (x))
 #define STORE_U(x, tmp) ((tmp)[0] = (x))
 #else
-#error "PROJ_VW must be 1 or 8"
+#error "PROJ_VW must be 1, 8 or 16"
 #endif
 
 /* out[(g0 + l) * stride + off] = lane l of x, for the lanes that are real Gaussians */
@@ -645,12 +676,12 @@ PROJ_INLINE void project_bwd_one(const int n,
     const vi vgid = SEL(gid, (vi)(-1), !vis);  /* -1 marks a lane whose row must not be read */
     vf vin[V_PROJ], vmax = 0.0f;
     for (int i = 0; i < V_PROJ; ++i) {
-#if PROJ_VW == 8
-        float tmp[8];
-        int idx[8];
-        STORE8(vgid, idx);
-        for (int l = 0; l < 8; ++l) tmp[l] = idx[l] >= 0 ? v_proj[(size_t)idx[l] * V_PROJ + i] : 0.0f;
-        vf x = (vf)(tmp[0], tmp[1], tmp[2], tmp[3], tmp[4], tmp[5], tmp[6], tmp[7]);
+#if PROJ_VW > 1
+        float tmp[PROJ_VW];
+        int idx[PROJ_VW];
+        STORE_I(vgid, idx);
+        for (int l = 0; l < PROJ_VW; ++l) tmp[l] = idx[l] >= 0 ? v_proj[(size_t)idx[l] * V_PROJ + i] : 0.0f;
+        vf x = VFROM(tmp);
 #else
         vf x = vgid >= 0 ? v_proj[(size_t)vgid * V_PROJ + i] : 0.0f;
 #endif

@@ -355,7 +355,7 @@ def test_opacity_only_backward_is_wired(device, case):
     np.testing.assert_array_equal(two.view(np.uint32), full.view(np.uint32))
 
 
-@pytest.mark.parametrize("vw,fuse", [(1, True), (8, True), (8, False)])
+@pytest.mark.parametrize("vw,fuse", [(1, True), (8, True), (16, True), (8, False)])
 def test_backward_stats_adds_what_accumulate_adds(device, case, vw, fuse):
     """backward(stats=True) (project_bwd adds the densification statistics, densify.h) leaves the same
     statistics, bit for bit, as backward() then accumulate(fr) (densify_accumulate.cl), and the same

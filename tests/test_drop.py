@@ -161,7 +161,7 @@ def _scene(n=400, seed=2):
     return random_scene(n, 80, 60, seed=seed, sh_degree=1, scale_median=0.08, viewmat=rotation_viewmat())
 
 
-@pytest.mark.parametrize("vw", [1, 8])
+@pytest.mark.parametrize("vw", [1, 8, 16])
 def test_project_with_drop_matches_twin(device, vw):
     """The visibility is the unmasked one and the mask, bit for bit; the kept Gaussians'
     projection, opacities (times drop.scale, above 1 for some) and gradients are the twin's."""

@@ -206,9 +206,9 @@ def test_project_bwd_grad_fields(device, grad_fields):
             assert not getattr(dev, f).any()
 
 
-@pytest.mark.parametrize("vw", [1, 8, "1-staged"])
+@pytest.mark.parametrize("vw", [1, 8, 16, "1-staged"])
 def test_project_lane_widths(device, vw):
-    """project.cl is written once over PROJ_VW lanes (8 on CPUs, 1 on GPUs): both widths on this
+    """project.cl is written once over PROJ_VW lanes (8 or 16 on CPUs, 1 on GPUs): every width on this
     device, on a scene whose size is not a multiple of 8 and on the culling cases; width 1 also with
     the SH rows staged through local memory (PROJ_SH_STAGE, the GPU schedule's default)."""
     be = get_backend(device)
@@ -225,6 +225,34 @@ def test_project_lane_widths(device, vw):
             check_project_bwd(device, c.gaussians, c.camera, name=f"vw{vw} {name}")
     finally:
         be.proj_vw, be.proj_stage = old
+
+
+def test_project_widths_keep_the_bits(device):
+    """Each lane computes its own Gaussian with the same operations at every width, so PROJ_VW 8 and 16
+    (the CPU choices, backend.proj_lanes) give the same bytes: every forward output (the rasterizer's
+    records included, through a render) and every backward gradient, on 203 Gaussians (not a multiple of
+    either width) with SH degree 3, culled rows and a DropGaussian mask."""
+    from reings.backends.reference_drop import Drop
+
+    be = get_backend(device)
+    g, cam = random_scene(203, 64, 48, seed=9, sh_degree=3, scale_median=0.1, viewmat=rotation_viewmat())
+    gr = _cast_grads(_random_grads(len(g), 3))
+    old = be.proj_vw, be.proj_stage
+    out = {}
+    try:
+        for vw in (8, 16):
+            be.proj_vw, be.proj_stage = vw, False
+            p = be.project_fwd(g, cam, drop=Drop.at_rate(0.25, key=7))
+            r = be.render(g, cam)
+            b = be.project_bwd(g, cam, None, gr)
+            out[vw] = ([np.asarray(getattr(p, f)) for f in ("means2d", "conics", "colors", "opacities", "depths",
+                                                             "radii", "tile_rect")] +
+                       [np.asarray(r.rgb), np.asarray(r.depth)] + [np.asarray(getattr(b, f)) for f in FIELDS])
+    finally:
+        be.proj_vw, be.proj_stage = old
+    assert (out[8][5] == 0).any() and (out[8][5] > 0).any()  # culled and visible rows
+    for i, (a, b) in enumerate(zip(out[8], out[16])):
+        assert np.array_equal(a.view(np.uint8), b.view(np.uint8)), i
 
 
 @pytest.mark.parametrize("n", [1, 203, 300])

@@ -128,6 +128,16 @@ def _sh_args(inp: dict, k: int) -> tuple:
     return inp["sh"], _I32(3 * k), inp["sh"], _I32(3 * k), _I32(3)
 
 
+def proj_lanes(device) -> int:
+    """project.cl's lanes on a CPU (PROJ_VW): 16 where the device's native float vector is 16 wide or more
+    (PoCL on AVX-512), else 8. Every lane computes its Gaussian's values with the same operations at
+    either width: the same bytes (tests/test_project.py::test_project_widths_keep_the_bits). On a
+    2-core AVX-512 Xeon (PoCL 3.0) 16 lanes took 0.87-0.94 of 8 lanes' project_fwd time on fern's fine
+    state (51,537 Gaussians) and about the same on the coarse one: a small gain, within this
+    machine's noise for the backward (docs/perf_notes.md §31)."""
+    return 16 if int(getattr(device, "native_vector_width_float", 0) or 0) >= 16 else 8
+
+
 def tile_bits(n_tiles: int) -> int:
     """ceil(log2(n_tiles)): the bits of a tile id (0 for a single tile)."""
     return int(max(n_tiles - 1, 0)).bit_length()
@@ -252,8 +262,8 @@ class OpenCLBackend:
         self.depth_sorts = {"sorted": 0, "shared": 0}  # forwards that sorted / that shared an order
         self.scan = ExclusiveScan(self.handle)
         self.wg = 256 if self.cpu else 128  # PoCL: fewer, larger work-groups (dispatch cost ~us each)
-        self.proj_vw = 8 if self.cpu else 1  # Gaussians per work-item in project.cl (float8 lanes on CPUs)
-        self.proj_wg = 64 if self.cpu else 128  # project.cl work-group (64 x 8 Gaussians on CPUs)
+        self.proj_vw = proj_lanes(self.handle.device) if self.cpu else 1  # Gaussians per work-item in project.cl
+        self.proj_wg = 512 // self.proj_vw if self.cpu else 128  # project.cl work-group (512 Gaussians on CPUs)
         # project.cl's SH rows through local memory on the GPU schedule only (_proj_defines, width-1 lanes);
         # REINGS_PROJ_STAGE=0|1, read when the backend is made
         stage = os.environ.get("REINGS_PROJ_STAGE", "")
