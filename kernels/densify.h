@@ -1,6 +1,8 @@
 /* densify.h: the densification statistics of one Gaussian after a photometric backward (3DGS
    add_densification_stats with ndc_grad_norm): for a row with radius > 0,
-   accum += |(v_u W/2, v_v H/2)|, count += 1, max_radii = max(max_radii, radius).
+   accum += |(v_u W/2, v_v H/2)|, count += 1, max_radii = max(max_radii, radius); the norm as
+   sqrt(x^2 + y^2) with DENSIFY_FP64 (in double, each operation IEEE-rounded and none fused: numpy's float64
+   gives the same bits), hypot in float without it.
 
    Must match reings.backends.reference_state.densify_accumulate with ndc_grad_norm
    (tests/test_adam_kernel.py). One function, two callers with the same bits: densify_accumulate.cl
@@ -39,7 +41,15 @@ static inline void densify_accumulate_one(const int i, __global const int *radii
     if (!(r > 0)) return;
     const dens_real x = (dens_real)v_proj[(size_t)i * V_PROJ] * half_w;
     const dens_real y = (dens_real)v_proj[(size_t)i * V_PROJ + 1] * half_h;
-    accum[i] = accum[i] + (float)hypot(x, y);
+#if DENSIFY_FP64
+    /* the norm as sqrt(x x + y y), not hypot (a call to Sleef's hypot per Gaussian on PoCL, ~17 % of project_bwd's
+       samples): in double the squares of float inputs scaled by W/2, H/2 neither overflow nor underflow, and each
+       operation is IEEE-rounded (contraction is off here), so reference_state.ndc_grad_norm's numpy gives the
+       same bits */
+    accum[i] = accum[i] + (float)sqrt(x * x + y * y);
+#else
+    accum[i] = accum[i] + hypot(x, y); /* in float the squares could overflow */
+#endif
     count[i] = count[i] + 1;
     max_radii[i] = fmax(max_radii[i], (float)r);
 }

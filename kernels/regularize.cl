@@ -10,7 +10,7 @@
      regularize_opacity_count  counts[0] += #(sigmoid(logit) > 0.2), counts[1] += #(< 0.2) (counts
                                zero on entry); each work-item a contiguous chunk, one atomic add
                                per item.
-     regularize_grads          the three penalties' gradients, one work-item per Gaussian. The counts
+     regularize_grads          the three penalties' gradients, one work-item per REG_VW Gaussians. The counts
                                are one of two pairs, used in turn: work-item 0 zeroes the other pair,
                                the next call's (the host fills both once, when they are made).
      regularize_value          the penalties' value, for the loop's logging iterations (the
@@ -25,6 +25,9 @@
 
    Defines
      REGULARIZE_FP64   1: the per-Gaussian math in double (as numpy); 0 (default): in float.
+     REG_VW            regularize_grads' Gaussians per work-item: 1 (default; GPUs) or 8 (CPUs: the same
+                       operations on 8 lanes, the branches as selects; PoCL calls exp once per lane vector
+                       instead of once per Gaussian; docs/perf_notes.md §31).
    Guards are written positively so that NaN fails them; built without fast-math.
 */
 #pragma OPENCL FP_CONTRACT OFF
@@ -59,6 +62,10 @@ __kernel void regularize_opacity_count(const int n, const int chunk,
     if (nl) atomic_add(&counts[1], nl);
 }
 
+#ifndef REG_VW
+#define REG_VW 1
+#endif
+#if REG_VW == 1
 __kernel void regularize_grads(const int n,
                                __global const float *log_scales,   /* [N, 3] */
                                __global const float *logits,       /* [N] */
@@ -107,6 +114,91 @@ __kernel void regularize_grads(const int n,
         v_logits[i] = v_logits[i] + (float)(opa_pena * ((go * o) * ((real)1.0 - o)));
     }
 }
+#elif REG_VW == 8
+/* REG_VW 8 (CPU devices): a work-item per 8 Gaussians, the same operations on 8 lanes (rv), the argmax / argmin
+   as masks (first occurrence on ties, as above) and the branches as selects: PoCL calls exp per work-item in
+   the code above, once per 8 lanes here */
+#if REGULARIZE_FP64
+typedef double8 rv;
+#define RV_FROM(t) ((rv)((t)[0], (t)[1], (t)[2], (t)[3], (t)[4], (t)[5], (t)[6], (t)[7]))
+#else
+typedef float8 rv;
+#define RV_FROM(t) ((rv)((t)[0], (t)[1], (t)[2], (t)[3], (t)[4], (t)[5], (t)[6], (t)[7]))
+#endif
+#define RSEL(a, b, c) ((c) ? (b) : (a)) /* select by a lane mask (common.h's SEL; PoCL calls OpenCL's select) */
+__kernel void regularize_grads(const int n,
+                               __global const float *log_scales,   /* [N, 3] */
+                               __global const float *logits,       /* [N] */
+                               __global int *count_pairs,          /* [2, 2]: this call's pair, the other */
+                               const int pair,                     /* 0 / 1: the pair counted this call */
+                               const real shape_pena, const real scale_pena, const real opa_pena,
+                               __global float *v_log_scales,       /* [N, 3] += */
+                               __global float *v_logits)           /* [N] += */
+{
+    const int g0 = get_global_id(0) * REG_VW;
+    if (g0 == 0) { /* the other pair, zero for the next call's count: no fill command per step */
+        count_pairs[2 * (1 - pair)] = 0;
+        count_pairs[2 * (1 - pair) + 1] = 0;
+    }
+    if (!(g0 < n)) return;
+    const int nl = min(REG_VW, n - g0); /* the real Gaussians of the lanes (the rest repeat the last) */
+    __global const int *counts = count_pairs + 2 * pair;
+    const real nn = (real)n;
+    real t[4][REG_VW], out[4][REG_VW];
+    for (int l = 0; l < REG_VW; ++l) {
+        const int i = min(g0 + l, n - 1);
+        for (int j = 0; j < 3; ++j) t[j][l] = log_scales[3 * i + j];
+        t[3][l] = logits[i];
+    }
+    if (shape_pena != (real)0 || scale_pena != (real)0) {
+        const rv l0 = RV_FROM(t[0]), l1 = RV_FROM(t[1]), l2 = RV_FROM(t[2]);
+        /* imax / imin: the first occurrence on ties (numpy argmax / argmin); NaN compares false: index 0 */
+        const rv zero = (rv)(0), one = (rv)(1), two = (rv)(2);
+        rv lmax = l0, lmin = l0, imax = zero, imin = zero;
+        imax = RSEL(imax, one, l1 > lmax);
+        lmax = RSEL(lmax, l1, l1 > lmax);
+        imin = RSEL(imin, one, l1 < lmin);
+        lmin = RSEL(lmin, l1, l1 < lmin);
+        imax = RSEL(imax, two, l2 > lmax);
+        lmax = RSEL(lmax, l2, l2 > lmax);
+        imin = RSEL(imin, two, l2 < lmin);
+        lmin = RSEL(lmin, l2, l2 < lmin);
+        rv g[3] = {zero, zero, zero};
+        if (shape_pena != (real)0) {
+            const rv ratio = exp(lmax - lmin);
+            const rv up = ratio / nn, down = -ratio / nn;
+            for (int j = 0; j < 3; ++j) {
+                rv gs = zero;
+                gs = RSEL(gs, gs + up, imax == (rv)(j));
+                gs = RSEL(gs, gs + down, imin == (rv)(j));
+                g[j] += shape_pena * gs;
+            }
+        }
+        if (scale_pena != (real)0) {
+            const rv s2 = (real)2.0 * exp((real)2.0 * lmax) / nn;
+            for (int j = 0; j < 3; ++j) g[j] += scale_pena * RSEL(zero, s2, imax == (rv)(j));
+        }
+        for (int j = 0; j < 3; ++j) vstore8(g[j], 0, out[j]);
+        for (int l = 0; l < nl; ++l)
+            for (int j = 0; j < 3; ++j) {
+                const size_t k = 3 * (size_t)(g0 + l) + j;
+                v_log_scales[k] = v_log_scales[k] + (float)out[j][l];
+            }
+    }
+    if (opa_pena != (real)0) {
+        const rv o = (real)1.0 / ((real)1.0 + exp(-RV_FROM(t[3])));
+        const int nh = counts[0], nlo = counts[1];
+        rv go = (rv)(0);
+        if (nh > 0) go = RSEL(go, (real)-2.0 * o / (real)nh, o > OPA_SPLIT);
+        if (nlo > 0) go = RSEL(go, (real)-2.0 * ((real)1.0 - o) / (real)nlo, o < OPA_SPLIT);
+        const rv d = opa_pena * ((go * o) * ((real)1.0 - o));
+        vstore8(d, 0, out[3]);
+        for (int l = 0; l < nl; ++l) v_logits[g0 + l] = v_logits[g0 + l] + (float)out[3][l];
+    }
+}
+#else
+#error "REG_VW must be 1 or 8"
+#endif
 
 #define REG_VALUE_COLS 6 /* regularize_value's sums per chunk (trainer.REG_VALUE_COLS) */
 

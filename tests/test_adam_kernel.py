@@ -227,6 +227,7 @@ def test_densify_accumulate_kernel_matches_numpy(device, rng):
     for _ in range(3):
         radii = np.where(rng.random(n) < 0.6, rng.integers(1, 40, n), 0).astype(np.int32)
         vp = rng.normal(size=(n, V_RECORD)).astype(np.float32) * 1e-4
+        vp[:40, :2] = rng.choice(np.float32([3e38, -1e30, 1e-40, -1e-45, 1e20, np.inf, 0.0]), (40, 2))  # extremes
         _Fr.bufs = {"radii": t.mem.get("gauss", "test_radii", n, 4), "v_proj": t.mem.get("gauss", "test_vp", n, 40)}
         t._write(_Fr.bufs["radii"], radii)
         t._write(_Fr.bufs["v_proj"], vp)
@@ -236,5 +237,10 @@ def test_densify_accumulate_kernel_matches_numpy(device, rng):
     t.download(st)
     np.testing.assert_array_equal(st.stats[D.COUNT], host.stats[D.COUNT])
     np.testing.assert_array_equal(st.stats[D.RADII], host.stats[D.RADII])
-    assert _ulps(st.stats[D.ACCUM], host.stats[D.ACCUM]).max() <= 4
-    assert host.stats[D.ACCUM].max() > 0
+    if t.fuse_stats:  # the device has doubles: sqrt(x x + y y) in double, each operation IEEE-rounded, as numpy
+        np.testing.assert_array_equal(st.stats[D.ACCUM].view(np.uint32), host.stats[D.ACCUM].view(np.uint32))
+    else:  # float hypot: the library's last bits
+        fin = np.isfinite(host.stats[D.ACCUM])
+        assert _ulps(st.stats[D.ACCUM][fin], host.stats[D.ACCUM][fin]).max() <= 4
+        np.testing.assert_array_equal(st.stats[D.ACCUM][~fin], host.stats[D.ACCUM][~fin])
+    assert host.stats[D.ACCUM][np.isfinite(host.stats[D.ACCUM])].max() > 0

@@ -68,7 +68,10 @@ def zero_stats(n: int) -> dict[str, np.ndarray]:
 def ndc_grad_norm(v_means2d: np.ndarray, width: int, height: int) -> np.ndarray:
     """[N,2] pixel-space dL/d means2d -> [N] norms in 3DGS's NDC-scaled units (x W/2, y H/2)."""
     v = np.asarray(v_means2d, np.float64)
-    return np.hypot(v[:, 0] * (0.5 * width), v[:, 1] * (0.5 * height)).astype(np.float32)
+    x, y = v[:, 0] * (0.5 * width), v[:, 1] * (0.5 * height)
+    # sqrt(x x + y y) in float64, as kernels/densify.h computes it (each operation IEEE-rounded: the same bits; the
+    # squares of float32 values times W/2, H/2 neither overflow nor underflow in float64)
+    return np.sqrt(x * x + y * y).astype(np.float32)
 
 
 def densify_accumulate(stats: dict, grad_norms: np.ndarray, visible: np.ndarray,

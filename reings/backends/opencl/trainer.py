@@ -93,6 +93,9 @@ REG_VALUE_CHUNK = 256  # Gaussians per work-item of regularize_value (its sums a
 # result). 256 kept a CPU's cores busy with few items; on a GPU it left ~200 work-items of 256
 # serial exps each, 0.058 ms per step on an H100 (bench/kernel_census.py, docs/perf_notes.md §11)
 REG_COUNT_CHUNK_CPU, REG_COUNT_CHUNK_GPU = 256, 8
+# regularize_grads' Gaussians per work-item on CPUs (REG_VW, kernels/regularize.cl): the exp calls on 8 lanes
+# (docs/perf_notes.md §31); GPUs 1
+REG_VW_CPU = 8
 _GEOMETRY = itertools.count(1)  # geometry versions, unique in the process (module docstring)
 _F32, _F64, _I32, _U32 = np.float32, np.float64, np.int32, np.uint32
 
@@ -178,7 +181,10 @@ class DeviceTrainer:
         self.k_adam_multi = None if backend.cpu else backend.kernel("adam.cl", "adam_step_multi", **adam_defs)
         self._adam_multi_wg = None  # its CL_KERNEL_WORK_GROUP_SIZE, queried once
         self.k_reg_count = backend.kernel("regularize.cl", "regularize_opacity_count", REGULARIZE_FP64=int(self.fp64))
-        self.k_reg_grads = backend.kernel("regularize.cl", "regularize_grads", REGULARIZE_FP64=int(self.fp64))
+        # regularize_grads: 8 Gaussians per work-item on CPUs (REG_VW; PoCL calls exp once per lane vector)
+        self.reg_vw = REG_VW_CPU if backend.cpu else 1
+        self.k_reg_grads = backend.kernel("regularize.cl", "regularize_grads", REGULARIZE_FP64=int(self.fp64),
+                                          REG_VW=self.reg_vw)
         self.k_accumulate = backend.kernel("densify_accumulate.cl", "densify_accumulate", DENSIFY_FP64=int(self.fp64))
         self.k_decay = backend.kernel("regularize.cl", "opacity_decay", REGULARIZE_FP64=int(self.fp64))
         self.k_reg_value = backend.kernel("regularize.cl", "regularize_value", REGULARIZE_FP64=int(self.fp64))
@@ -944,9 +950,9 @@ class DeviceTrainer:
             self._launch("regularize_opacity_count", self.k_reg_count, -(-self.n // chunk), _I32(self.n),
                          _I32(chunk), self.buf("p", "opacity_logits"), counts, _I32(pair))
         r = self.real
-        self._launch("regularize_grads", self.k_reg_grads, self.n, _I32(self.n), self.buf("p", "log_scales"),
-                     self.buf("p", "opacity_logits"), counts, _I32(pair), r(shape_pena), r(scale_pena),
-                     r(opa_pena), grads["log_scales"], grads["opacity_logits"])
+        self._launch("regularize_grads", self.k_reg_grads, -(-self.n // self.reg_vw), _I32(self.n),
+                     self.buf("p", "log_scales"), self.buf("p", "opacity_logits"), counts, _I32(pair),
+                     r(shape_pena), r(scale_pena), r(opa_pena), grads["log_scales"], grads["opacity_logits"])
         if opa_pena:
             self._reg_pair = 1 - pair
 
