@@ -162,7 +162,7 @@ inline void atomic_add_f32(volatile __global float *p, float v) {
 #undef REINGS_HAS_PREFETCH
 #define REINGS_HAS_PREFETCH 1
 #endif
-#if __has_builtin(__builtin_ctz) && __has_builtin(__builtin_ctzll)
+#if __has_builtin(__builtin_ctz) && __has_builtin(__builtin_ctzl)
 #undef REINGS_HAS_CTZ
 #define REINGS_HAS_CTZ 1
 #endif
@@ -171,7 +171,7 @@ inline void atomic_add_f32(volatile __global float *p, float v) {
  * OpenCL's clz of the bit alone (a call on PoCL) */
 #if REINGS_HAS_CTZ
 inline int low_bit(uint m) { return __builtin_ctz(m); }
-inline int low_bit64(ulong m) { return __builtin_ctzll(m); }
+inline int low_bit64(ulong m) { return __builtin_ctzl(m); } /* OpenCL's long is 64 bits (long long 128) */
 #else
 inline int low_bit(uint m) { return 31 - (int)clz(m & (0u - m)); }
 inline int low_bit64(ulong m) { return 63 - (int)clz(m & ((ulong)0 - m)); }

@@ -9,8 +9,8 @@
    (the device trainer's `accumulate`, a launch of its own) and project.cl's project_bwd with
    stats = 1 (the device trainer's `backward(stats=True)`: the photometric pass's statistics taken
    where its v_proj rows are read anyway, one launch fewer per step; docs/perf_notes.md §25).
-   The expressions hold no a * b + c, and contraction is off inside the function whatever the
-   includer's setting (project.cl's is the default), as in densify_accumulate.cl.
+   Contraction is off inside the function whatever the includer's setting (project.cl's is the
+   default), as in densify_accumulate.cl: x * x + y * y is two rounded products and a rounded sum.
 
    Defines
      DENSIFY_FP64   1: the norm in double (as numpy); 0 (default): in float.

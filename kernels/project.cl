@@ -99,8 +99,8 @@
 
 /* DROP_HASH(h, gid, key): DropGaussian's mask hash (docs/method.md §9): project_fwd keeps Gaussian
    gid iff the hash >= drop_threshold. murmur3's 32-bit finaliser (fmix32) of
-   gid ^ (key * DROP_KEY_MUL), in uint arithmetic (wraps mod 2^32); h and gid are vu lanes (uint or
-   uint8), key a uint. The numpy twin is reings/backends/reference_drop.py drop_hash
+   gid ^ (key * DROP_KEY_MUL), in uint arithmetic (wraps mod 2^32); h and gid are vu lanes (uint,
+   uint8 or uint16), key a uint. The numpy twin is reings/backends/reference_drop.py drop_hash
    (tests/test_drop.py checks them bit for bit). */
 #define DROP_KEY_MUL 0x9E3779B9u   /* 2^32 / golden ratio */
 #define DROP_FMIX_MUL1 0x85EBCA6Bu /* fmix32 */
@@ -248,21 +248,21 @@ typedef uint vu;
 /* out[(g0 + l) * stride + off] = lane l of x, for the lanes that are real Gaussians */
 #define SCATTER_F(out, stride, off, x)                                                   \
     do {                                                                                 \
-        const vf x_ = (x); /* once: STORE8 names its argument eight times */             \
+        const vf x_ = (x); /* once: STORE_* names its argument per lane */             \
         float tmp_[PROJ_VW];                                                             \
         STORE_F(x_, tmp_);                                                               \
         for (int l_ = 0; l_ < nl; ++l_) (out)[(size_t)(g0 + l_) * (stride) + (off)] = tmp_[l_]; \
     } while (0)
 #define SCATTER_I(out, stride, off, x)                                                   \
     do {                                                                                 \
-        const vi x_ = (x); /* once: STORE8 names its argument eight times */             \
+        const vi x_ = (x); /* once: STORE_* names its argument per lane */             \
         int tmp_[PROJ_VW];                                                               \
         STORE_I(x_, tmp_);                                                               \
         for (int l_ = 0; l_ < nl; ++l_) (out)[(size_t)(g0 + l_) * (stride) + (off)] = tmp_[l_]; \
     } while (0)
 #define SCATTER_U(out, stride, off, x)                                                   \
     do {                                                                                 \
-        const vu x_ = (x); /* once: STORE8 names its argument eight times */             \
+        const vu x_ = (x); /* once: STORE_* names its argument per lane */             \
         uint tmp_[PROJ_VW];                                                              \
         STORE_U(x_, tmp_);                                                               \
         for (int l_ = 0; l_ < nl; ++l_) (out)[(size_t)(g0 + l_) * (stride) + (off)] = tmp_[l_]; \

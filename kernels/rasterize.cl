@@ -725,7 +725,9 @@ bwd_tile(__global const float16 *packed, __global const int *gid_from_isect, __g
         if (box_in_tile(g, x0, y0, &r0, &r1, &c0, &c1)) {
 #if RASTER_CUT_MASK
             /* as the forward: the box's tests first, without branches (a vector with no lane both before its
-             * pixel's last and above the cut has no ok lane, and would add zeros), then the vectors past them */
+             * pixel's last and above the cut has no ok lane, and with finite inputs would add zeros: an infinite
+             * cotangent or colour could make such a lane's 0 * inf a NaN, which the rescaled pass then redid), then
+             * the vectors past them */
             vf pw[NVEC];
             vset hit = 0;
             for (int r = r0; r <= r1; ++r) {

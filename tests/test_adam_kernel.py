@@ -144,6 +144,43 @@ def test_regularizer_kernel_matches_numpy(device, rng, chunk, monkeypatch):
             assert np.any(got != g0[k]) == (k in rg)
 
 
+def test_regularizer_lanes_keep_the_bits(device, rng):
+    """regularize_grads on 8 lanes (REG_VW 8, the CPU build: the argmax / argmin as masks, the branches as
+    selects) gives the bytes of one work-item per Gaussian (REG_VW 1): 1003 Gaussians (a partial last
+    work-item), ties between axes, NaN and infinite log-scales and logits, each penalty alone and all three,
+    opacity counts on both sides of the split."""
+    be = get_backend(device)
+    if not be.cpu:
+        pytest.skip("REG_VW 8 is the CPU build (GPUs run one Gaussian per work-item)")
+    n = 1003
+    st = _state(rng, n, 1)
+    ls, lg = st.params["log_scales"], st.params["opacity_logits"]
+    ls[:10] = ls[:10, :1]  # isotropic rows
+    ls[10:20, 2] = ls[10:20, 0]  # ties between two axes
+    ls[20, 1], ls[21, 0], ls[22, 2] = np.nan, np.inf, -np.inf
+    lg[23], lg[24], lg[25] = np.nan, np.inf, -np.inf
+    t = _trainer(device, st, "kernel")
+    g0 = {"log_scales": rng.normal(size=(n, 3)).astype(np.float32) * 1e-3,
+          "opacity_logits": rng.normal(size=n).astype(np.float32) * 1e-3}
+    fp64 = int(t.fp64)
+    builds = {vw: be.kernel("regularize.cl", "regularize_grads", REGULARIZE_FP64=fp64, REG_VW=vw) for vw in (1, 8)}
+    old = t.reg_vw, t.k_reg_grads
+    try:
+        for weights in ((0.002, 0.001, 0.001), (0.3, 0.0, 0.0), (0.0, 0.01, 0.0), (0.0, 0.0, 0.5)):
+            out = {}
+            for vw in (1, 8):
+                t.reg_vw, t.k_reg_grads = vw, builds[vw]
+                bufs = _grad_buffers(t, g0, 1)
+                t.regularize(bufs, *weights)
+                out[vw] = {k: t._read(bufs[k], g0[k].shape, np.float32) for k in g0}
+            for k in g0:
+                assert np.array_equal(out[1][k].view(np.uint32), out[8][k].view(np.uint32)), (weights, k)
+                moved = weights[2] > 0 if k == "opacity_logits" else weights[0] > 0 or weights[1] > 0
+                assert np.any(out[1][k] != g0[k]) == moved, (weights, k)
+    finally:
+        t.reg_vw, t.k_reg_grads = old
+
+
 @pytest.mark.parametrize("n", [0, 1, 256, 1000])
 def test_regularize_value_kernel_matches_numpy(device, rng, n):
     """regularize(value=True) / read_regularize (kernels/regularize.cl regularize_value, per-chunk sums

@@ -361,7 +361,7 @@ def test_backward_stats_adds_what_accumulate_adds(device, case, vw, fuse):
     statistics, bit for bit, as backward() then accumulate(fr) (densify_accumulate.cl), and the same
     gradients: a plain, a held and an into backward, three views, at SH 4, with one Gaussian per
     work-item (the GPU layout; PROJ_SH_STAGE where the backend stages SH rows, as on GPUs) and with
-    eight (the CPU layout). fuse False: a trainer without doubles takes the separate launch after the
+    eight or sixteen (the CPU layouts, backend.proj_lanes). fuse False: a trainer without doubles takes the separate launch after the
     backward (its float statistics are densify_accumulate.cl's, built correctly rounded). A backward
     of some fields only refuses stats."""
     from reings import densify as D

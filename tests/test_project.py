@@ -231,7 +231,7 @@ def test_project_widths_keep_the_bits(device):
     """Each lane computes its own Gaussian with the same operations at every width, so PROJ_VW 8 and 16
     (the CPU choices, backend.proj_lanes) give the same bytes: every forward output (the rasterizer's
     records included, through a render) and every backward gradient, on 203 Gaussians (not a multiple of
-    either width) with SH degree 3, culled rows and a DropGaussian mask."""
+    either width) with SH degree 3 and culled rows; the projection and its backward under a DropGaussian mask."""
     from reings.backends.reference_drop import Drop
 
     be = get_backend(device)
@@ -240,14 +240,15 @@ def test_project_widths_keep_the_bits(device):
         pytest.skip("the widths are a CPU choice; on GPUs the compiler's contractions differ between them")
     g, cam = random_scene(203, 64, 48, seed=9, sh_degree=3, scale_median=0.1, viewmat=rotation_viewmat())
     gr = _cast_grads(_random_grads(len(g), 3))
+    drop = Drop.at_rate(0.25, key=7)
     old = be.proj_vw, be.proj_stage
     out = {}
     try:
         for vw in (8, 16):
             be.proj_vw, be.proj_stage = vw, False
-            p = be.project_fwd(g, cam, drop=Drop.at_rate(0.25, key=7))
+            p = be.project_fwd(g, cam, drop=drop)
             r = be.render(g, cam)
-            b = be.project_bwd(g, cam, None, gr)
+            b = be.project_bwd(g, cam, None, gr, drop=drop)
             out[vw] = ([np.asarray(getattr(p, f)) for f in ("means2d", "conics", "colors", "opacities", "depths",
                                                              "radii", "tile_rect")] +
                        [np.asarray(r.rgb), np.asarray(r.depth)] + [np.asarray(getattr(b, f)) for f in FIELDS])
@@ -416,7 +417,7 @@ def check_packed_records(device, g, cam, name=""):
     return ours
 
 
-@pytest.mark.parametrize("vw", [1, 8, "1-staged"])
+@pytest.mark.parametrize("vw", [1, 8, 16, "1-staged"])
 def test_project_fwd_writes_the_raster_records(device, vw):
     """check_packed_records at both lane widths and with the SH rows staged, on a scene with a partial last
     work-group, culled rows (behind the camera) and transparent ones (o < 1/255: an empty pixel box)."""
@@ -434,7 +435,7 @@ def test_project_fwd_writes_the_raster_records(device, vw):
         be.proj_vw, be.proj_stage = old
 
 
-@pytest.mark.parametrize("vw", [1, 8, "1-staged"])
+@pytest.mark.parametrize("vw", [1, 8, 16, "1-staged"])
 @pytest.mark.parametrize("grad_fields", [None, ("opacity_logits",), ("sh", "means")])
 def test_project_bwd_accumulate(device, vw, grad_fields):
     """The accumulate mode at both lane widths (and width 1 with the SH rows staged), SH degree 3,

@@ -308,14 +308,16 @@ def _cpu_define_keeps_the_bits(device, name, vec, define):
 @pytest.mark.parametrize("vec", [8, 16])
 @pytest.mark.parametrize("name", ["random_large", "saturated", "many_in_one_tile", "needles", "size_70x45", "one"])
 def test_cpu_io_and_builtins_keep_the_bits(device, name, vec, define):
-    """Two CPU-schedule choices that must not change a value, each on (1, the default where it applies) against
+    """Three CPU-schedule choices that must not change a value, each on (1, the default where it applies) against
     off (0), byte for byte: the forward's images, `last` and importance, and the records of the full,
     opacity-only and second-cotangent backwards, at both widths, on scenes with partial blocks at the image's
     edges (size_70x45; random_large at 16 lanes) and whole ones.
     REINGS_CLANG_BUILTINS: the mask tests through clang's __builtin_reduce_or (kernels/common.h any8 / any16) and
     the records prefetched RASTER_PREFETCH positions ahead; PoCL's CPUs only (quirks.clang_builtins).
     RASTER_ROW_IO: a pixel block inside the image read (the backward's cotangents and forward outputs) and
-    written (the forward's outputs) a row of 4 pixels at a time instead of pixel by pixel."""
+    written (the forward's outputs) a row of 4 pixels at a time instead of pixel by pixel.
+    RASTER_CUT_MASK: a Gaussian's box walked twice, its vectors' skip tests first (no branch per vector, the
+    outcomes as bits), then the vectors that passed, instead of one branch per vector."""
     from reings.backends.opencl.rasterize import rasterizer_for
 
     # the builtins are PoCL's CPU schedule's (quirks.clang_builtins): elsewhere (NVIDIA, whose OpenCL C has
