@@ -440,6 +440,21 @@ inline int box_in_tile(float16 g, int x0, int y0, int *r0, int *r1, int *c0, int
 #define VEC_DX(g, x) ((vf)((g).s0) - ((vf)((float)(x)) + (VCVT(ILX) + 0.5f)))
 #define VEC_DY(g, y) ((vf)((g).s1) - ((vf)((float)(y)) + (VCVT(ILY) + 0.5f)))
 
+/* RASTER_CUT_MASK's first walk of Gaussian g's box [r0, r1] x [c0, c1] (block rows / columns, x0 / y0 the tile's
+ * origin): each vector c's power into pw[c], and bit c of hit set where PASSES(power, c) (an int, 0 or 1), with no
+ * branch per vector */
+#define BOX_TESTS(pw, hit, PASSES)                                                            \
+    for (int r = r0; r <= r1; ++r) {                                                          \
+        const vf dy = VEC_DY(g, y0 + r * BH);                                                 \
+        for (int cc = c0; cc <= c1; ++cc) {                                                   \
+            const int c = r * BPR + cc;                                                       \
+            const vf dx = VEC_DX(g, x0 + cc * BW);                                            \
+            const vf power = -0.5f * (g.s2 * dx * dx + g.s4 * dy * dy) - g.s3 * dx * dy;      \
+            (pw)[c] = power;                                                                  \
+            (hit) |= (vset)(PASSES(power, c)) << c;                                           \
+        }                                                                                     \
+    }
+
 __kernel void rasterize_fwd(__global const float16 *packed,      // [N] records of raster_prep_one (project_fwd or rasterize_prep)
                             __global const int *tile_ranges,     // [T, 2]
                             __global const int *gid_from_isect,  // [K]
@@ -486,20 +501,13 @@ __kernel void rasterize_fwd(__global const float16 *packed,      // [N] records 
              * a branch on it was mispredicted often); then the vectors that passed, in the same order */
             vf pw[NVEC];
             vset hit = 0;
-            for (int r = r0; r <= r1; ++r) {
-                const vf dy = VEC_DY(g, y0 + r * BH);
-                for (int cc = c0; cc <= c1; ++cc) {
-                    const int c = r * BPR + cc;
-                    const vf dx = VEC_DX(g, x0 + cc * BW);
-                    const vf power = -0.5f * (g.s2 * dx * dx + g.s4 * dy * dy) - g.s3 * dx * dy;
-                    pw[c] = power;
 #if RASTER_ALPHA_CUT
-                    hit |= (vset)vany((power >= g.se) & (Tv[c] > 0.0f)) << c;
+#define FWD_PASSES(power, c) vany(((power) >= g.se) & (Tv[c] > 0.0f)) /* the cut, and a lane not stopped */
 #else
-                    hit |= VBIT(c);
+#define FWD_PASSES(power, c) 1
 #endif
-                }
-            }
+            BOX_TESTS(pw, hit, FWD_PASSES);
+#undef FWD_PASSES
             for (; hit; hit &= hit - 1) {
                 {
                     const int c = VSET_LOW(hit);
@@ -730,20 +738,13 @@ bwd_tile(__global const float16 *packed, __global const int *gid_from_isect, __g
              * the vectors past them */
             vf pw[NVEC];
             vset hit = 0;
-            for (int r = r0; r <= r1; ++r) {
-                const vf dy = VEC_DY(g, y0 + r * BH);
-                for (int cc = c0; cc <= c1; ++cc) {
-                    const int c = r * BPR + cc;
-                    const vf dx = VEC_DX(g, x0 + cc * BW);
-                    const vf power = -0.5f * (g.s2 * dx * dx + g.s4 * dy * dy) - g.s3 * dx * dy;
-                    pw[c] = power;
 #if RASTER_ALPHA_CUT
-                    hit |= (vset)vany(((vi)(k) < Lv[c]) & (power >= g.se)) << c;
+#define BWD_PASSES(power, c) vany(((vi)(k) < Lv[c]) & ((power) >= g.se)) /* before the pixel's last, the cut */
 #else
-                    hit |= (vset)vany((vi)(k) < Lv[c]) << c;
+#define BWD_PASSES(power, c) vany((vi)(k) < Lv[c])
 #endif
-                }
-            }
+            BOX_TESTS(pw, hit, BWD_PASSES);
+#undef BWD_PASSES
             for (; hit; hit &= hit - 1) {
                 {
                     const int c = VSET_LOW(hit);

@@ -65,15 +65,18 @@ __kernel void regularize_opacity_count(const int n, const int chunk,
 #ifndef REG_VW
 #define REG_VW 1
 #endif
+/* regularize_grads' arguments (both widths) */
+#define REG_GRADS_PARAMS                                                                       \
+    const int n, __global const float *log_scales,  /* [N, 3] */                               \
+        __global const float *logits,                /* [N] */                                  \
+        __global int *count_pairs,                   /* [2, 2]: this call's pair, the other */  \
+        const int pair,                              /* 0 / 1: the pair counted this call */    \
+        const real shape_pena, const real scale_pena, const real opa_pena,                     \
+        __global float *v_log_scales,                /* [N, 3] += */                            \
+        __global float *v_logits                     /* [N] += */
+
 #if REG_VW == 1
-__kernel void regularize_grads(const int n,
-                               __global const float *log_scales,   /* [N, 3] */
-                               __global const float *logits,       /* [N] */
-                               __global int *count_pairs,          /* [2, 2]: this call's pair, the other */
-                               const int pair,                     /* 0 / 1: the pair counted this call */
-                               const real shape_pena, const real scale_pena, const real opa_pena,
-                               __global float *v_log_scales,       /* [N, 3] += */
-                               __global float *v_logits)           /* [N] += */
+__kernel void regularize_grads(REG_GRADS_PARAMS)
 {
     const int i = get_global_id(0);
     if (i == 0) { /* the other pair, zero for the next call's count: no fill command per step */
@@ -126,14 +129,7 @@ typedef float8 rv;
 #define RV_FROM(t) ((rv)((t)[0], (t)[1], (t)[2], (t)[3], (t)[4], (t)[5], (t)[6], (t)[7]))
 #endif
 #define RSEL(a, b, c) ((c) ? (b) : (a)) /* select by a lane mask (common.h's SEL; PoCL calls OpenCL's select) */
-__kernel void regularize_grads(const int n,
-                               __global const float *log_scales,   /* [N, 3] */
-                               __global const float *logits,       /* [N] */
-                               __global int *count_pairs,          /* [2, 2]: this call's pair, the other */
-                               const int pair,                     /* 0 / 1: the pair counted this call */
-                               const real shape_pena, const real scale_pena, const real opa_pena,
-                               __global float *v_log_scales,       /* [N, 3] += */
-                               __global float *v_logits)           /* [N] += */
+__kernel void regularize_grads(REG_GRADS_PARAMS)
 {
     const int g0 = get_global_id(0) * REG_VW;
     if (g0 == 0) { /* the other pair, zero for the next call's count: no fill command per step */
