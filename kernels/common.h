@@ -162,19 +162,17 @@ inline void atomic_add_f32(volatile __global float *p, float v) {
 #undef REINGS_HAS_PREFETCH
 #define REINGS_HAS_PREFETCH 1
 #endif
-#if __has_builtin(__builtin_ctz) && __has_builtin(__builtin_ctzl)
+#if __has_builtin(__builtin_ctz)
 #undef REINGS_HAS_CTZ
 #define REINGS_HAS_CTZ 1
 #endif
 #endif
-/* low_bit(m) / low_bit64(m): the index of m's lowest set bit (m != 0); with REINGS_HAS_CTZ one tzcnt, else
- * OpenCL's clz of the bit alone (a call on PoCL) */
+/* low_bit(m): the index of m's lowest set bit (m != 0); with REINGS_HAS_CTZ one tzcnt, else OpenCL's clz of
+ * the bit alone (a call on PoCL) */
 #if REINGS_HAS_CTZ
 inline int low_bit(uint m) { return __builtin_ctz(m); }
-inline int low_bit64(ulong m) { return __builtin_ctzl(m); } /* OpenCL's long is 64 bits (long long 128) */
 #else
 inline int low_bit(uint m) { return 31 - (int)clz(m & (0u - m)); }
-inline int low_bit64(ulong m) { return 63 - (int)clz(m & ((ulong)0 - m)); }
 #endif
 #if REINGS_ANY_REDUCE
 inline int any8(int8 m) { return __builtin_reduce_or(m) < 0; }

@@ -407,17 +407,11 @@ inline int vany(vi m) { return any16(m); } /* any(m) */
 #define NVEC (TILE_PIXELS / RASTER_VEC) /* pixel vectors per tile */
 #define VEC_X(c) (((c) % BPR) * BW)     /* tile-relative pixel column of vector c's lane 0 */
 #define VEC_Y(c) (((c) / BPR) * BH)     /* tile-relative pixel row of vector c's lane 0 */
-#if NVEC <= 32 /* a set of a tile's vectors as the bits of an integer (RASTER_CUT_MASK) */
-typedef uint vset;
-#define VBIT(c) (1u << (c))
-#define VSET_LOW(m) low_bit(m)
-#elif NVEC <= 64
-typedef ulong vset;
-#define VBIT(c) ((ulong)1 << (c))
-#define VSET_LOW(m) low_bit64(m)
-#else
-#error "the CPU schedule keeps a set of a tile's vectors in 64 bits: TILE_PIXELS / RASTER_VEC <= 64"
+#if NVEC > 32 /* 16 or 32 at 16 or 8 lanes in a 16 x 16 tile */
+#error "the CPU schedule keeps a set of a tile's vectors in 32 bits: TILE_PIXELS / RASTER_VEC <= 32"
 #endif
+typedef uint vset; /* a set of a tile's vectors as the bits of an integer (RASTER_CUT_MASK) */
+#define VSET_LOW(m) low_bit(m)
 #define ILX (ILANES % BW) /* lane l's column and row in its block */
 #define ILY (ILANES / BW)
 

@@ -123,11 +123,10 @@ __kernel void regularize_grads(REG_GRADS_PARAMS)
    the code above, once per 8 lanes here */
 #if REGULARIZE_FP64
 typedef double8 rv;
-#define RV_FROM(t) ((rv)((t)[0], (t)[1], (t)[2], (t)[3], (t)[4], (t)[5], (t)[6], (t)[7]))
 #else
 typedef float8 rv;
-#define RV_FROM(t) ((rv)((t)[0], (t)[1], (t)[2], (t)[3], (t)[4], (t)[5], (t)[6], (t)[7]))
 #endif
+#define RV_FROM(t) ((rv)((t)[0], (t)[1], (t)[2], (t)[3], (t)[4], (t)[5], (t)[6], (t)[7])) /* lanes from t[0..7] */
 #define RSEL(a, b, c) ((c) ? (b) : (a)) /* select by a lane mask (common.h's SEL; PoCL calls OpenCL's select) */
 __kernel void regularize_grads(REG_GRADS_PARAMS)
 {

@@ -135,7 +135,9 @@ def proj_lanes(device) -> int:
     2-core AVX-512 Xeon (PoCL 3.0) 16 lanes took 0.87-0.94 of 8 lanes' project_fwd time on fern's fine
     state (51,537 Gaussians) and about the same on the coarse one: a small gain, within this
     machine's noise for the backward (docs/perf_notes.md §31)."""
-    return 16 if int(getattr(device, "native_vector_width_float", 0) or 0) >= 16 else 8
+    from .rasterize import native_lanes
+
+    return native_lanes(device)
 
 
 def tile_bits(n_tiles: int) -> int:

@@ -65,6 +65,12 @@ def raster_vec(device=None) -> int:
         if env not in ("8", "16"):
             raise ValueError(f"REINGS_RASTER_VEC must be 8 or 16, got {env!r}")
         return int(env)
+    return native_lanes(device)
+
+
+def native_lanes(device) -> int:
+    """16 where the device's native float vector is 16 wide or more (PoCL on AVX-512), else 8: the CPU
+    schedule's default pixel lanes (raster_vec) and project.cl's lanes (backend.proj_lanes)."""
     return 16 if int(getattr(device, "native_vector_width_float", 0) or 0) >= 16 else 8
 
 
