@@ -79,6 +79,7 @@
    [0..8] Rc row-major, [9..11] tc, [12] fx, [13] fy, [14] cx, [15] cy, [16..18] camera centre,
    [19] near, [20] lim_x_pos, [21] lim_x_neg, [22] lim_y_pos, [23] lim_y_neg */
 #define CAM_RECORD 24
+#define PACKED_FLOATS 16 /* floats per record of raster_prep_one */
 #define V_PROJ 10 /* v record: v_mean2d xy, v_conic ABC, v_colour rgb, v_opacity, v_depth */
 #include "densify.h" /* project_bwd with stats = 1: the densification statistics */
 
@@ -286,6 +287,151 @@ typedef uint vu;
         }                                                                                \
     } while (0)
 
+/* ---------------------------------------------------------------------------------------------
+   PROJ_BLOCK_IO (CPU schedule at 16 lanes where clang's __builtin_shufflevector exists: backend's
+   PoCL builds; docs/perf_notes.md §32). A work-item's 16 Gaussians are 16 consecutive rows, so each
+   [N, S] field of theirs is one block of 16 S floats: loaded as S vectors and deinterleaved by
+   shuffles (lane l of component j is float S l + j of the block), stored the same way backwards,
+   and rows of a run-time stride (the SH coefficients, the [N, 10] cotangents) loaded as 16 row
+   vectors and transposed. The per-lane code gathered one float per lane (an index extraction, a
+   load and an insert per float). The same floats move either way, so every output keeps its bits;
+   a work-item takes the blocks only when it is full and another row follows it (`blk`: a row
+   vector reads at most one row past its own), else the per-lane code.
+   --------------------------------------------------------------------------------------------- */
+#ifndef PROJ_BLOCK_IO /* default: on where it can be */
+#if PROJ_VW == 16 && REINGS_CLANG_BUILTINS && defined(__has_builtin)
+#if __has_builtin(__builtin_shufflevector)
+#define PROJ_BLOCK_IO 1
+#endif
+#endif
+#endif
+#ifndef PROJ_BLOCK_IO
+#define PROJ_BLOCK_IO 0
+#endif
+#if PROJ_BLOCK_IO
+#if PROJ_VW != 16
+#error "PROJ_BLOCK_IO needs PROJ_VW 16"
+#endif
+#define L16_(F, S, k) F(S, k, 0), F(S, k, 1), F(S, k, 2), F(S, k, 3), F(S, k, 4), F(S, k, 5), F(S, k, 6), \
+    F(S, k, 7), F(S, k, 8), F(S, k, 9), F(S, k, 10), F(S, k, 11), F(S, k, 12), F(S, k, 13), F(S, k, 14), F(S, k, 15)
+#define SHUF_(a, b, F, S, k) __builtin_shufflevector(a, b, L16_(F, S, k))
+/* deinterleave: lane l of component j is float f = S l + j of the block (vectors v0 v1 | v2 v3) */
+#define DI_A_(S, j, l) ((S) * (l) + (j) < 32 ? (S) * (l) + (j) : -1)
+#define DI_B_(S, j, l) ((S) * (l) + (j) >= 32 ? (S) * (l) + (j) - 32 : -1)
+#define DI_C_(S, j, l) ((S) * (l) + (j) < 32 ? (l) : 16 + (l))
+#define DI_J_(T, S, j, v, out)                                                                  \
+    if ((j) < (S)) (out)[j] = SHUF_(SHUF_(v[0], v[1], DI_A_, S, j), SHUF_(v[2], v[3], DI_B_, S, j), DI_C_, S, j)
+/* out[j] (j < S, S in 2..4) = lanes S l + j of the 16 S floats at p (T: float16 / int16, V: vload16) */
+#define DEINTERLEAVE(T, S, p, out)                                                              \
+    do {                                                                                        \
+        T v_[4];                                                                                \
+        for (int k_ = 0; k_ < 4; ++k_) v_[k_] = vload16(k_ < (S) ? k_ : (S) - 1, p);          \
+        DI_J_(T, S, 0, v_, out); DI_J_(T, S, 1, v_, out); DI_J_(T, S, 2, v_, out); DI_J_(T, S, 3, v_, out); \
+    } while (0)
+/* interleave: float f = 16 k + m of the block is lane f / S of component f % S (components c0 c1 | c2 c3) */
+#define IL_J_(S, k, m) ((16 * (k) + (m)) % (S))
+#define IL_L_(S, k, m) ((16 * (k) + (m)) / (S))
+#define IL_OK_(S, k, m) (IL_L_(S, k, m) < 16) /* false only in the dead code of a block vector k >= S */
+#define IL_A_(S, k, m) (IL_OK_(S, k, m) && IL_J_(S, k, m) < 2 ? 16 * IL_J_(S, k, m) + IL_L_(S, k, m) : -1)
+#define IL_B_(S, k, m) (IL_OK_(S, k, m) && IL_J_(S, k, m) >= 2 ? 16 * (IL_J_(S, k, m) - 2) + IL_L_(S, k, m) : -1)
+#define IL_C_(S, k, m) (IL_J_(S, k, m) < 2 ? (m) : 16 + (m))
+#define IL_K_(S, k, c) SHUF_(SHUF_(c[0], c[1], IL_A_, S, k), SHUF_(c[2], c[3], IL_B_, S, k), IL_C_, S, k)
+/* block vector k (k < S) of the components c[0..S-1] (c: an array of 4, the unused ones any vector) */
+#define INTERLEAVE_K(S, k, c) IL_K_(S, k, c)
+/* the 16 rows of an [N, S] field (S in 1..4) from its components vals[0..S-1] (T: vf or vi): o[S l + j] =
+   lane l of vals[j], or o[...] + that (acc) */
+#define BLOCK_OUT_K_(T, S, k, c, o, acc)                                                            if ((k) < (S)) {                                                                                    const T y_ = INTERLEAVE_K(S, k, c);                                                             vstore16((acc) ? vload16(k, o) + y_ : y_, k, o);                                            }
+#define BLOCK_OUT(T, S, vals, o, acc)                                                               do {                                                                                                const T c_[4] = {(vals)[0], (vals)[(S) > 1 ? 1 : 0], (vals)[(S) > 2 ? 2 : 0], (vals)[(S) > 3 ? 3 : 0]};         BLOCK_OUT_K_(T, S, 0, c_, o, acc) BLOCK_OUT_K_(T, S, 1, c_, o, acc)                             BLOCK_OUT_K_(T, S, 2, c_, o, acc) BLOCK_OUT_K_(T, S, 3, c_, o, acc)                         } while (0)
+
+/* 16 x 16 transpose in place: m[r] lane c <- m[c] lane r (four butterfly stages; stage s swaps bit s
+   of the row and the lane index) */
+#define TR_LO_(S, k, c) (((c) & (S)) ? 16 + ((c) ^ (S)) : (c))
+#define TR_HI_(S, k, c) (((c) & (S)) ? 16 + (c) : ((c) ^ (S)))
+#define TR_STAGE_(m, S)                                                                         \
+    for (int i_ = 0; i_ < 16; ++i_)                                                             \
+        if (!(i_ & (S))) {                                                                      \
+            const vf a_ = m[i_], b_ = m[i_ | (S)];                                              \
+            m[i_] = SHUF_(a_, b_, TR_LO_, S, 0);                                                \
+            m[i_ | (S)] = SHUF_(a_, b_, TR_HI_, S, 0);                                          \
+        }
+PROJ_INLINE void transpose16(vf *m) {
+    TR_STAGE_(m, 1);
+    TR_STAGE_(m, 2);
+    TR_STAGE_(m, 4);
+    TR_STAGE_(m, 8);
+}
+
+/* out[c] (c < cols) = lane l: p[l stride + c], the 16 rows at stride `stride` (row vectors of 16 floats:
+   a row is read up to 15 floats past column cols - 1) */
+PROJ_INLINE void rows_in(__global const float *p, const int stride, const int cols, vf *out) {
+    for (int b = 0; b < cols; b += 16) {
+        vf m[16];
+        for (int l = 0; l < 16; ++l) m[l] = vload16(0, p + (size_t)l * stride + b);
+        transpose16(m);
+        for (int c = 0; c < 16 && b + c < cols; ++c) out[b + c] = m[c];
+    }
+}
+
+/* the first cnt (<= 16, a constant) floats of r to p (acc: added to what is there) */
+PROJ_INLINE void store_head(const vf r, const int cnt, __global float *p, const int acc) {
+    if (cnt == 16) { vstore16(acc ? vload16(0, p) + r : r, 0, p); return; }
+    int o = 0;
+    if (cnt & 8) { const float8 x = r.lo; vstore8(acc ? vload8(0, p) + x : x, 0, p); o = 8; }
+    if (cnt & 4) { const float4 x = (o ? r.hi.lo : r.lo.lo); vstore4(acc ? vload4(0, p + o) + x : x, 0, p + o); o += 4; }
+    float t[16];
+    vstore16(r, 0, t);
+    for (int i = o; i < cnt; ++i) p[i] = acc ? p[i] + t[i] : t[i];
+}
+
+/* p[l stride + c] = lane l of in[c] (c < cols; acc: added), the 16 rows at stride >= cols */
+PROJ_INLINE void rows_out(const vf *in, const int cols, __global float *p, const int stride, const int acc) {
+    for (int b = 0; b < cols; b += 16) {
+        vf m[16];
+        for (int c = 0; c < 16; ++c) m[c] = b + c < cols ? in[b + c] : (vf)0.0f;
+        transpose16(m);
+        const int w = min(16, cols - b);
+        for (int l = 0; l < 16; ++l) store_head(m[l], w, p + (size_t)l * stride + b, acc);
+    }
+}
+#endif
+
+/* A work-item's rows of an [N, S] output from its S component lanes vals[]: blocks with PROJ_BLOCK_IO where `blk`,
+   else per lane (SCAT: SCATTER_F / _I / _U); GRAD_ROWS likewise with GRAD_F's semantics (grad_acc, grad_mask) */
+#if PROJ_BLOCK_IO
+#define OUT_ROWS(T, SCAT, out, S, vals)                                                         \
+    do {                                                                                        \
+        if (blk) BLOCK_OUT(T, S, vals, (out) + (size_t)(S) * g0, 0);                            \
+        else for (int j_ = 0; j_ < (S); ++j_) SCAT(out, S, j_, (vals)[j_]);                     \
+    } while (0)
+#define GRAD_ROWS(out, S, vals, bit)                                                            \
+    do {                                                                                        \
+        if (!blk) { for (int j_ = 0; j_ < (S); ++j_) GRAD_F(out, S, j_, (vals)[j_], bit); }     \
+        else if (!grad_acc) BLOCK_OUT(vf, S, vals, (out) + (size_t)(S) * g0, 0);                \
+        else if (grad_mask & (bit)) BLOCK_OUT(vf, S, vals, (out) + (size_t)(S) * g0, 1);        \
+    } while (0)
+/* the SH gradient rows ([N, SH_K, 3] packed, stride 3 SH_K) from vals[3 SH_K] */
+#if SH_K == 1
+#define SH_ROWS(out, vals) GRAD_ROWS(out, 3, vals, 16) /* SH_OUT is GRAD_F at stride 3 */
+#else
+#define SH_ROWS(out, vals)                                                                      \
+    do {                                                                                        \
+        if (!blk) { for (int c_ = 0; c_ < SH_K * 3; ++c_) SH_OUT(out, c_, (vals)[c_]); }        \
+        else if (!grad_acc) rows_out(vals, SH_K * 3, (out) + (size_t)g0 * (SH_K * 3), SH_K * 3, 0); \
+        else if (grad_mask & 16) rows_out(vals, SH_K * 3, (out) + (size_t)g0 * (SH_K * 3), SH_K * 3, 1); \
+    } while (0)
+#endif
+#define SH_ROWS_ZERO(out)                                                                       \
+    do {                                                                                        \
+        vf z_[SH_K * 3];                                                                        \
+        for (int c_ = 0; c_ < SH_K * 3; ++c_) z_[c_] = 0.0f;                                    \
+        SH_ROWS(out, z_);                                                                       \
+    } while (0)
+#else
+#define SH_ROWS_ZERO(out) for (int c_ = 0; c_ < SH_K * 3; ++c_) SH_OUT(out, c_, (vf)0.0f)
+#define OUT_ROWS(T, SCAT, out, S, vals) for (int j_ = 0; j_ < (S); ++j_) SCAT(out, S, j_, (vals)[j_])
+#define GRAD_ROWS(out, S, vals, bit) for (int j_ = 0; j_ < (S); ++j_) GRAD_F(out, S, j_, (vals)[j_], bit)
+#endif
+
 /* |x| <= FLT_MAX is false for NaN and +-Inf */
 #define FABS(x) AS_F(AS_U(x) & 0x7fffffffu) /* fabs(x) */
 #define FINITE(x) (FABS(x) <= FLT_MAX)
@@ -317,6 +463,56 @@ PROJ_INLINE void sh_basis(vf x, vf y, vf z, vf *b) {
 #endif
 }
 
+/* The raw fields of a work-item's lanes: PROJ_BLOCK_IO loads them once (`load_raw`: blocks, or the per-lane
+   gathers for a work-item without `blk`); otherwise each use gathers its lanes (IN_*), as before. */
+#if PROJ_BLOCK_IO
+typedef struct {
+    vf mu[3], q[4], ls[3], ol;
+    vf sh[SH_K * 3];
+} raw_t;
+#define RAW_PARAM , const raw_t *raw
+#define RAW_ARG , raw
+#define IN_OL (raw->ol)
+#define IN_MU(i) (raw->mu[i])
+#define IN_LS(i) (raw->ls[i])
+#define IN_Q(i) (raw->q[i])
+#define IN_SH(i) (raw->sh[i])
+PROJ_INLINE void load_raw(raw_t *r, const int blk, const int g0, const vi gid, __global const float *means,
+                          __global const float *quats, __global const float *log_scales,
+                          __global const float *opacity_logits, const sh_in_t sh) {
+    if (blk) {
+        DEINTERLEAVE(vf, 3, means + 3 * (size_t)g0, r->mu);
+        DEINTERLEAVE(vf, 4, quats + 4 * (size_t)g0, r->q);
+        DEINTERLEAVE(vf, 3, log_scales + 3 * (size_t)g0, r->ls);
+        r->ol = vload16(0, opacity_logits + g0);
+        if (sh.dc_stride == 3) {
+            DEINTERLEAVE(vf, 3, sh.dc + 3 * (size_t)g0, r->sh);
+        } else {
+            rows_in(sh.dc + (size_t)g0 * sh.dc_stride, sh.dc_stride, 3, r->sh);
+        }
+#if SH_K > 1
+        rows_in(sh.rest + (size_t)g0 * sh.rest_stride + sh.rest_offset, sh.rest_stride, 3 * (SH_K - 1), r->sh + 3);
+#endif
+        return;
+    }
+    for (int i = 0; i < 3; ++i) {
+        r->mu[i] = GATHER(means, 3 * gid + i);
+        r->ls[i] = GATHER(log_scales, 3 * gid + i);
+    }
+    for (int i = 0; i < 4; ++i) r->q[i] = GATHER(quats, 4 * gid + i);
+    r->ol = GATHER(opacity_logits, gid);
+    for (int i = 0; i < SH_K * 3; ++i) r->sh[i] = SH_AT(sh, gid, i);
+}
+#else
+#define RAW_PARAM
+#define RAW_ARG
+#define IN_OL GATHER(opacity_logits, gid)
+#define IN_MU(i) GATHER(means, 3 * gid + (i))
+#define IN_LS(i) GATHER(log_scales, 3 * gid + (i))
+#define IN_Q(i) GATHER(quats, 4 * gid + (i))
+#define IN_SH(i) SH_AT(sh, gid, i)
+#endif
+
 /* Everything project_fwd computes for PROJ_VW Gaussians, kept for the backward. */
 typedef struct {
     vf qn[4];      /* normalised quaternion (w, x, y, z) */
@@ -344,20 +540,20 @@ typedef struct {
 PROJ_INLINE vi project_one(vi gid, __global const float *means, __global const float *quats,
                            __global const float *log_scales, __global const float *opacity_logits,
                            SH_SRC sh, __constant const float *cam, int width, int height,
-                           proj_t *p) {
+                           proj_t *p RAW_PARAM) {
     /* every raw field finite */
-    vi ok = FINITE(GATHER(opacity_logits, gid));
+    vi ok = FINITE(IN_OL);
     vf mu[3];
     for (int i = 0; i < 3; ++i) {
-        mu[i] = GATHER(means, 3 * gid + i);
-        ok &= FINITE(mu[i]) & FINITE(GATHER(log_scales, 3 * gid + i));
+        mu[i] = IN_MU(i);
+        ok &= FINITE(mu[i]) & FINITE(IN_LS(i));
     }
     vf q[4];
     for (int i = 0; i < 4; ++i) {
-        q[i] = GATHER(quats, 4 * gid + i);
+        q[i] = IN_Q(i);
         ok &= FINITE(q[i]);
     }
-    for (int i = 0; i < SH_K * 3; ++i) ok &= FINITE(SH_AT(sh, gid, i));
+    for (int i = 0; i < SH_K * 3; ++i) ok &= FINITE(IN_SH(i));
 
     /* camera-space mean and near cull */
     for (int i = 0; i < 3; ++i)
@@ -382,7 +578,7 @@ PROJ_INLINE vi project_one(vi gid, __global const float *means, __global const f
     R[3] = 2.0f * (x * y + w * z); R[4] = 1.0f - 2.0f * (x * x + z * z); R[5] = 2.0f * (y * z - w * x);
     R[6] = 2.0f * (x * z - w * y); R[7] = 2.0f * (y * z + w * x); R[8] = 1.0f - 2.0f * (x * x + y * y);
 
-    for (int j = 0; j < 3; ++j) p->s[j] = exp(GATHER(log_scales, 3 * gid + j));
+    for (int j = 0; j < 3; ++j) p->s[j] = exp(IN_LS(j));
     for (int i = 0; i < 3; ++i)
         for (int j = 0; j < 3; ++j) p->M[3 * i + j] = R[3 * i + j] * p->s[j];
 
@@ -453,7 +649,7 @@ PROJ_INLINE vi project_one(vi gid, __global const float *means, __global const f
     sh_basis(p->dir[0], p->dir[1], p->dir[2], bas);
     for (int ch = 0; ch < 3; ++ch) {
         vf acc = 0.0f;
-        for (int k = 0; k < SH_K; ++k) acc += bas[k] * SH_AT(sh, gid, 3 * k + ch);
+        for (int k = 0; k < SH_K; ++k) acc += bas[k] * IN_SH(3 * k + ch);
         p->raw[ch] = acc + 0.5f;
     }
     ok &= FINITE(p->raw[0]) & FINITE(p->raw[1]) & FINITE(p->raw[2]) & FINITE(p->t[0]) & FINITE(p->t[1]);
@@ -483,7 +679,7 @@ PROJ_INLINE vi project_one(vi gid, __global const float *means, __global const f
    columns [floor(first / 16), floor(last / 16) + 1); rows likewise with v, ey. gsplat cuts its
    per-axis extents the same way (ProjectionEWA3DGSFused.cu: extend = min(3.33, sqrt(2 ln(o /
    ALPHA_THRESHOLD))), culling o < ALPHA_THRESHOLD; docs/method.md §5.3). */
-PROJ_INLINE void alpha_rect(proj_t *p, vf o) {
+PROJ_INLINE vf alpha_rect(proj_t *p, vf o) {
     const vf A = p->A, B = p->B, C = p->C;
     const vf lo = ALPHA_BOX_LO(o);
     const vf ac = A * C;
@@ -504,7 +700,32 @@ PROJ_INLINE void alpha_rect(proj_t *p, vf o) {
     /* empty: o < 1/255, or the box misses the 3-sigma tiles (lo NaN or inf: no box, rect kept) */
     const vi empty = (lo < 1.0f) | !((r[2] > r[0]) & (r[3] > r[1]));
     for (int i = 0; i < 4; ++i) p->rect[i] = SEL(r[i], (vf)0.0f, empty);
+    return ln_lo; /* log(ALPHA_BOX_LO(o)): raster_prep_lanes takes it too */
 }
+
+#if PROJ_BLOCK_IO
+/* raster_prep_one (common.h) on a work-item's 16 lanes, from the floats project_fwd just stored (u, v, A, B, C, o,
+   r, g, b, z) and ln_lo = log(ALPHA_BOX_LO(o)) where o is the stored opacity (elsewhere any value: those lanes
+   have no box): the same operations lane by lane (its branches as selects; PoCL's vector log is its scalar log
+   per lane), the 16 records written as one transposed block (packed + 16 g0). */
+PROJ_INLINE void raster_prep_lanes(const vf *f10, const vf ln_lo, __global float *rec) {
+    vf f[16];
+    for (int i = 0; i < 10; ++i) f[i] = f10[i];
+    const vf u = f[0], v = f[1], A = f[2], B = f[3], C = f[4], lo = ALPHA_BOX_LO(f[5]);
+    const vi has = (lo >= 1.0f) & FINITE(u) & FINITE(v) & FINITE(lo);
+    const vf det = A * C - B * B;
+    const vi pd = (det > 0.0f) & (A > 0.0f) & (C > 0.0f) & FINITE(det);
+    const vf ex = SEL((vf)1e7f, fmin(ALPHA_BOX_HALF_LN(ln_lo, C, det, ALPHA_BOX_REL), 1e7f), pd);
+    const vf ey = SEL((vf)1e7f, fmin(ALPHA_BOX_HALF_LN(ln_lo, A, det, ALPHA_BOX_REL), 1e7f), pd);
+    f[10] = SEL((vf)1.0f, clamp(ceil(u - ex - 0.5f), -2.0f, 1e7f), has); /* empty box: (1, 0, 1, 0) */
+    f[11] = SEL((vf)0.0f, clamp(floor(u + ex - 0.5f), -2.0f, 1e7f), has);
+    f[12] = SEL((vf)1.0f, clamp(ceil(v - ey - 0.5f), -2.0f, 1e7f), has);
+    f[13] = SEL((vf)0.0f, clamp(floor(v + ey - 0.5f), -2.0f, 1e7f), has);
+    f[14] = SEL((vf)0.0f, ALPHA_CUT_LN(ln_lo), has);
+    f[15] = 0.0f;
+    rows_out(f, 16, rec, 16, 0);
+}
+#endif
 
 /* Lanes of work-item `wi`: g0 = first gid, nl = how many are real, gid = clamped lane gids */
 #define LANES(n)                                                        \
@@ -596,8 +817,14 @@ __kernel PROJ_ATTR void project_fwd(const int n,
        here, in the launch before it in every forward (a fill command would cost one more command
        per forward, and Oclgrind treats filled memory as uninitialised) */
     if (g0 == 0) ctrl[2] = 0u;
+#if PROJ_BLOCK_IO
+    const int blk = g0 + PROJ_VW < n; /* full, and a row after it */
+    raw_t raw_;
+    const raw_t *raw = &raw_;
+    load_raw(&raw_, blk, g0, gid, means, quats, log_scales, opacity_logits, sh_src);
+#endif
     proj_t p;
-    vi vis = project_one(gid, means, quats, log_scales, opacity_logits, sh_src, cam, width, height, &p) & lane_ok;
+    vi vis = project_one(gid, means, quats, log_scales, opacity_logits, sh_src, cam, width, height, &p RAW_ARG) & lane_ok;
     if (drop_threshold != 0u) { /* DropGaussian: a dropped Gaussian is culled */
         vu h;
         DROP_HASH(h, AS_U(gid), drop_key);
@@ -605,31 +832,50 @@ __kernel PROJ_ATTR void project_fwd(const int n,
     }
     const vf zero = 0.0f;
     const vf op = opacity_override > 0.0f ? (vf)opacity_override
-                                          : (1.0f / (1.0f + exp(-GATHER(opacity_logits, gid)))) * drop_scale;
-    alpha_rect(&p, op); /* the opacity the rasterizer blends with */
-    SCATTER_U(gid_vals, 1, 0, AS_U((vi)g0 + VLANES));
-    SCATTER_F(means2d, 2, 0, SEL(zero, p.u, vis));
-    SCATTER_F(means2d, 2, 1, SEL(zero, p.v, vis));
-    SCATTER_F(conics, 3, 0, SEL(zero, p.A, vis));
-    SCATTER_F(conics, 3, 1, SEL(zero, p.B, vis));
-    SCATTER_F(conics, 3, 2, SEL(zero, p.C, vis));
-    SCATTER_F(depths, 1, 0, SEL(zero, p.t[2], vis));
-    /* radius saturates like the reference's int32 cast */
-    const vi rad = SEL(CVT_I(fmin(p.radius, 2147483520.0f)), (vi)INT_MAX, p.radius >= 2147483648.0f);
-    SCATTER_I(radii, 1, 0, SEL((vi)0, rad, vis));
-    for (int i = 0; i < 4; ++i) SCATTER_I(tile_rect, 4, i, SEL((vi)0, CVT_I(p.rect[i]), vis));
-    for (int ch = 0; ch < 3; ++ch) SCATTER_F(colors, 3, ch, SEL(zero, fmax(p.raw[ch], 0.0f), vis));
-    SCATTER_F(opacities, 1, 0, SEL(zero, op, vis));
+                                          : (1.0f / (1.0f + exp(-IN_OL))) * drop_scale;
+    const vf ln_lo = alpha_rect(&p, op); /* the opacity the rasterizer blends with */
+    {
+        const vu gv[1] = {AS_U((vi)g0 + VLANES)};
+        OUT_ROWS(vu, SCATTER_U, gid_vals, 1, gv);
+        const vf m2[2] = {SEL(zero, p.u, vis), SEL(zero, p.v, vis)};
+        OUT_ROWS(vf, SCATTER_F, means2d, 2, m2);
+        const vf co[3] = {SEL(zero, p.A, vis), SEL(zero, p.B, vis), SEL(zero, p.C, vis)};
+        OUT_ROWS(vf, SCATTER_F, conics, 3, co);
+        const vf dz[1] = {SEL(zero, p.t[2], vis)};
+        OUT_ROWS(vf, SCATTER_F, depths, 1, dz);
+        /* radius saturates like the reference's int32 cast */
+        const vi rad = SEL(CVT_I(fmin(p.radius, 2147483520.0f)), (vi)INT_MAX, p.radius >= 2147483648.0f);
+        const vi ra[1] = {SEL((vi)0, rad, vis)};
+        OUT_ROWS(vi, SCATTER_I, radii, 1, ra);
+        vi tr[4];
+        for (int i = 0; i < 4; ++i) tr[i] = SEL((vi)0, CVT_I(p.rect[i]), vis);
+        OUT_ROWS(vi, SCATTER_I, tile_rect, 4, tr);
+        vf cl[3];
+        for (int ch = 0; ch < 3; ++ch) cl[ch] = SEL(zero, fmax(p.raw[ch], 0.0f), vis);
+        OUT_ROWS(vf, SCATTER_F, colors, 3, cl);
+        const vf oo[1] = {SEL(zero, op, vis)};
+        OUT_ROWS(vf, SCATTER_F, opacities, 1, oo);
+#if PROJ_BLOCK_IO
+        if (blk) { /* the rasterizer's records (below, per lane, for the other work-items) */
+            const vf f10[10] = {m2[0], m2[1], co[0], co[1], co[2], oo[0], cl[0], cl[1], cl[2], dz[0]};
+            raster_prep_lanes(f10, ln_lo, packed + (size_t)PACKED_FLOATS * g0);
+        }
+#endif
+    }
     /* The sort key depends on t_z and the near plane only: t_z's bits wherever t_z > near (finite),
        whatever else culls the Gaussian (frustum, det, radius, tile rect, DropGaussian, opacity), so
        forwards of the same means and camera z row share one depth order (docs/perf_notes.md §9). A
        Gaussian culled otherwise is ranked with an empty tile rect: bin_count gives it no tile.
        t_z > near > 0: the float bits order like the floats. */
     const vi zkey = (p.t[2] > cam[19]) & FINITE(p.t[2]) & lane_ok;
-    SCATTER_U(depth_keys, 1, 0, SEL((vu)DEPTH_KEY_CULLED, AS_U(p.t[2]), zkey));
+    const vu dk[1] = {SEL((vu)DEPTH_KEY_CULLED, AS_U(p.t[2]), zkey)};
+    OUT_ROWS(vu, SCATTER_U, depth_keys, 1, dk);
     /* the rasterizer's records, from the floats just stored (rasterize_prep's inputs and code, common.h):
        a forward on the device launches no rasterize_prep */
-    for (int l = 0; l < nl; ++l) raster_prep_one(g0 + l, means2d, conics, colors, opacities, depths, packed);
+#if PROJ_BLOCK_IO
+    if (!blk)
+#endif
+        for (int l = 0; l < nl; ++l) raster_prep_one(g0 + l, means2d, conics, colors, opacities, depths, packed);
 }
 
 /* Backward projection, one work-item per PROJ_VW Gaussians: raw-field gradients from the
@@ -657,16 +903,28 @@ PROJ_INLINE void project_bwd_one(const int n,
                           SH_DST v_sh) {                        /* [N, SH_K, 3] (staged: this row) */
     LANES(n);
     const vf zero = 0.0f;
+#if PROJ_BLOCK_IO
+    const int blk = g0 + PROJ_VW < n; /* full, and a row after it */
+    vi vis = ((blk ? vload16(0, radii + g0) : GATHER_I(radii, gid)) > 0) & lane_ok;
+#else
     vi vis = (GATHER_I(radii, gid) > 0) & lane_ok;
+#endif
     if (!ANY(vis)) { /* all culled: zeros (the common case for off-screen blocks) */
-        for (int i = 0; i < 3; ++i) { GRAD_F(v_means, 3, i, zero, 1); GRAD_F(v_log_scales, 3, i, zero, 4); }
-        for (int i = 0; i < 4; ++i) GRAD_F(v_quats, 4, i, zero, 2);
-        GRAD_F(v_opacity_logits, 1, 0, zero, 8);
-        for (int i = 0; i < SH_K * 3; ++i) SH_OUT(v_sh, i, zero);
+        const vf z4[4] = {zero, zero, zero, zero};
+        GRAD_ROWS(v_means, 3, z4, 1);
+        GRAD_ROWS(v_log_scales, 3, z4, 4);
+        GRAD_ROWS(v_quats, 4, z4, 2);
+        GRAD_ROWS(v_opacity_logits, 1, z4, 8);
+        SH_ROWS_ZERO(v_sh);
         return;
     }
+#if PROJ_BLOCK_IO
+    raw_t raw_;
+    const raw_t *raw = &raw_;
+    load_raw(&raw_, blk, g0, gid, means, quats, log_scales, opacity_logits, sh);
+#endif
     proj_t p;
-    vis &= project_one(gid, means, quats, log_scales, opacity_logits, sh, cam, width, height, &p);
+    vis &= project_one(gid, means, quats, log_scales, opacity_logits, sh, cam, width, height, &p RAW_ARG);
 
     /* The backward is linear in the cotangents. Huge ones (a colour near FLT_MAX makes its
        neighbours' cotangents overflow) are scaled by an exact power of two, the chain runs on the
@@ -675,8 +933,22 @@ PROJ_INLINE void project_bwd_one(const int n,
        culled lanes are never read (isect_reduce does not write them): such lanes use 0. */
     const vi vgid = SEL(gid, (vi)(-1), !vis);  /* -1 marks a lane whose row must not be read */
     vf vin[V_PROJ], vmax = 0.0f;
+#if PROJ_BLOCK_IO
+    if (blk) rows_in(v_proj + (size_t)g0 * V_PROJ, V_PROJ, V_PROJ, vin);
+#endif
     for (int i = 0; i < V_PROJ; ++i) {
-#if PROJ_VW > 1
+#if PROJ_BLOCK_IO
+        vf x;
+        if (blk) {
+            x = SEL(zero, vin[i], vis);
+        } else {
+            float tmp[PROJ_VW];
+            int idx[PROJ_VW];
+            STORE_I(vgid, idx);
+            for (int l = 0; l < PROJ_VW; ++l) tmp[l] = idx[l] >= 0 ? v_proj[(size_t)idx[l] * V_PROJ + i] : 0.0f;
+            x = VFROM(tmp);
+        }
+#elif PROJ_VW > 1
         float tmp[PROJ_VW];
         int idx[PROJ_VW];
         STORE_I(vgid, idx);
@@ -703,11 +975,12 @@ PROJ_INLINE void project_bwd_one(const int n,
     /* opacity */
     vf vlogit = 0.0f;
     if (!(opacity_override > 0.0f)) {
-        vf op = 1.0f / (1.0f + exp(-GATHER(opacity_logits, gid)));
+        vf op = 1.0f / (1.0f + exp(-IN_OL));
         vlogit = v_op * op * (1.0f - op) * drop_scale; /* opacity = sigmoid(logit) * drop_scale */
     }
     const vi keep_op = vis & (vi)((grad_mask & 8) ? -1 : 0);
-    GRAD_F(v_opacity_logits, 1, 0, SEL(zero, vlogit * vscale, keep_op), 8);
+    const vf vo[1] = {SEL(zero, vlogit * vscale, keep_op)};
+    GRAD_ROWS(v_opacity_logits, 1, vo, 8);
 
     /* colour: zero gradient where the 0 clamp is active */
     vf vc[3];
@@ -717,13 +990,22 @@ PROJ_INLINE void project_bwd_one(const int n,
        coefficients: staged, v_sh is written over them below) */
     vf vb[SH_K];
     for (int k = 0; k < SH_K; ++k)
-        vb[k] = SH_AT(sh, gid, 3 * k) * vc[0] + SH_AT(sh, gid, 3 * k + 1) * vc[1] + SH_AT(sh, gid, 3 * k + 2) * vc[2];
+        vb[k] = IN_SH(3 * k) * vc[0] + IN_SH(3 * k + 1) * vc[1] + IN_SH(3 * k + 2) * vc[2];
 #endif
     vf bas[SH_K];
     sh_basis(p.dir[0], p.dir[1], p.dir[2], bas);
     const vi keep_sh = vis & (vi)((grad_mask & 16) ? -1 : 0);
+#if PROJ_BLOCK_IO
+    {
+        vf vsh[SH_K * 3];
+        for (int k = 0; k < SH_K; ++k)
+            for (int ch = 0; ch < 3; ++ch) vsh[3 * k + ch] = SEL(zero, bas[k] * vc[ch] * vscale, keep_sh);
+        SH_ROWS(v_sh, vsh);
+    }
+#else
     for (int k = 0; k < SH_K; ++k)
         for (int ch = 0; ch < 3; ++ch) SH_OUT(v_sh, 3 * k + ch, SEL(zero, bas[k] * vc[ch] * vscale, keep_sh));
+#endif
 
     vf vmu[3] = {0.0f, 0.0f, 0.0f};
 #if SH_K > 1
@@ -797,7 +1079,9 @@ PROJ_INLINE void project_bwd_one(const int n,
     /* t = Rc mu + tc */
     for (int j = 0; j < 3; ++j) vmu[j] += cam[j] * vt[0] + cam[3 + j] * vt[1] + cam[6 + j] * vt[2];
     const vi keep_mu = vis & (vi)((grad_mask & 1) ? -1 : 0);
-    for (int j = 0; j < 3; ++j) GRAD_F(v_means, 3, j, SEL(zero, vmu[j] * vscale, keep_mu), 1);
+    vf vm[3];
+    for (int j = 0; j < 3; ++j) vm[j] = SEL(zero, vmu[j] * vscale, keep_mu);
+    GRAD_ROWS(v_means, 3, vm, 1);
 
     /* Sc = Rc Sigma Rc^T: v_Sigma = Rc^T v_Sc Rc */
     vf T1[9], vS[9];
@@ -817,10 +1101,12 @@ PROJ_INLINE void project_bwd_one(const int n,
         }
     /* M = R S */
     const vi keep_ls = vis & (vi)((grad_mask & 4) ? -1 : 0);
+    vf vls[3];
     for (int j = 0; j < 3; ++j) {
         vf vs = p.R[j] * vM[j] + p.R[3 + j] * vM[3 + j] + p.R[6 + j] * vM[6 + j];
-        GRAD_F(v_log_scales, 3, j, SEL(zero, vs * p.s[j] * vscale, keep_ls), 4);
+        vls[j] = SEL(zero, vs * p.s[j] * vscale, keep_ls);
     }
+    GRAD_ROWS(v_log_scales, 3, vls, 4);
     vf G[9];
     for (int i = 0; i < 3; ++i)
         for (int j = 0; j < 3; ++j) G[3 * i + j] = vM[3 * i + j] * p.s[j];
@@ -835,7 +1121,9 @@ PROJ_INLINE void project_bwd_one(const int n,
     const vf dq = w * vq[0] + x * vq[1] + y * vq[2] + z * vq[3];
     const vf iq = 1.0f / p.qnorm;
     const vi keep_q = vis & (vi)((grad_mask & 2) ? -1 : 0);
-    for (int i = 0; i < 4; ++i) GRAD_F(v_quats, 4, i, SEL(zero, (vq[i] - p.qn[i] * dq) * iq * vscale, keep_q), 2);
+    vf vqo[4];
+    for (int i = 0; i < 4; ++i) vqo[i] = SEL(zero, (vq[i] - p.qn[i] * dq) * iq * vscale, keep_q);
+    GRAD_ROWS(v_quats, 4, vqo, 2);
 }
 
 /* Backward projection kernel: project_bwd_one per work-item (PROJ_SH_STAGE: its SH row in local

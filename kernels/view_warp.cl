@@ -14,10 +14,16 @@
  * Kernels (images [H, W, 3] float32, depth [H, W] float32, row-major)
  *   view_warp_fwd       global (>= W, H): warped [H, W, 3] (0 where invalid) and valid [H, W]
  *                       (0/1). Diagnostics and tests; not needed by the training step.
+ *   view_warp_edges     global (>= W, H): the image-edge weights of a training image, (wx, wy) per
+ *                       interior pixel (0 off the interior) into edges [H, W, 2]. They depend on
+ *                       the image alone: the host makes them once per training view (ViewWarpCL.
+ *                       edges) and every view_warp_smooth of that view reads them (two exponentials
+ *                       per pixel fewer per step: docs/perf_notes.md §32).
  *   view_warp_smooth    global (VW_WG, H), local (VW_WG, 1), only when gs != 0, before
  *                       view_warp_bwd_depth: one work-group per row; per interior pixel o the signed
- *                       weights sxy(o) = (wx sign(ex), wy sign(ey)) (0 off the interior) and per
- *                       row (fixed tree) row_f[y, 1] = the sum of the terms wx |ex| + wy |ey|.
+ *                       weights sxy(o) = (wx sign(ex), wy sign(ey)) (0 off the interior; wx, wy from
+ *                       view_warp_edges) and per row (fixed tree) row_f[y, 1] = the sum of the terms
+ *                       wx |ex| + wy |ey|.
  *                       Stored once so that the depth gradient's stencil (sx at x +- 1, sy at
  *                       y +- 1) reads four numbers instead of recomputing 8 disparities and 4
  *                       exponentials per pixel (2.5x faster on PoCL at 504x378: docs/binocular.md).
@@ -114,14 +120,13 @@ static int vw_interior(const int x, const int y, const int W, const int H)
 }
 
 /* At an interior o = (x, y): the smoothness term wx |ex| + wy |ey| (returned) and the signed
- * weights wx sign(ex), wy sign(ey) that its gradient needs (into *sx, *sy). */
-static float vw_smooth_at(__global const float *depth, __global const float *gt, const float neg_fb,
+ * weights wx sign(ex), wy sign(ey) that its gradient needs (into *sx, *sy); (wx, wy) = edges[o]. */
+static float vw_smooth_at(__global const float *depth, __global const float *edges, const float neg_fb,
                           const int x, const int y, const int W, float *sx, float *sy)
 {
     const float ex = 0.5f * (vw_p(depth, neg_fb, x + 1, y, W) - vw_p(depth, neg_fb, x - 1, y, W));
     const float ey = 0.5f * (vw_p(depth, neg_fb, x, y + 1, W) - vw_p(depth, neg_fb, x, y - 1, W));
-    const float wx = exp(-VW_EDGE_SCALE * fabs(0.5f * (vw_s(gt, x + 1, y, W) - vw_s(gt, x - 1, y, W))));
-    const float wy = exp(-VW_EDGE_SCALE * fabs(0.5f * (vw_s(gt, x, y + 1, W) - vw_s(gt, x, y - 1, W))));
+    const float wx = edges[2 * (y * W + x)], wy = edges[2 * (y * W + x) + 1];
     *sx = wx * vw_sign(ex);
     *sy = wy * vw_sign(ey);
     return wx * fabs(ex) + wy * fabs(ey);
@@ -161,8 +166,25 @@ __kernel void view_warp_fwd(__global const float *virt,   // [H, W, 3] virtual r
     valid[p] = ok ? 1.0f : 0.0f;
 }
 
+/* The edge weights (wx, wy) = exp(-0.33 |dI|) of the training image's channel sums' central
+ * differences at interior pixels, 0 elsewhere (the authors' SmoothLoss). */
+__kernel void view_warp_edges(__global const float *gt,  // [H, W, 3] training image
+                              __global float *edges,     // [H, W, 2]
+                              const int W, const int H)
+{
+    const int x = get_global_id(0), y = get_global_id(1);
+    if (!(x < W && y < H)) return;
+    float wx = 0.0f, wy = 0.0f;
+    if (vw_interior(x, y, W, H)) {
+        wx = exp(-VW_EDGE_SCALE * fabs(0.5f * (vw_s(gt, x + 1, y, W) - vw_s(gt, x - 1, y, W))));
+        wy = exp(-VW_EDGE_SCALE * fabs(0.5f * (vw_s(gt, x, y + 1, W) - vw_s(gt, x, y - 1, W))));
+    }
+    edges[2 * (y * W + x)] = wx;
+    edges[2 * (y * W + x) + 1] = wy;
+}
+
 __kernel void view_warp_smooth(__global const float *depth,  // [H, W] training view's rendered depth
-                               __global const float *gt,     // [H, W, 3] training image
+                               __global const float *edges,  // [H, W, 2] view_warp_edges of the training image
                                __global float *sxy,          // [H, W, 2] (wx sign(ex), wy sign(ey)); 0 off the interior
                                __global float *row_f,        // [H, 2] writes [y, 1]: the row's smoothness sum
                                const float neg_fb, const int W, const int H)
@@ -173,7 +195,7 @@ __kernel void view_warp_smooth(__global const float *depth,  // [H, W] training 
     if (y < H) {
         for (int x = lane; x < W; x += VW_WG) {
             float sx = 0.0f, sy = 0.0f;
-            if (vw_interior(x, y, W, H)) acc += vw_smooth_at(depth, gt, neg_fb, x, y, W, &sx, &sy);
+            if (vw_interior(x, y, W, H)) acc += vw_smooth_at(depth, edges, neg_fb, x, y, W, &sx, &sy);
             sxy[2 * (y * W + x)] = sx;
             sxy[2 * (y * W + x) + 1] = sy;
         }

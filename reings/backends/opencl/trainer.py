@@ -233,6 +233,7 @@ class DeviceTrainer:
         self.dt: list = []  # depth target buffers per view (None: no target)
         self.dt_host: list = []  # their float32 host copies (upload_depth_metric)
         self._events: list = []  # (stage, event) of this trainer's own kernels (profile only)
+        self._vw_edges: dict = {}  # (view, H, W) -> the view_warp term's edge weights of training image `view`
 
     # {{{ plumbing
     def buf(self, kind: str, name: str):
@@ -903,8 +904,13 @@ class DeviceTrainer:
         npx = fr.width * fr.height
         v_virt = self.mem.get("pixel", "vw_v_virt", npx, 12)
         v_depth = self.mem.get("pixel", "vw_v_depth", npx, 4)
+        key = (view, fr.height, fr.width)  # the training image's edge weights: made on its first use, kept
+        edges = self._vw_edges.get(key)
+        if edges is None:
+            edges = self._vw_edges[key] = vw.edges(self.gt[view], fr.height, fr.width,
+                                                   out=self.mem.get("pixel", f"vw_edges{view}", npx, 8))
         vw.enqueue(virt.bufs["out_rgb"], fr.bufs["out_depth"], self.gt[view], v_virt, v_depth, fr.height, fr.width,
-                   fr.camera.fx, baseline, weight, smooth_weight)
+                   fr.camera.fx, baseline, weight, smooth_weight, edges=edges)
         if self.profile is not None:
             self._events.extend(vw.events)
         return v_virt, v_depth

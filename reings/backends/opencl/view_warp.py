@@ -8,7 +8,8 @@ The training step's form is `enqueue`: device buffers in ([H, W, 3] virtual rend
 depth of the training view, [H, W, 3] training image), gradients out (v_virt overwritten, v_depth
 written or, with accumulate_depth=True, added to what another term left there); nothing is read
 back. Three launches (view_warp_smooth, skipped when smooth_weight is 0; view_warp_bwd_depth;
-view_warp_bwd_virt); the loss stays on the device as
+view_warp_bwd_virt), four without `edges` (view_warp_edges first: the training image's edge weights,
+which a caller with a fixed training image makes once with `edges`); the loss stays on the device as
 per-row partial sums until `read_loss` / `read_stats`. `__call__` is the host convenience form
 (numpy in and out) and `forward` the diagnostic warped image and validity mask.
 
@@ -27,7 +28,7 @@ import numpy as np
 
 from .. import reference_view_warp as ref
 
-_KERNELS = ("view_warp_fwd", "view_warp_smooth", "view_warp_bwd_depth", "view_warp_bwd_virt", "view_warp_total")
+_KERNELS = ("view_warp_fwd", "view_warp_edges", "view_warp_smooth", "view_warp_bwd_depth", "view_warp_bwd_virt", "view_warp_total")
 _F, _I = np.float32, np.int32
 
 
@@ -62,6 +63,7 @@ class ViewWarpCL:
         self.k = {n: cl.Kernel(prg, n) for n in _KERNELS}  # own kernel objects: instances may share prg
         # scalar argument types, set once (pyopencl's typed invoker: every scalar packed in one go)
         self.k["view_warp_fwd"].set_scalar_arg_dtypes([None, None, None, None, _F, _I, _I])
+        self.k["view_warp_edges"].set_scalar_arg_dtypes([None, None, _I, _I])
         self.k["view_warp_smooth"].set_scalar_arg_dtypes([None] * 4 + [_F, _I, _I])
         self.k["view_warp_bwd_depth"].set_scalar_arg_dtypes([None] * 9 + [_F, _F, _F, _I, _I, _I])
         self.k["view_warp_bwd_virt"].set_scalar_arg_dtypes([None] * 4 + [_I, _I])
@@ -72,12 +74,26 @@ class ViewWarpCL:
         self._total = np.empty(3, np.float32)
 
     # {{{ device-resident form
+    def edges(self, gt_buf, h: int, w: int, out=None, wait_for=None):
+        """The smoothness term's image-edge weights of the training image gt_buf ([H, W, 3]) into `out`
+        ([H, W, 2] float32; default: this instance's scratch, valid until the next call): a function of the
+        image alone, so a caller whose training images stay put makes them once per image and passes
+        them to `enqueue`. Returns the buffer."""
+        h, w = int(h), int(w)
+        if out is None:
+            out = self.mem.get("pixel", "vw_edges", h * w, 2 * 4)
+        ev = self.k["view_warp_edges"](self.handle.queue, (_pad(w, self.lwg), h), (self.lwg, 1), gt_buf, out, _I(w),
+                                       _I(h), wait_for=wait_for)
+        self.events = [("view_warp_edges", ev)]
+        return out
+
     def enqueue(self, virt_buf, depth_buf, gt_buf, v_virt_buf, v_depth_buf, h: int, w: int, fx: float,
                 baseline: float, weight: float = 1.0, smooth_weight: float = ref.SMOOTH_WEIGHT,
-                accumulate_depth: bool = False, wait_for=None):
+                accumulate_depth: bool = False, wait_for=None, edges=None):
         """Gradients of weight * (L1 + smooth_weight * smoothness) into v_virt_buf ([H, W, 3],
         overwritten) and v_depth_buf ([H, W]; overwritten, or added to with accumulate_depth).
-        Buffers are float32 of this device's context. Returns the last kernel's event."""
+        Buffers are float32 of this device's context. `edges`: `self.edges(gt_buf, ...)` made earlier
+        (default: made here, one launch more). Returns the last kernel's event."""
         h, w, gl, gs, nfb = self._scalars(h, w, fx, baseline, weight, smooth_weight)
         rec_tap = self.mem.get("pixel", "vw_rec_tap", h * w, 4)
         rec_g = self.mem.get("pixel", "vw_rec_g", h * w, 6 * 4)
@@ -87,8 +103,11 @@ class ViewWarpCL:
         evs = []
         sxy = rec_g  # a dummy (never read) when there is no smoothness term
         if gs != 0:
+            if edges is None:
+                edges = self.edges(gt_buf, h, w, wait_for=wait_for)
+                evs, wait_for = list(self.events), None
             sxy = self.mem.get("pixel", "vw_sxy", h * w, 2 * 4)
-            ev = self.k["view_warp_smooth"](q, (self.wg, h), (self.wg, 1), depth_buf, gt_buf, sxy, row_f, nfb,
+            ev = self.k["view_warp_smooth"](q, (self.wg, h), (self.wg, 1), depth_buf, edges, sxy, row_f, nfb,
                                             _I(w), _I(h), wait_for=wait_for)
             evs.append(("view_warp_smooth", ev))
             wait_for = None
