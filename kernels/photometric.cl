@@ -39,17 +39,26 @@
 #define SSIM_C2 (0.03f * 0.03f)
 
 #if REINGS_CPU_SCHEDULE
-/* ---- CPU schedule: one work-item per row, 8 elements of it at a time ----------------------- */
+/* ---- CPU schedule: one work-item per row, SSIM_VW (8 or 16) elements of it at a time -------- */
 
+#ifndef SSIM_VW
+#define SSIM_VW 8 /* the host passes 16 where the native float vector is 16 wide (losses.PhotometricCL) */
+#endif
+#if SSIM_VW == 16
+typedef float16 vf;
+#elif SSIM_VW == 8
 typedef float8 vf;
-#define VW 8
+#else
+#error "SSIM_VW must be 8 or 16"
+#endif
+#define VW SSIM_VW
 #ifndef SSIM_ROWS
 #error "the CPU schedule needs SSIM_ROWS (rows per work-item; the host's global size depends on it)"
 #endif
 
 /* The W pass at element o of a row of n = 3W floats: the sum of w_k a[o + 3k] over the valid
  * k (0 <= o + 3k < n), in the order k = -5..5 (TAPS_CHECKED), or over all 11 (TAPS_ALL: the
- * interior, 15 <= o < n - 15); T is float or vf (then o starts 8 elements: LD loads them). */
+ * interior, 15 <= o < n - 15); T is float or vf (then o starts VW elements: LD loads them). */
 #define TAPS_CHECKED(...)                                                                          \
     for (int k = -SSIM_R; k <= SSIM_R; ++k) {                                                      \
         const int q = o + 3 * k;                                                                   \
@@ -64,13 +73,13 @@ typedef float8 vf;
         __VA_ARGS__                                                                                \
     }
 #define LD1(p, i) ((p)[i])
-/* 8 floats at any 4-byte alignment as plain loads and stores (PoCL makes vload8 / vstore8 calls) */
-typedef float8 __attribute__((aligned(4))) vf_u;
-#define LD8(p, i) (*(__global const vf_u *)((p) + (i)))
+/* VW floats at any 4-byte alignment as plain loads and stores (PoCL makes vload8 / vstore8 calls) */
+typedef vf __attribute__((aligned(4))) vf_u;
+#define LDV(p, i) (*(__global const vf_u *)((p) + (i)))
 #define ST1(v, p, i) ((p)[i] = (v))
-#define ST8(v, p, i) (*(__global vf_u *)((p) + (i)) = (v))
+#define STV(v, p, i) (*(__global vf_u *)((p) + (i)) = (v))
 
-/* one element (T float, LD/ST 1) or eight (T vf, LD/ST 8) of each pass */
+/* one element (T float, LD/ST 1) or VW (T vf, LD/ST V) of each pass */
 #define HFWD(T, LD, ST, TAPS)                                                                      \
     {                                                                                              \
         T sx = 0.0f, sy = 0.0f, sxx = 0.0f, syy = 0.0f, sxy = 0.0f;                                \
@@ -120,19 +129,19 @@ typedef float8 __attribute__((aligned(4))) vf_u;
     }
 /* the rows j of this work-item's block */
 #define FOR_ROWS(j) for (int j = (int)get_global_id(0) * SSIM_ROWS; j < min((int)(get_global_id(0) + 1) * SSIM_ROWS, H); ++j)
-/* the W pass over a row's elements o: the border (tap tests), the interior 8 at a time, its remainder, the border */
+/* the W pass over a row's elements o: the border (tap tests), the interior VW at a time, its remainder, the border */
 #define W_PASS(ELEM)                                                                               \
     {                                                                                              \
         const int e = min(3 * SSIM_R, n);                                                          \
         int o = 0;                                                                                 \
         for (; o < e; ++o) ELEM(float, LD1, ST1, TAPS_CHECKED)                                     \
-        for (; o + VW <= n - 3 * SSIM_R; o += VW) ELEM(vf, LD8, ST8, TAPS_ALL)                     \
+        for (; o + VW <= n - 3 * SSIM_R; o += VW) ELEM(vf, LDV, STV, TAPS_ALL)                     \
         for (; o < n - 3 * SSIM_R; ++o) ELEM(float, LD1, ST1, TAPS_ALL)                            \
         for (; o < n; ++o) ELEM(float, LD1, ST1, TAPS_CHECKED)                                     \
     }
 /* torch's sign of a - b: 0 at ties */
 #define SIGN1(a, b) (((a) > (b)) ? 1.0f : (((a) < (b)) ? -1.0f : 0.0f))
-#define SIGN8(a, b) (((a) > (b)) ? (vf)(1.0f) : (((a) < (b)) ? (vf)(-1.0f) : (vf)(0.0f))) /* no select: a call in PoCL */
+#define SIGNV(a, b) (((a) > (b)) ? (vf)(1.0f) : (((a) < (b)) ? (vf)(-1.0f) : (vf)(0.0f))) /* no select: a call in PoCL */
 
 __kernel void ssim_hpass_fwd(__global const float *x, __global const float *y, __constant float *taps,
                              __global float *h5, const int W, const int H)
@@ -153,7 +162,7 @@ __kernel void ssim_vpass_fwd(__global const float *h5, __constant float *taps, _
         const int k_lo = max(-SSIM_R, -j), k_hi = min(SSIM_R, H - 1 - j); /* the valid rows of j-5..j+5 */
         int o = 0;
         if (k_lo == -SSIM_R && k_hi == SSIM_R)
-            for (; o + VW <= n; o += VW) VFWD(vf, LD8, ST8, -SSIM_R, SSIM_R)
+            for (; o + VW <= n; o += VW) VFWD(vf, LDV, STV, -SSIM_R, SSIM_R)
         for (; o < n; ++o) VFWD(float, LD1, ST1, k_lo, k_hi)
     }
 }
@@ -178,7 +187,7 @@ __kernel void ssim_vpass_bwd(__global const float *h3, __global const float *x, 
         const int k_lo = max(-SSIM_R, -j), k_hi = min(SSIM_R, H - 1 - j);
         int o = 0;
         if (k_lo == -SSIM_R && k_hi == SSIM_R)
-            for (; o + VW <= n; o += VW) VBWD(vf, LD8, ST8, -SSIM_R, SSIM_R, SIGN8)
+            for (; o + VW <= n; o += VW) VBWD(vf, LDV, STV, -SSIM_R, SSIM_R, SIGNV)
         for (; o < n; ++o) VBWD(float, LD1, ST1, k_lo, k_hi, SIGN1)
     }
 }

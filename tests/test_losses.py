@@ -215,8 +215,8 @@ def test_photometric_kernel_matches_reference(device, shape, form, rng):
 
 @pytest.mark.parametrize("shape", [(1, 1), (3, 40), (40, 3), (12, 9), (11, 12), (37, 70), (50, 33)])
 def test_photometric_schedules_keep_the_bits(device, shape, rng):
-    """photometric.cl's CPU schedule (a work-item per SSIM_ROWS image rows, 8 elements at a time, the
-    interior without bounds checks; shapes with only borders, a partial last block of rows, vector
+    """photometric.cl's CPU schedule (a work-item per SSIM_ROWS image rows, 8 or 16 elements at a time (SSIM_VW),
+    the interior without bounds checks; shapes with only borders, a partial last block of rows, vector
     remainders) and the GPU schedule's fused kernels (16 x 16 tiles: partial tiles, images smaller than the
     window) give the per-pixel schedule's gradient byte for byte and its loss; all match the float64
     reference. Either schedule is chosen per device (CPUs: rows), so every form is tested on every device."""
@@ -231,11 +231,13 @@ def test_photometric_schedules_keep_the_bits(device, shape, rng):
     if h > SSIM_ROWS:
         assert h % SSIM_ROWS, "a partial last block of rows"
     out = {cpu: PhotometricCL(device, cpu_schedule=cpu, fused=False)(x, y, 0.8, 0.2) for cpu in (False, True)}
+    for vw in (8, 16):
+        out[f"cpu{vw}"] = PhotometricCL(device, cpu_schedule=True, fused=False, vw=vw)(x, y, 0.8, 0.2)
     fused = PhotometricCL(device, cpu_schedule=False, fused=True)
     assert fused.fused and not PhotometricCL(device, cpu_schedule=True, fused=True).fused
     out["fused"] = fused(x, y, 0.8, 0.2)
     assert out[True][1].dtype == np.float32
-    for other in (False, "fused"):  # the fused GPU kernels (a tile's W-pass values in local memory) too
+    for other in (False, "fused", "cpu8", "cpu16"):  # the fused GPU kernels (a tile's W-pass values in local memory) too
         assert np.array_equal(out[True][1].view(np.uint32), out[other][1].view(np.uint32)), other
         assert out[True][0] == out[other][0]
     lr, vr = R.weighted_photometric_fwd_bwd(x.astype(np.float64), y.astype(np.float64), 0.8, 0.2)

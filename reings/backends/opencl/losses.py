@@ -50,15 +50,19 @@ class PhotometricCL:
     both). `fused` (GPU schedule; None: $REINGS_SSIM_FUSED, else on): each ssim_hpass_* (along W) and its
     ssim_vpass_* (along H) in one launch through a tile in local memory (ssim_fwd_tile, ssim_bwd_tile: the
     same bits, two launches instead of four; docs/perf_notes.md §21), where the device takes the tile's
-    work-group and local memory (else the four passes)."""
+    work-group and local memory (else the four passes). `vw`: the CPU schedule's elements per vector (8 or 16;
+    default 16 where the device's native float vector is 16 wide, else 8; the same bits)."""
 
-    def __init__(self, device, cpu_schedule: bool | None = None, fused: bool | None = None):
+    def __init__(self, device, cpu_schedule: bool | None = None, fused: bool | None = None, vw: int | None = None):
         import pyopencl as cl
 
         self.cl = cl
         self.handle = _handle(device)
         lib = library_for(self.handle)
-        d = {"SSIM_ROWS": SSIM_ROWS}
+        from .rasterize import native_lanes
+
+        # the CPU schedule's elements per vector: 16 on AVX-512 (the same sums, the same bits; docs/perf_notes.md §32)
+        d = {"SSIM_ROWS": SSIM_ROWS, "SSIM_VW": int(vw) if vw else native_lanes(self.handle.device)}
         if cpu_schedule is not None:
             d["REINGS_CPU_SCHEDULE"] = int(bool(cpu_schedule))
         self.cpu_schedule = bool(d.get("REINGS_CPU_SCHEDULE", lib.base_defines["REINGS_CPU_SCHEDULE"]))
