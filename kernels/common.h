@@ -64,7 +64,9 @@ inline uint launch_count(const uint n, __global const uint *counts, const int co
  * o < 1/255 or not finite; no box, 1e7 wide, where the conic is not positive definite) and the power
  * cut ALPHA_CUT_LN (0 with an empty box), 16 floats (the last 0).
  * rasterize.cl's rasterize_prep (an uploaded projection) and project.cl's project_fwd (a forward on
- * the device, which writes the record itself: one launch fewer) both call this. */
+ * the device, which writes the record itself: one launch fewer) both call this; project.cl's
+ * raster_prep_lanes (PROJ_BLOCK_IO) is the same operations on 16 lanes: change both together
+ * (tests/test_project.py::test_project_block_io_keeps_the_bits compares them byte for byte). */
 static inline void raster_prep_one(const int g, __global const float *means2d, __global const float *conics,
                                    __global const float *colors, __global const float *opacities,
                                    __global const float *depths, __global float *packed) {

@@ -43,6 +43,9 @@
                    runs on float8 / float16 lanes (through PoCL's vector builtins, ~8x the scalar code,
                    which PoCL 3.0 does not vectorize across work-items); 1 on GPUs. The code is
                    written once over the lane types vf / vi; culling is a lane mask, never a branch.
+     PROJ_BLOCK_IO 1: a 16-lane work-item's rows loaded and stored as blocks and its records written
+                   on the lanes (below, "PROJ_BLOCK_IO"); default 1 where PROJ_VW is 16 and clang's
+                   __builtin_shufflevector exists (PoCL's CPU builds), else 0. The same bytes.
 
    Culling (radii 0, zero row; matches the reference): dropped by the DropGaussian mask (then no
    tile intersections, zero gradients, no densification statistics, as any culled Gaussian); any
@@ -295,8 +298,10 @@ typedef uint vu;
    and rows of a run-time stride (the SH coefficients, the [N, 10] cotangents) loaded as 16 row
    vectors and transposed. The per-lane code gathered one float per lane (an index extraction, a
    load and an insert per float). The same floats move either way, so every output keeps its bits;
-   a work-item takes the blocks only when it is full and another row follows it (`blk`: a row
-   vector reads at most one row past its own), else the per-lane code.
+   a work-item takes the blocks only when it is full and another row follows it (`blk`, BLOCKS: a row
+   vector reads at most one row past its own), else the per-lane code: only the last work-item does.
+   A row vector of rows_in reads 16 floats from column offset + 16 b, so "one row past" needs a stride of at least
+   15 or 2 stride >= offset + 16 (every call below: strides 10, 3 SH_K >= 12 and 45; stride 3 deinterleaves).
    --------------------------------------------------------------------------------------------- */
 #ifndef PROJ_BLOCK_IO /* default: on where it can be */
 #if PROJ_VW == 16 && REINGS_CLANG_BUILTINS && defined(__has_builtin)
@@ -312,6 +317,7 @@ typedef uint vu;
 #if PROJ_VW != 16
 #error "PROJ_BLOCK_IO needs PROJ_VW 16"
 #endif
+#define BLOCKS(n) (g0 + PROJ_VW < (n)) /* the work-item's lanes as blocks: full, and a row after them */
 #define L16_(F, S, k) F(S, k, 0), F(S, k, 1), F(S, k, 2), F(S, k, 3), F(S, k, 4), F(S, k, 5), F(S, k, 6), \
     F(S, k, 7), F(S, k, 8), F(S, k, 9), F(S, k, 10), F(S, k, 11), F(S, k, 12), F(S, k, 13), F(S, k, 14), F(S, k, 15)
 #define SHUF_(a, b, F, S, k) __builtin_shufflevector(a, b, L16_(F, S, k))
@@ -340,8 +346,18 @@ typedef uint vu;
 #define INTERLEAVE_K(S, k, c) IL_K_(S, k, c)
 /* the 16 rows of an [N, S] field (S in 1..4) from its components vals[0..S-1] (T: vf or vi): o[S l + j] =
    lane l of vals[j], or o[...] + that (acc) */
-#define BLOCK_OUT_K_(T, S, k, c, o, acc)                                                            if ((k) < (S)) {                                                                                    const T y_ = INTERLEAVE_K(S, k, c);                                                             vstore16((acc) ? vload16(k, o) + y_ : y_, k, o);                                            }
-#define BLOCK_OUT(T, S, vals, o, acc)                                                               do {                                                                                                const T c_[4] = {(vals)[0], (vals)[(S) > 1 ? 1 : 0], (vals)[(S) > 2 ? 2 : 0], (vals)[(S) > 3 ? 3 : 0]};         BLOCK_OUT_K_(T, S, 0, c_, o, acc) BLOCK_OUT_K_(T, S, 1, c_, o, acc)                             BLOCK_OUT_K_(T, S, 2, c_, o, acc) BLOCK_OUT_K_(T, S, 3, c_, o, acc)                         } while (0)
+#define BLOCK_OUT_K_(T, S, k, c, o, acc)                                                        \
+    if ((k) < (S)) {                                                                            \
+        const T y_ = INTERLEAVE_K(S, k, c);                                                     \
+        vstore16((acc) ? vload16(k, o) + y_ : y_, k, o);                                        \
+    }
+#define BLOCK_OUT(T, S, vals, o, acc)                                                           \
+    do {                                                                                        \
+        const T blk_c_[4] = {(vals)[0], (vals)[(S) > 1 ? 1 : 0], (vals)[(S) > 2 ? 2 : 0],       \
+                             (vals)[(S) > 3 ? 3 : 0]};                                          \
+        BLOCK_OUT_K_(T, S, 0, blk_c_, o, acc) BLOCK_OUT_K_(T, S, 1, blk_c_, o, acc)             \
+        BLOCK_OUT_K_(T, S, 2, blk_c_, o, acc) BLOCK_OUT_K_(T, S, 3, blk_c_, o, acc)             \
+    } while (0)
 
 /* 16 x 16 transpose in place: m[r] lane c <- m[c] lane r (four butterfly stages; stage s swaps bit s
    of the row and the lane index) */
@@ -427,6 +443,7 @@ PROJ_INLINE void rows_out(const vf *in, const int cols, __global float *p, const
         SH_ROWS(out, z_);                                                                       \
     } while (0)
 #else
+#define SH_ROWS(out, vals) for (int c_ = 0; c_ < SH_K * 3; ++c_) SH_OUT(out, c_, (vals)[c_])
 #define SH_ROWS_ZERO(out) for (int c_ = 0; c_ < SH_K * 3; ++c_) SH_OUT(out, c_, (vf)0.0f)
 #define OUT_ROWS(T, SCAT, out, S, vals) for (int j_ = 0; j_ < (S); ++j_) SCAT(out, S, j_, (vals)[j_])
 #define GRAD_ROWS(out, S, vals, bit) for (int j_ = 0; j_ < (S); ++j_) GRAD_F(out, S, j_, (vals)[j_], bit)
@@ -818,7 +835,7 @@ __kernel PROJ_ATTR void project_fwd(const int n,
        per forward, and Oclgrind treats filled memory as uninitialised) */
     if (g0 == 0) ctrl[2] = 0u;
 #if PROJ_BLOCK_IO
-    const int blk = g0 + PROJ_VW < n; /* full, and a row after it */
+    const int blk = BLOCKS(n);
     raw_t raw_;
     const raw_t *raw = &raw_;
     load_raw(&raw_, blk, g0, gid, means, quats, log_scales, opacity_logits, sh_src);
@@ -895,7 +912,7 @@ PROJ_INLINE void project_bwd_one(const int n,
                           const int grad_mask,
                           const int grad_acc,                   /* 1: add into the outputs (GRAD_F) */
                           __global const int *radii,            /* [N] from project_fwd */
-                          __global const float *v_proj,         /* [N, V_PROJ] (rows of culled gids unread) */
+                          __global const float *v_proj,         /* [N, V_PROJ] (rows of culled gids: values unused) */
                           __global float *v_means,              /* [N, 3] */
                           __global float *v_quats,              /* [N, 4] */
                           __global float *v_log_scales,         /* [N, 3] */
@@ -904,7 +921,7 @@ PROJ_INLINE void project_bwd_one(const int n,
     LANES(n);
     const vf zero = 0.0f;
 #if PROJ_BLOCK_IO
-    const int blk = g0 + PROJ_VW < n; /* full, and a row after it */
+    const int blk = BLOCKS(n);
     vi vis = ((blk ? vload16(0, radii + g0) : GATHER_I(radii, gid)) > 0) & lane_ok;
 #else
     vi vis = (GATHER_I(radii, gid) > 0) & lane_ok;
@@ -930,33 +947,30 @@ PROJ_INLINE void project_bwd_one(const int n,
        neighbours' cotangents overflow) are scaled by an exact power of two, the chain runs on the
        scaled values and the results are scaled back: they may overflow to +-inf, never to
        inf - inf = NaN. +-inf cotangents saturate at +-FLT_MAX first. NaN stays NaN. The rows of
-       culled lanes are never read (isect_reduce does not write them): such lanes use 0. */
+       culled lanes hold no cotangents (isect_reduce does not write them): such lanes use 0 (the per-lane
+       code does not read them; the blocks read them, in bounds, and select 0). */
     const vi vgid = SEL(gid, (vi)(-1), !vis);  /* -1 marks a lane whose row must not be read */
     vf vin[V_PROJ], vmax = 0.0f;
 #if PROJ_BLOCK_IO
     if (blk) rows_in(v_proj + (size_t)g0 * V_PROJ, V_PROJ, V_PROJ, vin);
+#else
+    const int blk = 0;
 #endif
     for (int i = 0; i < V_PROJ; ++i) {
-#if PROJ_BLOCK_IO
         vf x;
         if (blk) {
             x = SEL(zero, vin[i], vis);
         } else {
+#if PROJ_VW > 1
             float tmp[PROJ_VW];
             int idx[PROJ_VW];
             STORE_I(vgid, idx);
             for (int l = 0; l < PROJ_VW; ++l) tmp[l] = idx[l] >= 0 ? v_proj[(size_t)idx[l] * V_PROJ + i] : 0.0f;
             x = VFROM(tmp);
-        }
-#elif PROJ_VW > 1
-        float tmp[PROJ_VW];
-        int idx[PROJ_VW];
-        STORE_I(vgid, idx);
-        for (int l = 0; l < PROJ_VW; ++l) tmp[l] = idx[l] >= 0 ? v_proj[(size_t)idx[l] * V_PROJ + i] : 0.0f;
-        vf x = VFROM(tmp);
 #else
-        vf x = vgid >= 0 ? v_proj[(size_t)vgid * V_PROJ + i] : 0.0f;
+            x = vgid >= 0 ? v_proj[(size_t)vgid * V_PROJ + i] : 0.0f;
 #endif
+        }
         /* +-inf -> +-FLT_MAX (copysign(FLT_MAX, x) where isinf(x)); vmax = fmax(vmax, |x|) (|x| NaN: vmax) */
         x = SEL(x, AS_F((AS_U(x) & 0x80000000u) | 0x7f7fffffu), (AS_U(x) & 0x7fffffffu) == 0x7f800000u);
         const vf ax = FABS(x);
@@ -995,17 +1009,12 @@ PROJ_INLINE void project_bwd_one(const int n,
     vf bas[SH_K];
     sh_basis(p.dir[0], p.dir[1], p.dir[2], bas);
     const vi keep_sh = vis & (vi)((grad_mask & 16) ? -1 : 0);
-#if PROJ_BLOCK_IO
     {
         vf vsh[SH_K * 3];
         for (int k = 0; k < SH_K; ++k)
             for (int ch = 0; ch < 3; ++ch) vsh[3 * k + ch] = SEL(zero, bas[k] * vc[ch] * vscale, keep_sh);
         SH_ROWS(v_sh, vsh);
     }
-#else
-    for (int k = 0; k < SH_K; ++k)
-        for (int ch = 0; ch < 3; ++ch) SH_OUT(v_sh, 3 * k + ch, SEL(zero, bas[k] * vc[ch] * vscale, keep_sh));
-#endif
 
     vf vmu[3] = {0.0f, 0.0f, 0.0f};
 #if SH_K > 1
@@ -1141,7 +1150,7 @@ __kernel PROJ_ATTR void project_bwd(const int n,
                           const int grad_mask,
                           const int grad_acc,                   /* 1: add into the outputs (GRAD_F) */
                           __global const int *radii,            /* [N] from project_fwd */
-                          __global const float *v_proj,         /* [N, V_PROJ] (rows of culled gids unread) */
+                          __global const float *v_proj,         /* [N, V_PROJ] (rows of culled gids: values unused) */
                           __global float *v_means,              /* [N, 3] */
                           __global float *v_quats,              /* [N, 4] */
                           __global float *v_log_scales,         /* [N, 3] */

@@ -279,8 +279,15 @@ def _block_io_outputs(be, g, cam, layout, drop):
                    sh_rest=be._upload("gauss", "in_sh_rest", rest), sh_rest_stride=45)
     fr.bufs["in"] = inp
     for override, dr in ((None, drop), (0.99, None)):
-        be._project_device(fr, inp, cam, 0.01, override, dr)
+        # every output poisoned first: the two builds share these scratch buffers, so an output one build failed to
+        # write would otherwise still hold the other build's bytes
         b = fr.bufs
+        b.update(be._proj_buffers(be._slot(fr.slot), n))
+        for name, _ in _PROJ_BUFFERS:
+            cl.enqueue_fill_buffer(be.queue, b[name], np.uint8(0xFF), 0, b[name].size)
+        packed = be._raster(fr).packed_for(n)
+        cl.enqueue_fill_buffer(be.queue, packed, np.uint8(0xFF), 0, packed.size)
+        be._project_device(fr, inp, cam, 0.01, override, dr)
         out += [be._read(b[name], (n * row // 4,), np.uint32) for name, row in _PROJ_BUFFERS]
         out.append(be._read(be._raster(fr).packed_for(n), (n * 16,), np.uint32))
         vp = np.random.default_rng(n).normal(size=(n, 10)).astype(np.float32)
@@ -299,32 +306,37 @@ def _block_io_outputs(be, g, cam, layout, drop):
     return out
 
 
+@pytest.mark.parametrize("n", [300, 304])
 @pytest.mark.parametrize("deg", [0, 1, 2, 3])
 @pytest.mark.parametrize("layout", ["packed", "in_place"])
-def test_project_block_io_keeps_the_bits(device, layout, deg):
+def test_project_block_io_keeps_the_bits(device, layout, deg, n):
     """PROJ_BLOCK_IO (a 16-lane work-item's rows moved as blocks: deinterleaving shuffles, 16 x 16 transposes;
     docs/perf_notes.md §32) gives the per-lane gathers' and scatters' bytes: every forward output (the sort keys
     and the rasterizer's records too; a DropGaussian mask; the hard pass's opacity override), the backward of
     every field and of a field mask, and the accumulate mode into poisoned start values, with non-finite and huge
-    cotangents; 300 Gaussians (work-items of blocks, the per-lane last two), every 7th behind the camera, both
-    SH layouts (the packed [N,k,3] rows and the device trainer's sh_dc / sh_rest at stride 45), each SH degree."""
+    cotangents; 300 Gaussians (a partial last work-item) and 304 (a full last work-item, which no row follows: the
+    per-lane code), every 7th behind the camera and two whole work-items of blocks (rows 32-63: the backward's
+    all-culled return), both SH layouts (the packed [N,k,3] rows and the device trainer's sh_dc / sh_rest at stride 45),
+    each SH degree; at 16 lanes on every CPU device (the blocks need no AVX-512)."""
     from reings.backends.reference_drop import Drop
 
     be = get_backend(device)
-    if not be.cpu or be.proj_vw != 16:
-        pytest.skip("PROJ_BLOCK_IO is the 16-lane CPU schedule (AVX-512 PoCL)")
-    g, cam = random_scene(300, 64, 48, seed=deg, sh_degree=deg, scale_median=0.1)
+    if not be.cpu:
+        pytest.skip("PROJ_BLOCK_IO is the CPU schedule's (16 lanes)")
+    g, cam = random_scene(n, 64, 48, seed=deg, sh_degree=deg, scale_median=0.1)
     means = g.means.copy()
     means[::7, 2] = -5.0
+    means[32:64, 2] = -5.0
     g = replace(g, means=means)
-    old = be.proj_block
+    old = be.proj_block, be.proj_vw
     res = {}
     try:
+        be.proj_vw = 16
         for blk in (False, True):
             be.proj_block = blk
             res[blk] = _block_io_outputs(be, g, cam, layout, Drop.at_rate(0.25, key=3))
     finally:
-        be.proj_block = old
+        be.proj_block, be.proj_vw = old
     radii = res[False][3]
     assert (radii == 0).any() and (radii > 0).any()
     for i, (a, b) in enumerate(zip(res[False], res[True])):
@@ -535,7 +547,8 @@ def test_project_bwd_accumulate(device, vw, grad_fields):
 @pytest.mark.parametrize("lanes", ["scalar", "float8", "float16-blocks"])
 def test_project_oclgrind(lanes):
     """The lane widths under Oclgrind, 16 lanes with PROJ_BLOCK_IO forced (its block loads and stores, the
-    row vectors' reads past a row: 21 Gaussians, one work-item of blocks and one per lane). Oclgrind 21.10's
+    row vectors' reads past a row: 21 Gaussians, one work-item of blocks and one per lane; 32, a full last work-item
+    that no row follows, per lane). Oclgrind 21.10's
     uninitialised-value plugin segfaults on the vector builds' `select` instructions (written as vector
     conditionals since PoCL makes select() a call, docs/perf_notes.md §17: a simulator crash, not a report),
     so they run without that one check, as the rasterizer's CPU schedule does (tests/test_rasterize.py)."""
@@ -552,8 +565,8 @@ def test_project_oclgrind(lanes):
         for vw, stage in WIDTHS:  # GPU (scalar; SH rows staged or not), CPU (float8)
             be.proj_vw, be.proj_stage = vw, stage
             be.proj_block = True if vw == 16 else None  # Oclgrind's build has no REINGS_CLANG_BUILTINS: forced
-            for deg in (0, 3):
-                g, cam = random_scene(21, 40, 24, seed=deg, sh_degree=deg, scale_median=0.1)
+            for deg, ng in [(d, m) for d in (0, 3) for m in SIZES]:
+                g, cam = random_scene(ng, 40, 24, seed=deg, sh_degree=deg, scale_median=0.1)
                 check_project_fwd("oclgrind", g, cam, name=f"oclgrind vw{vw} sh{deg}")
                 check_project_bwd("oclgrind", g, cam, opacity_override=0.99 if deg else None,
                                   name=f"oclgrind vw{vw} sh{deg}")
@@ -564,7 +577,7 @@ def test_project_oclgrind(lanes):
                 check_packed_records("oclgrind", g, cam, name=f"oclgrind vw{vw} sh{deg} records")
             c = case("quat_tiny")
             check_project_fwd("oclgrind", c.gaussians, c.camera, name="quat_tiny")
-    """.replace("WIDTHS", widths), extra_env={"OCLGRIND_UNINITIALIZED": "0"} if lanes != "scalar" else None)
+    """.replace("WIDTHS", widths).replace("SIZES", "(21, 32)" if lanes == "float16-blocks" else "(21,)"), extra_env={"OCLGRIND_UNINITIALIZED": "0"} if lanes != "scalar" else None)
 
 
 def test_project_stage_switch(device, monkeypatch):

@@ -940,6 +940,8 @@ class OpenCLBackend:
         PROJ_BLOCK_IO only where `proj_block` forces it (the kernel's default: on at 16 lanes with clang)."""
         d = dict(SH_K=sh_k, PROJ_VW=self.proj_vw, DENSIFY_FP64=int(self.fp64))
         if self.proj_block is not None:
+            if self.proj_block and self.proj_vw != 16:
+                raise ValueError(f"project.cl's PROJ_BLOCK_IO needs 16 lanes (proj_vw), got {self.proj_vw}")
             d["PROJ_BLOCK_IO"] = int(self.proj_block)
         if self.proj_stage and self.proj_vw == 1 and sh_k > 1 and self.proj_wg * ((3 * sh_k) | 1) * 4 <= self.local_mem:
             d.update(PROJ_SH_STAGE=1, PROJ_WG=self.proj_wg)

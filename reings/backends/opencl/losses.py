@@ -62,7 +62,10 @@ class PhotometricCL:
         from .rasterize import native_lanes
 
         # the CPU schedule's elements per vector: 16 on AVX-512 (the same sums, the same bits; docs/perf_notes.md §32)
-        d = {"SSIM_ROWS": SSIM_ROWS, "SSIM_VW": int(vw) if vw else native_lanes(self.handle.device)}
+        vw = native_lanes(self.handle.device) if vw is None else int(vw)
+        if vw not in (8, 16):
+            raise ValueError(f"PhotometricCL: vw must be 8 or 16, got {vw}")
+        d = {"SSIM_ROWS": SSIM_ROWS, "SSIM_VW": vw}
         if cpu_schedule is not None:
             d["REINGS_CPU_SCHEDULE"] = int(bool(cpu_schedule))
         self.cpu_schedule = bool(d.get("REINGS_CPU_SCHEDULE", lib.base_defines["REINGS_CPU_SCHEDULE"]))

@@ -904,11 +904,16 @@ class DeviceTrainer:
         npx = fr.width * fr.height
         v_virt = self.mem.get("pixel", "vw_v_virt", npx, 12)
         v_depth = self.mem.get("pixel", "vw_v_depth", npx, 4)
-        key = (view, fr.height, fr.width)  # the training image's edge weights: made on its first use, kept
-        edges = self._vw_edges.get(key)
-        if edges is None:
-            edges = self._vw_edges[key] = vw.edges(self.gt[view], fr.height, fr.width,
-                                                   out=self.mem.get("pixel", f"vw_edges{view}", npx, 8))
+        edges = None
+        if smooth_weight:  # the training image's edge weights (8 bytes a pixel): made on their first use, kept
+            key = (view, fr.height, fr.width)
+            edges = self._vw_edges.get(key)
+            if edges is None:
+                name = f"vw_edges{view}_{fr.height}x{fr.width}"
+                edges = self._vw_edges[key] = vw.edges(self.gt[view], fr.height, fr.width,
+                                                       out=self.mem.get("pixel", name, npx, 8))
+                if self.profile is not None:
+                    self._events.extend(vw.events)
         vw.enqueue(virt.bufs["out_rgb"], fr.bufs["out_depth"], self.gt[view], v_virt, v_depth, fr.height, fr.width,
                    fr.camera.fx, baseline, weight, smooth_weight, edges=edges)
         if self.profile is not None:
