@@ -325,14 +325,14 @@ typedef uint vu;
 #define DI_A_(S, j, l) ((S) * (l) + (j) < 32 ? (S) * (l) + (j) : -1)
 #define DI_B_(S, j, l) ((S) * (l) + (j) >= 32 ? (S) * (l) + (j) - 32 : -1)
 #define DI_C_(S, j, l) ((S) * (l) + (j) < 32 ? (l) : 16 + (l))
-#define DI_J_(T, S, j, v, out)                                                                  \
+#define DI_J_(S, j, v, out)                                                                     \
     if ((j) < (S)) (out)[j] = SHUF_(SHUF_(v[0], v[1], DI_A_, S, j), SHUF_(v[2], v[3], DI_B_, S, j), DI_C_, S, j)
-/* out[j] (j < S, S in 2..4) = lanes S l + j of the 16 S floats at p (T: float16 / int16, V: vload16) */
-#define DEINTERLEAVE(T, S, p, out)                                                              \
+/* out[j] (j < S, S in 2..4) = lanes S l + j of the 16 S floats at p */
+#define DEINTERLEAVE(S, p, out)                                                                 \
     do {                                                                                        \
-        T v_[4];                                                                                \
+        vf v_[4];                                                                               \
         for (int k_ = 0; k_ < 4; ++k_) v_[k_] = vload16(k_ < (S) ? k_ : (S) - 1, p);          \
-        DI_J_(T, S, 0, v_, out); DI_J_(T, S, 1, v_, out); DI_J_(T, S, 2, v_, out); DI_J_(T, S, 3, v_, out); \
+        DI_J_(S, 0, v_, out); DI_J_(S, 1, v_, out); DI_J_(S, 2, v_, out); DI_J_(S, 3, v_, out); \
     } while (0)
 /* interleave: float f = 16 k + m of the block is lane f / S of component f % S (components c0 c1 | c2 c3) */
 #define IL_J_(S, k, m) ((16 * (k) + (m)) % (S))
@@ -341,9 +341,8 @@ typedef uint vu;
 #define IL_A_(S, k, m) (IL_OK_(S, k, m) && IL_J_(S, k, m) < 2 ? 16 * IL_J_(S, k, m) + IL_L_(S, k, m) : -1)
 #define IL_B_(S, k, m) (IL_OK_(S, k, m) && IL_J_(S, k, m) >= 2 ? 16 * (IL_J_(S, k, m) - 2) + IL_L_(S, k, m) : -1)
 #define IL_C_(S, k, m) (IL_J_(S, k, m) < 2 ? (m) : 16 + (m))
-#define IL_K_(S, k, c) SHUF_(SHUF_(c[0], c[1], IL_A_, S, k), SHUF_(c[2], c[3], IL_B_, S, k), IL_C_, S, k)
 /* block vector k (k < S) of the components c[0..S-1] (c: an array of 4, the unused ones any vector) */
-#define INTERLEAVE_K(S, k, c) IL_K_(S, k, c)
+#define INTERLEAVE_K(S, k, c) SHUF_(SHUF_(c[0], c[1], IL_A_, S, k), SHUF_(c[2], c[3], IL_B_, S, k), IL_C_, S, k)
 /* the 16 rows of an [N, S] field (S in 1..4) from its components vals[0..S-1] (T: vf or vi): o[S l + j] =
    lane l of vals[j], or o[...] + that (acc) */
 #define BLOCK_OUT_K_(T, S, k, c, o, acc)                                                        \
@@ -436,18 +435,17 @@ PROJ_INLINE void rows_out(const vf *in, const int cols, __global float *p, const
         else if (grad_mask & 16) rows_out(vals, SH_K * 3, (out) + (size_t)g0 * (SH_K * 3), SH_K * 3, 1); \
     } while (0)
 #endif
+#else
+#define SH_ROWS(out, vals) for (int c_ = 0; c_ < SH_K * 3; ++c_) SH_OUT(out, c_, (vals)[c_])
+#define OUT_ROWS(T, SCAT, out, S, vals) for (int j_ = 0; j_ < (S); ++j_) SCAT(out, S, j_, (vals)[j_])
+#define GRAD_ROWS(out, S, vals, bit) for (int j_ = 0; j_ < (S); ++j_) GRAD_F(out, S, j_, (vals)[j_], bit)
+#endif
 #define SH_ROWS_ZERO(out)                                                                       \
     do {                                                                                        \
         vf z_[SH_K * 3];                                                                        \
         for (int c_ = 0; c_ < SH_K * 3; ++c_) z_[c_] = 0.0f;                                    \
         SH_ROWS(out, z_);                                                                       \
     } while (0)
-#else
-#define SH_ROWS(out, vals) for (int c_ = 0; c_ < SH_K * 3; ++c_) SH_OUT(out, c_, (vals)[c_])
-#define SH_ROWS_ZERO(out) for (int c_ = 0; c_ < SH_K * 3; ++c_) SH_OUT(out, c_, (vf)0.0f)
-#define OUT_ROWS(T, SCAT, out, S, vals) for (int j_ = 0; j_ < (S); ++j_) SCAT(out, S, j_, (vals)[j_])
-#define GRAD_ROWS(out, S, vals, bit) for (int j_ = 0; j_ < (S); ++j_) GRAD_F(out, S, j_, (vals)[j_], bit)
-#endif
 
 /* |x| <= FLT_MAX is false for NaN and +-Inf */
 #define FABS(x) AS_F(AS_U(x) & 0x7fffffffu) /* fabs(x) */
@@ -498,12 +496,12 @@ PROJ_INLINE void load_raw(raw_t *r, const int blk, const int g0, const vi gid, _
                           __global const float *quats, __global const float *log_scales,
                           __global const float *opacity_logits, const sh_in_t sh) {
     if (blk) {
-        DEINTERLEAVE(vf, 3, means + 3 * (size_t)g0, r->mu);
-        DEINTERLEAVE(vf, 4, quats + 4 * (size_t)g0, r->q);
-        DEINTERLEAVE(vf, 3, log_scales + 3 * (size_t)g0, r->ls);
+        DEINTERLEAVE(3, means + 3 * (size_t)g0, r->mu);
+        DEINTERLEAVE(4, quats + 4 * (size_t)g0, r->q);
+        DEINTERLEAVE(3, log_scales + 3 * (size_t)g0, r->ls);
         r->ol = vload16(0, opacity_logits + g0);
         if (sh.dc_stride == 3) {
-            DEINTERLEAVE(vf, 3, sh.dc + 3 * (size_t)g0, r->sh);
+            DEINTERLEAVE(3, sh.dc + 3 * (size_t)g0, r->sh);
         } else {
             rows_in(sh.dc + (size_t)g0 * sh.dc_stride, sh.dc_stride, 3, r->sh);
         }
