@@ -79,6 +79,14 @@
  *   skip tests, with no branch per vector (the tests' outcomes set bits of a vset; a branch on each was
  *   often mispredicted), then the vectors whose bit is set, in the same order (low_bit, common.h). A vector
  *   skipped either way has no ok lane, so the same bits (docs/perf_notes.md §31); 0 branches per vector.
+ *   RASTER_HITS (RASTER_CUT_MASK, CPU schedule): rasterize_fwd writes each visited pair's set of vectors past its
+ *   tests to hits[i] (0 where the box misses the tile; pairs after the tile stopped are not written and never
+ *   read), and rasterize_bwd with use_hits = 1 walks that set instead of testing the box again: the host passes
+ *   use_hits only for the backward of the last forward with the same bins, size and records
+ *   (reings.backends.opencl.rasterize.Rasterizer.bwd). The set holds every vector the backward's own tests pass
+ *   (a lane before its pixel's last was active at that Gaussian in the forward), and the others have no ok
+ *   lane: the same bits, the tests' walk of the box gone (0.81-0.83 of the backward's time, docs/perf_notes.md
+ *   §33).
  * Schedules (same algorithm, same results up to float rounding of sums):
  *   CPU: one work-item per tile (local size 1), no barriers; the tile's 256 pixels are
  *        RASTER_VEC-wide vectors (blocks of RASTER_BLOCK_H pixel rows) in private arrays; Gaussians
@@ -124,6 +132,12 @@
 #endif
 #ifndef RASTER_CUT_MASK /* CPU schedule: the cut tests of a Gaussian's box first, without branches, then its vectors past them */
 #define RASTER_CUT_MASK 1
+#endif
+#ifndef RASTER_HITS /* CPU schedule: the forward keeps each pair's set of vectors past its cut tests for the backward */
+#define RASTER_HITS RASTER_CUT_MASK
+#endif
+#if RASTER_HITS && !RASTER_CUT_MASK
+#error "RASTER_HITS needs RASTER_CUT_MASK (the sets are its tests' outcomes)"
 #endif
 #ifndef RASTER_PREFETCH /* CPU schedule: prefetch the record this many list positions ahead (0: none) */
 #define RASTER_PREFETCH (REINGS_HAS_PREFETCH ? 4 : 0)
@@ -338,7 +352,7 @@ isect_reduce(ISECT_REDUCE_PARAMS) {
  * every select / any / fmin / min / max was a call, around which every live vector register is spilled
  * (objdump of PoCL's kernel cache; docs/perf_notes.md §17). The CPU schedule writes them with plain
  * operators instead, the same value for every input: SEL(a, b, c) and any8 (common.h) are select and any,
- * VMIN(x, a) is fmin(a, x) (a NaN x gives a), FINITE (above) is isfinite. exp stays a call. */
+ * VMIN(x, a) is fmin(a, x) (a NaN x gives a), FINITE (above) is isfinite. (PoCL inlines exp now: no call.) */
 #define VMIN(x, a) ((x) < (a) ? (x) : (a))
 #define IMIN(a, b) ((a) < (b) ? (a) : (b))
 #define IMAX(a, b) ((a) > (b) ? (a) : (b))
@@ -433,6 +447,8 @@ inline int box_in_tile(float16 g, int x0, int y0, int *r0, int *r1, int *c0, int
  * exact: each pixel gets the same value, and so the same power, at every block shape. */
 #define VEC_DX(g, x) ((vf)((g).s0) - ((vf)((float)(x)) + (VCVT(ILX) + 0.5f)))
 #define VEC_DY(g, y) ((vf)((g).s1) - ((vf)((float)(y)) + (VCVT(ILY) + 0.5f)))
+/* a vector's powers from its offsets (one expression for every caller: the same contraction, the same bits) */
+#define VEC_POWER(g, dx, dy) (-0.5f * ((g).s2 * (dx) * (dx) + (g).s4 * (dy) * (dy)) - (g).s3 * (dx) * (dy))
 
 /* RASTER_CUT_MASK's first walk of Gaussian g's box [r0, r1] x [c0, c1] (block rows / columns, x0 / y0 the tile's
  * origin): each vector c's power into pw[c], and bit c of hit set where PASSES(power, c) (an int, 0 or 1), with no
@@ -443,7 +459,7 @@ inline int box_in_tile(float16 g, int x0, int y0, int *r0, int *r1, int *c0, int
         for (int cc = c0; cc <= c1; ++cc) {                                                   \
             const int c = r * BPR + cc;                                                       \
             const vf dx = VEC_DX(g, x0 + cc * BW);                                            \
-            const vf power = -0.5f * (g.s2 * dx * dx + g.s4 * dy * dy) - g.s3 * dx * dy;      \
+            const vf power = VEC_POWER(g, dx, dy);                                            \
             (pw)[c] = power;                                                                  \
             (hit) |= (vset)(PASSES(power, c)) << c;                                           \
         }                                                                                     \
@@ -460,8 +476,12 @@ __kernel void rasterize_fwd(__global const float16 *packed,      // [N] records 
                             __global float *out_alpha, // [H, W]
                             __global float *out_T,     // [H, W]
                             __global int *out_last,    // [H, W]
-                            __global float *imp_emit)  // [K] (RASTER_IMPORTANCE only)
+                            __global float *imp_emit,  // [K] (RASTER_IMPORTANCE only)
+                            __global uint *hits)       // [K] (RASTER_HITS: each visited pair's vector set)
 {
+#if !RASTER_HITS
+    (void)hits;
+#endif
     /* a 2D range (tx, ty): no div/rem of the tile id (LLVM's `freeze`, which Oclgrind rejects) */
     const int tx = get_global_id(0), ty = get_global_id(1);
     const int tile = ty * tiles_x + tx;
@@ -502,6 +522,9 @@ __kernel void rasterize_fwd(__global const float16 *packed,      // [N] records 
 #endif
             BOX_TESTS(pw, hit, FWD_PASSES);
 #undef FWD_PASSES
+#if RASTER_HITS
+            hits[i] = hit; /* the set the backward of this forward walks */
+#endif
             for (; hit; hit &= hit - 1) {
                 {
                     const int c = VSET_LOW(hit);
@@ -514,7 +537,7 @@ __kernel void rasterize_fwd(__global const float16 *packed,      // [N] records 
                     const int c = r * BPR + cc;
                     const vf T = Tv[c];
                     const vf dx = VEC_DX(g, x0 + cc * BW);
-                    const vf power = -0.5f * (g.s2 * dx * dx + g.s4 * dy * dy) - g.s3 * dx * dy;
+                    const vf power = VEC_POWER(g, dx, dy);
 #if RASTER_ALPHA_CUT
                     /* the power cut (ALPHA_CUT_LN), and the lanes already stopped (T < 0): every lane fails ok below */
                     if (!vany((power >= g.se) & (T > 0.0f))) continue;
@@ -540,6 +563,10 @@ __kernel void rasterize_fwd(__global const float16 *packed,      // [N] records 
                 }
             }
         }
+#if RASTER_HITS
+        else
+            hits[i] = 0; /* the box misses the tile */
+#endif
 #if RASTER_IMPORTANCE
         imp_emit[emit_from_isect[i]] = hsum(imp);
 #endif
@@ -600,8 +627,12 @@ bwd_tile(__global const float16 *packed, __global const int *gid_from_isect, __g
          const int width, const int height, __global const float *out_rgb, __global const float *out_depth,
          __global const float *out_T, __global const int *out_last, __global const float *v_rgb,
          __global const float *v_depth, __global const float *v_alpha, const int v_mask, __global float *v_emit,
-         __global const float *v_depth_o, __global float *v_emit_o,
+         __global const float *v_depth_o, __global float *v_emit_o, __global const uint *hits, const int use_hits,
          const int x0, const int y0, const int start, int *stop_at, const float sv, const float sk) {
+#if !RASTER_HITS
+    (void)hits;
+    (void)use_hits;
+#endif
     /* per pixel: T before the current Gaussian; R = v.(output - blended so far) - v_alpha T_final;
      * last (0 outside the image: never valid); the cotangents (all scaled: v by sv, colours by sk) */
     vf Tv[NVEC], Rv[NVEC], VR[NVEC], VG[NVEC], VB[NVEC], VD[NVEC];
@@ -724,14 +755,26 @@ bwd_tile(__global const float16 *packed, __global const int *gid_from_isect, __g
         vf a_oo = 0.0f; /* v_depth_o's d/d opacity */
 #endif
         int r0, r1, c0, c1;
-        if (box_in_tile(g, x0, y0, &r0, &r1, &c0, &c1)) {
 #if RASTER_CUT_MASK
-            /* as the forward: the box's tests first, without branches (a vector with no lane both before its
-             * pixel's last and above the cut has no ok lane, and with finite inputs would add zeros: an infinite
-             * cotangent or colour could make such a lane's 0 * inf a NaN, which the rescaled pass then redid), then
-             * the vectors past them */
-            vf pw[NVEC];
-            vset hit = 0;
+        /* as the forward: the box's tests first, without branches (a vector with no lane both before its pixel's
+         * last and above the cut has no ok lane, and with finite inputs would add zeros: an infinite cotangent or
+         * colour could make such a lane's 0 * inf a NaN, which the rescaled pass then redid), then the vectors
+         * past them. RASTER_HITS, use_hits: the forward's set of the pair instead of the tests. It holds every
+         * vector the tests would pass (a lane before its pixel's last was not stopped at this Gaussian in the
+         * forward) and more only where no lane is before its last and above the cut: vectors with no ok lane. */
+        vf pw[NVEC];
+        vset hit = 0;
+#if RASTER_HITS
+        if (use_hits) { /* the set's powers first, as the tests' walk keeps them (one loop of each kind: 0.93-0.98 of
+                         * the backward's time against computing each where it is used, docs/perf_notes.md §33) */
+            hit = hits[i];
+            for (vset m = hit; m; m &= m - 1) {
+                const int c = VSET_LOW(m);
+                pw[c] = VEC_POWER(g, VEC_DX(g, x0 + (c % BPR) * BW), VEC_DY(g, y0 + (c / BPR) * BH));
+            }
+        } else
+#endif
+        if (box_in_tile(g, x0, y0, &r0, &r1, &c0, &c1)) {
 #if RASTER_ALPHA_CUT
 #define BWD_PASSES(power, c) vany(((vi)(k) < Lv[c]) & ((power) >= g.se)) /* before the pixel's last, the cut */
 #else
@@ -739,6 +782,8 @@ bwd_tile(__global const float16 *packed, __global const int *gid_from_isect, __g
 #endif
             BOX_TESTS(pw, hit, BWD_PASSES);
 #undef BWD_PASSES
+        }
+        {
             for (; hit; hit &= hit - 1) {
                 {
                     const int c = VSET_LOW(hit);
@@ -747,6 +792,7 @@ bwd_tile(__global const float16 *packed, __global const int *gid_from_isect, __g
                     const vf dx = VEC_DX(g, x0 + (c % BPR) * BW);
                     const vf power = pw[c];
 #else
+        if (box_in_tile(g, x0, y0, &r0, &r1, &c0, &c1)) {
             for (int r = r0; r <= r1; ++r) {
                 const vf dy = VEC_DY(g, y0 + r * BH);
                 for (int cc = c0; cc <= c1; ++cc) {
@@ -754,7 +800,7 @@ bwd_tile(__global const float16 *packed, __global const int *gid_from_isect, __g
                     const vi valid = (vi)(k) < Lv[c];
                     if (!vany(valid)) continue;
                     const vf dx = VEC_DX(g, x0 + cc * BW);
-                    const vf power = -0.5f * (g.s2 * dx * dx + g.s4 * dy * dy) - g.s3 * dx * dy;
+                    const vf power = VEC_POWER(g, dx, dy);
 #if RASTER_ALPHA_CUT
                     if (!vany(power >= g.se)) continue; /* the power cut (ALPHA_CUT_LN): every lane fails ok below */
 #endif
@@ -893,7 +939,9 @@ __kernel void rasterize_bwd(__global const float16 *packed,      // [N] records 
                             const int v_mask,
                             __global float *v_emit,          // [K, V_RECORD]
                             __global const float *v_depth_o, // [H, W] (RASTER_BWD_DEPTH_O)
-                            __global float *v_emit_o)        // [K, V_RECORD] (RASTER_BWD_DEPTH_O)
+                            __global float *v_emit_o,        // [K, V_RECORD] (RASTER_BWD_DEPTH_O)
+                            __global const uint *hits,       // [K] rasterize_fwd's sets (RASTER_HITS)
+                            const int use_hits)              // 1: `hits` are this frame's forward's
 {
     /* a 2D range (tx, ty): no div/rem of the tile id (LLVM's `freeze`, which Oclgrind rejects) */
     const int tx = get_global_id(0), ty = get_global_id(1);
@@ -905,15 +953,16 @@ __kernel void rasterize_bwd(__global const float16 *packed,      // [N] records 
     /* pass 0 unscaled (exact: the common case ends here); pass 1 only if a record overflowed and the
      * bounds call for scaling (otherwise the non-finite record came from non-finite inputs) */
     if (bwd_tile(packed, gid_from_isect, emit_from_isect, width, height, out_rgb, out_depth, out_T, out_last,
-                 v_rgb, v_depth, v_alpha, v_mask, v_emit, v_depth_o, v_emit_o, x0, y0, start, &stop_at, 1.0f,
-                 1.0f)) {
+                 v_rgb, v_depth, v_alpha, v_mask, v_emit, v_depth_o, v_emit_o, hits, use_hits, x0, y0, start, &stop_at,
+                 1.0f, 1.0f)) {
         float mv, mk;
         bwd_tile_bounds(packed, gid_from_isect, width, height, out_rgb, out_depth, v_rgb, v_depth, v_alpha,
                         v_mask, v_depth_o, x0, y0, start, stop_at, &mv, &mk);
         const float sv = pow2_scale_down(mv, 28), sk = pow2_scale_down(mk, 28); /* below 2^29 */
         if (sv != 1.0f || sk != 1.0f)
             bwd_tile(packed, gid_from_isect, emit_from_isect, width, height, out_rgb, out_depth, out_T, out_last,
-                     v_rgb, v_depth, v_alpha, v_mask, v_emit, v_depth_o, v_emit_o, x0, y0, start, &stop_at, sv, sk);
+                     v_rgb, v_depth, v_alpha, v_mask, v_emit, v_depth_o, v_emit_o, hits, use_hits, x0, y0, start,
+                     &stop_at, sv, sk);
     }
     for (int i = stop_at; i < end; ++i) {
         __global float *rec = v_emit + (size_t)emit_from_isect[i] * V_RECORD;
@@ -1029,8 +1078,10 @@ rasterize_fwd(__global const float16 *packed,      // [N] records of raster_prep
               __global float *out_alpha, // [H, W]
               __global float *out_T,     // [H, W]
               __global int *out_last,    // [H, W]
-              __global float *imp_emit)  // [K] (RASTER_IMPORTANCE only)
+              __global float *imp_emit,  // [K] (RASTER_IMPORTANCE only)
+              __global uint *hits)       // CPU schedule only
 {
+    (void)hits;
     __local float16 sh[FWD_BATCH];
     __local int n_done;
 #if RASTER_IMPORTANCE
@@ -1317,8 +1368,12 @@ rasterize_bwd(__global const float16 *packed,      // [N] records of raster_prep
               const int v_mask,
               __global float *v_emit,          // [K, V_RECORD]
               __global const float *v_depth_o, // [H, W] (RASTER_BWD_DEPTH_O)
-              __global float *v_emit_o)        // [K, V_RECORD] (RASTER_BWD_DEPTH_O)
+              __global float *v_emit_o,        // [K, V_RECORD] (RASTER_BWD_DEPTH_O)
+              __global const uint *hits,       // CPU schedule only
+              const int use_hits)
 {
+    (void)hits;
+    (void)use_hits;
     __local float16 sh[BWD_BATCH];
     __local float part[BWD_NPART * BWD_BATCH * BWD_FIELDS];
 #if !REINGS_NV_PTX

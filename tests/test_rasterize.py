@@ -304,11 +304,11 @@ def _cpu_define_keeps_the_bits(device, name, vec, define):
     assert np.abs(out[1].v_emit).max() > 0
 
 
-@pytest.mark.parametrize("define", ["REINGS_CLANG_BUILTINS", "RASTER_ROW_IO", "RASTER_CUT_MASK"])
+@pytest.mark.parametrize("define", ["REINGS_CLANG_BUILTINS", "RASTER_ROW_IO", "RASTER_CUT_MASK", "RASTER_HITS"])
 @pytest.mark.parametrize("vec", [8, 16])
 @pytest.mark.parametrize("name", ["random_large", "saturated", "many_in_one_tile", "needles", "size_70x45", "one"])
 def test_cpu_io_and_builtins_keep_the_bits(device, name, vec, define):
-    """Three CPU-schedule choices that must not change a value, each on (1, the default where it applies) against
+    """Four CPU-schedule choices that must not change a value, each on (1, the default where it applies) against
     off (0), byte for byte: the forward's images, `last` and importance, and the records of the full,
     opacity-only and second-cotangent backwards, at both widths, on scenes with partial blocks at the image's
     edges (size_70x45; random_large at 16 lanes) and whole ones.
@@ -317,7 +317,9 @@ def test_cpu_io_and_builtins_keep_the_bits(device, name, vec, define):
     RASTER_ROW_IO: a pixel block inside the image read (the backward's cotangents and forward outputs) and
     written (the forward's outputs) a row of 4 pixels at a time instead of pixel by pixel.
     RASTER_CUT_MASK: a Gaussian's box walked twice, its vectors' skip tests first (no branch per vector, the
-    outcomes as bits), then the vectors that passed, instead of one branch per vector."""
+    outcomes as bits), then the vectors that passed, instead of one branch per vector.
+    RASTER_HITS: the backward walks each pair's vector set that its forward kept instead of testing the box
+    again (a superset of the vectors its own tests pass, the others without an ok lane)."""
     from reings.backends.opencl.rasterize import rasterizer_for
 
     # the builtins are PoCL's CPU schedule's (quirks.clang_builtins): elsewhere (NVIDIA, whose OpenCL C has
@@ -325,6 +327,63 @@ def test_cpu_io_and_builtins_keep_the_bits(device, name, vec, define):
     if define == "REINGS_CLANG_BUILTINS" and not rasterizer_for(device, True)._lib.base_defines[define]:
         pytest.skip("clang's builtins are taken on PoCL's CPU devices only")
     _cpu_define_keeps_the_bits(device, name, vec, define)
+
+
+@pytest.mark.parametrize("what", ["colour", "all_colours", "cotangent", "inf_cotangent"])
+def test_cpu_forward_sets_keep_the_bits_on_overflow(device, what):
+    """RASTER_HITS on the overflow cases (kernels/rasterize.cl, "Overflow"): the vectors the forward's sets add
+    to the backward's own have no ok lane, and with a colour near FLT_MAX or +-inf cotangents their zero
+    weights must not turn a record NaN (or send its tile to the rescaled pass): the records, the reduced
+    gradients and the second cotangent's records are the bytes of the backward that tests its boxes."""
+    from reings.backends.opencl.rasterize import rasterize_bwd_host
+
+    proj, bins, w, h = _scene("random")
+    proj, vr, vd, va = _overflow_inputs(what, w, h, proj)
+    vo = vd[::-1].copy()
+    out = {c: rasterize_bwd_host(proj, bins, w, h, vr, vd, va, BG, device=device, cpu_schedule=True,
+                                 RASTER_VEC=16, RASTER_HITS=c, v_depth_o=vo) for c in (0, 1)}
+    for f in ("v_emit", "v_emit_o"):
+        assert np.array_equal(getattr(out[1], f).view(np.uint32), getattr(out[0], f).view(np.uint32)), f
+    for f in ("v_means2d", "v_conics", "v_colors", "v_opacities", "v_depths"):
+        assert np.array_equal(getattr(out[1], f).view(np.uint32), getattr(out[0], f).view(np.uint32)), f
+
+
+def test_cpu_backward_takes_only_its_forwards_sets(device):
+    """Rasterizer.bwd walks r.hits only as the backward of the last fwd (its bins, size and records): with
+    the sets zeroed after the forward, such a backward writes zero records (so it does read them), while a
+    backward after a new rasterize_prep, or one given other forward outputs (fwd_out=), tests its boxes and
+    gives the records of a fresh forward and backward."""
+    import pyopencl as cl
+
+    from reings.backends.opencl.rasterize import _run_fwd, rasterizer_for
+
+    proj, bins, w, h = _bits_scene("random_large")
+    vr, _, _ = _cotangents(w, h)
+    r = rasterizer_for(device, True, RASTER_VEC=16)
+    vbuf = r.scratch.get("pixel", "test_v_rgb", w * h * 3, 4)
+    cl.enqueue_copy(r.queue, vbuf, np.ascontiguousarray(vr, np.float32))
+
+    def backward(zero_sets: bool, then=None, **kw):
+        n, k, b, _ = _run_fwd(r, proj, bins, w, h, BG, False)
+        if zero_sets:
+            cl.enqueue_fill_buffer(r.queue, r.hits, np.uint32(0), 0, 4 * k)
+        if then is not None:
+            then(b, n)
+        r.bwd(b["tile_ranges"], b["gid_from_isect"], b["emit_from_isect"], k, w, h, v_rgb=vbuf, **kw)
+        out = np.empty((k, V_RECORD), np.float32)
+        cl.enqueue_copy(r.queue, out, r.v_emit)
+        return out, b
+
+    fresh, _ = backward(False)
+    assert np.abs(fresh).max() > 0
+    zeroed, _ = backward(True)
+    assert not zeroed.any()  # the sets were read: nothing is walked
+    prep = lambda b, n: r.prep(b["means2d"], b["conics"], b["colors"], b["opacities"], b["depths"], n)
+    again, _ = backward(True, prep)
+    assert np.array_equal(again.view(np.uint32), fresh.view(np.uint32))
+    px = r.pixel_buffers()
+    outs, _ = backward(True, None, fwd_out=(px[0], px[1], px[3], px[4], r.packed))
+    assert np.array_equal(outs.view(np.uint32), fresh.view(np.uint32))
 
 
 def test_alpha_cut_is_below_every_kept_pair():

@@ -29,7 +29,9 @@ back without blocking into a row of a pinned ring, resolved when first asked.
 Memory of the bound, bytes per intersection of capacity (`isect_bound_bytes`): per frame slot the
 six uint32 arrays tile_keys, emit_vals, gid_from_emit, gid_from_isect and the tile sorter's key
 and value scratch (24 B) plus the sorter's histogram (at most 2^8 bins per virtual block of 2048
-pairs: 0.5 B); in slot 0 the importance records raster_imp_emit (4 B, importance renders only);
+pairs: 0.5 B) and on CPUs the forward's vector sets raster_hits (4 B, kernels/rasterize.cl RASTER_HITS; not in
+the bound below, which "auto" takes for GPUs only); in slot 0 the importance records raster_imp_emit (4 B, importance
+renders only);
 shared by both slots the backward's gradient records raster_v_emit (4 * V_RECORD = 40 B). Both
 slots: 93 B per intersection.
 """

@@ -46,7 +46,7 @@ from .scratch import Scratch
 FILE = "rasterize.cl"
 TILE_PIXELS = TILE_SIZE * TILE_SIZE
 PACKED_BYTES = 64  # one float16 record per Gaussian (rasterize_prep)
-_BWD_TYPES = [None] * 4 + [np.int32] * 4 + [None] * 7 + [np.int32] + [None] * 3  # rasterize_bwd's scalar arguments
+_BWD_TYPES = [None] * 4 + [np.int32] * 4 + [None] * 7 + [np.int32] + [None] * 4 + [np.int32]  # rasterize_bwd's scalars
 
 
 def raster_vec(device=None) -> int:
@@ -139,7 +139,7 @@ class Rasterizer:
         self._k_fwd_imp = None
         i32, f32 = np.int32, np.float32
         self.k_prep.set_scalar_arg_dtypes([None] * 6 + [i32])
-        fwd_types = [None] * 4 + [i32] * 4 + [f32] * 3 + [None] * 6
+        fwd_types = [None] * 4 + [i32] * 4 + [f32] * 3 + [None] * 7
         self.k_fwd.set_scalar_arg_dtypes(fwd_types)
         self._fwd_types = fwd_types
         self.k_bwd.set_scalar_arg_dtypes(_BWD_TYPES)
@@ -149,6 +149,9 @@ class Rasterizer:
         self.bwd_local = 1 if self.cpu_schedule else TILE_PIXELS // int(d["BWD_PIX"])  # rasterize_bwd's group
         self._dummy = self.scratch.get("small", "raster_dummy", 16, 4)
         self.n = self.n_isect = self.width = self.height = 0
+        # RASTER_HITS (CPU schedule): the last fwd's per-pair vector sets in r.hits, for a bwd of that fwd
+        self.keeps_hits = self.cpu_schedule and int(d.get("RASTER_HITS", d.get("RASTER_CUT_MASK", 1))) != 0
+        self._hits_of = None  # (tile_ranges, gid_from_isect, K, width, height) of the fwd that wrote r.hits
         self._pix_cache = None  # (width * height, the scratch's allocation count, the buffers): pixel_buffers
 
     # -- buffers ----------------------------------------------------------------------------
@@ -191,11 +194,18 @@ class Rasterizer:
         """The records buffer of n Gaussians for a kernel that writes them itself (project_fwd): a
         later fwd(..., prepared=True) of n Gaussians reads it."""
         self.n = int(n)
+        self._hits_of = None  # new records: the kept sets are of other ones
         return self.packed
 
     @property
     def imp_emit(self):
         return self.scratch.get("isect", "raster_imp_emit", self.n_isect, 4)
+
+    @property
+    def hits(self):
+        """rasterize_fwd's set of pixel vectors past its cut tests per (tile, Gaussian) pair [K] uint32
+        (RASTER_HITS, CPU schedule), which the backward of that forward walks instead of its own tests."""
+        return self.scratch.get("isect", "raster_hits", self.n_isect, 4)
 
     @property
     def v_emit(self):
@@ -238,6 +248,7 @@ class Rasterizer:
     def prep(self, means2d, conics, colors, opacities, depths, n: int, wait_for=None):
         """rasterize_prep into r.packed (done by `fwd` unless prepared=True)."""
         self.n = int(n)
+        self._hits_of = None  # new records: the kept sets are of other ones
         if self.n == 0:
             return self.cl.enqueue_marker(self.queue, wait_for=wait_for)
         return self.k_prep(self.queue, (_nd(self.n, 64),), None, means2d, conics, colors, opacities,
@@ -259,9 +270,11 @@ class Rasterizer:
         gid = gid_from_isect if self.n_isect else self._dummy
         emit = emit_from_isect if self.n_isect else self._dummy
         imp = self.imp_emit if importance else self._dummy
+        keep = self.keeps_hits and self.n_isect > 0
+        self._hits_of = (tile_ranges, gid_from_isect, self.n_isect, self.width, self.height) if keep else None
         return k(self.queue, *self._range(width, height), self.packed, tile_ranges,
                  gid, emit, np.int32(width), np.int32(height), np.int32(tiles_x), np.int32(n_tiles),
-                 *bg, *self.pixel_buffers(), imp, wait_for=wait_for)
+                 *bg, *self.pixel_buffers(), imp, self.hits if keep else self._dummy, wait_for=wait_for)
 
     def _bwd_kernel(self, opacity_only: bool, depth_o: bool = False):
         """The rasterize_bwd build: the full one, RASTER_BWD_OPACITY or RASTER_BWD_DEPTH_O (built on first use)."""
@@ -294,13 +307,17 @@ class Rasterizer:
         gid = gid_from_isect if self.n_isect else d
         emit = emit_from_isect if self.n_isect else d
         depth_o = v_depth_o is not None
+        # the forward's vector sets, where this is the backward of the last fwd (its images, records and bins)
+        h = self._hits_of
+        use_hits = (fwd_out is None and h is not None and h[0] is tile_ranges and h[1] is gid_from_isect
+                    and h[2:] == (self.n_isect, int(width), int(height)))
         return self._bwd_kernel(opacity_only, depth_o)(
             self.queue, *self._range(width, height, self.bwd_local), packed, tile_ranges,
             gid, emit, np.int32(width), np.int32(height), np.int32(tiles_x), np.int32(n_tiles),
             rgb, depth, final_T, last, v_rgb if v_rgb is not None else d,
             v_depth if v_depth is not None else d, v_alpha if v_alpha is not None else d,
             np.int32(mask), self.v_emit, v_depth_o if depth_o else d, self.v_emit_o if depth_o else d,
-            wait_for=wait_for)
+            self.hits if use_hits else d, np.int32(use_hits), wait_for=wait_for)
 
     def reduce(self, records, width: int, offset_from_rank, gid_from_rank, n_rank: int, out,
                accumulate: bool = False, wait_for=None, count=None):
