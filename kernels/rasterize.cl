@@ -85,8 +85,11 @@
  *   use_hits only for the backward of the last forward with the same bins, size and records
  *   (reings.backends.opencl.rasterize.Rasterizer.bwd). The set holds every vector the backward's own tests pass
  *   (a lane before its pixel's last was active at that Gaussian in the forward), and the others have no ok
- *   lane: the same bits, the tests' walk of the box gone (0.81-0.83 of the backward's time, docs/perf_notes.md
+ *   lane: the same bits, the tests' walk of the box gone (0.85-0.87 of the backward's time, docs/perf_notes.md
  *   §33).
+ *   RASTER_CENTRES (1, CPU schedule): the pixel centres of the tile's block columns and rows in a table made once
+ *   per tile (CENTRES: the same expressions, the same bits) instead of at each use (0.90-0.96 of the forward's and
+ *   backward's time, docs/perf_notes.md §33).
  * Schedules (same algorithm, same results up to float rounding of sums):
  *   CPU: one work-item per tile (local size 1), no barriers; the tile's 256 pixels are
  *        RASTER_VEC-wide vectors (blocks of RASTER_BLOCK_H pixel rows) in private arrays; Gaussians
@@ -445,8 +448,27 @@ inline int box_in_tile(float16 g, int x0, int y0, int *r0, int *r1, int *c0, int
 
 /* A vector's offsets from the Gaussian's centre to its pixels' centres, g - (pixel + 0.5), the centre
  * exact: each pixel gets the same value, and so the same power, at every block shape. */
-#define VEC_DX(g, x) ((vf)((g).s0) - ((vf)((float)(x)) + (VCVT(ILX) + 0.5f)))
-#define VEC_DY(g, y) ((vf)((g).s1) - ((vf)((float)(y)) + (VCVT(ILY) + 0.5f)))
+#define VEC_CX(x) ((vf)((float)(x)) + (VCVT(ILX) + 0.5f)) /* the lanes' pixel centres, vector at column x */
+#define VEC_CY(y) ((vf)((float)(y)) + (VCVT(ILY) + 0.5f))
+#define VEC_DX(g, x) ((vf)((g).s0) - VEC_CX(x))
+#define VEC_DY(g, y) ((vf)((g).s1) - VEC_CY(y))
+#ifndef RASTER_CENTRES
+#define RASTER_CENTRES 1
+#endif
+/* The offsets of block column cc / block row r of the tile at (x0, y0): RASTER_CENTRES, from a table of the tile's
+ * pixel centres made once per tile (CENTRES, the same expressions, the same bits), else computed where used. */
+#if RASTER_CENTRES
+#define CENTRES                                                                               \
+    vf cx_[BPR], cy_[TILE_SIZE / BH];                                                         \
+    for (int q_ = 0; q_ < BPR; ++q_) cx_[q_] = VEC_CX(x0 + q_ * BW);                          \
+    for (int q_ = 0; q_ < TILE_SIZE / BH; ++q_) cy_[q_] = VEC_CY(y0 + q_ * BH);
+#define DXC(g, cc) ((vf)((g).s0) - cx_[cc])
+#define DYC(g, r) ((vf)((g).s1) - cy_[r])
+#else
+#define CENTRES
+#define DXC(g, cc) VEC_DX(g, x0 + (cc) * BW)
+#define DYC(g, r) VEC_DY(g, y0 + (r) * BH)
+#endif
 /* a vector's powers from its offsets (one expression for every caller: the same contraction, the same bits) */
 #define VEC_POWER(g, dx, dy) (-0.5f * ((g).s2 * (dx) * (dx) + (g).s4 * (dy) * (dy)) - (g).s3 * (dx) * (dy))
 
@@ -455,10 +477,10 @@ inline int box_in_tile(float16 g, int x0, int y0, int *r0, int *r1, int *c0, int
  * branch per vector */
 #define BOX_TESTS(pw, hit, PASSES)                                                            \
     for (int r = r0; r <= r1; ++r) {                                                          \
-        const vf dy = VEC_DY(g, y0 + r * BH);                                                 \
+        const vf dy = DYC(g, r);                                                              \
         for (int cc = c0; cc <= c1; ++cc) {                                                   \
             const int c = r * BPR + cc;                                                       \
-            const vf dx = VEC_DX(g, x0 + cc * BW);                                            \
+            const vf dx = DXC(g, cc);                                                         \
             const vf power = VEC_POWER(g, dx, dy);                                            \
             (pw)[c] = power;                                                                  \
             (hit) |= (vset)(PASSES(power, c)) << c;                                           \
@@ -487,6 +509,7 @@ __kernel void rasterize_fwd(__global const float16 *packed,      // [N] records 
     const int tile = ty * tiles_x + tx;
     if (tx >= tiles_x || tile >= n_tiles) return;
     const int x0 = tx * TILE_SIZE, y0 = ty * TILE_SIZE;
+    CENTRES
     /* T > 0: active; T < 0: stopped (|T| is final); pixels outside the image start stopped */
     vf Tv[NVEC], Rv[NVEC], Gv[NVEC], Bv[NVEC], Dv[NVEC];
     vi Lv[NVEC];
@@ -532,11 +555,11 @@ __kernel void rasterize_fwd(__global const float16 *packed,      // [N] records 
                     const vf power = pw[c];
 #else
             for (int r = r0; r <= r1; ++r) {
-                const vf dy = VEC_DY(g, y0 + r * BH);
+                const vf dy = DYC(g, r);
                 for (int cc = c0; cc <= c1; ++cc) {
                     const int c = r * BPR + cc;
                     const vf T = Tv[c];
-                    const vf dx = VEC_DX(g, x0 + cc * BW);
+                    const vf dx = DXC(g, cc);
                     const vf power = VEC_POWER(g, dx, dy);
 #if RASTER_ALPHA_CUT
                     /* the power cut (ALPHA_CUT_LN), and the lanes already stopped (T < 0): every lane fails ok below */
@@ -644,6 +667,7 @@ bwd_tile(__global const float16 *packed, __global const int *gid_from_isect, __g
 #endif
     vi Lv[NVEC];
     vi lmax = (vi)(0);
+    CENTRES
     for (int c = 0; c < NVEC; ++c) {
         const int py0 = y0 + VEC_Y(c), px0 = x0 + VEC_X(c);
         float vr[RASTER_VEC], vg[RASTER_VEC], vb[RASTER_VEC], vd[RASTER_VEC], R[RASTER_VEC];
@@ -770,7 +794,7 @@ bwd_tile(__global const float16 *packed, __global const int *gid_from_isect, __g
             hit = hits[i];
             for (vset m = hit; m; m &= m - 1) {
                 const int c = VSET_LOW(m);
-                pw[c] = VEC_POWER(g, VEC_DX(g, x0 + (c % BPR) * BW), VEC_DY(g, y0 + (c / BPR) * BH));
+                pw[c] = VEC_POWER(g, DXC(g, c % BPR), DYC(g, c / BPR));
             }
         } else
 #endif
@@ -788,18 +812,18 @@ bwd_tile(__global const float16 *packed, __global const int *gid_from_isect, __g
                 {
                     const int c = VSET_LOW(hit);
                     const vi valid = (vi)(k) < Lv[c];
-                    const vf dy = VEC_DY(g, y0 + (c / BPR) * BH);
-                    const vf dx = VEC_DX(g, x0 + (c % BPR) * BW);
+                    const vf dy = DYC(g, c / BPR);
+                    const vf dx = DXC(g, c % BPR);
                     const vf power = pw[c];
 #else
         if (box_in_tile(g, x0, y0, &r0, &r1, &c0, &c1)) {
             for (int r = r0; r <= r1; ++r) {
-                const vf dy = VEC_DY(g, y0 + r * BH);
+                const vf dy = DYC(g, r);
                 for (int cc = c0; cc <= c1; ++cc) {
                     const int c = r * BPR + cc;
                     const vi valid = (vi)(k) < Lv[c];
                     if (!vany(valid)) continue;
-                    const vf dx = VEC_DX(g, x0 + cc * BW);
+                    const vf dx = DXC(g, cc);
                     const vf power = VEC_POWER(g, dx, dy);
 #if RASTER_ALPHA_CUT
                     if (!vany(power >= g.se)) continue; /* the power cut (ALPHA_CUT_LN): every lane fails ok below */

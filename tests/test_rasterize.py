@@ -304,11 +304,12 @@ def _cpu_define_keeps_the_bits(device, name, vec, define):
     assert np.abs(out[1].v_emit).max() > 0
 
 
-@pytest.mark.parametrize("define", ["REINGS_CLANG_BUILTINS", "RASTER_ROW_IO", "RASTER_CUT_MASK", "RASTER_HITS"])
+@pytest.mark.parametrize("define", ["REINGS_CLANG_BUILTINS", "RASTER_ROW_IO", "RASTER_CUT_MASK", "RASTER_HITS",
+                                    "RASTER_CENTRES"])
 @pytest.mark.parametrize("vec", [8, 16])
 @pytest.mark.parametrize("name", ["random_large", "saturated", "many_in_one_tile", "needles", "size_70x45", "one"])
 def test_cpu_io_and_builtins_keep_the_bits(device, name, vec, define):
-    """Four CPU-schedule choices that must not change a value, each on (1, the default where it applies) against
+    """Five CPU-schedule choices that must not change a value, each on (1, the default where it applies) against
     off (0), byte for byte: the forward's images, `last` and importance, and the records of the full,
     opacity-only and second-cotangent backwards, at both widths, on scenes with partial blocks at the image's
     edges (size_70x45; random_large at 16 lanes) and whole ones.
@@ -319,7 +320,8 @@ def test_cpu_io_and_builtins_keep_the_bits(device, name, vec, define):
     RASTER_CUT_MASK: a Gaussian's box walked twice, its vectors' skip tests first (no branch per vector, the
     outcomes as bits), then the vectors that passed, instead of one branch per vector.
     RASTER_HITS: the backward walks each pair's vector set that its forward kept instead of testing the box
-    again (a superset of the vectors its own tests pass, the others without an ok lane)."""
+    again (a superset of the vectors its own tests pass, the others without an ok lane).
+    RASTER_CENTRES: the pixel vectors' centres from a table made once per tile instead of at each use."""
     from reings.backends.opencl.rasterize import rasterizer_for
 
     # the builtins are PoCL's CPU schedule's (quirks.clang_builtins): elsewhere (NVIDIA, whose OpenCL C has
