@@ -81,12 +81,12 @@
  *   skipped either way has no ok lane, so the same bits (docs/perf_notes.md §31); 0 branches per vector.
  *   RASTER_HITS (RASTER_CUT_MASK, CPU schedule): rasterize_fwd writes each visited pair's set of vectors past its
  *   tests to hits[i] (0 where the box misses the tile; pairs after the tile stopped are not written and never
- *   read), and rasterize_bwd with use_hits = 1 walks that set instead of testing the box again: the host passes
+ *   read), and rasterize_bwd with use_hits = 1 tests that set's vectors instead of the box's: the host passes
  *   use_hits only for the backward of the last forward with the same bins, size and records
  *   (reings.backends.opencl.rasterize.Rasterizer.bwd). The set holds every vector the backward's own tests pass
- *   (a lane before its pixel's last was active at that Gaussian in the forward), and the others have no ok
- *   lane: the same bits, the tests' walk of the box gone (0.85-0.87 of the backward's time, docs/perf_notes.md
- *   §33).
+ *   (a lane before its pixel's last was active at that Gaussian in the forward), so testing it gives exactly the
+ *   backward's set: the same bits, non-finite cotangents included; the box's other vectors never walked (0.85-0.87
+ *   of the backward's time, docs/perf_notes.md §33).
  *   RASTER_CENTRES (1, CPU schedule): the pixel centres of the tile's block columns and rows in a table made once
  *   per tile (CENTRES: the same expressions, the same bits) instead of at each use (0.90-0.96 of the forward's and
  *   backward's time, docs/perf_notes.md §33).
@@ -783,30 +783,31 @@ bwd_tile(__global const float16 *packed, __global const int *gid_from_isect, __g
         /* as the forward: the box's tests first, without branches (a vector with no lane both before its pixel's
          * last and above the cut has no ok lane, and with finite inputs would add zeros: an infinite cotangent or
          * colour could make such a lane's 0 * inf a NaN, which the rescaled pass then redid), then the vectors
-         * past them. RASTER_HITS, use_hits: the forward's set of the pair instead of the tests. It holds every
-         * vector the tests would pass (a lane before its pixel's last was not stopped at this Gaussian in the
-         * forward) and more only where no lane is before its last and above the cut: vectors with no ok lane. */
+         * past them. RASTER_HITS, use_hits: the tests of the forward's set of the pair instead of the box's. The
+         * set holds every vector the tests pass (a lane before its pixel's last was not stopped at this Gaussian
+         * in the forward), so the outcome is the same set. */
         vf pw[NVEC];
         vset hit = 0;
-#if RASTER_HITS
-        if (use_hits) { /* the set's powers first, as the tests' walk keeps them (one loop of each kind: 0.93-0.98 of
-                         * the backward's time against computing each where it is used, docs/perf_notes.md §33) */
-            hit = hits[i];
-            for (vset m = hit; m; m &= m - 1) {
-                const int c = VSET_LOW(m);
-                pw[c] = VEC_POWER(g, DXC(g, c % BPR), DYC(g, c / BPR));
-            }
-        } else
-#endif
-        if (box_in_tile(g, x0, y0, &r0, &r1, &c0, &c1)) {
 #if RASTER_ALPHA_CUT
 #define BWD_PASSES(power, c) vany(((vi)(k) < Lv[c]) & ((power) >= g.se)) /* before the pixel's last, the cut */
 #else
 #define BWD_PASSES(power, c) vany((vi)(k) < Lv[c])
 #endif
+#if RASTER_HITS
+        if (use_hits) { /* the set's powers and tests first, as the box's walk (one loop of each kind: 0.93-0.98 of
+                         * the backward's time against each power where it is used, docs/perf_notes.md §33) */
+            for (vset m = hits[i]; m; m &= m - 1) {
+                const int c = VSET_LOW(m);
+                const vf power = VEC_POWER(g, DXC(g, c % BPR), DYC(g, c / BPR));
+                pw[c] = power;
+                hit |= (vset)(BWD_PASSES(power, c)) << c;
+            }
+        } else
+#endif
+        if (box_in_tile(g, x0, y0, &r0, &r1, &c0, &c1)) {
             BOX_TESTS(pw, hit, BWD_PASSES);
-#undef BWD_PASSES
         }
+#undef BWD_PASSES
         {
             for (; hit; hit &= hit - 1) {
                 {

@@ -13,6 +13,7 @@ it. Gradients: MIN_COSINE / MAX_REL_L2 per field.
 """
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -331,16 +332,26 @@ def test_cpu_io_and_builtins_keep_the_bits(device, name, vec, define):
     _cpu_define_keeps_the_bits(device, name, vec, define)
 
 
-@pytest.mark.parametrize("what", ["colour", "all_colours", "cotangent", "inf_cotangent"])
+@pytest.mark.parametrize("what", ["colour", "all_colours", "cotangent", "inf_cotangent", "sparse_non_finite"])
 def test_cpu_forward_sets_keep_the_bits_on_overflow(device, what):
-    """RASTER_HITS on the overflow cases (kernels/rasterize.cl, "Overflow"): the vectors the forward's sets add
-    to the backward's own have no ok lane, and with a colour near FLT_MAX or +-inf cotangents their zero
-    weights must not turn a record NaN (or send its tile to the rescaled pass): the records, the reduced
-    gradients and the second cotangent's records are the bytes of the backward that tests its boxes."""
+    """RASTER_HITS on the overflow cases (kernels/rasterize.cl, "Overflow") and with a few non-finite cotangents:
+    the backward tests the forward's set of each pair, which must give exactly the set its box's tests give (a
+    vector only in the forward's set has no ok lane, but with an inf or NaN cotangent its zero weights would turn a
+    record NaN or send the tile to the rescaled pass): the records, the reduced gradients and the second
+    cotangent's records are the bytes of the backward that tests its boxes."""
     from reings.backends.opencl.rasterize import rasterize_bwd_host
 
     proj, bins, w, h = _scene("random")
-    proj, vr, vd, va = _overflow_inputs(what, w, h, proj)
+    if what == "sparse_non_finite":  # a few +-inf / NaN cotangents among finite ones, every opacity 0.99 (the hard
+        # pass: pixels stop after a few Gaussians, and a vector whose lanes all stop at one Gaussian is in the
+        # forward's set there but not in the backward's; walking it made 7 records NaN)
+        proj, _, w, h = _bits_scene("random_large")
+        proj = dataclasses.replace(proj, opacities=np.full_like(proj.opacities, 0.99))
+        bins = ref.bin(proj, w, h)
+        vr, vd, va = _cotangents(w, h)
+        vr[3::17, 5::23, 0], vr[7::19, 2::29, 1], vd[5::13, 11::31] = np.inf, np.nan, -np.inf
+    else:
+        proj, vr, vd, va = _overflow_inputs(what, w, h, proj)
     vo = vd[::-1].copy()
     out = {c: rasterize_bwd_host(proj, bins, w, h, vr, vd, va, BG, device=device, cpu_schedule=True,
                                  RASTER_VEC=16, RASTER_HITS=c, v_depth_o=vo) for c in (0, 1)}
@@ -351,10 +362,11 @@ def test_cpu_forward_sets_keep_the_bits_on_overflow(device, what):
 
 
 def test_cpu_backward_takes_only_its_forwards_sets(device):
-    """Rasterizer.bwd walks r.hits only as the backward of the last fwd (its bins, size and records): with
+    """Rasterizer.bwd takes r.hits only as the backward of the last fwd (its bin buffers, size and records): with
     the sets zeroed after the forward, such a backward writes zero records (so it does read them), while a
-    backward after a new rasterize_prep, or one given other forward outputs (fwd_out=), tests its boxes and
-    gives the records of a fresh forward and backward."""
+    backward after a new rasterize_prep or packed_for (project_fwd's records), one given other forward outputs
+    (fwd_out=), or one given the bins in other buffers, tests its boxes and gives the records of a fresh forward
+    and backward."""
     import pyopencl as cl
 
     from reings.backends.opencl.rasterize import _run_fwd, rasterizer_for
@@ -365,13 +377,19 @@ def test_cpu_backward_takes_only_its_forwards_sets(device):
     vbuf = r.scratch.get("pixel", "test_v_rgb", w * h * 3, 4)
     cl.enqueue_copy(r.queue, vbuf, np.ascontiguousarray(vr, np.float32))
 
-    def backward(zero_sets: bool, then=None, **kw):
+    def copy(buf):  # the same contents in another buffer object
+        out = cl.Buffer(r.handle.context, cl.mem_flags.READ_WRITE, buf.size)
+        cl.enqueue_copy(r.queue, out, buf)
+        return out
+
+    def backward(zero_sets: bool, then=None, copies: bool = False, **kw):
         n, k, b, _ = _run_fwd(r, proj, bins, w, h, BG, False)
         if zero_sets:
             cl.enqueue_fill_buffer(r.queue, r.hits, np.uint32(0), 0, 4 * k)
         if then is not None:
             then(b, n)
-        r.bwd(b["tile_ranges"], b["gid_from_isect"], b["emit_from_isect"], k, w, h, v_rgb=vbuf, **kw)
+        tr, gid = (copy(b["tile_ranges"]), copy(b["gid_from_isect"])) if copies else (b["tile_ranges"], b["gid_from_isect"])
+        r.bwd(tr, gid, b["emit_from_isect"], k, w, h, v_rgb=vbuf, **kw)
         out = np.empty((k, V_RECORD), np.float32)
         cl.enqueue_copy(r.queue, out, r.v_emit)
         return out, b
@@ -386,6 +404,10 @@ def test_cpu_backward_takes_only_its_forwards_sets(device):
     px = r.pixel_buffers()
     outs, _ = backward(True, None, fwd_out=(px[0], px[1], px[3], px[4], r.packed))
     assert np.array_equal(outs.view(np.uint32), fresh.view(np.uint32))
+    records, _ = backward(True, lambda b, n: r.packed_for(n))  # project_fwd's records from here on: other ones
+    assert np.array_equal(records.view(np.uint32), fresh.view(np.uint32))
+    other, _ = backward(True, copies=True)  # bins in other buffers than the forward's
+    assert np.array_equal(other.view(np.uint32), fresh.view(np.uint32))
 
 
 def test_alpha_cut_is_below_every_kept_pair():

@@ -33,7 +33,7 @@ pairs: 0.5 B) and on CPUs the forward's vector sets raster_hits (4 B, kernels/ra
 the bound below, which "auto" takes for GPUs only); in slot 0 the importance records raster_imp_emit (4 B, importance
 renders only);
 shared by both slots the backward's gradient records raster_v_emit (4 * V_RECORD = 40 B). Both
-slots: 93 B per intersection.
+slots: 93 B per intersection (101 B on CPUs with raster_hits).
 """
 from __future__ import annotations
 

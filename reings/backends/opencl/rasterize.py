@@ -13,7 +13,10 @@ Device-level API (buffers in, events out; every call enqueues on `handle.queue`,
         reads r.packed and r.rgb/depth/final_T/last of the last `fwd` on this Rasterizer (pass
         `fwd_out=(rgb, depth, final_T, last, packed)` to use others) and writes r.v_emit [K, 10];
         opacity_only=True: only field 8 (d/d opacity) is summed, the others are written as 0, field 8
-        with the bits of the full backward (RASTER_BWD_OPACITY, kernels/rasterize.cl)
+        with the bits of the full backward (RASTER_BWD_OPACITY, kernels/rasterize.cl). On CPUs the backward
+        of the last `fwd` (the same bin buffers, K and size, no `prep` / `packed_for` since, no `fwd_out`)
+        tests that forward's per-pair vector sets r.hits instead of each Gaussian's box (RASTER_HITS): the
+        bins' contents must not change in between
     r.reduce(records, width, offset_from_rank, gid_from_rank, n_rank, out, accumulate=False,
              count=None)                                          -> event
         out[gid_from_rank[r], :] (+)= sum of records[offset_from_rank[r]:offset_from_rank[r+1], :];
@@ -271,10 +274,13 @@ class Rasterizer:
         emit = emit_from_isect if self.n_isect else self._dummy
         imp = self.imp_emit if importance else self._dummy
         keep = self.keeps_hits and self.n_isect > 0
-        self._hits_of = (tile_ranges, gid_from_isect, self.n_isect, self.width, self.height) if keep else None
-        return k(self.queue, *self._range(width, height), self.packed, tile_ranges,
-                 gid, emit, np.int32(width), np.int32(height), np.int32(tiles_x), np.int32(n_tiles),
-                 *bg, *self.pixel_buffers(), imp, self.hits if keep else self._dummy, wait_for=wait_for)
+        self._hits_of = None
+        ev = k(self.queue, *self._range(width, height), self.packed, tile_ranges,
+               gid, emit, np.int32(width), np.int32(height), np.int32(tiles_x), np.int32(n_tiles),
+               *bg, *self.pixel_buffers(), imp, self.hits if keep else self._dummy, wait_for=wait_for)
+        if keep:  # the sets of these bins (whose contents must not change before the backward) and size
+            self._hits_of = (tile_ranges, gid_from_isect, self.n_isect, self.width, self.height)
+        return ev
 
     def _bwd_kernel(self, opacity_only: bool, depth_o: bool = False):
         """The rasterize_bwd build: the full one, RASTER_BWD_OPACITY or RASTER_BWD_DEPTH_O (built on first use)."""
