@@ -85,11 +85,11 @@
  *   use_hits only for the backward of the last forward with the same bins, size and records
  *   (reings.backends.opencl.rasterize.Rasterizer.bwd). The set holds every vector the backward's own tests pass
  *   (a lane before its pixel's last was active at that Gaussian in the forward), so testing it gives exactly the
- *   backward's set: the same bits, non-finite cotangents included; the box's other vectors never walked (0.85-0.87
- *   of the backward's time, docs/perf_notes.md §33).
+ *   backward's set: the same bits, non-finite cotangents included; the box's other vectors never walked (0.90-0.94
+ *   of the backward's time against RASTER_CENTRES alone, docs/perf_notes.md §33).
  *   RASTER_CENTRES (1, CPU schedule): the pixel centres of the tile's block columns and rows in a table made once
- *   per tile (CENTRES: the same expressions, the same bits) instead of at each use (0.90-0.96 of the forward's and
- *   backward's time, docs/perf_notes.md §33).
+ *   per tile (CENTRES: the same expressions, the same bits) instead of at each use (0.93-0.96 of the forward's and
+ *   0.90-0.95 of the backward's time, docs/perf_notes.md §33).
  * Schedules (same algorithm, same results up to float rounding of sums):
  *   CPU: one work-item per tile (local size 1), no barriers; the tile's 256 pixels are
  *        RASTER_VEC-wide vectors (blocks of RASTER_BLOCK_H pixel rows) in private arrays; Gaussians
@@ -808,7 +808,7 @@ bwd_tile(__global const float16 *packed, __global const int *gid_from_isect, __g
             BOX_TESTS(pw, hit, BWD_PASSES);
         }
 #undef BWD_PASSES
-        {
+        { /* the vectors past the tests (this block's braces pair with the #else branch's box loop) */
             for (; hit; hit &= hit - 1) {
                 {
                     const int c = VSET_LOW(hit);
