@@ -26,7 +26,9 @@
 #define TILE_PIXELS (TILE_SIZE * TILE_SIZE)
 #define ALPHA_MIN (1.0f / 255.0f) /* a (pixel, Gaussian) pair with alpha below this is skipped (3DGS) */
 #define ALPHA_MAX 0.99f           /* alpha clamp; no gradient flows through it */
-#define T_MIN 1e-4f               /* a pixel stops *before* the Gaussian making T*(1-alpha) < T_MIN */
+#ifndef T_MIN
+#define T_MIN 1e-4f /* a pixel stops *before* the Gaussian making T*(1-alpha) < T_MIN */
+#endif
 #define EPS2D 0.3f                /* low-pass dilation added to the 2D covariance diagonal */
 #define CLAMP_GUARD 0.3f          /* Jacobian guard band, fraction of tan(fov/2) (gsplat) */
 #define V_RECORD 10               /* floats per intersection gradient record (rasterize_bwd) */

@@ -180,6 +180,10 @@ class LossConfig:
                                    "loss that soft_depth_ema_gate reads is then the small pass's); 1 = full "
                                    "resolution (DNGaussian)",
                                 check=lambda v: None if v in (1, 2, 4) else f"must be 1, 2 or 4, got {v}")
+    hard_depth_patches: str = opt("pixels", "the hard depth loss's patch sizes at hard_depth_scale > 1: 'pixels' "
+                                            "(as drawn, so a patch covers scale^2 times the scene area), 'area' "
+                                            "(each drawn size divided by the scale, rounded up: the full-resolution "
+                                            "patch's area)", choices=("pixels", "area"))
     soft_depth: bool = opt(False, "DNGaussian soft depth term: real opacities, gradient to opacities only")
     soft_depth_from: int = opt(1001, "first iteration of the soft depth term")
     soft_depth_shared: bool = opt(False, "speed, changes the optimizer's steps: the soft depth term reuses the "
@@ -696,6 +700,10 @@ class RunConfig:
                                    "docs/results.md §39); 1 = full resolution",
                                 check=lambda v: None if v in (1, 2, 4) else f"must be 1, 2 or 4, got {v}",
                                 metavar="S")
+    hard_depth_patches: str = opt("pixels", "with --hard-depth-scale S > 1: the hard depth loss's patch sizes in "
+                                            "pixels of the small pass ('pixels', as drawn) or divided by S, rounded "
+                                            "up ('area': the full-resolution patches' scene area)",
+                                  choices=("pixels", "area"))
     lambda_dssim: tuple[float, ...] | None = opt(
         None, "the SSIM weight l of the photometric loss L1 + l (1 - SSIM) (the 3dgs baseline's: (1 - l) L1 + "
               "l (1 - SSIM), l <= 1): L for every fit, or A,B,C for reings' coarse, fine, final (the baselines "

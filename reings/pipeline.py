@@ -219,6 +219,8 @@ def run_settings(cfg: RunConfig, dataset_kind: str) -> dict:
         s["depth_confidence"] = cfg.depth_confidence
     if cfg.hard_depth_scale != 1:  # absent at 1, the value before the option existed
         s["hard_depth_scale"] = cfg.hard_depth_scale
+    if cfg.hard_depth_patches != "pixels":  # absent at pixels, the value before the option existed
+        s["hard_depth_patches"] = cfg.hard_depth_patches
     lam = [lambda_dssim_of(cfg, recipe_family(cfg.recipe, dataset_kind), st) for st in FIT_STAGES[cfg.method]]
     if lam[0] is not None:  # absent at none (the recipe's), the value before the option existed
         s["lambda_dssim"] = lam[0] if len(set(lam)) == 1 else lam  # one weight: a number, as before per-stage weights
@@ -515,7 +517,8 @@ class RunContext:
         if c.depth_confidence:
             recipe = replace(recipe, loss=replace(recipe.loss, depth_confidence=c.depth_confidence))
         if c.hard_depth_scale != 1:
-            recipe = replace(recipe, loss=replace(recipe.loss, hard_depth_scale=c.hard_depth_scale))
+            recipe = replace(recipe, loss=replace(recipe.loss, hard_depth_scale=c.hard_depth_scale,
+                                                  hard_depth_patches=c.hard_depth_patches))
         lam = lambda_dssim_of(c, self.family, stage)  # stage none: the one weight, or the last of three
         if lam is not None:
             recipe = replace(recipe, loss=replace(recipe.loss, lambda_dssim=lam))

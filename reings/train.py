@@ -572,6 +572,7 @@ class _Iteration:
         # the hard pass's cameras and the offset of its targets (LossConfig.hard_depth_scale: _depth_uploads)
         self.hard_cams = cameras if hard_cams is None else hard_cams
         self.hard_offset = 0 if hard_cams is None else len(cameras)
+        self.hard_patch_div = cfg.loss.hard_depth_scale if cfg.loss.hard_depth_patches == "area" else 1
         self.hard_ema = None
         self.k = 1  # active SH coefficients of the current iteration
         # the per-iteration draws of drop_at / warp_baseline, a block of iterations at a time (the same numbers)
@@ -591,7 +592,7 @@ class _Iteration:
         # hard depth: opacity fixed, gradient to the means only (DNGaussian render_for_depth)
         if L.hard_depth and has_target and it >= L.hard_depth_from:
             lh = self.depth_pass(it, self.hard_cams[vi], vi + self.hard_offset, "hard", L.hard_depth_opacity,
-                                 ("means",), self.read_hard_loss)
+                                 ("means",), self.read_hard_loss, self.hard_patch_div)
             if lh is not None:
                 self.hard_ema = lh if self.hard_ema is None else 0.9 * self.hard_ema + 0.1 * lh
         # soft depth: real opacities, gradient to the opacities only (render_for_opa)
@@ -606,28 +607,32 @@ class _Iteration:
         self.densify(it)
         self.book.end(it, deg, loss, psnr)
 
-    def depth_pass(self, it: int, cam, vi: int, name: str, opacity, groups: tuple, read: bool):
+    def depth_pass(self, it: int, cam, vi: int, name: str, opacity, groups: tuple, read: bool, div: int = 1):
         """One depth pass (forward, depth loss, backward of `groups`, Adam step of `groups`: here
-        each group is the render field of the same name). Returns the depth loss if `read`."""
+        each group is the render field of the same name). Returns the depth loss if `read`. div: the
+        patch sizes' divisor (`depth_cotangent`)."""
         tr, ph = self.tr, self.tr.phase
         with ph(f"{name}_render"):
             fr = tr.forward(cam, self.k, self.bg, self.near, opacity)
-        vd, loss = self.depth_cotangent(it, fr, vi, read)
+        vd, loss = self.depth_cotangent(it, fr, vi, read, div)
         with ph(f"{name}_backward"):
             gr = tr.backward(fr, None, vd, opacity, groups)
         with ph("adam"):
             tr.adam_step(self.opt, gr, groups)
         return loss
 
-    def depth_cotangent(self, it: int, fr, vi: int, read: bool):
+    def depth_cotangent(self, it: int, fr, vi: int, read: bool, div: int = 1):
         """DNGaussian's depth loss of frame `fr` against view `vi`'s prior, patch sizes drawn from
-        the fit's rng: (dL/d depth handle, the loss if `read` else None)."""
+        the fit's rng (the same draws at any `div`; each size divided by div, rounded up: the hard pass
+        at 1/div resolution with LossConfig.hard_depth_patches 'area'): (dL/d depth handle, the loss
+        if `read` else None)."""
         from .losses import draw_depth_patches
         from .optim import depth_smooth_weight_at
 
         tr, L = self.tr, self.L
         with tr.phase("depth_loss"):
             pl, pg = draw_depth_patches(self.rng, L.depth_patch_range, fr.height, fr.width)
+            pl, pg = -(-pl // div), -(-pg // div)
             vd = tr.depth_loss(fr, vi, pl, pg, L.depth_margin, L.depth_w_local, L.depth_w_global,
                                depth_smooth_weight_at(L, it))
             return vd, (tr.read_depth_loss() if read else None)

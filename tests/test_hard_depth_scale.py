@@ -113,6 +113,39 @@ def test_the_hard_pass_renders_small_against_the_block_means(device, case, monke
     assert len(soft) == 12 - 3 + 1 and all(v < 3 for v, _, _ in soft)  # the soft term: full size, own targets
 
 
+@pytest.mark.parametrize("patches", ["pixels", "area"])
+def test_the_patch_sizes_of_the_hard_pass(device, case, monkeypatch, patches):
+    """LossConfig.hard_depth_patches: each depth loss call gets the sizes its draw made ('pixels', and
+    the soft term always), or for the hard pass at scale 2 with 'area' each drawn size halved, rounded up."""
+    from reings import losses
+    from reings.backends.opencl.trainer import DeviceTrainer
+
+    drawn, got = [], []
+    draw, depth_loss = losses.draw_depth_patches, DeviceTrainer.depth_loss
+
+    def spy_draw(*a, **k):
+        drawn.append(draw(*a, **k))
+        return drawn[-1]
+
+    def spy_loss(self, fr, view, pl, pg, *a, **k):
+        got.append((fr.width, pl, pg))
+        return depth_loss(self, fr, view, pl, pg, *a, **k)
+
+    monkeypatch.setattr(losses, "draw_depth_patches", spy_draw)
+    monkeypatch.setattr(DeviceTrainer, "depth_loss", spy_loss)
+    scene, init, cfg = case
+    cfg = replace(cfg, loss=replace(cfg.loss, hard_depth_scale=2, hard_depth_patches=patches,
+                                    depth_patch_range=(5, 17)))
+    fit(scene, cfg, device=device, init=init, depth_targets=list(scene.depths), progress=False, engine="device")
+    assert len(drawn) == len(got) == 12 + 10  # one draw per depth loss call: 12 hard, 10 soft
+    odd = 0
+    for (pl, pg), (w, ql, qg) in zip(drawn, got):
+        div = 2 if patches == "area" and w == 32 else 1
+        assert (ql, qg) == (-(-pl // div), -(-pg // div))
+        odd += div == 2 and (pl % 2 or pg % 2)
+    assert patches == "pixels" or odd  # an odd size was drawn: rounding up, not down, is checked
+
+
 def test_engines_agree_and_the_scale_changes_the_fit(device, case):
     host = _fit(case, device, 2, "host")
     dev = _fit(case, device, 2, "device")
