@@ -694,15 +694,19 @@ class RunConfig:
                                        "DNGaussian; 1 = the confidence alone)",
                                   check=lambda v: None if 0 <= v <= 1 else f"must lie in [0, 1], got {v}",
                                   metavar="A")
-    hard_depth_scale: int = opt(1, "every fit with the hard depth term: render its pass at 1/S of the training "
-                                   "resolution, against the depth prior averaged over S x S blocks (speed, issue "
-                                   "15; docs/perf_notes.md §23; LLFF: -0.15 / -0.17 dB on fern / flower, +0.18 on room, "
-                                   "docs/results.md §39); 1 = full resolution",
-                                check=lambda v: None if v in (1, 2, 4) else f"must be 1, 2 or 4, got {v}",
-                                metavar="S")
-    hard_depth_patches: str = opt("pixels", "with --hard-depth-scale S > 1: the hard depth loss's patch sizes in "
-                                            "pixels of the small pass ('pixels', as drawn) or divided by S, rounded "
-                                            "up ('area': the full-resolution patches' scene area)",
+    hard_depth_scale: int | None = opt(None, "every fit with the hard depth term: render its pass at 1/S of the "
+                                             "training resolution, against the depth prior averaged over S x S "
+                                             "blocks (speed, issue 15; docs/perf_notes.md §23, §34); 1 = full "
+                                             "resolution (DNGaussian); none: the recipe family's for the reings fits "
+                                             "(2 for 'llff': with --hard-depth-patches area, fern / flower / room / "
+                                             "trex at 3 views, seeds 0-2, -0.06 / +0.15 / +0.29 / +0.01 dB against 1, "
+                                             "docs/results.md §49; 1 for 'dtu', not measured) and 1 for the baselines",
+                                       check=lambda v: None if v in (None, 1, 2, 4) else f"must be 1, 2 or 4, got {v}",
+                                       metavar="S")
+    hard_depth_patches: str = opt("area", "at a hard depth scale S > 1: the hard depth loss's patch sizes divided "
+                                          "by S, rounded up ('area': the full-resolution patches' scene area), or as "
+                                          "drawn in the small pass's pixels ('pixels': scale^2 times the area, the "
+                                          "option's meaning until session 38: -0.11 / -0.17 / +0.37 dB)",
                                   choices=("pixels", "area"))
     lambda_dssim: tuple[float, ...] | None = opt(
         None, "the SSIM weight l of the photometric loss L1 + l (1 - SSIM) (the 3dgs baseline's: (1 - l) L1 + "

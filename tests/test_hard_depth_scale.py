@@ -188,3 +188,29 @@ def test_weights_and_the_metric_term_at_scale_2(device, case, monkeypatch):
         np.testing.assert_array_equal(seen["weights"][i], depth_confidence_weights(conf[i], 0.5))
     assert len(seen["metric"]) == 6 and all(w is None for w in seen["metric"][3:])
     assert_engines_agree(device, runs["host"].state, runs["device"].state, "hard_depth_scale 2, weighted, metric")
+
+
+@pytest.mark.parametrize("method, family, kw, want", [
+    ("reings", "llff", {}, 2), ("reings", "dtu", {}, 1),  # the family defaults (reings only)
+    ("dngaussian", "llff", {}, 1), ("dngaussian", "dtu", {}, 1),
+    ("reings", "llff", {"hard_depth_scale": 1}, 1), ("reings", "dtu", {"hard_depth_scale": 2}, 2),
+    ("dngaussian", "llff", {"hard_depth_scale": 4}, 4)])
+def test_the_scale_reaches_the_fits(method, family, kw, want):
+    """RunConfig.hard_depth_scale = none: the recipe family's for the reings fits (2 for 'llff', 1 for 'dtu'), 1 for
+    the baselines; a value wins everywhere. The fits' recipes carry it with the patch rule; run_settings records it
+    (absent at 1, so older run folders resume) with 'area' (absent at 'pixels')."""
+    from test_recipe_family import _ctx
+
+    from reings.pipeline import HARD_DEPTH_SCALE_BY_FAMILY, baseline_recipe, hard_depth_scale_of, run_settings
+
+    assert HARD_DEPTH_SCALE_BY_FAMILY == {"llff": 2, "dtu": 1}
+    ctx, _ = _ctx(family, method=method, **kw)
+    r = ctx.run_recipe(baseline_recipe("dngaussian", 600, 0, family))
+    assert r.loss.hard_depth_scale == want == hard_depth_scale_of(ctx.cfg, family)
+    assert r.loss.hard_depth_patches == ("area" if want > 1 else "pixels")
+    s = run_settings(ctx.cfg, "dtu" if family == "dtu" else "llff")
+    assert s.get("hard_depth_scale") == (want if want > 1 else None)
+    assert s.get("hard_depth_patches") == ("area" if want > 1 else None)
+    ctx, _ = _ctx(family, method=method, hard_depth_patches="pixels", **kw)
+    assert ctx.run_recipe(baseline_recipe("dngaussian", 600, 0, family)).loss.hard_depth_patches == "pixels"
+    assert "hard_depth_patches" not in run_settings(ctx.cfg, "dtu" if family == "dtu" else "llff")
