@@ -307,6 +307,17 @@ def _block_io_outputs(be, g, cam, layout, drop):
     return out
 
 
+def _nan_canonical(bits: np.ndarray) -> np.ndarray:
+    """float32 bit patterns with every NaN as 0x7fc00000. Where an add meets inf and -inf (the accumulate mode's
+    poisoned start values and cotangents) x86 makes its default NaN, 0xffc00000, and where a NaN operand meets
+    another the operand order decides which one propagates: PoCL's LLVM 14 gave the two builds' accumulate adds
+    NaNs of opposite signs on an Emerald Rapids host (session 38) and the same ones on Cascade Lake. A NaN's sign
+    and payload carry nothing here; every other bit is compared."""
+    out = bits.copy()
+    out[np.isnan(bits.view(np.float32))] = 0x7FC00000
+    return out
+
+
 @pytest.mark.parametrize("n", [300, 304])
 @pytest.mark.parametrize("deg", [0, 1, 2, 3])
 @pytest.mark.parametrize("layout", ["packed", "in_place"])
@@ -318,7 +329,8 @@ def test_project_block_io_keeps_the_bits(device, layout, deg, n):
     cotangents; 300 Gaussians (a partial last work-item) and 304 (a full last work-item, which no row follows: the
     per-lane code), every 7th behind the camera and two whole work-items of blocks (rows 32-63: the backward's
     all-culled return), both SH layouts (the packed [N,k,3] rows and the device trainer's sh_dc / sh_rest at stride 45),
-    each SH degree; at 16 lanes on every CPU device (the blocks need no AVX-512)."""
+    each SH degree; at 16 lanes on every CPU device (the blocks need no AVX-512). The gradients' NaNs are compared
+    as NaNs, not by sign and payload (`_nan_canonical`)."""
     from reings.backends.reference_drop import Drop
 
     be = get_backend(device)
@@ -341,6 +353,8 @@ def test_project_block_io_keeps_the_bits(device, layout, deg, n):
     radii = dict(res[False])["radii"]
     assert (radii == 0).any() and (radii > 0).any()
     for (name, a), (_, b) in zip(res[False], res[True]):
+        if name.startswith("v_"):  # gradients: every bit, but a NaN's sign and payload (see _nan_canonical)
+            a, b = _nan_canonical(a), _nan_canonical(b)
         assert np.array_equal(a, b), name
         if name.startswith("v_") and name.endswith("None False"):  # the plain backward of every field: the
             assert not a.reshape(n, -1)[32:64].any(), name  # wholly culled work-items' rows are +0.0
