@@ -101,7 +101,8 @@ def check_out(out: str, settings: dict, overwrite: bool) -> None:
     want = jsonable(settings)
     if old != want:
         diff = sorted(k for k in set(old) | set(want) if old.get(k) != want.get(k))
-        raise ValueError(f"{out} holds an interrupted run with other settings ({', '.join(diff)} differ); "
+        said = ", ".join(f"{k}: {old.get(k)!r} there, {want.get(k)!r} now" for k in diff)  # absent: None
+        raise ValueError(f"{out} holds an interrupted run with other settings ({said}); "
                          "pass --overwrite to start over, or another --out")
 
 

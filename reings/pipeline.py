@@ -418,10 +418,13 @@ def prune_unseen_of(cfg: RunConfig, family: str) -> bool:
 def hard_depth_scale_of(cfg: RunConfig, family: str) -> int:
     """The hard depth pass's resolution divisor in the run's fits (LossConfig.hard_depth_scale):
     RunConfig.hard_depth_scale, or for none the recipe family's for the reings fits
-    (HARD_DEPTH_SCALE_BY_FAMILY) and 1 for the baselines (their authors' recipes)."""
+    (HARD_DEPTH_SCALE_BY_FAMILY; 1 without a depth prior, where no hard pass runs) and 1 for the baselines
+    (their authors' recipes)."""
     if cfg.hard_depth_scale is not None:
         return int(cfg.hard_depth_scale)
-    return HARD_DEPTH_SCALE_BY_FAMILY[family] if cfg.method == "reings" else 1
+    if cfg.method != "reings" or prior_kind(cfg.depth_prior) in NO_PRIOR:  # no prior: no hard pass to scale
+        return 1
+    return HARD_DEPTH_SCALE_BY_FAMILY[family]
 
 
 def soft_depth_shared_of(cfg: RunConfig, family: str) -> bool:

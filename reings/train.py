@@ -623,16 +623,19 @@ class _Iteration:
 
     def depth_cotangent(self, it: int, fr, vi: int, read: bool, div: int = 1):
         """DNGaussian's depth loss of frame `fr` against view `vi`'s prior, patch sizes drawn from
-        the fit's rng (the same draws at any `div`; each size divided by div, rounded up: the hard pass
-        at 1/div resolution with LossConfig.hard_depth_patches 'area'): (dL/d depth handle, the loss
-        if `read` else None)."""
+        the fit's rng (the same draws at any `div`; each size divided by div, rounded up, within [2, the
+        frame's size]: the hard pass at 1/div resolution with LossConfig.hard_depth_patches 'area'):
+        (dL/d depth handle, the loss if `read` else None)."""
         from .losses import draw_depth_patches
         from .optim import depth_smooth_weight_at
 
         tr, L = self.tr, self.L
         with tr.phase("depth_loss"):
-            pl, pg = draw_depth_patches(self.rng, L.depth_patch_range, fr.height, fr.width)
-            pl, pg = -(-pl // div), -(-pg // div)
+            # at div > 1 the draw is capped at the full-resolution frame's size, then divided, at least 2 (a
+            # 1-pixel patch has no spread: both terms would vanish), at most the small frame's size
+            pl, pg = draw_depth_patches(self.rng, L.depth_patch_range, fr.height * div, fr.width * div)
+            if div > 1:
+                pl, pg = (min(max(2, -(-p // div)), fr.height, fr.width) for p in (pl, pg))
             vd = tr.depth_loss(fr, vi, pl, pg, L.depth_margin, L.depth_w_local, L.depth_w_global,
                                depth_smooth_weight_at(L, it))
             return vd, (tr.read_depth_loss() if read else None)

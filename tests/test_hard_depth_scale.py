@@ -113,10 +113,11 @@ def test_the_hard_pass_renders_small_against_the_block_means(device, case, monke
     assert len(soft) == 12 - 3 + 1 and all(v < 3 for v, _, _ in soft)  # the soft term: full size, own targets
 
 
-@pytest.mark.parametrize("patches", ["pixels", "area"])
-def test_the_patch_sizes_of_the_hard_pass(device, case, monkeypatch, patches):
+@pytest.mark.parametrize("patches, lo_hi", [("pixels", (5, 17)), ("area", (5, 17)), ("area", (1, 60))])
+def test_the_patch_sizes_of_the_hard_pass(device, case, monkeypatch, patches, lo_hi):
     """LossConfig.hard_depth_patches: each depth loss call gets the sizes its draw made ('pixels', and
-    the soft term always), or for the hard pass at scale 2 with 'area' each drawn size halved, rounded up."""
+    the soft term always), or for the hard pass at scale 2 with 'area' each drawn size (capped at the full
+    frame's 48 rows) halved, rounded up, within [2, the small frame's 24 rows]."""
     from reings import losses
     from reings.backends.opencl.trainer import DeviceTrainer
 
@@ -135,15 +136,21 @@ def test_the_patch_sizes_of_the_hard_pass(device, case, monkeypatch, patches):
     monkeypatch.setattr(DeviceTrainer, "depth_loss", spy_loss)
     scene, init, cfg = case
     cfg = replace(cfg, loss=replace(cfg.loss, hard_depth_scale=2, hard_depth_patches=patches,
-                                    depth_patch_range=(5, 17)))
+                                    depth_patch_range=lo_hi))
     fit(scene, cfg, device=device, init=init, depth_targets=list(scene.depths), progress=False, engine="device")
     assert len(drawn) == len(got) == 12 + 10  # one draw per depth loss call: 12 hard, 10 soft
     odd = 0
     for (pl, pg), (w, ql, qg) in zip(drawn, got):
-        div = 2 if patches == "area" and w == 32 else 1
-        assert (ql, qg) == (-(-pl // div), -(-pg // div))
-        odd += div == 2 and (pl % 2 or pg % 2)
+        assert max(pl, pg) <= 48
+        if patches == "area" and w == 32:
+            assert (ql, qg) == tuple(min(max(2, -(-p // 2)), 24) for p in (pl, pg))
+            odd += bool(pl % 2 or pg % 2) and min(pl, pg) > 3
+        else:
+            assert (ql, qg) == (pl, pg)
     assert patches == "pixels" or odd  # an odd size was drawn: rounding up, not down, is checked
+    if lo_hi == (1, 60):  # the floor and the cap were both met
+        hard = [q for (w, *qs) in got if w == 32 for q in qs]
+        assert min(hard) == 2 and max(hard) == 24
 
 
 def test_engines_agree_and_the_scale_changes_the_fit(device, case):
@@ -194,10 +201,11 @@ def test_weights_and_the_metric_term_at_scale_2(device, case, monkeypatch):
     ("reings", "llff", {}, 2), ("reings", "dtu", {}, 1),  # the family defaults (reings only)
     ("dngaussian", "llff", {}, 1), ("dngaussian", "dtu", {}, 1),
     ("reings", "llff", {"hard_depth_scale": 1}, 1), ("reings", "dtu", {"hard_depth_scale": 2}, 2),
-    ("dngaussian", "llff", {"hard_depth_scale": 4}, 4)])
+    ("dngaussian", "llff", {"hard_depth_scale": 4}, 4), ("reings", "llff", {"depth_prior": "none"}, 1),
+    ("reings", "llff", {"depth_prior": "none", "hard_depth_scale": 2}, 2)])
 def test_the_scale_reaches_the_fits(method, family, kw, want):
-    """RunConfig.hard_depth_scale = none: the recipe family's for the reings fits (2 for 'llff', 1 for 'dtu'), 1 for
-    the baselines; a value wins everywhere. The fits' recipes carry it with the patch rule; run_settings records it
+    """RunConfig.hard_depth_scale = none: the recipe family's for the reings fits (2 for 'llff', 1 for 'dtu'; 1
+    without a depth prior, where no hard pass runs), 1 for the baselines; a value wins everywhere. The fits' recipes carry it with the patch rule; run_settings records it
     (absent at 1, so older run folders resume) with 'area' (absent at 'pixels')."""
     from test_recipe_family import _ctx
 

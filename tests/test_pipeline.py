@@ -139,8 +139,9 @@ def test_interrupted_run_resumes_to_the_same_result(tmp_path, monkeypatch):
     monkeypatch.undo()
 
     # other settings into the interrupted folder are refused
-    with pytest.raises(ValueError, match="interrupted run with other settings"):
+    with pytest.raises(ValueError, match="interrupted run with other settings") as refused:
         reings.run(out=str(out), **{**kw, "iterations": 12})
+    assert "iterations: [10, 10, 10] there, [12, 12, 12] now" in str(refused.value)  # the values, both sides
     res = reings.run(out=str(out), **kw)
     for k in ("psnr", "ssim"):
         assert res.metrics["mean"][k] == ref.metrics["mean"][k], k
