@@ -217,12 +217,13 @@ def run_settings(cfg: RunConfig, dataset_kind: str) -> dict:
         s["dtu_background"] = True
     if cfg.depth_confidence:  # absent at 0, the value before the option existed
         s["depth_confidence"] = cfg.depth_confidence
-    hd = hard_depth_scale_of(cfg, recipe_family(cfg.recipe, dataset_kind))
+    family = recipe_family(cfg.recipe, dataset_kind)
+    hd = hard_depth_scale_of(cfg, family)
     if hd != 1:  # absent at 1, the value before the option existed
         s["hard_depth_scale"] = hd
         if cfg.hard_depth_patches != "pixels":  # absent at pixels, the only meaning before session 38
             s["hard_depth_patches"] = cfg.hard_depth_patches
-    lam = [lambda_dssim_of(cfg, recipe_family(cfg.recipe, dataset_kind), st) for st in FIT_STAGES[cfg.method]]
+    lam = [lambda_dssim_of(cfg, family, st) for st in FIT_STAGES[cfg.method]]
     if lam[0] is not None:  # absent at none (the recipe's), the value before the option existed
         s["lambda_dssim"] = lam[0] if len(set(lam)) == 1 else lam  # one weight: a number, as before per-stage weights
     if cfg.grad_threshold_scale != 1:  # absent at 1, the value before the option existed
@@ -230,14 +231,14 @@ def run_settings(cfg: RunConfig, dataset_kind: str) -> dict:
     if cfg.method == "reings":  # the baselines ignore both; keys absent when off (older folders resume)
         if cfg.view_warp:
             s["view_warp"], s["view_warp_disparity"] = cfg.view_warp, cfg.view_warp_disparity
-            start = view_warp_start_of(cfg, recipe_family(cfg.recipe, dataset_kind))
+            start = view_warp_start_of(cfg, family)
             if abs(start - VIEW_WARP_START) > 1e-12:  # the value the fits use; absent at the value before the option existed
                 s["view_warp_start"] = start
         if cfg.opacity_decay is not None:
             s["opacity_decay"] = cfg.opacity_decay
-        if prune_unseen_of(cfg, recipe_family(cfg.recipe, dataset_kind)):  # absent when off (older folders resume)
+        if prune_unseen_of(cfg, family):  # absent when off (older folders resume)
             s["prune_unseen"] = True
-        cross = cross_warp_of(cfg, recipe_family(cfg.recipe, dataset_kind))
+        cross = cross_warp_of(cfg, family)
         if cross:  # the cross-view photometric term, the value the fits use: absent when off (older folders resume)
             s["cross_warp"] = cross
             if cfg.cross_warp_start:
@@ -248,19 +249,19 @@ def run_settings(cfg: RunConfig, dataset_kind: str) -> dict:
                 s["cross_warp_blur"] = list(cfg.cross_warp_blur)
     if auto_seeds and (cfg.extent == "stereo" or cfg.holdout != "protocol" or cfg.views <= 2):
         s["stereo_seeds"] = "auto"  # seeds where runs before the option had none (stereo_seeds_of)
-    if soft_depth_shared_of(cfg, recipe_family(cfg.recipe, dataset_kind)):
+    if soft_depth_shared_of(cfg, family):
         s["soft_depth_shared"] = True
-    drop = drop_gamma_of(cfg, recipe_family(cfg.recipe, dataset_kind))
+    drop = drop_gamma_of(cfg, family)
     if drop:  # the value the fits use; absent when off (older folders resume)
         s["drop_gamma"] = drop
-    metric = depth_metric_of(cfg, recipe_family(cfg.recipe, dataset_kind))
+    metric = depth_metric_of(cfg, family)
     if metric:  # as drop_gamma
         s["depth_metric"] = metric
     if cfg.holdout != "protocol":
         s["holdout"], s["views"] = cfg.holdout, None  # every view given trains
     if cfg.seed:  # the seed reaches every fit too (before, only the initial points and IVPS/CVPS draws)
         s["fit_seed"] = cfg.seed
-    k = ensemble_of(cfg, recipe_family(cfg.recipe, dataset_kind))
+    k = ensemble_of(cfg, family)
     if k > 1:  # absent for one model (older folders resume); the first stage of the method recorded as "init"
         s["ensemble"] = k
         s["ensemble_from"] = "init" if ensemble_split(cfg.method, cfg.ensemble_from) == 0 else cfg.ensemble_from

@@ -222,3 +222,26 @@ def test_the_scale_reaches_the_fits(method, family, kw, want):
     ctx, _ = _ctx(family, method=method, hard_depth_patches="pixels", **kw)
     assert ctx.run_recipe(baseline_recipe("dngaussian", 600, 0, family)).loss.hard_depth_patches == "pixels"
     assert "hard_depth_patches" not in run_settings(ctx.cfg, "dtu" if family == "dtu" else "llff")
+
+
+def test_eval_counts_runs_of_another_hard_pass_as_not_done(tmp_path):
+    """`reings eval`'s reuse check: a finished LLFF reings run from before the default (no hard_depth_scale in its
+    settings: the full pass) and one of the old option (scale 2 without hard_depth_patches: 'pixels') differ from
+    what the defaults ask now; a run of the default does not."""
+    import json
+
+    from reings.config import RunConfig
+    from reings.evaluate import _settings_differ
+    from reings.pipeline import run_settings
+
+    cfg = RunConfig()
+    now = json.loads(json.dumps(run_settings(cfg.resolved(), "llff")))
+    assert now["hard_depth_scale"] == 2 and now["hard_depth_patches"] == "area"
+    runs = {"now": now, "full": {k: v for k, v in now.items() if not k.startswith("hard_depth")},
+            "pixels": {k: v for k, v in now.items() if k != "hard_depth_patches"}}
+    for name, config in runs.items():
+        (tmp_path / name).mkdir()
+        (tmp_path / name / "metrics.json").write_text(json.dumps({"config": config}))
+    assert _settings_differ(str(tmp_path / "now" / "metrics.json"), cfg, "llff") == ""
+    assert "hard_depth_scale" in _settings_differ(str(tmp_path / "full" / "metrics.json"), cfg, "llff")
+    assert "hard_depth_patches" in _settings_differ(str(tmp_path / "pixels" / "metrics.json"), cfg, "llff")
