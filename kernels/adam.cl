@@ -57,6 +57,8 @@
 */
 #pragma OPENCL FP_CONTRACT OFF
 
+#include "common.h"
+
 #ifndef ADAM_FP64
 #define ADAM_FP64 0
 #endif
@@ -79,7 +81,7 @@ static inline void adam_elem(__global float *p, __global float *m, __global floa
     const float vi = v[i] * b2 + (gi * gi) * omb2;
     m[i] = mi;
     v[i] = vi;
-    const float den = (float)((bc_t)sqrt(vi) * inv_sqrt_bc2) + eps;
+    const float den = (float)((bc_t)SQRT1(vi) * inv_sqrt_bc2) + eps;
     p[i] = p[i] + (mi / den) * neg_step;
 }
 

@@ -74,6 +74,8 @@
  */
 #pragma OPENCL FP_CONTRACT OFF
 
+#include "common.h"
+
 #ifndef DL_FP64
 #define DL_FP64 0
 #endif
@@ -321,7 +323,7 @@ static void patch_terms_one(__global const float *depth, __global const float *t
             const real u = ((real)depth[y * W + x] - kd) - md;
             const real v = ((real)target[y * W + x] - kt) - mt;
             const real diff = u * rd - v * rt;  /* the same expression as dl_grad's: same mask */
-            if (fabs(diff) > margin) {          /* NaN (a zero-std input) is never selected */
+            if (FABSG(diff) > margin) {          /* NaN (a zero-std input) is never selected */
                 const real wd = has_wt ? (real)wt[y * W + x] * diff : diff;  /* the weighted mdiff */
                 cnt += 1;
                 sq += wd * diff;
@@ -460,7 +462,7 @@ static real term_grad(const real xd, const real xt, const real wv, __global cons
     __global const real *co = pcoef + 3 * (t * Bcap + m);
     const real u = xd - r[R_MD];
     const real diff = u * r[R_DD] - (xt - r[R_MT]) * r[R_DT];
-    const real md = fabs(diff) > margin ? wv * diff : (real)0;  /* wv = 1 without weights: exact */
+    const real md = FABSG(diff) > margin ? wv * diff : (real)0;  /* wv = 1 without weights: exact */
     return co[0] * md + co[1] * u + co[2] + tstats[4 * t + 2] * (xd - tstats[4 * t + 3]);
 }
 
@@ -472,10 +474,10 @@ static real depth_smooth_grad(__global const float *depth, __global const float 
     const int p = j * W + i;
     const float d = depth[p];
     real g = (real)0;
-    if (i + 1 < W) g += (real)sign(d - depth[p + 1]) * (real)wx[p];
-    if (i > 0) g -= (real)sign(depth[p - 1] - d) * (real)wx[p - 1];
-    if (j + 1 < H) g += (real)sign(d - depth[p + W]) * (real)wy[p];
-    if (j > 0) g -= (real)sign(depth[p - W] - d) * (real)wy[p - W];
+    if (i + 1 < W) g += (real)SIGN1(d - depth[p + 1]) * (real)wx[p];
+    if (i > 0) g -= (real)SIGN1(depth[p - 1] - d) * (real)wx[p - 1];
+    if (j + 1 < H) g += (real)SIGN1(d - depth[p + W]) * (real)wy[p];
+    if (j > 0) g -= (real)SIGN1(depth[p - W] - d) * (real)wy[p - W];
     return g;
 }
 
@@ -536,8 +538,8 @@ __kernel void depth_smooth_rows(__global const float *depth, __global const floa
     for (int i = 0; i < W; ++i) {
         const int p = j * W + i;
         const real d = (real)depth[p];
-        if (i + 1 < W) acc += fabs(d - (real)depth[p + 1]) * (real)swx[p];
-        if (j + 1 < H) acc += fabs(d - (real)depth[p + W]) * (real)swy[p];
+        if (i + 1 < W) acc += FABSG(d - (real)depth[p + 1]) * (real)swx[p];
+        if (j + 1 < H) acc += FABSG(d - (real)depth[p + W]) * (real)swy[p];
     }
     rows[j] = acc;
 }

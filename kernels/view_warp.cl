@@ -19,20 +19,23 @@
  *                       the image alone: the host makes them once per training view (ViewWarpCL.
  *                       edges) and every view_warp_smooth of that view reads them (two exponentials
  *                       per pixel fewer per step: docs/perf_notes.md §32).
- *   view_warp_smooth    global (VW_WG, H), local (VW_WG, 1), only when gs != 0, before
- *                       view_warp_bwd_depth: one work-group per row; per interior pixel o the signed
- *                       weights sxy(o) = (wx sign(ex), wy sign(ey)) (0 off the interior; wx, wy from
- *                       view_warp_edges) and per row (fixed tree) row_f[y, 1] = the sum of the terms
- *                       wx |ex| + wy |ey|.
+ *   view_warp_smooth    global (>= W, H), only when gs != 0, before view_warp_bwd_depth: per pixel o the
+ *                       signed weights sxy(o) = (wx sign(ex), wy sign(ey)) and the term wx |ex| + wy |ey| into
+ *                       pix_f[o, 1] (all 0 off the interior; wx, wy from view_warp_edges).
  *                       Stored once so that the depth gradient's stencil (sx at x +- 1, sy at
  *                       y +- 1) reads four numbers instead of recomputing 8 disparities and 4
  *                       exponentials per pixel (2.5x faster on PoCL at 504x378: docs/binocular.md).
- *   view_warp_bwd_depth global (VW_WG, H), local (VW_WG, 1): one work-group per row; lanes stride
- *                       over x. Per pixel: v_depth (written, or added to with accumulate = 1; 0
- *                       where invalid), the gradient record of the virtual image (left tap column
- *                       c0, VW_INVALID if invalid; w0 g_c and w1 g_c); per row (fixed tree):
- *                       row_f[y, 0] = sum |warped - gt| (and row_f[y, 1] = 0 when gs == 0),
- *                       row_i = (valid count, min x0, max x0 over valid pixels).
+ *   view_warp_bwd_depth global (>= W, H): per pixel v_depth (written, or added to with accumulate = 1;
+ *                       0 where invalid), the gradient record of the virtual image (left tap column
+ *                       c0, VW_INVALID if invalid; w0 g_c and w1 g_c) and pix_f[o, 0] = (|r0| + |r1|) + |r2|
+ *                       (0 where invalid; pix_f[o, 1] = 0 when gs == 0).
+ *   view_warp_rows      global (VW_WG, H), local (VW_WG, 1): one work-group per row, lanes striding over x
+ *                       (fixed tree): row_f[y] = the row's sums of pix_f[., 0] and pix_f[., 1], row_i[y] =
+ *                       (valid count, min x0, max x0), x0 = c0 - x over the valid pixels. Before
+ *                       view_warp_bwd_virt's gather schedule (its windows); on the CPU schedule only when
+ *                       the loss is read (the host's read_stats). Until 2026-11-29 bwd_depth and smooth
+ *                       were per-row kernels making these sums in every step: per pixel they run 2x
+ *                       faster on PoCL, with no reduction in the step (docs/perf_notes.md §35).
  *   view_warp_bwd_virt  v_virt [H, W, 3] (overwritten) from the records; two schedules giving the
  *                       same bits:
  *                       REINGS_CPU_SCHEDULE=1: global (H), one work-item per row scatters the row's
@@ -42,7 +45,7 @@
  *                         window x in [u - 1 - max x0, u - min x0] (the row's disparity range).
  *                       Either way each v_virt element is 0.0f plus its contributions in
  *                       ascending x, so the result is deterministic and schedule-independent.
- *   view_warp_total     global (VW_WG), local (VW_WG): one work-group sums the row records with
+ *   view_warp_total     global (VW_WG), local (VW_WG): one work-group sums view_warp_rows' records with
  *                       lane-strided partials and a fixed tree into total[3] = (sum |r|, smooth
  *                       sum, valid count as float: exact below 2^24 pixels). Launched only when
  *                       the host reads the loss.
@@ -58,8 +61,7 @@
  * sort and no local memory.
  *
  * Defines
- *   VW_WG   work-group size of the per-row kernels (view_warp_smooth, view_warp_bwd_depth) and of
- *           view_warp_total, a power of two (host: 1 on
+ *   VW_WG   work-group size of the per-row kernel view_warp_rows and of view_warp_total, a power of two (host: 1 on
  *           CPU devices, 64 on GPUs; 64 here by default)
  * Not clamped: a depth below -1e-5 gives a disparity of the other sign and exactly -1e-5 an
  * infinite one; both are used (or masked) as the formula says, like the authors' code. No occlusion
@@ -86,8 +88,8 @@ static int vw_tap(const float D, const float neg_fb, const int x, const int W, f
     *d = dd;
     *x0f = 0.0f;
     *c0 = VW_INVALID;
-    if (!(isfinite(D) && fabs(dd) < (float)W + 1.0f)) return 0;
-    const float f = floor(dd);
+    if (!(ISFINITE1(D) && FABS1(dd) < (float)W + 1.0f)) return 0;
+    const float f = FLOOR1(dd);
     const int c = x + (int)f;
     *x0f = f;
     *c0 = c;
@@ -129,17 +131,7 @@ static float vw_smooth_at(__global const float *depth, __global const float *edg
     const float wx = edges[2 * (y * W + x)], wy = edges[2 * (y * W + x) + 1];
     *sx = wx * vw_sign(ex);
     *sy = wy * vw_sign(ey);
-    return wx * fabs(ex) + wy * fabs(ey);
-}
-
-/* Fixed-tree sum of one float per lane (VW_WG lanes); the result is in s[0]. */
-static void vw_tree(__local float *s, const int lane)
-{
-    for (int off = VW_WG / 2; off > 0; off >>= 1) {
-        barrier(CLK_LOCAL_MEM_FENCE);
-        if (lane < off) s[lane] += s[lane + off];
-    }
-    barrier(CLK_LOCAL_MEM_FENCE);
+    return wx * FABS1(ex) + wy * FABS1(ey);
 }
 
 __kernel void view_warp_fwd(__global const float *virt,   // [H, W, 3] virtual render
@@ -186,23 +178,17 @@ __kernel void view_warp_edges(__global const float *gt,  // [H, W, 3] training i
 __kernel void view_warp_smooth(__global const float *depth,  // [H, W] training view's rendered depth
                                __global const float *edges,  // [H, W, 2] view_warp_edges of the training image
                                __global float *sxy,          // [H, W, 2] (wx sign(ex), wy sign(ey)); 0 off the interior
-                               __global float *row_f,        // [H, 2] writes [y, 1]: the row's smoothness sum
+                               __global float *pix_f,        // [H, W, 2] writes [p, 1]: the pixel's smoothness term
                                const float neg_fb, const int W, const int H)
 {
-    __local float s_sm[VW_WG];
-    const int lane = get_local_id(0), y = get_group_id(1);
-    float acc = 0.0f;
-    if (y < H) {
-        for (int x = lane; x < W; x += VW_WG) {
-            float sx = 0.0f, sy = 0.0f;
-            if (vw_interior(x, y, W, H)) acc += vw_smooth_at(depth, edges, neg_fb, x, y, W, &sx, &sy);
-            sxy[2 * (y * W + x)] = sx;
-            sxy[2 * (y * W + x) + 1] = sy;
-        }
-    }
-    s_sm[lane] = acc;
-    vw_tree(s_sm, lane);
-    if (lane == 0 && y < H) row_f[2 * y + 1] = s_sm[0];
+    const int x = get_global_id(0), y = get_global_id(1);
+    if (!(x < W && y < H)) return;
+    const int p = y * W + x;
+    float sx = 0.0f, sy = 0.0f, t = 0.0f;
+    if (vw_interior(x, y, W, H)) t = vw_smooth_at(depth, edges, neg_fb, x, y, W, &sx, &sy);
+    sxy[2 * p] = sx;
+    sxy[2 * p + 1] = sy;
+    pix_f[2 * p + 1] = t;
 }
 
 __kernel void view_warp_bwd_depth(__global const float *virt,   // [H, W, 3] virtual render
@@ -212,53 +198,71 @@ __kernel void view_warp_bwd_depth(__global const float *virt,   // [H, W, 3] vir
                                   __global float *v_depth,      // [H, W] dL/d depth (written, or added to)
                                   __global int *rec_tap,        // [H, W] left tap column c0, VW_INVALID if invalid
                                   __global float *rec_g,        // [H, W, 6] (w0 g_c, w1 g_c), written where valid
-                                  __global float *row_f,        // [H, 2] writes [y, 0] = sum |r| of the row ([y, 1] = 0 if gs == 0)
-                                  __global int *row_i,          // [H, 3] (valid count, min x0, max x0) of the row
+                                  __global float *pix_f,        // [H, W, 2] writes [p, 0] = (|r0| + |r1|) + |r2| (0 if invalid); [p, 1] = 0 if gs == 0
                                   const float neg_fb,           // -fx * b
                                   const float gl,               // weight / (3 H W)
                                   const float gs,               // weight * smooth_weight / ((H-2)(W-2)); 0: no smoothness
                                   const int accumulate,         // 1: v_depth += ..., 0: v_depth = ...
                                   const int W, const int H)
 {
-    __local float s_l1[VW_WG];
+    const int x = get_global_id(0), y = get_global_id(1);
+    if (!(x < W && y < H)) return;
+    const int p = y * W + x;
+    const float D = depth[p];
+    float d, x0f;
+    int c0;
+    const int ok = vw_tap(D, neg_fb, x, W, &d, &x0f, &c0);
+    float gd = 0.0f;  /* dL/dd */
+    float l1 = 0.0f;
+    if (ok) {
+        const float w1 = d - x0f, w0 = (x0f + 1.0f) - d;
+        for (int c = 0; c < 3; ++c) {
+            const float a = virt[3 * (y * W + c0) + c], b = virt[3 * (y * W + c0 + 1) + c];
+            const float r = (w0 * a + w1 * b) - gt[3 * p + c];
+            const float g = gl * vw_sign(r);
+            l1 += FABS1(r);
+            gd += g * (b - a);
+            rec_g[6 * p + c] = w0 * g;
+            rec_g[6 * p + 3 + c] = w1 * g;
+        }
+    }
+    rec_tap[p] = ok ? c0 : VW_INVALID;
+    if (ok && gs != 0.0f) {  /* dS/dp = (sx(x-1) - sx(x+1) + sy(y-1) - sy(y+1)) / 2 */
+        const float sxl = x > 0 ? sxy[2 * (p - 1)] : 0.0f, sxr = x + 1 < W ? sxy[2 * (p + 1)] : 0.0f;
+        const float syu = y > 0 ? sxy[2 * (p - W) + 1] : 0.0f, syd = y + 1 < H ? sxy[2 * (p + W) + 1] : 0.0f;
+        gd += gs * (0.5f * ((sxl - sxr) + (syu - syd)));
+    }
+    const float v = ok ? gd * (-d / (D + VW_DEPTH_EPS)) : 0.0f;
+    v_depth[p] = accumulate ? v_depth[p] + v : v;
+    pix_f[2 * p] = l1;
+    if (gs == 0.0f) pix_f[2 * p + 1] = 0.0f;
+}
+
+__kernel void view_warp_rows(__global const float *pix_f,  // [H, W, 2] from view_warp_bwd_depth / view_warp_smooth
+                             __global const int *rec_tap,  // [H, W] from view_warp_bwd_depth
+                             __global float *row_f,        // [H, 2] the row's sums of pix_f[., 0], pix_f[., 1]
+                             __global int *row_i,          // [H, 3] (valid count, min x0, max x0) of the row
+                             const int W, const int H)
+{
+    __local float s_l1[VW_WG], s_sm[VW_WG];
     __local int s_n[VW_WG], s_lo[VW_WG], s_hi[VW_WG];
     const int lane = get_local_id(0), y = get_group_id(1);
-    float acc_l1 = 0.0f;
+    float a = 0.0f, b = 0.0f;
     int n = 0, lo = W + 1, hi = -(W + 1);  /* empty row: the gather window [u-1-hi, u-lo] is empty */
     if (y < H) {
         for (int x = lane; x < W; x += VW_WG) {
-            const int p = y * W + x;
-            const float D = depth[p];
-            float d, x0f;
-            int c0;
-            const int ok = vw_tap(D, neg_fb, x, W, &d, &x0f, &c0);
-            float gd = 0.0f;  /* dL/dd */
-            if (ok) {
-                const float w1 = d - x0f, w0 = (x0f + 1.0f) - d;
-                for (int c = 0; c < 3; ++c) {
-                    const float a = virt[3 * (y * W + c0) + c], b = virt[3 * (y * W + c0 + 1) + c];
-                    const float r = (w0 * a + w1 * b) - gt[3 * p + c];
-                    const float g = gl * vw_sign(r);
-                    acc_l1 += fabs(r);
-                    gd += g * (b - a);
-                    rec_g[6 * p + c] = w0 * g;
-                    rec_g[6 * p + 3 + c] = w1 * g;
-                }
+            const int p = y * W + x, c = rec_tap[p];
+            a += pix_f[2 * p];
+            b += pix_f[2 * p + 1];
+            if (c != VW_INVALID) {  /* x0 = c0 - x */
                 n += 1;
-                lo = min(lo, (int)x0f);
-                hi = max(hi, (int)x0f);
+                lo = min(lo, c - x);
+                hi = max(hi, c - x);
             }
-            rec_tap[p] = ok ? c0 : VW_INVALID;
-            if (ok && gs != 0.0f) {  /* dS/dp = (sx(x-1) - sx(x+1) + sy(y-1) - sy(y+1)) / 2 */
-                const float sxl = x > 0 ? sxy[2 * (p - 1)] : 0.0f, sxr = x + 1 < W ? sxy[2 * (p + 1)] : 0.0f;
-                const float syu = y > 0 ? sxy[2 * (p - W) + 1] : 0.0f, syd = y + 1 < H ? sxy[2 * (p + W) + 1] : 0.0f;
-                gd += gs * (0.5f * ((sxl - sxr) + (syu - syd)));
-            }
-            const float v = ok ? gd * (-d / (D + VW_DEPTH_EPS)) : 0.0f;
-            v_depth[p] = accumulate ? v_depth[p] + v : v;
         }
     }
-    s_l1[lane] = acc_l1;
+    s_l1[lane] = a;
+    s_sm[lane] = b;
     s_n[lane] = n;
     s_lo[lane] = lo;
     s_hi[lane] = hi;
@@ -266,6 +270,7 @@ __kernel void view_warp_bwd_depth(__global const float *virt,   // [H, W, 3] vir
         barrier(CLK_LOCAL_MEM_FENCE);
         if (lane < off) {
             s_l1[lane] += s_l1[lane + off];
+            s_sm[lane] += s_sm[lane + off];
             s_n[lane] += s_n[lane + off];
             s_lo[lane] = min(s_lo[lane], s_lo[lane + off]);
             s_hi[lane] = max(s_hi[lane], s_hi[lane + off]);
@@ -274,7 +279,7 @@ __kernel void view_warp_bwd_depth(__global const float *virt,   // [H, W, 3] vir
     barrier(CLK_LOCAL_MEM_FENCE);
     if (lane == 0 && y < H) {
         row_f[2 * y] = s_l1[0];
-        if (gs == 0.0f) row_f[2 * y + 1] = 0.0f;
+        row_f[2 * y + 1] = s_sm[0];
         row_i[3 * y] = s_n[0];
         row_i[3 * y + 1] = s_lo[0];
         row_i[3 * y + 2] = s_hi[0];

@@ -355,6 +355,53 @@ def test_opacity_only_backward_is_wired(device, case):
     np.testing.assert_array_equal(two.view(np.uint32), full.view(np.uint32))
 
 
+def test_opacity_only_backward_runs_project_bwd_opacity(device, case):
+    """An opacity-only backward (the soft depth and background passes) launches project_bwd_opacity, not
+    project_bwd, and leaves project_bwd's bytes in every field: plain, and added into the held gradients of a
+    photometric backward that announced it (the shared soft depth term: its records reduced, `backward(into=)`).
+    tests/test_project.py pins the kernel's cases (masks, override, poison cotangents, accumulate start values)."""
+    import pyopencl._cl as _cl
+
+    from reings.backends.base import grad_columns
+    from reings.state import TrainState
+
+    scene, init, _ = case
+    tr = get_backend(device).trainer(scene.images, engine="device")
+    tr.upload(TrainState.from_gaussians(init, 1))
+    cam = scene.cameras[0]
+    vd = tr.mem.get("pixel", "test_v_depth", cam.width * cam.height, 4)
+    tr._write(vd, np.random.default_rng(5).normal(size=(cam.height, cam.width)).astype(np.float32))
+    orig, old = _cl.enqueue_nd_range_kernel, tr.b.proj_bwd_opacity
+    res = {}
+    try:
+        for cheap in (False, True):
+            tr.b.proj_bwd_opacity = cheap
+            names = []
+
+            def launch(queue, kernel, *a, **k):
+                names.append(kernel.function_name)
+                return orig(queue, kernel, *a, **k)
+
+            _cl.enqueue_nd_range_kernel = launch
+            fr = tr.forward(cam, 1, (0, 0, 0), 0.01)
+            gr = tr.backward(fr, tr.photometric(fr, 0, 0.8, 0.2), None, v_depth_opacity=vd, hold=True)
+            tr.backward(fr, None, vd, None, ("opacity_logits",), into=gr)
+            out = [tr._read(gr[f], (tr.n * c,), np.uint32) for f, c in grad_columns(fr.sh_k).items()]
+            fr = tr.forward(cam, 1, (0, 0, 0), 0.01)
+            g = tr.backward(fr, None, vd, None, ("opacity_logits",))
+            out += [tr._read(g[f], (tr.n * c,), np.uint32) for f, c in grad_columns(fr.sh_k).items()]
+            _cl.enqueue_nd_range_kernel = orig
+            res[cheap] = out
+            assert names.count("project_bwd_opacity") == (2 if cheap else 0), names
+            assert names.count("project_bwd") == (1 if cheap else 3), names
+    finally:
+        _cl.enqueue_nd_range_kernel, tr.b.proj_bwd_opacity = orig, old
+    for i, (a, b) in enumerate(zip(res[False], res[True])):
+        assert np.array_equal(a, b), i
+    o = res[True][3].view(np.float32)
+    assert np.abs(o).max() > 0 and not res[True][5].any()  # the opacity's gradient; zeros in the plain one's others
+
+
 @pytest.mark.parametrize("vw,fuse", [(1, True), (8, True), (16, True), (8, False)])
 def test_backward_stats_adds_what_accumulate_adds(device, case, vw, fuse):
     """backward(stats=True) (project_bwd adds the densification statistics, densify.h) leaves the same

@@ -495,6 +495,112 @@ def check_project_bwd_accumulate(device, g, cam, grad_fields=None, seed=0, name=
     return plain
 
 
+def _opacity_only_outputs(be, g, cam, v_proj, start, override, drop, acc):
+    """The outputs (field -> uint32 words) of the opacity-only backward (grad_fields ("opacity_logits",)) of the
+    frame of `g` with the cotangent rows `v_proj`, into buffers holding `start`: project_bwd_opacity where
+    be.proj_bwd_opacity, else project_bwd with grad_mask 8 (test_project_bwd_opacity_keeps_the_bits)."""
+    import pyopencl as cl
+
+    n, k = len(g), g.sh.shape[1]
+    fr = be._new_frame(n, cam.width, cam.height, k)
+    fr.bufs["in"] = be._upload_gaussians(g)
+    be._project_device(fr, fr.bufs["in"], cam, 0.01, override, drop)
+    fr.bufs["v_proj"] = be._upload("gauss", "v_proj_in", v_proj)
+    mf = cl.mem_flags
+    out = {f: cl.Buffer(be.handle.context, mf.READ_WRITE | mf.COPY_HOST_PTR, hostbuf=a) for f, a in start.items()}
+    be._project_bwd_device(fr, override, ("opacity_logits",), out, accumulate=acc)
+    res = {f: be._read(out[f], (len(a),), np.uint32) for f, a in start.items()}
+    res["radii"] = be._read(fr.bufs["radii"], (n,), np.int32)
+    be._finish()
+    return res
+
+
+@pytest.mark.parametrize("vw", ["16-blocks", 16, 8, 1, "1-staged"])
+def test_project_bwd_opacity_keeps_the_bits(device, vw):
+    """project_bwd_opacity (an opacity-only backward: radii > 0 for the culling, no projection) gives project_bwd's
+    bytes with grad_mask 8 in every output, written (the other fields +0.0) and added (the accumulate mode: out + 0.0
+    on culled rows too, the other fields untouched), into start values with signed zeros and poison: under a
+    DropGaussian mask (dropped rows that the projection alone keeps), the opacity override, rows culled otherwise
+    (behind the camera, a NaN logit; rows 32-63 a wholly culled work-item), logits of +-100 (exp overflows), and
+    cotangent rows with +-inf, NaN, huge entries that set the power-of-two scale (an opacity cotangent that the
+    scale takes below the normal floats: the scaled chain's bits, not the unscaled one's), and work-items whose
+    rows are all small (the kernel's unscaled path; 2^60, the largest unscaled value, and a big stale value in a
+    culled row, which sends its work-item to the scaled path); SH degree 3, 300
+    Gaussians (a partial last work-item), each lane width (16 with and without PROJ_BLOCK_IO) and width 1 with
+    the SH rows staged. NaNs are compared as NaNs (`_nan_canonical`)."""
+    from reings.backends.base import grad_columns
+    from reings.backends.reference_drop import Drop
+
+    be = get_backend(device)
+    if not be.cpu and vw != 1 and vw != "1-staged":
+        pytest.skip("the 8 and 16 lane widths are the CPU schedule's")
+    n = 300
+    g, cam = random_scene(n, 64, 48, seed=21, sh_degree=3, scale_median=0.1)
+    means, logits = g.means.copy(), g.opacity_logits.copy()
+    means[::7, 2] = -5.0
+    means[32:64, 2] = -5.0
+    logits[3::29], logits[4::29], logits[5::29] = 100.0, -100.0, np.nan
+    g = replace(g, means=means, opacity_logits=logits)
+    rng = np.random.default_rng(5)
+    vp = rng.normal(size=(n, 10)).astype(np.float32)
+    # rows 0-127: whole work-items at 8 and 16 lanes, one big entry at most in each (project_bwd_opacity's unscaled
+    # path where there is none). Rows 0-15: NaNs and 2^60, the largest unscaled value (v_op 1e-25: scaled, it would
+    # lose bits); 25: 3e38 (scaled, v_op 1e-30 underflows); 99: the float after 2^60 (scaled by 2^59: v_op 1e-25
+    # loses bits); 83: v_op inf (saturated); 70: a big stale value in a culled row (every 7th): the scaled path
+    vp[2, 8], vp[4, 4], vp[10, 3], vp[10, 8] = np.nan, np.nan, 2.0**60, 1e-25
+    vp[25, 0], vp[25, 8], vp[99, 1], vp[99, 8] = 3e38, 1e-30, np.nextafter(np.float32(2**60), np.float32(np.inf)), 1e-25
+    vp[83, 8], vp[70, 2] = np.inf, 1e38
+    p = vp[128:]  # the rest: poison and huge cotangents (cotangents_in's scale)
+    p[1::13] = np.array([np.inf, -np.inf, 3e38, np.nan, 1e-40, -0.0, 0, 1, 2, 3], np.float32)
+    p[2::13, 8] = np.inf
+    p[6::13, 8] = -np.inf
+    p[7::13, 8] = np.nan
+    p[8::13, 0], p[8::13, 8] = 3e38, 1e-30  # vscale 2^126: 1e-30 / vscale underflows to 0
+    p[9::13, 3], p[9::13, 8] = -np.inf, -7e-36
+    p[10::13, 2] = np.nan  # NaN elsewhere in the row: vmax ignores it
+    start = {}
+    for f, c in grad_columns(g.sh.shape[1]).items():
+        a = rng.normal(size=n * c).astype(np.float32)
+        a[0::5] = -0.0  # -0.0 + 0.0 is +0.0: an added zero shows
+        a[1::7] = ACC_POISON[np.arange(len(a[1::7])) % len(ACC_POISON)]
+        start[f] = a
+    old = be.proj_vw, be.proj_stage, be.proj_block, be.proj_bwd_opacity
+    try:
+        if vw == "1-staged":
+            be.proj_vw, be.proj_stage, be.proj_block = 1, True, None
+        else:
+            be.proj_vw, be.proj_stage = (16 if vw == "16-blocks" else vw), False
+            be.proj_block = True if vw == "16-blocks" else (False if vw == 16 else None)
+        cases = ((None, Drop.at_rate(0.25, key=3)), (0.99, None), (None, None))
+        for (override, drop), acc in [(c, a) for c in cases for a in (False, True)]:
+            name = f"vw{vw} override={override} drop={drop is not None} accumulate={acc}"
+            res = {}
+            for cheap in (False, True):
+                be.proj_bwd_opacity = cheap
+                res[cheap] = _opacity_only_outputs(be, g, cam, vp, start, override, drop, acc)
+            radii = res[True]["radii"]
+            assert (radii > 0).any() and (radii == 0).any() and not radii[32:64].any(), name
+            assert drop is not None or (radii[[2, 4, 10, 25, 83, 99]] > 0).all(), name  # the planted rows count
+            for f in start:
+                a, b = _nan_canonical(res[False][f]), _nan_canonical(res[True][f])
+                assert np.array_equal(a, b), f"{name}: v_{f} rows {np.flatnonzero(a != b)[:8]}"
+                if f != "opacity_logits":
+                    want = start[f].view(np.uint32) if acc else np.zeros(len(start[f]), np.uint32)
+                    assert np.array_equal(b, _nan_canonical(want)), f"{name}: v_{f}"
+            o = res[True]["opacity_logits"].view(np.float32)
+            vis = radii > 0
+            if override is None:  # visible rows gave gradients, the saturated ones huge, the NaN ones NaN
+                assert (np.abs(o[vis]) > 1e37).any() and np.isnan(o[vis]).any(), name
+                assert ((np.abs(o[vis]) > 0) & (np.abs(o[vis]) < 1e3)).sum() > vis.sum() // 2, name
+            else:  # the override's constant opacity: zeros (added: the start values, -0.0 now +0.0)
+                assert not np.any(o[vis]) or acc, name
+            if drop is not None:  # rows the mask dropped that the projection alone keeps
+                assert ((res[True]["radii"] == 0) & (be.project_fwd(g, cam).radii > 0)).any(), name
+    finally:
+        be.proj_vw, be.proj_stage, be.proj_block, be.proj_bwd_opacity = old
+    assert any(key[1] == "project_bwd_opacity" for key in be._kernels), "the cheap kernel never ran"
+
+
 def check_packed_records(device, g, cam, name=""):
     """project_fwd's rasterizer records (raster_prep_one over the floats it stored) are rasterize_prep's
     bytes on the same projection outputs: the device forward launches no rasterize_prep."""
@@ -591,6 +697,11 @@ def test_project_oclgrind(lanes):
                 check_project_bwd("oclgrind", g, cam, name=f"oclgrind vw{vw} sh{deg} drop", drop=drop)
                 check_project_bwd_accumulate("oclgrind", g, cam, ("opacity_logits", "sh") if deg else None,
                                              name=f"oclgrind vw{vw} sh{deg} accumulate")
+                # the opacity-only backward (project_bwd_opacity), written and added
+                check_project_bwd("oclgrind", g, cam, grad_fields=("opacity_logits",), drop=drop,
+                                  name=f"oclgrind vw{vw} sh{deg} opacity-only")
+                check_project_bwd_accumulate("oclgrind", g, cam, ("opacity_logits",),
+                                             name=f"oclgrind vw{vw} sh{deg} opacity-only accumulate")
                 check_packed_records("oclgrind", g, cam, name=f"oclgrind vw{vw} sh{deg} records")
             c = case("quat_tiny")
             check_project_fwd("oclgrind", c.gaussians, c.camera, name="quat_tiny")

@@ -8,9 +8,10 @@ The training step's form is `enqueue`: device buffers in ([H, W, 3] virtual rend
 depth of the training view, [H, W, 3] training image), gradients out (v_virt overwritten, v_depth
 written or, with accumulate_depth=True, added to what another term left there); nothing is read
 back. Three launches (view_warp_smooth, skipped when smooth_weight is 0; view_warp_bwd_depth;
-view_warp_bwd_virt), four without `edges` (view_warp_edges first: the training image's edge weights,
-which a caller with a fixed training image makes once with `edges`); the loss stays on the device as
-per-row partial sums until `read_loss` / `read_stats`. `__call__` is the host convenience form
+view_warp_bwd_virt), with the gather schedule (GPUs) view_warp_rows before the last, one more without
+`edges` (view_warp_edges first: the training image's edge weights, which a caller with a fixed training
+image makes once with `edges`); the loss stays on the device as per-pixel values until `read_loss` /
+`read_stats` (view_warp_rows there on the CPU schedule, then view_warp_total). `__call__` is the host convenience form
 (numpy in and out) and `forward` the diagnostic warped image and validity mask.
 
 The formulas, and what matches what: `reings.backends.reference_view_warp` (float64 twin) and the
@@ -28,7 +29,8 @@ import numpy as np
 
 from .. import reference_view_warp as ref
 
-_KERNELS = ("view_warp_fwd", "view_warp_edges", "view_warp_smooth", "view_warp_bwd_depth", "view_warp_bwd_virt", "view_warp_total")
+_KERNELS = ("view_warp_fwd", "view_warp_edges", "view_warp_smooth", "view_warp_bwd_depth", "view_warp_rows",
+            "view_warp_bwd_virt", "view_warp_total")
 _F, _I = np.float32, np.int32
 
 
@@ -65,11 +67,13 @@ class ViewWarpCL:
         self.k["view_warp_fwd"].set_scalar_arg_dtypes([None, None, None, None, _F, _I, _I])
         self.k["view_warp_edges"].set_scalar_arg_dtypes([None, None, _I, _I])
         self.k["view_warp_smooth"].set_scalar_arg_dtypes([None] * 4 + [_F, _I, _I])
-        self.k["view_warp_bwd_depth"].set_scalar_arg_dtypes([None] * 9 + [_F, _F, _F, _I, _I, _I])
+        self.k["view_warp_bwd_depth"].set_scalar_arg_dtypes([None] * 8 + [_F, _F, _F, _I, _I, _I])
+        self.k["view_warp_rows"].set_scalar_arg_dtypes([None] * 4 + [_I, _I])
         self.k["view_warp_bwd_virt"].set_scalar_arg_dtypes([None] * 4 + [_I, _I])
         self.k["view_warp_total"].set_scalar_arg_dtypes([None, None, None, _I])
         self.mem = Scratch(self.handle)
         self._last = None  # (h, w, weight, smooth_weight) of the last enqueue
+        self._rows_made = False  # view_warp_rows has run on the last enqueue's per-pixel values
         self.events: list = []  # (kernel name, cl.Event) of the last enqueue
         self._total = np.empty(3, np.float32)
 
@@ -97,9 +101,9 @@ class ViewWarpCL:
         h, w, gl, gs, nfb = self._scalars(h, w, fx, baseline, weight, smooth_weight)
         rec_tap = self.mem.get("pixel", "vw_rec_tap", h * w, 4)
         rec_g = self.mem.get("pixel", "vw_rec_g", h * w, 6 * 4)
-        row_f = self.mem.get("pixel", "vw_row_f", h, 2 * 4)
-        row_i = self.mem.get("pixel", "vw_row_i", h, 3 * 4)
+        pix_f = self.mem.get("pixel", "vw_pix_f", h * w, 2 * 4)
         q = self.handle.queue
+        grid, local = (_pad(w, self.lwg), h), (self.lwg, 1)
         evs = []
         sxy = rec_g  # a dummy (never read) when there is no smoothness term
         if gs != 0:
@@ -107,23 +111,37 @@ class ViewWarpCL:
                 edges = self.edges(gt_buf, h, w, wait_for=wait_for)
                 evs, wait_for = list(self.events), None
             sxy = self.mem.get("pixel", "vw_sxy", h * w, 2 * 4)
-            ev = self.k["view_warp_smooth"](q, (self.wg, h), (self.wg, 1), depth_buf, edges, sxy, row_f, nfb,
-                                            _I(w), _I(h), wait_for=wait_for)
+            ev = self.k["view_warp_smooth"](q, grid, local, depth_buf, edges, sxy, pix_f, nfb, _I(w), _I(h),
+                                            wait_for=wait_for)
             evs.append(("view_warp_smooth", ev))
             wait_for = None
-        ev = self.k["view_warp_bwd_depth"](q, (self.wg, h), (self.wg, 1), virt_buf, depth_buf, gt_buf, sxy,
-                                           v_depth_buf, rec_tap, rec_g, row_f, row_i, nfb, gl, gs,
-                                           _I(bool(accumulate_depth)), _I(w), _I(h), wait_for=wait_for)
+        ev = self.k["view_warp_bwd_depth"](q, grid, local, virt_buf, depth_buf, gt_buf, sxy, v_depth_buf, rec_tap,
+                                           rec_g, pix_f, nfb, gl, gs, _I(bool(accumulate_depth)), _I(w), _I(h),
+                                           wait_for=wait_for)
         evs.append(("view_warp_bwd_depth", ev))
+        self._rows_made = False
         if self.cpu_schedule:
-            ev = self.k["view_warp_bwd_virt"](q, (h,), None, rec_tap, rec_g, row_i, v_virt_buf, _I(w), _I(h))
-        else:
-            ev = self.k["view_warp_bwd_virt"](q, (_pad(w, self.lwg), h), (self.lwg, 1), rec_tap, rec_g, row_i,
-                                              v_virt_buf, _I(w), _I(h))
+            ev = self.k["view_warp_bwd_virt"](q, (h,), None, rec_tap, rec_g, self._row_i(h), v_virt_buf, _I(w), _I(h))
+        else:  # the gather's windows need the rows' disparity ranges first
+            evs.append(("view_warp_rows", self._rows(h, w)))
+            ev = self.k["view_warp_bwd_virt"](q, grid, local, rec_tap, rec_g, self._row_i(h), v_virt_buf, _I(w),
+                                              _I(h))
         evs.append(("view_warp_bwd_virt", ev))
         self.events = evs  # (kernel, event) of this call, for profiling
         self._last = (h, w, float(weight), float(smooth_weight))
         return ev
+
+    def _row_i(self, h: int):
+        return self.mem.get("pixel", "vw_row_i", h, 3 * 4)
+
+    def _rows(self, h: int, w: int):
+        """view_warp_rows of the last enqueue's per-pixel values: the rows' loss sums and (valid count, min x0,
+        max x0), once per enqueue. Returns the event."""
+        self._rows_made = True
+        return self.k["view_warp_rows"](self.handle.queue, (self.wg, h), (self.wg, 1),
+                                        self.mem.get("pixel", "vw_pix_f", h * w, 2 * 4),
+                                        self.mem.get("pixel", "vw_rec_tap", h * w, 4),
+                                        self.mem.get("pixel", "vw_row_f", h, 2 * 4), self._row_i(h), _I(w), _I(h))
 
     def read_stats(self) -> dict:
         """Of the last `enqueue`: l1_sum (sum |warped - gt| over valid pixels), smooth_sum, valid
@@ -133,6 +151,8 @@ class ViewWarpCL:
         if self._last is None:
             raise RuntimeError("ViewWarpCL.read_stats before any enqueue")
         h, w, weight, smooth_weight = self._last
+        if not self._rows_made:  # the CPU schedule sums the rows only when the loss is read
+            self._rows(h, w)
         total = self.mem.get("small", "vw_total", 3, 4)
         self.k["view_warp_total"](self.handle.queue, (self.wg,), (self.wg,), self.mem.get("pixel", "vw_row_f", h, 8),
                                   self.mem.get("pixel", "vw_row_i", h, 12), total, _I(h))

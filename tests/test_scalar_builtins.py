@@ -1,0 +1,97 @@
+"""kernels/common.h's scalar builtins (REINGS_SCALAR_BUILTINS, on where REINGS_CLANG_BUILTINS is: PoCL's CPU
+devices): clang's __builtin_sqrtf / fabsf / floorf / isfinite / elementwise_abs and the plain-operator sign in
+place of PoCL's library calls, which stop the work-item loop vectorizer (docs/perf_notes.md §35). They must not
+change a value: the kernels that take them, built with the define on (this process, the default) and off (a
+fresh process with REINGS_CL_BUILD_OPTIONS=-DREINGS_SCALAR_BUILTINS=0), give the same bytes on inputs with
+edge values (non-finite and negative depths, ties, +-0, NaN). adam.cl's sqrt is covered by test_adam_kernel.py
+(bit for bit against numpy, whose sqrt is correctly rounded, as __builtin_sqrtf's)."""
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import textwrap
+
+import numpy as np
+import pytest
+
+pytest.importorskip("pyopencl")
+
+_HERE = os.path.dirname(os.path.abspath(__file__))
+_ROOT = os.path.dirname(_HERE)
+
+# the outputs of every kernel that takes the builtins, written to the npz file argv[1]
+_SNIPPET = textwrap.dedent("""
+    import sys
+    import numpy as np
+    sys.path[:0] = [ROOT, HERE]
+    from reings.backends import reference_loss as R
+    from reings.backends.opencl.losses import DepthLossCL
+    from reings.backends.opencl.view_warp import ViewWarpCL
+
+    out = {}
+    rng = np.random.default_rng(3)
+    h, w = 37, 61
+    # view_warp: depths with NaN, +-inf, negatives, zeros, a value at -1e-5 (an infinite disparity) and far
+    # ones; the images with exact ties between neighbours (sign 0 in the smoothness and L1 terms)
+    depth = rng.uniform(0.5, 30.0, (h, w)).astype(np.float32)
+    depth[3, 4], depth[5, 9], depth[7, 11], depth[9, 2] = np.nan, np.inf, -np.inf, -3.0
+    depth[11, 20], depth[12, 21], depth[13, 1] = 0.0, -0.0, -1e-5
+    depth[15, :] = depth[15, 0]
+    virt = rng.uniform(0, 1, (h, w, 3)).astype(np.float32)
+    gt = rng.uniform(0, 1, (h, w, 3)).astype(np.float32)
+    gt[:, 30:33] = gt[:, 30:31]
+    virt[20] = gt[20]
+    for b in (0.37, -0.21, 2.5):
+        for cs in (True, False):
+            vw = ViewWarpCL(DEVICE, cpu_schedule=cs)
+            loss, v_virt, v_depth = vw(virt, depth, gt, 40.0, b)
+            warped, valid = vw.forward(virt, depth, 40.0, b)
+            key = f"vw_{b}_{cs}"
+            out[key + "_loss"] = np.float64(loss)
+            out[key + "_virt"], out[key + "_depth"], out[key + "_warped"] = v_virt, v_depth, warped
+            out[key + "_valid"] = valid
+    # depth loss (+ smoothness, weights): ties (a copied column), a constant patch row (zero spread)
+    d = rng.uniform(1.0, 5.0, (h, w)).astype(np.float32)
+    t = rng.uniform(1.0, 5.0, (h, w)).astype(np.float32)
+    d[:, 3] = d[:, 2]
+    d[10:20, 10:20] = 2.0
+    t[0:8, :] = 1.5
+    wt = rng.uniform(0.0, 1.0, (h, w)).astype(np.float32)
+    sw = R.DepthSmoothWeights(t)
+    for fp64 in (True, False):
+        for cs in (True, False):
+            dl = DepthLossCL(DEVICE, fp64=fp64, cpu_schedule=cs)
+            for i, (pl, pg) in enumerate(((5, 17), (3, 9), (8, 8))):
+                loss, g = dl(d, t, pl, pg, 0.0001, smooth=(sw, 0.1), weight=wt if i == 1 else None)
+                key = f"dl_{fp64}_{cs}_{i}"
+                out[key + "_loss"], out[key + "_grad"] = np.float64(loss), g
+    np.savez(sys.argv[1], **out)
+""")
+
+
+def _outputs(tmp_path, device: str, scalar_builtins: int | None) -> dict:
+    env = dict(os.environ)
+    if scalar_builtins is not None:
+        env["REINGS_CL_BUILD_OPTIONS"] = (env.get("REINGS_CL_BUILD_OPTIONS", "") +
+                                          f" -DREINGS_SCALAR_BUILTINS={scalar_builtins}").strip()
+    path = tmp_path / f"out_{scalar_builtins}.npz"
+    code = f"ROOT, HERE, DEVICE = {_ROOT!r}, {_HERE!r}, {device!r}\n" + _SNIPPET
+    p = subprocess.run([sys.executable, "-c", code, str(path)], env=env, capture_output=True, text=True, timeout=600)
+    assert p.returncode == 0, p.stderr[-4000:]
+    with np.load(path) as z:
+        return {k: z[k] for k in z.files}
+
+
+def test_scalar_builtins_keep_the_bits(device, tmp_path):
+    from reings.backends.opencl.program import library_for
+    from reings.backends.opencl.device import open_device
+
+    if not library_for(open_device(device)).base_defines.get("REINGS_CLANG_BUILTINS"):
+        pytest.skip("the scalar builtins are taken where clang's builtins are: PoCL's CPU devices")
+    on, off = _outputs(tmp_path, device, None), _outputs(tmp_path, device, 0)
+    assert on.keys() == off.keys() and len(on) > 40
+    for k in on:
+        assert on[k].dtype == off[k].dtype and on[k].shape == off[k].shape, k
+        # the bytes (NaN payloads compared as bytes too: both builds make them in the same operations)
+        assert on[k].tobytes() == off[k].tobytes(), k
