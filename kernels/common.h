@@ -53,7 +53,9 @@ inline uint launch_count(const uint n, __global const uint *counts, const int co
 #define ALPHA_BOX_LO(o) ((o) * 255.0f)
 /* The half-width from ln(lo), computed once per splat for both axes and the cut (PoCL calls its log, Sleef's,
  * and on a vector once per lane; docs/perf_notes.md §30). */
-#define ALPHA_BOX_HALF_LN(ln_lo, q, det, rel) (sqrt(2.0f * (ln_lo) * (q) / (det)) * (rel) + ALPHA_BOX_PAD)
+/* BOX_SQRT: the sqrt it takes where it is expanded (project.cl's lanes: VSQRT, the same values) */
+#define BOX_SQRT(x) sqrt(x)
+#define ALPHA_BOX_HALF_LN(ln_lo, q, det, rel) (BOX_SQRT(2.0f * (ln_lo) * (q) / (det)) * (rel) + ALPHA_BOX_PAD)
 /* The power below which alpha = o exp(power) < ALPHA_MIN for certain: -ln(lo) less ALPHA_CUT_PAD (a
  * factor e^-0.001 in alpha, far above float32's rounding of log, exp and the product). The CPU
  * rasterizer skips a pixel vector's exp where every lane's power is below it: those lanes fail the

@@ -231,7 +231,7 @@ typedef uint16 vu;
         (tmp)[12] = (x).sc; (tmp)[13] = (x).sd; (tmp)[14] = (x).se; (tmp)[15] = (x).sf;   \
     } while (0)
 #define STORE_F(x, tmp) STORE16(x, tmp)
-#define VLOAD_F(k, p) vload16(k, p)
+#define VLOAD_F(k, p) GLD_vf(k, p)
 #define VFROM(t) ((vf)((t)[0], (t)[1], (t)[2], (t)[3], (t)[4], (t)[5], (t)[6], (t)[7], (t)[8], (t)[9], (t)[10], \
                        (t)[11], (t)[12], (t)[13], (t)[14], (t)[15]))
 #define STORE_I(x, tmp) STORE16(x, tmp)
@@ -254,6 +254,85 @@ typedef uint vu;
 #define STORE_U(x, tmp) ((tmp)[0] = (x))
 #else
 #error "PROJ_VW must be 1, 8 or 16"
+#endif
+
+/* Lane math without PoCL's library calls (REINGS_SCALAR_BUILTINS, common.h): clang's elementwise floor / ceil /
+   max / min (llvm.floor, .ceil, .maxnum, .minnum: OpenCL's floor, ceil, fmax, fmin, NaN rule included) and sqrt
+   lane by lane through __builtin_sqrtf (IEEE, correctly rounded; the vectorizer makes one vsqrtps of them); clamp
+   is fmin(fmax(x, lo), hi), as OpenCL defines it. Each builtin call spilled the live vector registers around it
+   (docs/perf_notes.md §17, §35). The same bytes either way (tests/test_scalar_builtins.py). */
+#if REINGS_SCALAR_BUILTINS && defined(__has_builtin)
+#if __has_builtin(__builtin_elementwise_floor) && __has_builtin(__builtin_elementwise_ceil) && \
+    __has_builtin(__builtin_elementwise_max) && __has_builtin(__builtin_elementwise_min)
+#define PROJ_LANE_BUILTINS 1
+#endif
+#endif
+#ifndef PROJ_LANE_BUILTINS
+#define PROJ_LANE_BUILTINS 0
+#endif
+#if PROJ_LANE_BUILTINS
+#define VFLOOR(x) __builtin_elementwise_floor((vf)(x))
+#define VCEIL(x) __builtin_elementwise_ceil((vf)(x))
+#define VFMAX(a, b) __builtin_elementwise_max((vf)(a), (vf)(b))
+#define VFMIN(a, b) __builtin_elementwise_min((vf)(a), (vf)(b))
+#if PROJ_VW == 16
+inline vf vsqrt_(vf x) {
+    return (vf)(__builtin_sqrtf(x.s0), __builtin_sqrtf(x.s1), __builtin_sqrtf(x.s2), __builtin_sqrtf(x.s3),
+                __builtin_sqrtf(x.s4), __builtin_sqrtf(x.s5), __builtin_sqrtf(x.s6), __builtin_sqrtf(x.s7),
+                __builtin_sqrtf(x.s8), __builtin_sqrtf(x.s9), __builtin_sqrtf(x.sa), __builtin_sqrtf(x.sb),
+                __builtin_sqrtf(x.sc), __builtin_sqrtf(x.sd), __builtin_sqrtf(x.se), __builtin_sqrtf(x.sf));
+}
+#elif PROJ_VW == 8
+inline vf vsqrt_(vf x) {
+    return (vf)(__builtin_sqrtf(x.s0), __builtin_sqrtf(x.s1), __builtin_sqrtf(x.s2), __builtin_sqrtf(x.s3),
+                __builtin_sqrtf(x.s4), __builtin_sqrtf(x.s5), __builtin_sqrtf(x.s6), __builtin_sqrtf(x.s7));
+}
+#else
+inline vf vsqrt_(vf x) { return __builtin_sqrtf(x); }
+#endif
+#define VSQRT(x) vsqrt_((vf)(x))
+#else
+#define VFLOOR(x) floor(x)
+#define VCEIL(x) ceil(x)
+#define VFMAX(a, b) fmax(a, b)
+#define VFMIN(a, b) fmin(a, b)
+#define VSQRT(x) sqrt(x)
+#endif
+#define VCLAMP(x, lo, hi) VFMIN(VFMAX(x, lo), hi)
+#undef BOX_SQRT
+#define BOX_SQRT(x) VSQRT(x) /* ALPHA_BOX_HALF_LN (common.h) on lanes */
+/* Vector loads and stores of global rows (16-lane blocks, PROJ_BLOCK_IO; their 8- and 4-float heads): PoCL's vload16 /
+   vstore16 are library calls too; with PROJ_LANE_BUILTINS plain accesses through 4-byte-aligned vector types
+   (photometric.cl's LDV / STV), the same bytes. GLD_T / GST_T name the lane type T (vf, vi, vu). */
+#if PROJ_VW == 16 && PROJ_LANE_BUILTINS
+typedef float16 vf_u16_ __attribute__((aligned(4)));
+typedef int16 vi_u16_ __attribute__((aligned(4)));
+typedef uint16 vu_u16_ __attribute__((aligned(4)));
+typedef float8 vf_u8_ __attribute__((aligned(4)));
+typedef float4 vf_u4_ __attribute__((aligned(4)));
+#define GLD_vf(k, p) (*(__global const vf_u16_ *)((p) + (size_t)16 * (k)))
+#define GLD_vi(k, p) (*(__global const vi_u16_ *)((p) + (size_t)16 * (k)))
+#define GLD_vu(k, p) (*(__global const vu_u16_ *)((p) + (size_t)16 * (k)))
+#define GST_vf(x, k, p) (*(__global vf_u16_ *)((p) + (size_t)16 * (k)) = (x))
+#define GST_vi(x, k, p) (*(__global vi_u16_ *)((p) + (size_t)16 * (k)) = (x))
+#define GST_vu(x, k, p) (*(__global vu_u16_ *)((p) + (size_t)16 * (k)) = (x))
+#define GLD8(p) (*(__global const vf_u8_ *)(p))
+#define GST8(x, p) (*(__global vf_u8_ *)(p) = (x))
+#define GLD4(p) (*(__global const vf_u4_ *)(p))
+#define GST4(x, p) (*(__global vf_u4_ *)(p) = (x))
+#define PST_vf(x, p) (*(__private vf_u16_ *)(p) = (x))
+#else
+#define GLD_vf(k, p) vload16(k, p)
+#define GLD_vi(k, p) vload16(k, p)
+#define GLD_vu(k, p) vload16(k, p)
+#define GST_vf(x, k, p) vstore16(x, k, p)
+#define GST_vi(x, k, p) vstore16(x, k, p)
+#define GST_vu(x, k, p) vstore16(x, k, p)
+#define GLD8(p) vload8(0, p)
+#define GST8(x, p) vstore8(x, 0, p)
+#define GLD4(p) vload4(0, p)
+#define GST4(x, p) vstore4(x, 0, p)
+#define PST_vf(x, p) vstore16(x, 0, p)
 #endif
 
 /* out[(g0 + l) * stride + off] = lane l of x, for the lanes that are real Gaussians */
@@ -338,7 +417,7 @@ typedef uint vu;
 #define DEINTERLEAVE(S, p, out)                                                                 \
     do {                                                                                        \
         vf v_[4];                                                                               \
-        for (int k_ = 0; k_ < 4; ++k_) v_[k_] = vload16(k_ < (S) ? k_ : (S) - 1, p);          \
+        for (int k_ = 0; k_ < 4; ++k_) v_[k_] = GLD_vf(k_ < (S) ? k_ : (S) - 1, p);           \
         DI_J_(S, 0, v_, out); DI_J_(S, 1, v_, out); DI_J_(S, 2, v_, out); DI_J_(S, 3, v_, out); \
     } while (0)
 /* interleave: float f = 16 k + m of the block is lane f / S of component f % S (components c0 c1 | c2 c3) */
@@ -355,7 +434,7 @@ typedef uint vu;
 #define BLOCK_OUT_K_(T, S, k, c, o, acc)                                                        \
     if ((k) < (S)) {                                                                            \
         const T y_ = INTERLEAVE_K(S, k, c);                                                     \
-        vstore16((acc) ? vload16(k, o) + y_ : y_, k, o);                                        \
+        GST_##T((acc) ? GLD_##T(k, o) + y_ : y_, k, o);                                         \
     }
 #define BLOCK_OUT(T, S, vals, o, acc)                                                           \
     do {                                                                                        \
@@ -388,7 +467,7 @@ PROJ_INLINE void transpose16(vf *m) {
 PROJ_INLINE void rows_in(__global const float *p, const int stride, const int cols, vf *out) {
     for (int b = 0; b < cols; b += 16) {
         vf m[16];
-        for (int l = 0; l < 16; ++l) m[l] = vload16(0, p + (size_t)l * stride + b);
+        for (int l = 0; l < 16; ++l) m[l] = GLD_vf(0, p + (size_t)l * stride + b);
         transpose16(m);
         for (int c = 0; c < 16 && b + c < cols; ++c) out[b + c] = m[c];
     }
@@ -396,12 +475,12 @@ PROJ_INLINE void rows_in(__global const float *p, const int stride, const int co
 
 /* the first cnt (<= 16, a constant) floats of r to p (acc: added to what is there) */
 PROJ_INLINE void store_head(const vf r, const int cnt, __global float *p, const int acc) {
-    if (cnt == 16) { vstore16(acc ? vload16(0, p) + r : r, 0, p); return; }
+    if (cnt == 16) { GST_vf(acc ? GLD_vf(0, p) + r : r, 0, p); return; }
     int o = 0;
-    if (cnt & 8) { const float8 x = r.lo; vstore8(acc ? vload8(0, p) + x : x, 0, p); o = 8; }
-    if (cnt & 4) { const float4 x = (o ? r.hi.lo : r.lo.lo); vstore4(acc ? vload4(0, p + o) + x : x, 0, p + o); o += 4; }
+    if (cnt & 8) { const float8 x = r.lo; GST8(acc ? GLD8(p) + x : x, p); o = 8; }
+    if (cnt & 4) { const float4 x = (o ? r.hi.lo : r.lo.lo); GST4(acc ? GLD4(p + o) + x : x, p + o); o += 4; }
     float t[16];
-    vstore16(r, 0, t);
+    PST_vf(r, t);
     for (int i = o; i < cnt; ++i) p[i] = acc ? p[i] + t[i] : t[i];
 }
 
@@ -506,7 +585,7 @@ PROJ_INLINE void load_raw(raw_t *r, const int blk, const int g0, const vi gid, _
         DEINTERLEAVE(3, means + 3 * (size_t)g0, r->mu);
         DEINTERLEAVE(4, quats + 4 * (size_t)g0, r->q);
         DEINTERLEAVE(3, log_scales + 3 * (size_t)g0, r->ls);
-        r->ol = vload16(0, opacity_logits + g0);
+        r->ol = GLD_vf(0, opacity_logits + g0);
         if (sh.dc_stride == 3) {
             DEINTERLEAVE(3, sh.dc + 3 * (size_t)g0, r->sh);
         } else {
@@ -585,12 +664,12 @@ PROJ_INLINE vi project_one(vi gid, __global const float *means, __global const f
 
     /* quaternion -> rotation; |q| computed scaled by max |q_i| so that neither huge nor tiny
        (denormal) components overflow or underflow the sum of squares */
-    vf qmax = fmax(fmax(FABS(q[0]), FABS(q[1])), fmax(FABS(q[2]), FABS(q[3])));
+    vf qmax = VFMAX(VFMAX(FABS(q[0]), FABS(q[1])), VFMAX(FABS(q[2]), FABS(q[3])));
     ok &= qmax > 0.0f;
     vf iqm = 1.0f / qmax;
     vf w = q[0] * iqm, x = q[1] * iqm, y = q[2] * iqm, z = q[3] * iqm;
     vf n2 = w * w + x * x + y * y + z * z; /* in [1, 4] */
-    vf qn = sqrt(n2);
+    vf qn = VSQRT(n2);
     p->qnorm = qmax * qn;
     ok &= p->qnorm >= PROJ_QUAT_NORM_MIN;  /* undefined rotation */
     w /= qn; x /= qn; y /= qn; z /= qn;
@@ -620,8 +699,8 @@ PROJ_INLINE vi project_one(vi gid, __global const float *means, __global const f
     vf xz = p->t[0] * rz, yz = p->t[1] * rz;
     p->clx = !((xz >= -cam[21]) & (xz <= cam[20]));
     p->cly = !((yz >= -cam[23]) & (yz <= cam[22]));
-    p->txc = tz * clamp(xz, -cam[21], cam[20]);
-    p->tyc = tz * clamp(yz, -cam[23], cam[22]);
+    p->txc = tz * VCLAMP(xz, -cam[21], cam[20]);
+    p->tyc = tz * VCLAMP(yz, -cam[23], cam[22]);
     p->u = fx * p->t[0] * rz + cx;
     p->v = fy * p->t[1] * rz + cy;
     vf *J = p->J;
@@ -639,7 +718,7 @@ PROJ_INLINE vi project_one(vi gid, __global const float *means, __global const f
     ok &= FINITE(p->a) & FINITE(p->b) & FINITE(p->c);
     /* det, conic and lambda_max computed on Sigma2d / m, m = max(a, c) >= EPS2D, so that a huge
        but representable Sigma2d does not overflow det = ac - b^2 */
-    const vf m = fmax(p->a, p->c), im = 1.0f / m;
+    const vf m = VFMAX(p->a, p->c), im = 1.0f / m;
     const vf a1 = p->a * im, b1 = p->b * im, c1 = p->c * im;
     const vf det1 = a1 * c1 - b1 * b1;
     ok &= det1 > 0.0f;  /* degenerate (NaN fails) */
@@ -648,22 +727,22 @@ PROJ_INLINE vi project_one(vi gid, __global const float *means, __global const f
 
     /* radius and tile rectangle: lambda_max = m (mid1 + sqrt(max(0.1 / m^2, mid1^2 - det1))) */
     vf mid1 = 0.5f * (a1 + c1);
-    vf lam = m * (mid1 + sqrt(fmax(PROJ_LAMBDA_FLOOR * im * im, mid1 * mid1 - det1)));
-    vf r = ceil(PROJ_SIGMAS * sqrt(lam));
+    vf lam = m * (mid1 + VSQRT(VFMAX(PROJ_LAMBDA_FLOOR * im * im, mid1 * mid1 - det1)));
+    vf r = VCEIL(PROJ_SIGMAS * VSQRT(lam));
     ok &= (lam <= FLT_MAX) & FINITE(p->u) & FINITE(p->v) & FINITE(p->A) & FINITE(p->B) & FINITE(p->C);
     p->radius = r;
     const int tiles_x = (width + TILE_SIZE - 1) / TILE_SIZE, tiles_y = (height + TILE_SIZE - 1) / TILE_SIZE;
     const float inv_tile = 1.0f / (float)TILE_SIZE;
     /* clamped in float (a huge r would overflow an int); integral values */
-    p->rect[0] = clamp(floor((p->u - r) * inv_tile), 0.0f, (float)tiles_x);
-    p->rect[1] = clamp(floor((p->v - r) * inv_tile), 0.0f, (float)tiles_y);
-    p->rect[2] = clamp(ceil((p->u + r) * inv_tile), 0.0f, (float)tiles_x);
-    p->rect[3] = clamp(ceil((p->v + r) * inv_tile), 0.0f, (float)tiles_y);
+    p->rect[0] = VCLAMP(VFLOOR((p->u - r) * inv_tile), 0.0f, (float)tiles_x);
+    p->rect[1] = VCLAMP(VFLOOR((p->v - r) * inv_tile), 0.0f, (float)tiles_y);
+    p->rect[2] = VCLAMP(VCEIL((p->u + r) * inv_tile), 0.0f, (float)tiles_x);
+    p->rect[3] = VCLAMP(VCEIL((p->v + r) * inv_tile), 0.0f, (float)tiles_y);
     ok &= (p->rect[2] > p->rect[0]) & (p->rect[3] > p->rect[1]);  /* off screen (NaN fails) */
 
     /* SH colour at the view direction */
     vf d[3] = {mu[0] - cam[16], mu[1] - cam[17], mu[2] - cam[18]};
-    vf dn = sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
+    vf dn = VSQRT(d[0] * d[0] + d[1] * d[1] + d[2] * d[2]);
     p->dnorm = dn;
     vf idn = SEL((vf)0.0f, 1.0f / dn, dn > 0.0f);
     for (int i = 0; i < 3; ++i) p->dir[i] = d[i] * idn;
@@ -712,13 +791,13 @@ PROJ_INLINE vf alpha_rect(proj_t *p, vf o) {
     const vf ex = ALPHA_BOX_HALF_LN(ln_lo, C, det, ALPHA_BOX_REL * PROJ_BOX_SLACK);
     const vf ey = ALPHA_BOX_HALF_LN(ln_lo, A, det, ALPHA_BOX_REL * PROJ_BOX_SLACK);
     const float inv_tile = 1.0f / (float)TILE_SIZE;
-    const vf bx0 = floor(ceil(p->u - ex - 0.5f) * inv_tile), bx1 = floor(floor(p->u + ex - 0.5f) * inv_tile) + 1.0f;
-    const vf by0 = floor(ceil(p->v - ey - 0.5f) * inv_tile), by1 = floor(floor(p->v + ey - 0.5f) * inv_tile) + 1.0f;
+    const vf bx0 = VFLOOR(VCEIL(p->u - ex - 0.5f) * inv_tile), bx1 = VFLOOR(VFLOOR(p->u + ex - 0.5f) * inv_tile) + 1.0f;
+    const vf by0 = VFLOOR(VCEIL(p->v - ey - 0.5f) * inv_tile), by1 = VFLOOR(VFLOOR(p->v + ey - 0.5f) * inv_tile) + 1.0f;
     vf r[4];
-    r[0] = SEL(p->rect[0], fmax(p->rect[0], bx0), box);
-    r[1] = SEL(p->rect[1], fmax(p->rect[1], by0), box);
-    r[2] = SEL(p->rect[2], fmin(p->rect[2], bx1), box);
-    r[3] = SEL(p->rect[3], fmin(p->rect[3], by1), box);
+    r[0] = SEL(p->rect[0], VFMAX(p->rect[0], bx0), box);
+    r[1] = SEL(p->rect[1], VFMAX(p->rect[1], by0), box);
+    r[2] = SEL(p->rect[2], VFMIN(p->rect[2], bx1), box);
+    r[3] = SEL(p->rect[3], VFMIN(p->rect[3], by1), box);
     /* empty: o < 1/255, or the box misses the 3-sigma tiles (lo NaN or inf: no box, rect kept) */
     const vi empty = (lo < 1.0f) | !((r[2] > r[0]) & (r[3] > r[1]));
     for (int i = 0; i < 4; ++i) p->rect[i] = SEL(r[i], (vf)0.0f, empty);
@@ -737,12 +816,12 @@ PROJ_INLINE void raster_prep_lanes(const vf *f10, const vf ln_lo, __global float
     const vi has = (lo >= 1.0f) & FINITE(u) & FINITE(v) & FINITE(lo);
     const vf det = A * C - B * B;
     const vi pd = (det > 0.0f) & (A > 0.0f) & (C > 0.0f) & FINITE(det);
-    const vf ex = SEL((vf)1e7f, fmin(ALPHA_BOX_HALF_LN(ln_lo, C, det, ALPHA_BOX_REL), 1e7f), pd);
-    const vf ey = SEL((vf)1e7f, fmin(ALPHA_BOX_HALF_LN(ln_lo, A, det, ALPHA_BOX_REL), 1e7f), pd);
-    f[10] = SEL((vf)1.0f, clamp(ceil(u - ex - 0.5f), -2.0f, 1e7f), has); /* empty box: (1, 0, 1, 0) */
-    f[11] = SEL((vf)0.0f, clamp(floor(u + ex - 0.5f), -2.0f, 1e7f), has);
-    f[12] = SEL((vf)1.0f, clamp(ceil(v - ey - 0.5f), -2.0f, 1e7f), has);
-    f[13] = SEL((vf)0.0f, clamp(floor(v + ey - 0.5f), -2.0f, 1e7f), has);
+    const vf ex = SEL((vf)1e7f, VFMIN(ALPHA_BOX_HALF_LN(ln_lo, C, det, ALPHA_BOX_REL), 1e7f), pd);
+    const vf ey = SEL((vf)1e7f, VFMIN(ALPHA_BOX_HALF_LN(ln_lo, A, det, ALPHA_BOX_REL), 1e7f), pd);
+    f[10] = SEL((vf)1.0f, VCLAMP(VCEIL(u - ex - 0.5f), -2.0f, 1e7f), has); /* empty box: (1, 0, 1, 0) */
+    f[11] = SEL((vf)0.0f, VCLAMP(VFLOOR(u + ex - 0.5f), -2.0f, 1e7f), has);
+    f[12] = SEL((vf)1.0f, VCLAMP(VCEIL(v - ey - 0.5f), -2.0f, 1e7f), has);
+    f[13] = SEL((vf)0.0f, VCLAMP(VFLOOR(v + ey - 0.5f), -2.0f, 1e7f), has);
     f[14] = SEL((vf)0.0f, ALPHA_CUT_LN(ln_lo), has);
     f[15] = 0.0f;
     rows_out(f, 16, rec, 16, 0);
@@ -866,14 +945,14 @@ __kernel PROJ_ATTR void project_fwd(const int n,
         const vf dz[1] = {SEL(zero, p.t[2], vis)};
         OUT_ROWS(vf, SCATTER_F, depths, 1, dz);
         /* radius saturates like the reference's int32 cast */
-        const vi rad = SEL(CVT_I(fmin(p.radius, 2147483520.0f)), (vi)INT_MAX, p.radius >= 2147483648.0f);
+        const vi rad = SEL(CVT_I(VFMIN(p.radius, 2147483520.0f)), (vi)INT_MAX, p.radius >= 2147483648.0f);
         const vi ra[1] = {SEL((vi)0, rad, vis)};
         OUT_ROWS(vi, SCATTER_I, radii, 1, ra);
         vi tr[4];
         for (int i = 0; i < 4; ++i) tr[i] = SEL((vi)0, CVT_I(p.rect[i]), vis);
         OUT_ROWS(vi, SCATTER_I, tile_rect, 4, tr);
         vf cl[3];
-        for (int ch = 0; ch < 3; ++ch) cl[ch] = SEL(zero, fmax(p.raw[ch], 0.0f), vis);
+        for (int ch = 0; ch < 3; ++ch) cl[ch] = SEL(zero, VFMAX(p.raw[ch], 0.0f), vis);
         OUT_ROWS(vf, SCATTER_F, colors, 3, cl);
         const vf oo[1] = {SEL(zero, op, vis)};
         OUT_ROWS(vf, SCATTER_F, opacities, 1, oo);
@@ -983,7 +1062,7 @@ PROJ_INLINE void project_bwd_one(const int n,
     const vf zero = 0.0f;
 #if PROJ_BLOCK_IO
     const int blk = BLOCKS(n);
-    vi vis = ((blk ? vload16(0, radii + g0) : GATHER_I(radii, gid)) > 0) & lane_ok;
+    vi vis = ((blk ? GLD_vi(0, radii + g0) : GATHER_I(radii, gid)) > 0) & lane_ok;
 #else
     vi vis = (GATHER_I(radii, gid) > 0) & lane_ok;
 #endif
@@ -1231,8 +1310,8 @@ __kernel void project_bwd_opacity(const int n,
     LANES(n);
 #if PROJ_BLOCK_IO
     const int blk = BLOCKS(n);
-    const vi vis = ((blk ? vload16(0, radii + g0) : GATHER_I(radii, gid)) > 0) & lane_ok;
-    const vf logit = blk ? vload16(0, opacity_logits + g0) : GATHER(opacity_logits, gid);
+    const vi vis = ((blk ? GLD_vi(0, radii + g0) : GATHER_I(radii, gid)) > 0) & lane_ok;
+    const vf logit = blk ? GLD_vf(0, opacity_logits + g0) : GATHER(opacity_logits, gid);
 #else
     const int blk = 0;
     const vi vis = (GATHER_I(radii, gid) > 0) & lane_ok;
