@@ -193,10 +193,9 @@ inline int any16(int16 m) { return any8(m.lo | m.hi); }
 #endif
 
 /* Scalar math without PoCL's calls (REINGS_SCALAR_BUILTINS, default REINGS_CLANG_BUILTINS): clang's
- * __builtin_sqrtf / fabsf / floorf / ceilf / copysignf / fmaxf / fminf / isfinite / isinf lower to LLVM's
- * intrinsics (one instruction each: sqrtss, andps, roundss, ..., IEEE sqrt correctly rounded, fmaxf / fminf
- * with fmax / fmin's NaN rule), which the work-item loop vectorizer can widen, where PoCL's library calls
- * stop it and spill around each call (docs/perf_notes.md §17, §35). The same values as OpenCL's builtins
+ * __builtin_sqrtf / fabsf / floorf / isfinite lower to LLVM's intrinsics (one instruction each: sqrtss,
+ * andps, roundss, a compare; IEEE sqrt correctly rounded), which the work-item loop vectorizer can widen,
+ * where PoCL's library calls stop it and spill around each call (docs/perf_notes.md §17, §35). The same values as OpenCL's builtins
  * (the byte tests compare both builds). Elsewhere (GPUs, Oclgrind) the OpenCL builtins. */
 #ifndef REINGS_SCALAR_BUILTINS
 #define REINGS_SCALAR_BUILTINS REINGS_CLANG_BUILTINS
@@ -205,27 +204,17 @@ inline int any16(int16 m) { return any8(m.lo | m.hi); }
 #define SQRT1(x) __builtin_sqrtf(x)
 #define FABS1(x) __builtin_fabsf(x)
 #define FLOOR1(x) __builtin_floorf(x)
-#define CEIL1(x) __builtin_ceilf(x)
-#define COPYSIGN1(x, y) __builtin_copysignf(x, y)
-#define FMAX1(x, y) __builtin_fmaxf(x, y)
-#define FMIN1(x, y) __builtin_fminf(x, y)
 #define ISFINITE1(x) __builtin_isfinite(x)
-#define ISINF1(x) __builtin_isinf(x)
 #else
 #define SQRT1(x) sqrt(x)
 #define FABS1(x) fabs(x)
 #define FLOOR1(x) floor(x)
-#define CEIL1(x) ceil(x)
-#define COPYSIGN1(x, y) copysign(x, y)
-#define FMAX1(x, y) fmax(x, y)
-#define FMIN1(x, y) fmin(x, y)
 #define ISFINITE1(x) isfinite(x)
-#define ISINF1(x) isinf(x)
 #endif
 
 /* FABSG(x): fabs of any floating type (float, double, their vectors): clang's __builtin_elementwise_abs where
  * REINGS_SCALAR_BUILTINS holds and the compiler has it (llvm.fabs: a mask of the sign bit), else fabs.
- * SIGN1(x): OpenCL's sign of a float, with REINGS_SCALAR_BUILTINS in plain operators: 1, -1, x itself for +-0
+ * SIGNF(x): OpenCL's sign of a float, with REINGS_SCALAR_BUILTINS in plain operators: 1, -1, x itself for +-0
  * (sign(+-0) = +-0), 0 for NaN. */
 #if REINGS_SCALAR_BUILTINS && defined(__has_builtin)
 #if __has_builtin(__builtin_elementwise_abs)
@@ -236,9 +225,9 @@ inline int any16(int16 m) { return any8(m.lo | m.hi); }
 #define FABSG(x) fabs(x)
 #endif
 #if REINGS_SCALAR_BUILTINS
-#define SIGN1(x) ((x) > 0.0f ? 1.0f : ((x) < 0.0f ? -1.0f : ((x) == 0.0f ? (x) : 0.0f)))
+#define SIGNF(x) ((x) > 0.0f ? 1.0f : ((x) < 0.0f ? -1.0f : ((x) == 0.0f ? (x) : 0.0f)))
 #else
-#define SIGN1(x) sign(x)
+#define SIGNF(x) sign(x)
 #endif
 
 #endif /* REINGS_COMMON_H */

@@ -474,10 +474,10 @@ static real depth_smooth_grad(__global const float *depth, __global const float 
     const int p = j * W + i;
     const float d = depth[p];
     real g = (real)0;
-    if (i + 1 < W) g += (real)SIGN1(d - depth[p + 1]) * (real)wx[p];
-    if (i > 0) g -= (real)SIGN1(depth[p - 1] - d) * (real)wx[p - 1];
-    if (j + 1 < H) g += (real)SIGN1(d - depth[p + W]) * (real)wy[p];
-    if (j > 0) g -= (real)SIGN1(depth[p - W] - d) * (real)wy[p - W];
+    if (i + 1 < W) g += (real)SIGNF(d - depth[p + 1]) * (real)wx[p];
+    if (i > 0) g -= (real)SIGNF(depth[p - 1] - d) * (real)wx[p - 1];
+    if (j + 1 < H) g += (real)SIGNF(d - depth[p + W]) * (real)wy[p];
+    if (j > 0) g -= (real)SIGNF(depth[p - W] - d) * (real)wy[p - W];
     return g;
 }
 

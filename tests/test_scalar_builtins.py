@@ -53,6 +53,10 @@ _SNIPPET = textwrap.dedent("""
             out[key + "_loss"] = np.float64(loss)
             out[key + "_virt"], out[key + "_depth"], out[key + "_warped"] = v_virt, v_depth, warped
             out[key + "_valid"] = valid
+            # no smoothness term (gs = 0: view_warp_smooth skipped), the depth gradient added into another's
+            loss, v_virt, v_depth = vw(virt, depth, gt, 40.0, b, 0.5, 0.0, v_depth=depth * 0.01)
+            out[key + "_nosmooth_loss"], out[key + "_nosmooth_virt"] = np.float64(loss), v_virt
+            out[key + "_nosmooth_depth"] = v_depth
     # depth loss (+ smoothness, weights): ties (a copied column), a constant patch row (zero spread)
     d = rng.uniform(1.0, 5.0, (h, w)).astype(np.float32)
     t = rng.uniform(1.0, 5.0, (h, w)).astype(np.float32)
@@ -75,7 +79,7 @@ _SNIPPET = textwrap.dedent("""
     from cases import random_scene
     from reings.backends import get_backend
     from reings.backends.reference_drop import Drop
-    from test_project import _block_io_outputs
+    from test_project import _block_io_outputs, _cast_grads, _random_grads
 
     be = get_backend(DEVICE)
     if be.cpu:
@@ -91,6 +95,25 @@ _SNIPPET = textwrap.dedent("""
                 for layout in ("packed", "in_place"):
                     for name, a in _block_io_outputs(be, g, cam, layout, Drop.at_rate(0.25, key=3)):
                         out[f"proj_{deg}_{vw}_{layout}_{name}"] = a
+            # the stage methods at every width (1: the scalar lanes), the opacity-only backward (project_bwd_opacity:
+            # its block shortcut and its rescaled rows) among them; cotangents with +-inf, NaN and huge rows
+            gr = _cast_grads(_random_grads(len(g), deg))
+            with np.errstate(invalid="ignore", over="ignore"):
+                edge = np.array([np.inf, -np.inf, np.nan, 3e38, -2e30, 1e-40])
+                gr.v_opacities[4::9] = edge[np.arange(len(gr.v_opacities[4::9])) % 6]
+                gr.v_conics[6::10, 1] = 1e25
+            for vw in (1, 8, 16):
+                be.proj_vw = vw
+                drop = Drop.at_rate(0.25, key=5)
+                p = be.project_fwd(g, cam, drop=drop)
+                for f in ("means2d", "conics", "colors", "opacities", "depths", "radii", "tile_rect"):
+                    out[f"stage_{deg}_{vw}_fwd_{f}"] = np.asarray(getattr(p, f))
+                for fields in (None, ("opacity_logits",)):
+                    for override in (None, 0.99):
+                        gb = be.project_bwd(g, cam, None, gr, grad_fields=fields, opacity_override=override,
+                                            drop=drop if override is None else None)  # never both (project_fwd)
+                        for f in ("means", "quats", "log_scales", "opacity_logits", "sh"):
+                            out[f"stage_{deg}_{vw}_bwd_{fields}_{override}_v_{f}"] = np.asarray(getattr(gb, f))
     np.savez(sys.argv[1], **out)
 """)
 
@@ -115,11 +138,22 @@ def test_scalar_builtins_keep_the_bits(device, tmp_path):
 
     if not library_for(open_device(device)).base_defines.get("REINGS_CLANG_BUILTINS"):
         pytest.skip("the scalar builtins are taken where clang's builtins are: PoCL's CPU devices")
+    import pyopencl as cl
+
+    # the builds differ only where the compiler has the builtins (else both take OpenCL's: a vacuous comparison)
+    probe = ("__kernel void k(__global int *o) { o[0] = 0;\n#if !__has_builtin(__builtin_elementwise_max) || "
+             "!__has_builtin(__builtin_elementwise_floor) || !__has_builtin(__builtin_sqrtf)\n#error no builtins\n#endif\n}")
+    dev = open_device(device)
+    try:
+        cl.Program(dev.context, probe).build()
+    except cl.RuntimeError:
+        pytest.fail("this PoCL's clang lacks __builtin_elementwise_max / floor or __builtin_sqrtf: the two builds would "
+                    "be one (project.cl's PROJ_LANE_BUILTINS off)")
     on, off = _outputs(tmp_path, device, None), _outputs(tmp_path, device, 0)
     assert on.keys() == off.keys() and len(on) > 40
     for k in on:
         assert on[k].dtype == off[k].dtype and on[k].shape == off[k].shape, k
         a, b = on[k], off[k]
-        if k.startswith("proj_") and "_v_" in k:  # gradients: a NaN's sign and payload may differ between two
+        if k.startswith(("proj_", "stage_")) and "_v_" in k:  # gradients: a NaN's sign and payload may differ between two
             a, b = _nan_canonical(a), _nan_canonical(b)  # builds of PoCL's LLVM (test_project._nan_canonical)
         assert a.tobytes() == b.tobytes(), k
