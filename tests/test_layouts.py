@@ -325,7 +325,8 @@ def test_project_cl_reads_the_camera_record_as_commented():
     assert set(scalar) == {"near", "fx", "fy", "cx", "cy"}, f"project.cl scalar camera reads found: {scalar}"
     for var, k in scalar.items():
         assert idx[k] == var, f"project.cl reads {var} from cam[{k}], the comment says cam[{k}] is {idx[k]!r}"
-    clamps = re.findall(r"clamp\(\s*(\w)z\s*,\s*-cam\[(\d+)\]\s*,\s*cam\[(\d+)\]\s*\)", src)
+    # clamp, or VCLAMP (project.cl's lanes: fmin(fmax) without PoCL's library calls, docs/perf_notes.md §35)
+    clamps = re.findall(r"\b(?:clamp|VCLAMP)\(\s*(\w)z\s*,\s*-cam\[(\d+)\]\s*,\s*cam\[(\d+)\]\s*\)", src)
     assert {a for a, _, _ in clamps} == {"x", "y"}, f"project.cl clamp reads found: {clamps}"
     for axis, neg, pos in clamps:
         assert (idx[int(neg)], idx[int(pos)]) == (f"lim_{axis}_neg", f"lim_{axis}_pos"), (axis, neg, pos)
