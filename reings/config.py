@@ -233,6 +233,10 @@ class LossConfig:
     view_warp_baseline: float = opt(0.4, "largest |baseline| of the virtual view, world units (drawn uniformly "
                                          "per iteration, random sign; authors: 0.4 in COLMAP units)")
     view_warp_from: int = opt(20_000, "first iteration of the view_warp term (authors: 2/3 of the schedule)")
+    view_warp_every: int = opt(1, "the view_warp term at every N-th iteration from view_warp_from on, its weight "
+                                  "times N (the same weight per iteration on average; its virtual view is a render "
+                                  "and a backward more per iteration that takes it; authors: 1)",
+                               check=lambda v: None if isinstance(v, int) and v >= 1 else f"must be an integer >= 1, got {v!r}")
     drop_gamma: float = opt(0.0, "DropGaussian (Park et al. 2025, docs/method.md §9): the largest drop rate, "
                                  "reached at the fit's last iteration; at iteration t of T each Gaussian is left "
                                  "out of the photometric pass's renders with rate gamma t / T and the kept ones' "
@@ -681,6 +685,15 @@ class RunConfig:
                                           "authors' 0.4 COLMAP units is 2.6-5.5 px on the LLFF scenes here)",
                                      check=lambda v: None if v > 0 and v == v and v != float("inf")
                                      else f"must be positive and finite, got {v}", metavar="PIXELS")
+    view_warp_every: int | None = opt(None, "reings fits only: the view_warp term at every N-th iteration from its "
+                                            "start, its weight times N (its virtual view is a render and a backward "
+                                            "more in each iteration that takes it: speed, issue 15); 1 = every "
+                                            "iteration (Binocular3DGS); none: the recipe family's (1 for 'llff' and 'dtu': at 2, "
+                                            "full schedule, 3 views, seeds 0-2, fern -0.06, flower -1.42 (two seeds "
+                                            "fell ~2 dB), room +0.19 dB, ~8 percent less training on an H200; "
+                                            "docs/results.md §51)",
+                                      check=lambda v: None if v is None or (isinstance(v, int) and v >= 1)
+                                      else f"must be an integer >= 1, got {v!r}", metavar="N")
     # none -> the recipe family's: on for DTU (scan24 3 views, seeds 0-2: 16.06 dB with it, 14.90 without),
     # off for LLFF (fern+flower 2 views: 18.36 with it, 19.07 without; 3 views: 21.06 / 20.96, flower
     # -0.26 dB): docs/results.md §9

@@ -537,7 +537,7 @@ def _prepare(jobs) -> None:
 _ABSENT_WHEN_OFF = ("drop_gamma", "depth_metric", "prune_unseen", "cross_warp", "cross_warp_start",
                     "cross_warp_occlusion", "cross_warp_blur", "view_warp_start", "lambda_dssim",
                     "soft_depth_shared", "grad_threshold_scale", "ensemble", "ensemble_from", "hard_depth_scale",
-                    "hard_depth_patches")
+                    "hard_depth_patches", "view_warp_every")
 
 
 def _settings_differ(metrics_path: str, cfg, dataset_kind: str | None = None) -> str:

@@ -446,6 +446,8 @@ def fit(views, config: TrainConfig, device: str = "pocl", init: Gaussians | None
         v = getattr(L, name)
         if not (v >= 0 and np.isfinite(v)):  # also NaN
             raise ValueError(f"fit: LossConfig.{name} must be >= 0 and finite, got {v}")
+    if isinstance(L.view_warp_every, bool) or not isinstance(L.view_warp_every, (int, np.integer)) or L.view_warp_every < 1:
+        raise ValueError(f"fit: LossConfig.view_warp_every must be an integer >= 1, got {L.view_warp_every!r}")
     if L.hard_depth_scale not in (1, 2, 4):
         raise ValueError(f"fit: LossConfig.hard_depth_scale must be 1, 2 or 4, got {L.hard_depth_scale!r}")
     bad = blur_sigmas(L.cross_warp_blur)  # 0 is the sharp level, always taken
@@ -688,7 +690,7 @@ class _Iteration:
         model too, and the occlusion test compares depths of the one dropped model."""
         tr, L, D, ph = self.tr, self.L, self.cfg.densify, self.tr.phase
         drop = drop_at(L.drop_gamma, self.cfg.seed, it, self.cfg.iterations, self.draws)
-        warp = L.view_warp_weight > 0 and it >= L.view_warp_from
+        warp = L.view_warp_weight > 0 and it >= L.view_warp_from and (it - L.view_warp_from) % L.view_warp_every == 0
         if warp:
             b = warp_baseline(self.cfg.seed, it, L.view_warp_baseline, self.draws)
             with ph("warp_render"):
@@ -706,7 +708,8 @@ class _Iteration:
         v_depth = None
         if warp:
             with ph("view_warp"):
-                v_virt, v_depth = tr.view_warp(virt, fr, vi, b, L.view_warp_weight, L.view_warp_smooth)
+                v_virt, v_depth = tr.view_warp(virt, fr, vi, b, L.view_warp_weight * L.view_warp_every,
+                                               L.view_warp_smooth)
         metric = bool(L.depth_metric) and self.targets is not None and self.targets[vi] is not None
         if metric:
             with ph("depth_metric"):

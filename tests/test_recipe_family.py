@@ -110,7 +110,8 @@ def test_typical_depth_is_the_median_point_depth():
     ("llff", {}, 1.0, None), ("dtu", {}, 1.0, 0.995),                     # the defaults per family
     ("dtu", {"opacity_decay": 1.0}, 1.0, None), ("llff", {"opacity_decay": 0.99}, 1.0, 0.99),
     ("llff", {"view_warp": 0.0}, 0.0, None), ("llff", {"view_warp": 2.0, "view_warp_disparity": 8.0}, 2.0, None),
-    ("llff", {"view_warp_start": 0.25}, 1.0, None), ("llff", {"view_warp_start": 0.0}, 1.0, None)])
+    ("llff", {"view_warp_start": 0.25}, 1.0, None), ("llff", {"view_warp_start": 0.0}, 1.0, None),
+    ("llff", {"view_warp_every": 3}, 1.0, None), ("dtu", {"view_warp_every": 2}, 1.0, 0.995)])
 def test_binocular_settings_of_the_reings_fits(family, kw, weight, decay):
     ctx, cam = _ctx(family, **kw)
     base = soft_depth_recipe(600, 0, family)
@@ -121,8 +122,22 @@ def test_binocular_settings_of_the_reings_fits(family, kw, weight, decay):
         assert abs(r.loss.view_warp_baseline - px * 4.0 / cam.fx) < 1e-9  # px at the median depth 4
         start = kw.get("view_warp_start")
         assert r.loss.view_warp_from == (400 if start is None else max(1, round(start * 600)))  # 2/3 by default
+        assert r.loss.view_warp_every == kw.get("view_warp_every", 1)  # every iteration by default
     else:
         assert r.loss == base.loss
+
+
+def test_view_warp_every_is_recorded_only_off_its_default():
+    """run_settings (what a resume and `reings eval` compare) holds view_warp_every only where it is not
+    1, the value before the option existed (older folders resume); a bad value is refused."""
+    from reings.pipeline import run_settings
+
+    assert "view_warp_every" not in run_settings(RunConfig().resolved(), "llff")
+    assert "view_warp_every" not in run_settings(RunConfig(view_warp_every=1).resolved(), "llff")
+    assert run_settings(RunConfig(view_warp_every=2).resolved(), "llff")["view_warp_every"] == 2
+    for bad in (0, -1, 1.5):
+        with pytest.raises(ValueError, match="view_warp_every"):
+            RunConfig(view_warp_every=bad).resolved()
 
 
 @pytest.mark.parametrize("method", ["reings", "dngaussian"])

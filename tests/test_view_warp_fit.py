@@ -285,6 +285,40 @@ def test_fit_device_matches_host(device, case):
     _same_state(host.state, dev.state, exact, "device vs host engine with view_warp and opacity decay")
 
 
+@pytest.mark.parametrize("every", [1, 3])
+def test_view_warp_every_takes_every_nth_iteration_at_n_times_the_weight(device, case, every, monkeypatch):
+    """LossConfig.view_warp_every N: the term at iterations view_warp_from + k N only (12, 15, 18, 21 of
+    the case's 23 at N = 3), each with weight N times view_warp_weight; the device engine agrees with
+    the host engine (bit for bit on PoCL)."""
+    from reings.backends.host_trainer import HostTrainer
+
+    scene, init, cfg = case
+    sc = (scene, init, replace(cfg, loss=replace(cfg.loss, view_warp_weight=0.5, view_warp_every=every)))
+    calls = []
+    real = HostTrainer.view_warp
+
+    def spy(self, virt, fr, view, baseline, weight, smooth_weight):
+        calls.append((self.state.iteration, weight))  # state.iteration: the iteration before this one
+        return real(self, virt, fr, view, baseline, weight, smooth_weight)
+
+    monkeypatch.setattr(HostTrainer, "view_warp", spy)
+    host = _fit(sc, device, engine="host")
+    want_its = list(range(12, 24, every))
+    assert [it + 1 for it, _ in calls] == want_its
+    assert all(w == 0.5 * every for _, w in calls)
+    assert [it for it, *_ in host.history.view_warp] == [it for it in (15, 20, 23) if it in want_its]
+    dev = _fit(sc, device, engine="device")
+    exact = quirks.is_pocl(get_backend(device).handle.device)
+    _same_state(host.state, dev.state, exact, f"device vs host engine, view_warp_every {every}")
+
+
+@pytest.mark.parametrize("bad", [0, -2, 1.5, True])
+def test_view_warp_every_refuses_what_is_not_a_count(case, bad):
+    scene, init, cfg = case
+    with pytest.raises(ValueError, match="view_warp_every"):
+        fit_case((scene, init, replace(cfg, loss=replace(cfg.loss, view_warp_every=bad))), "reference")
+
+
 def test_fit_device_matches_host_with_shared_soft_depth(device, case):
     """The soft depth term on the photometric render (soft_depth_shared) together with the
     view_warp term: both add into the held gradients; the engines agree (bit for bit on PoCL)."""
