@@ -378,14 +378,14 @@ RUN_PRESETS = {
                        {"3dgs": (600,), "dngaussian": (600,), "reings": (200, 200, 600)},
                        {"3dgs": 0, "dngaussian": 0, "reings": 0}),
     # the CPU preset: SH 0, EHPS seeded from the stereo prior at every view count (docs/results.md §18:
-    # +3.7 dB at 2 views under a short schedule), and since session 13 (§23) 300/300/1200 iterations with
-    # the soft depth term on the photometric render: with DropGaussian and the pruning (§20) quick's
-    # 200/200/600 fell 1.11/0.92 dB under the full schedule (fern/flower, 3 views); 300/300/1200 + shared:
-    # seeds 0-2 in docs/results.md §23, in 7-7.5 minutes on 2 shared Xeon cores
-    "fast": RunPreset("the CPU preset: reings 300/300/1200 iterations with the soft depth term on the photometric "
+    # +3.7 dB at 2 views under a short schedule), the soft depth term on the photometric render (§23), and since
+    # session 40 (§51) 600/600/2400 iterations: with today's defaults 300/300/1200 (session 13's) fell 0.36 / 0.44 /
+    # 0.21 dB under the full schedule on fern / flower / room (H200, 3 views, seeds 0-2) while taking ~3 of its
+    # 10 minutes on 2 Xeon cores; 600/600/2400 is +0.29 / -0.17 / +0.06 dB from the full schedule there
+    "fast": RunPreset("the CPU preset: reings 600/600/2400 iterations with the soft depth term on the photometric "
                       "render (--soft-depth-shared), SH 0, EHPS seeded from the stereo prior at every view count "
                       "(--stereo-seeds 0.1); the baselines as quick",
-                      {"3dgs": (600,), "dngaussian": (600,), "reings": (300, 300, 1200)},
+                      {"3dgs": (600,), "dngaussian": (600,), "reings": (600, 600, 2400)},
                       {"3dgs": 0, "dngaussian": 0, "reings": 0}, stereo_seeds=0.1,
                       soft_depth_shared=("llff", "dtu")),
     # SH 1 for reings from the model-size study (docs/results.md): -61% parameters per Gaussian,

@@ -156,7 +156,7 @@ def test_the_fast_preset_seeds_at_every_view_count():
 
     sfm = SimpleNamespace(method="sfm")
     fast, quick = RUN_PRESETS["fast"], RUN_PRESETS["quick"]
-    assert fast.sh_degree == quick.sh_degree and fast.iterations["reings"] == (300, 300, 1200)
+    assert fast.sh_degree == quick.sh_degree and fast.iterations["reings"] == (600, 600, 2400)
     assert all(fast.iterations[m] == quick.iterations[m] for m in ("3dgs", "dngaussian"))  # the baselines as quick
     assert RUN_PRESETS["quick"].stereo_seeds is None and RUN_PRESETS["paper"].stereo_seeds is None
     assert stereo_seeds_of(ReInGSConfig(), sfm, 4, fast.stereo_seeds) == 0.1
