@@ -149,13 +149,18 @@ __kernel void bin_emit(const int n_ranked, const int tiles_x,
     __global const int *rc = tile_rect + 4 * (size_t)g;
     const int tx0 = rc[0], ty0 = rc[1], tx1 = rc[2], ty1 = rc[3];
     uint e = offset_from_rank[r];
-    for (int ty = ty0; ty < ty1; ++ty) {
-        for (int tx = tx0; tx < tx1; ++tx) {
-            tile_keys[e] = (uint)(ty * tiles_x + tx);
-            emit_vals[e] = e;
-            gid_from_emit[e] = g;
-            ++e;
-        }
+    /* one loop over the rect's w h tiles, row-major: one loop exit per rank where nested row / column loops
+     * had one per row and one more (a rank's rect size is data; bin_emit 0.89x on fern's fine state, session 40) */
+    const int w = tx1 - tx0, h = ty1 - ty0;
+    const uint cnt = w > 0 && h > 0 ? (uint)(w * h) : 0u;
+    int tx = tx0, key = ty0 * tiles_x + tx0;
+    for (uint j = 0; j < cnt; ++j, ++e) {
+        tile_keys[e] = (uint)key;
+        emit_vals[e] = e;
+        gid_from_emit[e] = g;
+        const int wrap = ++tx == tx1; /* the row's last tile: back to tx0 of the next row */
+        tx = wrap ? tx0 : tx;
+        key += wrap ? tiles_x - w + 1 : 1;
     }
 }
 

@@ -155,7 +155,8 @@ def _setting_tag(m: dict) -> str:
         tag.append(f"smooth {cfg['depth_smooth']:g}")
     if cfg.get("view_warp"):
         tag.append(f"warp {cfg['view_warp']:g}/{cfg.get('view_warp_disparity', 4.0):g}px"
-                   + (f" from {cfg['view_warp_start']:.3g}" if cfg.get("view_warp_start") is not None else ""))
+                   + (f" from {cfg['view_warp_start']:.3g}" if cfg.get("view_warp_start") is not None else "")
+                   + (f" every {cfg['view_warp_every']}" if cfg.get("view_warp_every") else ""))
     if cfg.get("opacity_decay") not in (None, 1):
         tag.append(f"decay {cfg['opacity_decay']:g}")
     if cfg.get("drop_gamma"):  # DropGaussian (absent when off)
@@ -532,8 +533,8 @@ def _prepare(jobs) -> None:
               f"{', cached' if ext.cached else ''}), {time.perf_counter() - t:.1f} s", flush=True)
 
 
-# settings recorded only when on (absent = off; view_warp_start: absent = 2/3; lambda_dssim: absent = the
-# recipe's): a run that has one and a config that has not differ
+# settings recorded only when on (absent = off; view_warp_start: absent = 2/3; view_warp_every: absent = 1;
+# lambda_dssim: absent = the recipe's): a run that has one and a config that has not differ
 _ABSENT_WHEN_OFF = ("drop_gamma", "depth_metric", "prune_unseen", "cross_warp", "cross_warp_start",
                     "cross_warp_occlusion", "cross_warp_blur", "view_warp_start", "lambda_dssim",
                     "soft_depth_shared", "grad_threshold_scale", "ensemble", "ensemble_from", "hard_depth_scale",

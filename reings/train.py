@@ -40,7 +40,7 @@ import numpy as np
 
 from .backends.reference_drop import Drop
 from .backends.reference_view_warp import draw_baseline, virtual_camera
-from .config import TrainConfig, blur_sigmas
+from .config import TrainConfig, blur_sigmas, count_at_least_1
 from .seeding import IterationDraws
 from .types import Camera, Gaussians
 
@@ -446,8 +446,9 @@ def fit(views, config: TrainConfig, device: str = "pocl", init: Gaussians | None
         v = getattr(L, name)
         if not (v >= 0 and np.isfinite(v)):  # also NaN
             raise ValueError(f"fit: LossConfig.{name} must be >= 0 and finite, got {v}")
-    if isinstance(L.view_warp_every, bool) or not isinstance(L.view_warp_every, (int, np.integer)) or L.view_warp_every < 1:
-        raise ValueError(f"fit: LossConfig.view_warp_every must be an integer >= 1, got {L.view_warp_every!r}")
+    bad = count_at_least_1(L.view_warp_every)
+    if bad:
+        raise ValueError(f"fit: LossConfig.view_warp_every {bad}")
     if L.hard_depth_scale not in (1, 2, 4):
         raise ValueError(f"fit: LossConfig.hard_depth_scale must be 1, 2 or 4, got {L.hard_depth_scale!r}")
     bad = blur_sigmas(L.cross_warp_blur)  # 0 is the sharp level, always taken

@@ -140,6 +140,25 @@ def test_view_warp_every_is_recorded_only_off_its_default():
             RunConfig(view_warp_every=bad).resolved()
 
 
+def test_eval_and_tables_tell_view_warp_every_apart(tmp_path):
+    """`reings eval` notices a finished run of another view_warp_every (absent = 1, the value before the
+    option existed), and `reings table` keeps such runs in a cell of their own."""
+    import json
+
+    from reings.evaluate import _setting_tag, _settings_differ
+    from reings.pipeline import run_settings
+
+    one, two = RunConfig(), RunConfig(view_warp_every=2)
+    for name, cfg in (("one", one), ("two", two)):
+        (tmp_path / name).mkdir()
+        (tmp_path / name / "metrics.json").write_text(json.dumps({"config": run_settings(cfg.resolved(), "llff")}))
+    assert "view_warp_every" in _settings_differ(str(tmp_path / "two" / "metrics.json"), one, "llff")
+    assert "view_warp_every" in _settings_differ(str(tmp_path / "one" / "metrics.json"), two, "llff")
+    assert _settings_differ(str(tmp_path / "two" / "metrics.json"), two, "llff") == ""
+    tags = [_setting_tag({"method": "reings", "config": run_settings(c.resolved(), "llff")}) for c in (one, two)]
+    assert tags[0] != tags[1] and "every 2" in tags[1]
+
+
 @pytest.mark.parametrize("method", ["reings", "dngaussian"])
 def test_run_recipe_per_method(method):
     """The binocular terms reach the reings fits only; the DTU background rules every fit."""

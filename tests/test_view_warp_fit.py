@@ -285,11 +285,12 @@ def test_fit_device_matches_host(device, case):
     _same_state(host.state, dev.state, exact, "device vs host engine with view_warp and opacity decay")
 
 
-@pytest.mark.parametrize("every", [1, 3])
+@pytest.mark.parametrize("every", [1, 3, 5])
 def test_view_warp_every_takes_every_nth_iteration_at_n_times_the_weight(device, case, every, monkeypatch):
     """LossConfig.view_warp_every N: the term at iterations view_warp_from + k N only (12, 15, 18, 21 of
-    the case's 23 at N = 3), each with weight N times view_warp_weight; the device engine agrees with
-    the host engine (bit for bit on PoCL)."""
+    the case's 23 at N = 3; 12, 17, 22 at N = 5, where `it % N` would pick others), each with weight N times
+    view_warp_weight and the smoothness weight as given; the host engine's calls are spied, the device
+    engine's final state agrees with the host engine's (bit for bit on PoCL)."""
     from reings.backends.host_trainer import HostTrainer
 
     scene, init, cfg = case
@@ -298,6 +299,7 @@ def test_view_warp_every_takes_every_nth_iteration_at_n_times_the_weight(device,
     real = HostTrainer.view_warp
 
     def spy(self, virt, fr, view, baseline, weight, smooth_weight):
+        assert smooth_weight == cfg.loss.view_warp_smooth
         calls.append((self.state.iteration, weight))  # state.iteration: the iteration before this one
         return real(self, virt, fr, view, baseline, weight, smooth_weight)
 
@@ -317,6 +319,10 @@ def test_view_warp_every_refuses_what_is_not_a_count(case, bad):
     scene, init, cfg = case
     with pytest.raises(ValueError, match="view_warp_every"):
         fit_case((scene, init, replace(cfg, loss=replace(cfg.loss, view_warp_every=bad))), "reference")
+    from reings.config import LossConfig, count_at_least_1
+
+    assert count_at_least_1(bad) and count_at_least_1(np.int64(2)) is None  # the config's rule is fit's
+    assert LossConfig(view_warp_every=np.int64(3)).view_warp_every == 3
 
 
 def test_fit_device_matches_host_with_shared_soft_depth(device, case):
