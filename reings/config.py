@@ -692,14 +692,12 @@ class RunConfig:
                                           "authors' 0.4 COLMAP units is 2.6-5.5 px on the LLFF scenes here)",
                                      check=lambda v: None if v > 0 and v == v and v != float("inf")
                                      else f"must be positive and finite, got {v}", metavar="PIXELS")
-    view_warp_every: int | None = opt(None, "reings fits only: the view_warp term at every N-th iteration from its "
-                                            "start, its weight times N (its virtual view is a render and a backward "
-                                            "more in each iteration that takes it: speed, issue 15); 1 = every "
-                                            "iteration (Binocular3DGS); none: the recipe family's (1 for 'llff' and 'dtu': at 2, "
-                                            "full schedule, 3 views, seeds 0-2, fern -0.06, flower -1.42 (seeds 0 "
-                                            "and 2 fell 1.8 and 2.7 dB), room +0.19 dB; fern's training -3 percent "
-                                            "on an H200; docs/results.md §51)",
-                                      check=lambda v: None if v is None else count_at_least_1(v), metavar="N")
+    view_warp_every: int = opt(1, "reings fits only: the view_warp term at every N-th iteration from its start, its "
+                                  "weight times N (its virtual view is a render and a backward more in each iteration "
+                                  "that takes it: speed, issue 15); 1 = every iteration (Binocular3DGS; at 2, full "
+                                  "schedule, 3 views, seeds 0-2: fern -0.06, flower -1.42 (seeds 0 and 2 fell 1.8 and "
+                                  "2.7 dB), room +0.19 dB; fern's training -3 percent on an H200; docs/results.md §51)",
+                               check=count_at_least_1, metavar="N")
     # none -> the recipe family's: on for DTU (scan24 3 views, seeds 0-2: 16.06 dB with it, 14.90 without),
     # off for LLFF (fern+flower 2 views: 18.36 with it, 19.07 without; 3 views: 21.06 / 20.96, flower
     # -0.26 dB): docs/results.md §9

@@ -234,9 +234,8 @@ def run_settings(cfg: RunConfig, dataset_kind: str) -> dict:
             start = view_warp_start_of(cfg, family)
             if abs(start - VIEW_WARP_START) > 1e-12:  # the value the fits use; absent at the value before the option existed
                 s["view_warp_start"] = start
-            every = view_warp_every_of(cfg, family)
-            if every != 1:  # the value the fits use; absent at 1, the value before the option existed
-                s["view_warp_every"] = every
+            if cfg.view_warp_every != 1:  # absent at 1, the value before the option existed
+                s["view_warp_every"] = int(cfg.view_warp_every)
         if cfg.opacity_decay is not None:
             s["opacity_decay"] = cfg.opacity_decay
         if prune_unseen_of(cfg, family):  # absent when off (older folders resume)
@@ -305,8 +304,6 @@ DROP_GAMMA_BY_FAMILY = {"llff": 0.2, "dtu": 0.2}
 NO_PRIOR_BY_FAMILY = {"llff": {"cross_warp": 0.15, "drop_gamma": 0.3, "view_warp_start": 1 / 3,
                                "lambda_dssim": (0.2, 0.4, 0.4)}, "dtu": {}}
 VIEW_WARP_START = 2 / 3  # the view_warp term's start (Binocular3DGS: 2/3 of the schedule)
-# RunConfig.view_warp_every = none: the view_warp term at every iteration from its start (Binocular3DGS)
-VIEW_WARP_EVERY_BY_FAMILY = {"llff": 1, "dtu": 1}
 # RunConfig.prune_unseen = none, reings fits (§20): on for LLFF (no collapse in 27 runs with the
 # drop; alone at 3 views: fern +0.00, flower +0.04 dB, seed 0); not measured on DTU, so off there
 PRUNE_UNSEEN_BY_FAMILY = {"llff": True, "dtu": False}
@@ -410,14 +407,6 @@ def view_warp_start_of(cfg: RunConfig, family: str) -> float:
     if cfg.view_warp_start is None:
         return _no_prior_rule(cfg, family, "view_warp_start", VIEW_WARP_START)
     return float(cfg.view_warp_start)
-
-
-def view_warp_every_of(cfg: RunConfig, family: str) -> int:
-    """Every how many iterations the reings fits take the view_warp term (LossConfig.view_warp_every):
-    RunConfig.view_warp_every, or for none the recipe family's (VIEW_WARP_EVERY_BY_FAMILY)."""
-    if cfg.view_warp_every is not None:
-        return int(cfg.view_warp_every)
-    return VIEW_WARP_EVERY_BY_FAMILY[family]
 
 
 def prune_unseen_of(cfg: RunConfig, family: str) -> bool:
@@ -592,7 +581,7 @@ class RunContext:
             start = max(1, int(round(view_warp_start_of(c, self.family) * recipe.iterations)))
             recipe = replace(recipe, loss=replace(recipe.loss, view_warp_weight=c.view_warp, view_warp_baseline=b,
                                                   view_warp_from=start,
-                                                  view_warp_every=view_warp_every_of(c, self.family)))
+                                                  view_warp_every=int(c.view_warp_every)))
         decay = opacity_decay_of(c.opacity_decay, self.family)
         if decay != 1:
             recipe = replace(recipe, densify=replace(recipe.densify, opacity_decay=decay))
