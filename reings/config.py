@@ -130,6 +130,22 @@ def parse_lambda_dssim(text: str):
     return _checked_list(parts, float, "expected a number", lambda_dssim_values)
 
 
+def fit_scale_values(v):
+    """None, or why fit scales are refused: one or three (one per reings fitting stage) of 1, 2, 4."""
+    if len(v) not in (1, 3):
+        return f"must be one scale or three (reings: coarse, fine, final), got {len(v)}"
+    bad = [x for x in v if x not in (1, 2, 4)]
+    return f"must be 1, 2 or 4, got {bad[0]}" if bad else None
+
+
+def parse_fit_scale(text: str):
+    """S, or A,B,C (one resolution divisor per reings fitting stage: coarse, fine, final): 1, 2 or 4."""
+    parts = [p.strip() for p in str(text).split(",")]
+    if len(parts) not in (1, 3):
+        raise ValueError(f"expected S or A,B,C (one scale per reings stage: coarse, fine, final), got {text!r}")
+    return _checked_list(parts, int, "expected an integer", fit_scale_values)
+
+
 def blur_sigmas(v):
     """None, or why a tuple of blur sigmas (pixels) is refused: each a finite number > 0 (the sharp
     level, sigma 0, is always taken: a 0 here would count it twice)."""
@@ -198,6 +214,10 @@ class LossConfig:
                                          "opacities instead of two)")
     soft_depth_ema_gate: float | None = opt(None, "DTU: soft depth only while EMA(0.9) of the hard loss < this")
     depth_patch_range: tuple[int, int] = opt((5, 17), "patch size drawn uniformly in [lo, hi], anew per term")
+    depth_patch_div: int = opt(1, "every depth term's patch sizes (as drawn at the views' resolution times this) divided "
+                                  "by this, rounded up, at least 2: a fit on views at 1/S of the training resolution "
+                                  "(RunConfig.fit_scale) keeps the full-resolution patches' scene area; 1 = as drawn",
+                               check=lambda v: None if v in (1, 2, 4) else f"must be 1, 2 or 4, got {v}")
     depth_margin: float = opt(0.00025, 'margin L2: errors with |diff| <= margin are ignored ("error_tolerance")')
     depth_w_local: float = opt(0.1, "weight of the local (per-patch std) normalised depth term")
     depth_w_global: float = opt(1.0, "weight of the global (whole-image std) normalised depth term")
@@ -244,6 +264,12 @@ class LossConfig:
                                   "and a backward more per iteration that takes it; authors: 1); a logging iteration's "
                                   "loss holds the term, at N times the weight, only where it takes it",
                                check=count_at_least_1)
+    view_warp_scale: int = opt(1, "the view_warp term at 1/S of the training resolution (speed): the virtual view "
+                                  "rendered at 1/S, the term taken on the training render's depth and the training "
+                                  "image averaged over S x S blocks with the focal length divided by S, its depth "
+                                  "gradient spread back evenly over each block (docs/binocular.md §4.5); 1 = full "
+                                  "resolution (Binocular3DGS)",
+                               check=lambda v: None if v in (1, 2) else f"must be 1 or 2, got {v}")
     drop_gamma: float = opt(0.0, "DropGaussian (Park et al. 2025, docs/method.md §9): the largest drop rate, "
                                  "reached at the fit's last iteration; at iteration t of T each Gaussian is left "
                                  "out of the photometric pass's renders with rate gamma t / T and the kept ones' "
@@ -698,6 +724,11 @@ class RunConfig:
                                   "schedule, 3 views, seeds 0-2: fern -0.06, flower -1.42 (seeds 0 and 2 fell 1.8 and "
                                   "2.7 dB), room +0.19 dB; fern's training -3 percent on an H200; docs/results.md §51)",
                                check=count_at_least_1, metavar="N")
+    view_warp_scale: int = opt(1, "reings fits only: the view_warp term at 1/S of the training resolution (its virtual "
+                                  "view rendered at 1/S, the term on the training render's depth and image averaged "
+                                  "over S x S blocks, docs/binocular.md §4.5; in a fit at --fit-scale F, at 1/max(1, "
+                                  "S // F) of that fit's views: speed, issue 15); 1 = full resolution (Binocular3DGS)",
+                               check=lambda v: None if v in (1, 2) else f"must be 1 or 2, got {v}", metavar="S")
     # none -> the recipe family's: on for DTU (scan24 3 views, seeds 0-2: 16.06 dB with it, 14.90 without),
     # off for LLFF (fern+flower 2 views: 18.36 with it, 19.07 without; 3 views: 21.06 / 20.96, flower
     # -0.26 dB): docs/results.md §9
@@ -732,6 +763,16 @@ class RunConfig:
               "except reings fits of the 'llff' family with --depth-prior none: 0.2,0.4,0.4 (docs/results.md "
               "§28)",
         parse=parse_lambda_dssim, check=lambda_dssim_values, metavar="L|A,B,C")
+    fit_scale: tuple[int, ...] | None = opt(
+        None, "reings fits: fit the training views at 1/S of their resolution (the images averaged over S x S "
+              "blocks, the intrinsics divided by S, the depth prior and its confidence averaged as the images; the "
+              "hard depth pass at its own scale divided by S, at least 1; every depth patch keeps its "
+              "full-resolution scene area; speed, issue 15): S for every reings fit, or A,B,C for coarse, fine, "
+              "final; the re-initialisations (IVPS, CVPS), probes and the evaluation render at full resolution; "
+              "none: the recipe family's (2,1,1 for 'llff': fern / flower / room / trex at 3 views, seeds 0-2, "
+              "+0.00 / +0.03 / +0.25 / -0.12 dB against 1, docs/results.md §52; 1 for 'dtu', not measured); the "
+              "baselines fit at 1",
+        parse=parse_fit_scale, check=lambda v: None if v is None else fit_scale_values(v), metavar="S|A,B,C")
     grad_threshold_scale: float = opt(1.0, "every fit: multiplies the recipe's densification threshold on the mean "
                                            "screen-space gradient (DNGaussian: 0.0013 for 'llff', 0.001 for 'dtu'; 3DGS: 0.0002); "
                                            "1 = the recipe's",

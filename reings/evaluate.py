@@ -156,7 +156,8 @@ def _setting_tag(m: dict) -> str:
     if cfg.get("view_warp"):
         tag.append(f"warp {cfg['view_warp']:g}/{cfg.get('view_warp_disparity', 4.0):g}px"
                    + (f" from {cfg['view_warp_start']:.3g}" if cfg.get("view_warp_start") is not None else "")
-                   + (f" every {cfg['view_warp_every']}" if cfg.get("view_warp_every") else ""))
+                   + (f" every {cfg['view_warp_every']}" if cfg.get("view_warp_every") else "")
+                   + (f" at 1/{cfg['view_warp_scale']}" if cfg.get("view_warp_scale") else ""))
     if cfg.get("opacity_decay") not in (None, 1):
         tag.append(f"decay {cfg['opacity_decay']:g}")
     if cfg.get("drop_gamma"):  # DropGaussian (absent when off)
@@ -171,6 +172,8 @@ def _setting_tag(m: dict) -> str:
                       else ""))
     if cfg.get("prune_unseen"):  # absent when off
         tag.append("prune unseen")
+    if cfg.get("fit_scale"):  # the fits' resolution divisors (absent when all 1)
+        tag.append("scale " + "/".join(map(str, cfg["fit_scale"])))
     lam = cfg.get("lambda_dssim")  # --lambda-dssim (absent: the recipe's SSIM weight; a list: per stage)
     if lam is not None:
         tag.append("ssim " + ("/".join(f"{v:g}" for v in lam) if isinstance(lam, list) else f"{lam:g}"))
@@ -538,7 +541,8 @@ def _prepare(jobs) -> None:
 _ABSENT_WHEN_OFF = ("drop_gamma", "depth_metric", "prune_unseen", "cross_warp", "cross_warp_start",
                     "cross_warp_occlusion", "cross_warp_blur", "view_warp_start", "lambda_dssim",
                     "soft_depth_shared", "grad_threshold_scale", "ensemble", "ensemble_from", "hard_depth_scale",
-                    "hard_depth_patches", "view_warp_every")
+                    "hard_depth_patches", "view_warp_every", "fit_scale",
+                    "view_warp_scale")
 
 
 def _settings_differ(metrics_path: str, cfg, dataset_kind: str | None = None) -> str:

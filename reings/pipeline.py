@@ -218,6 +218,9 @@ def run_settings(cfg: RunConfig, dataset_kind: str) -> dict:
     if cfg.depth_confidence:  # absent at 0, the value before the option existed
         s["depth_confidence"] = cfg.depth_confidence
     family = recipe_family(cfg.recipe, dataset_kind)
+    fs = [fit_scale_of(cfg, family, st) for st in FIT_STAGES[cfg.method]]
+    if any(v != 1 for v in fs):  # absent at 1, the value before the option existed
+        s["fit_scale"] = fs
     hd = hard_depth_scale_of(cfg, family)
     if hd != 1:  # absent at 1, the value before the option existed
         s["hard_depth_scale"] = hd
@@ -236,6 +239,8 @@ def run_settings(cfg: RunConfig, dataset_kind: str) -> dict:
                 s["view_warp_start"] = start
             if cfg.view_warp_every != 1:  # absent at 1, the value before the option existed
                 s["view_warp_every"] = int(cfg.view_warp_every)
+            if cfg.view_warp_scale != 1:  # absent at 1, the value before the option existed
+                s["view_warp_scale"] = int(cfg.view_warp_scale)
         if cfg.opacity_decay is not None:
             s["opacity_decay"] = cfg.opacity_decay
         if prune_unseen_of(cfg, family):  # absent when off (older folders resume)
@@ -312,6 +317,12 @@ PRUNE_UNSEEN_BY_FAMILY = {"llff": True, "dtu": False}
 # +0.29 dB paired against 1; trex, held out: +0.01; docs/results.md §49); DTU's recipe gates its soft term on the
 # hard loss, not measured at 2: 1
 HARD_DEPTH_SCALE_BY_FAMILY = {"llff": 2, "dtu": 1}
+# RunConfig.fit_scale = none: the reings fits' resolution divisors (coarse, fine, final). LLFF since session 41: the
+# coarse fit at 1/2 (H200, full schedule, seeds 0-2, against 1,1,1: fern / flower / room / trex (held out) at 3 views
+# +0.00 / +0.03 / +0.25 / -0.12 dB, fern / flower at 2 views +0.09 / -0.12, the fast preset fern / flower / room
+# -0.09 / +0.13 / +0.02; fern's coarse fit 468.5 -> 262.7 s on 2 Xeon cores; docs/results.md §52). The fine fit at
+# 1/2 too (2,2,1) cost trex 0.41 dB, the coarse at 1/4 (4,1,1) flower 2.5 dB (seed 0). DTU: not measured, 1
+FIT_SCALE_BY_FAMILY = {"llff": (2, 1, 1), "dtu": (1, 1, 1)}
 DROP_METHODS = ("reings", "dngaussian")  # the methods whose fits take RunConfig.drop_gamma
 DEPTH_METRIC_BY_FAMILY = {"llff": 0.0, "dtu": 0.0}  # RunConfig.depth_metric = none: off until measured
 # RunConfig.cross_warp = none, reings fits with --depth-prior none (docs/results.md §24; the term:
@@ -430,6 +441,29 @@ def hard_depth_scale_of(cfg: RunConfig, family: str) -> int:
     return HARD_DEPTH_SCALE_BY_FAMILY[family]
 
 
+def fit_scale_of(cfg: RunConfig, family: str, stage: str | None) -> int:
+    """The resolution divisor of the run's fit `stage` (a FIT_STAGES name): RunConfig.fit_scale, or for
+    none the recipe family's (FIT_SCALE_BY_FAMILY), for the reings fits; 1 for the baselines and stage none."""
+    if cfg.method != "reings" or stage not in FIT_STAGES["reings"]:
+        return 1
+    return int(stage_value(FIT_SCALE_BY_FAMILY[family] if cfg.fit_scale is None else cfg.fit_scale, stage))
+
+
+def scaled_views(train, priors, confidences, scale: int):
+    """The training views, depth priors and their confidences at 1/scale resolution (a fit at
+    RunConfig.fit_scale): [(image, camera)] with each image averaged over scale x scale blocks and the
+    camera's intrinsics divided by scale (`train.depth_pass_camera`, `train.block_mean`); the priors
+    and confidences averaged as the images (None entries and lists kept as they are)."""
+    from .train import block_mean, depth_pass_camera
+
+    views = [(block_mean(im, scale), depth_pass_camera(cam, scale)) for im, cam in zip(train.images, train.cameras)]
+
+    def pooled(maps):
+        return None if maps is None else [None if m is None else block_mean(m, scale) for m in maps]
+
+    return views, pooled(priors), pooled(confidences)
+
+
 def soft_depth_shared_of(cfg: RunConfig, family: str) -> bool:
     """Whether the run's fits take the soft depth term on the photometric render
     (LossConfig.soft_depth_shared): RunConfig.soft_depth_shared, or for none the preset's for the
@@ -537,10 +571,13 @@ class RunContext:
             recipe = replace(recipe, loss=replace(recipe.loss, depth_smooth_weight=self.smooth_w))
         if c.depth_confidence:
             recipe = replace(recipe, loss=replace(recipe.loss, depth_confidence=c.depth_confidence))
-        hd = hard_depth_scale_of(c, self.family)
+        fs = fit_scale_of(c, self.family, stage)  # the fit's views at 1/fs (`fit`): the hard pass's scale over fs
+        hd = max(1, hard_depth_scale_of(c, self.family) // fs)
         if hd != 1:
             recipe = replace(recipe, loss=replace(recipe.loss, hard_depth_scale=hd,
                                                   hard_depth_patches=c.hard_depth_patches))
+        if fs != 1:
+            recipe = replace(recipe, loss=replace(recipe.loss, depth_patch_div=fs))
         lam = lambda_dssim_of(c, self.family, stage)  # stage none: the one weight, or the last of three
         if lam is not None:
             recipe = replace(recipe, loss=replace(recipe.loss, lambda_dssim=lam))
@@ -556,7 +593,7 @@ class RunContext:
         if metric:
             recipe = replace(recipe, loss=replace(recipe.loss, depth_metric=metric))
         if c.method == "reings":
-            recipe = self.binocular(recipe)
+            recipe = self.binocular(recipe, fs)
             cross = cross_warp_of(c, self.family)
             if cross:  # docs/method.md §12
                 start = max(1, int(round(c.cross_warp_start * recipe.iterations)))
@@ -570,12 +607,16 @@ class RunContext:
                              densify=replace(recipe.densify, dark_white_rules=True))
         return recipe
 
-    def binocular(self, recipe):
+    def binocular(self, recipe, fit_scale: int = 1):
         """`recipe` with the run's view_warp term and opacity decay (reings fits): the largest
         baseline from view_warp_disparity pixels at the scene's typical depth, the start at
-        `view_warp_start_of` (the resolved view_warp_start) of the fit's iterations."""
+        `view_warp_start_of` (the resolved view_warp_start) of the fit's iterations, the term's
+        resolution divisor over the fit's own (`fit_scale`, at least 1)."""
         c = self.cfg
         if c.view_warp:
+            vs = max(1, int(c.view_warp_scale) // fit_scale)
+            if vs != 1:
+                recipe = replace(recipe, loss=replace(recipe.loss, view_warp_scale=vs))
             b = c.view_warp_disparity * typical_depth(self.train.cameras, self.box) / np.mean(
                 [cam.fx for cam in self.train.cameras])
             start = max(1, int(round(view_warp_start_of(c, self.family) * recipe.iterations)))
@@ -654,9 +695,13 @@ class RunContext:
                                 **self.probe(init)})
         prof = {} if c.output.profile else None  # phase -> wall seconds (Trainer.phase)
         built = kernel_builds(self.backend)
-        r = fit(self.train, recipe, device=self.device, init=init,
-                depth_targets=self.priors if use_priors else None, progress=self.progress,
-                depth_confidence=self.confidences if use_priors else None,
+        views, priors, conf = self.train, self.priors, self.confidences
+        fs = fit_scale_of(c, self.family, name)
+        if fs != 1:
+            views, priors, conf = scaled_views(self.train, priors, conf, fs)
+        r = fit(views, recipe, device=self.device, init=init,
+                depth_targets=priors if use_priors else None, progress=self.progress,
+                depth_confidence=conf if use_priors else None,
                 checkpoint=self.checkpoint(name), checkpoint_every=c.output.checkpoint_every,
                 checkpoint_seconds=c.output.checkpoint_seconds,
                 eval_fn=self.probe if ee else None, eval_every=ee, desc=name, extent=self.extent, profile=prof)

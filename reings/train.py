@@ -38,6 +38,10 @@ from functools import lru_cache
 
 import numpy as np
 
+# block_mean: [H, W, ...] -> [H // s, W // s, ...] float32, the mean of each s x s block (summed in float64), the
+# last rows and columns that do not fill a block dropped (depth_pass_camera's pixels): the pooled depth prior of
+# the hard pass at 1/s, the views of a fit at 1/s. One definition with the block_mean stage's float64 twin
+from .backends.reference_block_mean import block_mean
 from .backends.reference_drop import Drop
 from .backends.reference_view_warp import draw_baseline, virtual_camera
 from .config import TrainConfig, blur_sigmas, count_at_least_1
@@ -348,9 +352,10 @@ def _metric_weights(targets, confidence):
 
 
 def depth_pass_camera(cam, scale: int):
-    """The hard depth pass's camera at 1/scale of `cam`'s resolution (LossConfig.hard_depth_scale): the
-    intrinsics divided by scale, so that its pixel (i, j) covers cam's pixels [s i, s i + s) x [s j, s j + s)
-    (pixel centres at +0.5 in both); the last rows and columns that do not fill a block are dropped."""
+    """The hard depth pass's camera at 1/scale of `cam`'s resolution (LossConfig.hard_depth_scale; the view_warp
+    term's virtual camera at LossConfig.view_warp_scale): the intrinsics divided by scale, so that its pixel
+    (i, j) covers cam's pixels [s i, s i + s) x [s j, s j + s) (pixel centres at +0.5 in both); the last rows
+    and columns that do not fill a block are dropped."""
     from .types import Camera
 
     if scale == 1:
@@ -361,15 +366,6 @@ def depth_pass_camera(cam, scale: int):
     K = cam.K.copy()
     K[:2] /= scale
     return Camera(K, cam.viewmat, w, h)
-
-
-def block_mean(a, scale: int) -> np.ndarray:
-    """[H, W] -> [H // scale, W // scale] float32: the mean of each scale x scale block (summed in float64),
-    the last rows and columns that do not fill a block dropped (depth_pass_camera's pixels)."""
-    a = np.asarray(a)
-    h, w = a.shape[0] // scale, a.shape[1] // scale
-    b = a[:h * scale, :w * scale].astype(np.float64).reshape(h, scale, w, scale)
-    return b.mean(axis=(1, 3)).astype(np.float32)
 
 
 def _hard_cameras(cameras, depth_targets, L):
@@ -451,6 +447,8 @@ def fit(views, config: TrainConfig, device: str = "pocl", init: Gaussians | None
         raise ValueError(f"fit: LossConfig.view_warp_every {bad}")
     if L.hard_depth_scale not in (1, 2, 4):
         raise ValueError(f"fit: LossConfig.hard_depth_scale must be 1, 2 or 4, got {L.hard_depth_scale!r}")
+    if L.view_warp_scale not in (1, 2):
+        raise ValueError(f"fit: LossConfig.view_warp_scale must be 1 or 2, got {L.view_warp_scale!r}")
     bad = blur_sigmas(L.cross_warp_blur)  # 0 is the sharp level, always taken
     if bad:
         raise ValueError(f"fit: LossConfig.cross_warp_blur {bad}")
@@ -526,7 +524,8 @@ def programs_of(cfg: TrainConfig, max_sh_degree: int, depth: bool, engine: str =
     """The options of `OpenCLBackend.prepare` for a fit of `cfg` (a state of `max_sh_degree`; depth: it
     has depth targets; engine: the resolved trainer, "device" or "host"): every SH coefficient count its
     forwards take (the degrees the schedule passes through, and 1 for the importance forwards of
-    DensifyConfig.prune_unseen), the rasterizer variants and the loss kernels its passes use (`_Iteration`).
+    DensifyConfig.prune_unseen), the rasterizer variants and the loss kernels its passes use (`_Iteration`;
+    the device engine's block mean for the view_warp term at 1/S, the host engine's is numpy).
     The soft depth term on the photometric render (`soft_shared`) takes the second-cotangent backward on
     the device engine's sync-binned frames and an opacity-only backward elsewhere: the backend, which knows
     its binning, prepares the ones it may take. The host engine runs the soft term as its own opacity-only
@@ -546,7 +545,8 @@ def programs_of(cfg: TrainConfig, max_sh_degree: int, depth: bool, engine: str =
             "opacity_only": bool((soft and (host or not shared)) or L.dark_background),
             "soft_shared": shared and not host,
             "depth_loss": bool(depth and (L.hard_depth or L.soft_depth or L.depth_metric)),
-            "view_warp": bool(L.view_warp_weight), "photometric": host}
+            "view_warp": bool(L.view_warp_weight), "photometric": host,
+            "block_mean": bool(L.view_warp_weight and L.view_warp_scale > 1 and not host)}
 
 
 class _Iteration:
@@ -633,6 +633,7 @@ class _Iteration:
         from .optim import depth_smooth_weight_at
 
         tr, L = self.tr, self.L
+        div *= L.depth_patch_div  # a fit at 1/S resolution (RunConfig.fit_scale): the full-resolution patches' area
         with tr.phase("depth_loss"):
             # at div > 1 the draw is capped at the full-resolution frame's size, then divided, at least 2 (a
             # 1-pixel patch has no spread: both terms would vanish), at most the small frame's size
@@ -683,7 +684,10 @@ class _Iteration:
         render's backward (whose screen gradients feed the densification statistics, as the
         authors'); then the kept frame is backpropagated into the held gradients: one Adam step.
         The virtual view is rendered once (until 2026-11-25 it was rendered again before its
-        backward: the same bits, one forward more).
+        backward: the same bits, one forward more). At LossConfig.view_warp_scale S = 2 it is
+        rendered at 1/S (`depth_pass_camera`; its render and backward ~1/4 of the pixels) and the
+        term is taken on the S-grid (`Trainer.view_warp(..., scale)`, docs/binocular.md §4.5): its
+        colour cotangent is the small frame's, its depth cotangent the full-resolution frame's.
 
         DropGaussian (LossConfig.drop_gamma; docs/method.md §9): every render of this pass (the
         training view's, the virtual view's, the cross_warp partner's) drops the same Gaussians
@@ -692,10 +696,11 @@ class _Iteration:
         tr, L, D, ph = self.tr, self.L, self.cfg.densify, self.tr.phase
         drop = drop_at(L.drop_gamma, self.cfg.seed, it, self.cfg.iterations, self.draws)
         warp = L.view_warp_weight > 0 and it >= L.view_warp_from and (it - L.view_warp_from) % L.view_warp_every == 0
-        if warp:
+        if warp:  # at view_warp_scale S > 1 the virtual view is rendered at 1/S (the term on the S-grid)
             b = warp_baseline(self.cfg.seed, it, L.view_warp_baseline, self.draws)
+            vcam = depth_pass_camera(virtual_camera(cam, b), L.view_warp_scale)
             with ph("warp_render"):
-                virt = tr.forward(virtual_camera(cam, b), self.k, self.bg, self.near, drop=drop, keep=True)
+                virt = tr.forward(vcam, self.k, self.bg, self.near, drop=drop, keep=True)
         cross = L.cross_warp > 0 and it >= L.cross_warp_from and len(self.cameras) > 1
         j = cross_partner(self.cfg.seed, it, vi, len(self.cameras)) if cross else None
         held = None
@@ -710,7 +715,7 @@ class _Iteration:
         if warp:
             with ph("view_warp"):
                 v_virt, v_depth = tr.view_warp(virt, fr, vi, b, L.view_warp_weight * L.view_warp_every,
-                                               L.view_warp_smooth)
+                                               L.view_warp_smooth, L.view_warp_scale)
         metric = bool(L.depth_metric) and self.targets is not None and self.targets[vi] is not None
         if metric:
             with ph("depth_metric"):

@@ -48,7 +48,7 @@ def test_the_library_counts_its_builds(device):
     assert kernel_builds(get_backend("reference")) is None
 
 
-@pytest.mark.parametrize("variant", ["llff", "dtu", "llff-async", "llff-host", "metric-only"])
+@pytest.mark.parametrize("variant", ["llff", "dtu", "llff-async", "llff-host", "metric-only", "warp-scale-2"])
 def test_a_fit_builds_nothing_on_its_clock(device, monkeypatch, variant):
     """train.fit builds the programs its passes will use before its clock starts (`OpenCLBackend.prepare` with
     `train.programs_of`): on a fresh backend whose kernel library has forgotten every program, a fit with the
@@ -56,7 +56,8 @@ def test_a_fit_builds_nothing_on_its_clock(device, monkeypatch, variant):
     pass), the view_warp term, DropGaussian, densification with the prune of unseen Gaussians and the SH
     degree rising builds its programs (so the library was really empty) and none on its clock
     (FitResult.kernel_builds). Also with the sync-free binning (the shared soft term's backward is then
-    opacity-only), on the host engine, and with the metric depth term as the only depth term."""
+    opacity-only), on the host engine, with the metric depth term as the only depth term, and with the
+    view_warp term at 1/2 (LossConfig.view_warp_scale: the block mean's kernels too)."""
     from dataclasses import replace
 
     import reings.backends as backends
@@ -69,6 +70,8 @@ def test_a_fit_builds_nothing_on_its_clock(device, monkeypatch, variant):
                 drop_gamma=0.2, view_warp_weight=1.0, view_warp_from=3, view_warp_baseline=0.05)
     if variant == "metric-only":
         L = replace(L, hard_depth=False, soft_depth=False, depth_metric=0.1)
+    if variant == "warp-scale-2":
+        L = replace(L, view_warp_scale=2)
     cfg = replace(cfg, loss=L, densify=replace(cfg.densify, prune_unseen=True, densify_from=5, densify_interval=5))
     fresh = OpenCLBackend(get_backend(device).spec, bin_mode="async" if variant == "llff-async" else "sync")
     lib = library_for(fresh.handle)

@@ -298,10 +298,10 @@ def test_view_warp_every_takes_every_nth_iteration_at_n_times_the_weight(device,
     calls = []
     real = HostTrainer.view_warp
 
-    def spy(self, virt, fr, view, baseline, weight, smooth_weight):
-        assert smooth_weight == cfg.loss.view_warp_smooth
+    def spy(self, virt, fr, view, baseline, weight, smooth_weight, scale=1):
+        assert smooth_weight == cfg.loss.view_warp_smooth and scale == cfg.loss.view_warp_scale
         calls.append((self.state.iteration, weight))  # state.iteration: the iteration before this one
-        return real(self, virt, fr, view, baseline, weight, smooth_weight)
+        return real(self, virt, fr, view, baseline, weight, smooth_weight, scale)
 
     monkeypatch.setattr(HostTrainer, "view_warp", spy)
     host = _fit(sc, device, engine="host")

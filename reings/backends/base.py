@@ -142,6 +142,19 @@ def check_held_depth(held: HeldDepth | None, cam: Camera, serial: int) -> HeldDe
     return held
 
 
+def check_view_warp_scale(virt, frame, scale) -> int:
+    """The view_warp term's scale s as an int, if s is 1 or 2 and the kept virtual frame `virt` is of
+    the s-grid of `frame` (frame.width // s x frame.height // s: `Trainer.view_warp`); else ValueError."""
+    s = int(scale)
+    if s != scale or s not in (1, 2):
+        raise ValueError(f"view_warp: scale must be 1 or 2, got {scale!r}")
+    want = (frame.width // s, frame.height // s)
+    if (virt.width, virt.height) != want or min(want) < 1:
+        raise ValueError(f"view_warp: at scale {s} the virtual frame must be {want[0]}x{want[1]} (the "
+                         f"{frame.width}x{frame.height} frame's s-grid), got {virt.width}x{virt.height}")
+    return s
+
+
 class Trainer(Protocol):
     """The operations of one training iteration, on a training state held by a backend.
 
@@ -364,14 +377,20 @@ class Trainer(Protocol):
         and steps once."""
 
     def view_warp(self, virt: Frame, frame: Frame, view: int, baseline: float, weight: float,
-                  smooth_weight: float) -> tuple[Any, Any]:
+                  smooth_weight: float, scale: int = 1) -> tuple[Any, Any]:
         """The binocular view-consistency term (Han et al. 2024; docs/binocular.md): the image of
         the kept frame `virt` (`forward(..., keep=True)` from reference_view_warp.virtual_camera(cam,
         baseline)) warped into training view `view` by this frame's rendered depth, against
         training image `view`; weight * (L1 + smooth_weight * disparity smoothness)
         (reference_view_warp.view_warp_fwd_bwd; kernels/view_warp.cl). Returns (dL/d rgb for the
         virtual frame's `backward`, dL/d depth for this frame's); the loss and the valid fraction
-        wait for `read_view_warp`."""
+        wait for `read_view_warp`. scale s (1 or 2; LossConfig.view_warp_scale, docs/binocular.md
+        §4.5): the term on the s-grid: `virt` rendered at 1/s (train.depth_pass_camera of the
+        virtual camera), the frame's depth and the training image block-averaged over s x s
+        (reference_block_mean.block_mean_fwd; kernels/block_mean.cl), the focal fx / s; dL/d rgb is
+        of `virt`'s size, dL/d depth of this frame's (the adjoint of the depth's pooling,
+        block_mean_bwd: v / s^2 on every pixel of a block, 0 on the dropped rows and columns);
+        `check_view_warp_scale`. s = 1 is the term at the frame's resolution."""
 
     def read_view_warp(self) -> dict:
         """{"loss", "valid_fraction"} of the last `view_warp` (a read from the device)."""

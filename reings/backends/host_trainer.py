@@ -26,7 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..types import ACCUM, FIELDS, PARAM_NAMES, Camera, Gaussians, RenderOutput
-from .base import HeldDepth, check_held_depth, render_importance
+from .base import HeldDepth, check_held_depth, check_view_warp_scale, render_importance
 from .reference_drop import Drop
 from .reference_loss import DepthSmoothWeights, mse, regularize_fwd_bwd
 from .reference_state import (HeldRows, adam_update, densify_accumulate, grad_add, ndc_grad_norm, opacity_decay_,
@@ -81,6 +81,7 @@ class HostTrainer(HeldRows):
         self._cw: list = []  # the cross_warp calls' (residuals, valid mask, occluded mask, H, W, scale) since the
         # last forward (one per level), for read_cross_warp
         self._cw_blur: dict = {}  # (view, sigma) -> the blurred training image (cross_warp's blur levels)
+        self._vw_images: dict = {}  # (view, s) -> training image `view` pooled over s x s (view_warp at 1/s)
         self._held_depth = 0  # hold_depth calls: a held depth is valid while its count is the last
         self._zeros: dict = {}  # (H, W) -> zero colour cotangent of the depth passes
         self._tmp = np.empty(0, _F32)  # Adam scratch, grown geometrically
@@ -354,11 +355,24 @@ class HostTrainer(HeldRows):
         return {k: np.array(v, dtype=_F32) for k, v in grads.items()}
 
     def view_warp(self, virt: HostFrame, fr: HostFrame, view: int, baseline: float, weight: float,
-                  smooth_weight: float):
-        """Trainer.view_warp: backend.view_warp on the host arrays; returns (dL/d virt, dL/d depth)."""
-        self._warp, v_virt, v_depth = self.b.view_warp(virt.out.rgb, fr.out.depth, self.images[view], fr.cam.fx,
-                                                        baseline, weight, smooth_weight)
-        return v_virt, v_depth
+                  smooth_weight: float, scale: int = 1):
+        """Trainer.view_warp: backend.view_warp on the host arrays; returns (dL/d virt, dL/d depth).
+        scale s > 1: on the s-grid, the frame's depth and the training image pooled by
+        kernels/block_mean.cl's float32 operations (reference_block_mean.block_mean_f32; the image's made
+        once per view), focal fx / s, the depth cotangent spread back by block_mean_bwd_f32."""
+        from .reference_block_mean import block_mean_bwd_f32, block_mean_f32
+
+        s = check_view_warp_scale(virt, fr, scale)
+        if s == 1:
+            self._warp, v_virt, v_depth = self.b.view_warp(virt.out.rgb, fr.out.depth, self.images[view], fr.cam.fx,
+                                                            baseline, weight, smooth_weight)
+            return v_virt, v_depth
+        gt = self._vw_images.get((view, s))
+        if gt is None:
+            gt = self._vw_images[(view, s)] = block_mean_f32(self.images[view], s)
+        self._warp, v_virt, v_depth = self.b.view_warp(virt.out.rgb, block_mean_f32(fr.out.depth, s), gt,
+                                                        fr.cam.fx / s, baseline, weight, smooth_weight)
+        return v_virt, block_mean_bwd_f32(v_depth, s, (fr.height, fr.width))
 
     def read_view_warp(self) -> dict:
         return dict(self._warp)

@@ -292,6 +292,7 @@ class OpenCLBackend:
         self._last_counts: Any = None  # the last forward's (visible, K) or DeviceCounts (last_stats)
         self.last_screen = None  # Backend.last_screen: (v_means2d, radii) of the last full render_vjp
         self._photometric = self._depth_loss = self._view_warp = None  # the loss kernels, built on first use
+        self._block_mean = None  # the block mean's kernels (the view_warp term at 1/s), built on first use
         self._pending_o = None  # (frame, v_depth_opacity buffer) whose opacity-only records r.v_emit_o holds
 
     @property
@@ -777,14 +778,15 @@ class OpenCLBackend:
         return DeviceTrainer(self, images, adam=adam, profile=profile)
 
     def prepare(self, sh_ks=(), importance: bool = False, opacity_only: bool = False, soft_shared: bool = False,
-                depth_loss: bool = False, view_warp: bool = False, photometric: bool = False) -> None:
+                depth_loss: bool = False, view_warp: bool = False, photometric: bool = False,
+                block_mean: bool = False) -> None:
         """Build now the programs that forwards and backwards with these options will use; each is
         otherwise built on first use. project.cl at each SH coefficient count in `sh_ks`, bin.cl, the
         rasterizer and the variants asked for: the importance forward, the opacity-only backward, and
         for `soft_shared` (the soft depth term on the photometric render: `backward_device`'s fused
         second cotangent on a sync-binned frame, an opacity-only backward on a sync-free one) the
-        variants this backend's binning mode may take; the depth loss's, view_warp's and the photometric
-        loss's kernels. The sorts, the scan and the device trainer's own kernels are built when their
+        variants this backend's binning mode may take; the depth loss's, view_warp's, the block mean's
+        (the view_warp term at 1/s) and the photometric loss's kernels. The sorts, the scan and the device trainer's own kernels are built when their
         owners are made. `train.fit` calls it (with `train.programs_of`) before a fit's clock starts:
         on a fresh machine NVIDIA's compiler takes ~0.1-0.9 s a program (metrics.json `kernel_builds`;
         docs/results.md §38)."""
@@ -799,6 +801,8 @@ class OpenCLBackend:
             self.depth_loss_kernels
         if view_warp:
             self.view_warp_kernels
+        if block_mean:
+            self.block_mean_kernels
         if photometric:
             self.photometric_kernels
 
@@ -828,6 +832,15 @@ class OpenCLBackend:
 
             self._view_warp = ViewWarpCL(self.handle)
         return self._view_warp
+
+    @property
+    def block_mean_kernels(self):
+        """This device's BlockMeanCL (kernels/block_mean.cl), built on first use."""
+        if self._block_mean is None:
+            from .block_mean import BlockMeanCL
+
+            self._block_mean = BlockMeanCL(self.handle, wg=self.wg)
+        return self._block_mean
 
     def view_warp(self, virt, depth, gt, fx: float, baseline: float, weight: float, smooth_weight: float):
         """Backend.view_warp on this device (host arrays uploaded, the cotangents read back)."""

@@ -70,7 +70,7 @@ from contextlib import ExitStack, contextmanager, nullcontext
 import numpy as np
 
 from ...types import ACCUM, COUNT, PARAM_NAMES, RADII
-from ..base import HeldDepth, check_held_depth, grad_columns
+from ..base import HeldDepth, check_held_depth, check_view_warp_scale, grad_columns
 from ..reference_cross_warp import CROSS_WARP_ALPHA_MIN, blur_image, cross_warp_args
 from ..reference_loss import REG_VALUE_COLS, DepthSmoothWeights, regularize_value
 from ..reference_state import adam_update, opacity_cap_, zero_stats
@@ -233,7 +233,9 @@ class DeviceTrainer:
         self.dt: list = []  # depth target buffers per view (None: no target)
         self.dt_host: list = []  # their float32 host copies (upload_depth_metric)
         self._events: list = []  # (stage, event) of this trainer's own kernels (profile only)
-        self._vw_edges: dict = {}  # (view, H, W) -> the view_warp term's edge weights of training image `view`
+        self._vw_edges: dict = {}  # (view, s, H, W) -> the view_warp term's edge weights of training image `view`
+        # (at scale s > 1: of its pooled image, H, W the s-grid's)
+        self._vw_images: dict = {}  # (view, s, H, W) -> training image `view` pooled over s x s (view_warp at 1/s)
 
     # {{{ plumbing
     def buf(self, kind: str, name: str):
@@ -896,29 +898,62 @@ class DeviceTrainer:
             out[f] = self.mem.get("gauss", f"held_{f}", self.n, 4 * cols)
         return out
 
-    def view_warp(self, virt, fr, view: int, baseline: float, weight: float, smooth_weight: float):
+    def view_warp(self, virt, fr, view: int, baseline: float, weight: float, smooth_weight: float,
+                  scale: int = 1):
         """Trainer.view_warp: ViewWarpCL.enqueue (kernels/view_warp.cl) of the kept virtual frame's
         image buffer and the frame's depth buffer against training image `view`; the cotangents go
-        into trainer-owned buffers (returned); the loss stays on the device (`read_view_warp`)."""
+        into trainer-owned buffers (returned); the loss stays on the device (`read_view_warp`).
+        scale s > 1: the term on the s-grid (kernels/block_mean.cl): the frame's depth pooled per call,
+        the training image pooled once per view and kept, focal fx / s; the s-grid depth cotangent
+        spread back to the frame's resolution by block_mean_bwd (written: the first depth term)."""
         vw = self.b.view_warp_kernels
-        npx = fr.width * fr.height
+        s = check_view_warp_scale(virt, fr, scale)
+        h, w = fr.height // s, fr.width // s
+        npx = w * h
         v_virt = self.mem.get("pixel", "vw_v_virt", npx, 12)
-        v_depth = self.mem.get("pixel", "vw_v_depth", npx, 4)
+        v_depth = self.mem.get("pixel", "vw_v_depth" if s == 1 else "vw_v_depth_s", npx, 4)
+        depth, gt = fr.bufs["out_depth"], self.gt[view]
+        if s > 1:  # the frame's depth on the s-grid (its pooled buffer valid until the next call)
+            bm = self.b.block_mean_kernels
+            depth = self.mem.get("pixel", "vw_depth_s", npx, 4)
+            bm.fwd(fr.bufs["out_depth"], depth, fr.height, fr.width, 1, s)
+            self._profiled(bm.events)
+            gt = self._view_warp_image(view, s, fr.height, fr.width)
         edges = None
         if smooth_weight:  # the training image's edge weights (8 bytes a pixel): made on their first use, kept
-            key = (view, fr.height, fr.width)
+            key = (view, s, h, w)
             edges = self._vw_edges.get(key)
             if edges is None:
-                name = f"vw_edges{view}_{fr.height}x{fr.width}"
-                edges = self._vw_edges[key] = vw.edges(self.gt[view], fr.height, fr.width,
-                                                       out=self.mem.get("pixel", name, npx, 8))
-                if self.profile is not None:
-                    self._events.extend(vw.events)
-        vw.enqueue(virt.bufs["out_rgb"], fr.bufs["out_depth"], self.gt[view], v_virt, v_depth, fr.height, fr.width,
-                   fr.camera.fx, baseline, weight, smooth_weight, edges=edges)
-        if self.profile is not None:
-            self._events.extend(vw.events)
+                name = f"vw_edges{view}_{h}x{w}" + (f"_s{s}" if s > 1 else "")
+                edges = self._vw_edges[key] = vw.edges(gt, h, w, out=self.mem.get("pixel", name, npx, 8))
+                self._profiled(vw.events)
+        vw.enqueue(virt.bufs["out_rgb"], depth, gt, v_virt, v_depth, h, w, fr.camera.fx / s, baseline, weight,
+                   smooth_weight, edges=edges)
+        self._profiled(vw.events)
+        if s > 1:  # the adjoint of the depth's pooling: the frame's full-resolution depth cotangent
+            full = self.mem.get("pixel", "vw_v_depth", fr.width * fr.height, 4)
+            self.b.block_mean_kernels.bwd(v_depth, full, fr.height, fr.width, 1, s)
+            self._profiled(self.b.block_mean_kernels.events)
+            v_depth = full
         return v_virt, v_depth
+
+    def _view_warp_image(self, view: int, s: int, height: int, width: int):
+        """Training image `view` ([height, width, 3]) pooled over s x s blocks (block_mean_fwd): made on its
+        first use, kept for the fit (the images never change)."""
+        key = (view, s, height, width)
+        buf = self._vw_images.get(key)
+        if buf is None:
+            bm = self.b.block_mean_kernels
+            name = f"vw_gt{view}_{height}x{width}_s{s}"
+            buf = self._vw_images[key] = self.mem.get("pixel", name, (height // s) * (width // s), 12)
+            bm.fwd(self.gt[view], buf, height, width, 3, s)
+            self._profiled(bm.events)
+        return buf
+
+    def _profiled(self, events) -> None:
+        """Keep a helper's (kernel, event) pairs for the profile (profile only)."""
+        if self.profile is not None:
+            self._events.extend(events)
 
     def read_view_warp(self) -> dict:
         """Trainer.read_view_warp: one small reduction and a 12-byte read."""
