@@ -745,7 +745,8 @@ class RunConfig:
     hard_depth_scale: int | None = opt(None, "every fit with the hard depth term: render its pass at 1/S of the "
                                              "training resolution, against the depth prior averaged over S x S "
                                              "blocks (speed, issue 15; docs/perf_notes.md §23, §34); 1 = full "
-                                             "resolution (DNGaussian); none: the recipe family's for the reings fits "
+                                             "resolution (DNGaussian; in a fit at --fit-scale F > 1 the pass runs at "
+                                             "the fit's own 1/F at least: --fit-scale 1 for the full pass); none: the recipe family's for the reings fits "
                                              "(2 for 'llff': with --hard-depth-patches area, fern / flower / room / "
                                              "trex at 3 views, seeds 0-2, -0.06 / +0.15 / +0.29 / +0.01 dB against 1, "
                                              "docs/results.md §49; 1 for 'dtu', not measured) and 1 for the baselines",
@@ -769,9 +770,11 @@ class RunConfig:
               "hard depth pass at its own scale divided by S, at least 1; every depth patch keeps its "
               "full-resolution scene area; speed, issue 15): S for every reings fit, or A,B,C for coarse, fine, "
               "final; the re-initialisations (IVPS, CVPS), probes and the evaluation render at full resolution; "
+              "the settings in pixels (the DTU dark-background mask, cross_warp's blur sigmas, a hard pass's "
+              "'pixels' patches) are then taken in the fit's own pixels; "
               "none: the recipe family's (2,1,1 for 'llff': fern / flower / room / trex at 3 views, seeds 0-2, "
-              "+0.00 / +0.03 / +0.25 / -0.12 dB against 1, docs/results.md §52; 1 for 'dtu', not measured); the "
-              "baselines fit at 1",
+              "+0.00 / +0.03 / +0.25 / -0.12 dB against 1, docs/results.md §52; 1 for 'dtu' and for runs without a "
+              "depth prior, not measured); the baselines fit at 1",
         parse=parse_fit_scale, check=lambda v: None if v is None else fit_scale_values(v), metavar="S|A,B,C")
     grad_threshold_scale: float = opt(1.0, "every fit: multiplies the recipe's densification threshold on the mean "
                                            "screen-space gradient (DNGaussian: 0.0013 for 'llff', 0.001 for 'dtu'; 3DGS: 0.0002); "

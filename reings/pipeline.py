@@ -307,7 +307,7 @@ DROP_GAMMA_BY_FAMILY = {"llff": 0.2, "dtu": 0.2}
 # PSNR -0.09 / +0.01 / -0.27 dB; the held-out NeX trex and room at 2 views -0.01 / +0.01 dB, LPIPS -0.011 /
 # -0.008. 0.4 in the coarse fit too made trex's densification run away (§27)
 NO_PRIOR_BY_FAMILY = {"llff": {"cross_warp": 0.15, "drop_gamma": 0.3, "view_warp_start": 1 / 3,
-                               "lambda_dssim": (0.2, 0.4, 0.4)}, "dtu": {}}
+                               "lambda_dssim": (0.2, 0.4, 0.4), "fit_scale": (1, 1, 1)}, "dtu": {}}
 VIEW_WARP_START = 2 / 3  # the view_warp term's start (Binocular3DGS: 2/3 of the schedule)
 # RunConfig.prune_unseen = none, reings fits (§20): on for LLFF (no collapse in 27 runs with the
 # drop; alone at 3 views: fern +0.00, flower +0.04 dB, seed 0); not measured on DTU, so off there
@@ -320,8 +320,9 @@ HARD_DEPTH_SCALE_BY_FAMILY = {"llff": 2, "dtu": 1}
 # RunConfig.fit_scale = none: the reings fits' resolution divisors (coarse, fine, final). LLFF since session 41: the
 # coarse fit at 1/2 (H200, full schedule, seeds 0-2, against 1,1,1: fern / flower / room / trex (held out) at 3 views
 # +0.00 / +0.03 / +0.25 / -0.12 dB, fern / flower at 2 views +0.09 / -0.12, the fast preset fern / flower / room
-# -0.09 / +0.13 / +0.02; fern's coarse fit 468.5 -> 262.7 s on 2 Xeon cores; docs/results.md §52). The fine fit at
-# 1/2 too (2,2,1) cost trex 0.41 dB, the coarse at 1/4 (4,1,1) flower 2.5 dB (seed 0). DTU: not measured, 1
+# -0.09 / +0.13 / +0.02; fern's coarse fit 468.5 -> 262.7-279.6 s on 2 Xeon cores; docs/results.md §52). The fine fit
+# at 1/2 too (2,2,1) cost trex 0.41 dB, the coarse at 1/4 (4,1,1) flower 2.5 dB (seed 0). DTU, and runs without a
+# depth prior (NO_PRIOR_BY_FAMILY): not measured, 1
 FIT_SCALE_BY_FAMILY = {"llff": (2, 1, 1), "dtu": (1, 1, 1)}
 DROP_METHODS = ("reings", "dngaussian")  # the methods whose fits take RunConfig.drop_gamma
 DEPTH_METRIC_BY_FAMILY = {"llff": 0.0, "dtu": 0.0}  # RunConfig.depth_metric = none: off until measured
@@ -443,10 +444,14 @@ def hard_depth_scale_of(cfg: RunConfig, family: str) -> int:
 
 def fit_scale_of(cfg: RunConfig, family: str, stage: str | None) -> int:
     """The resolution divisor of the run's fit `stage` (a FIT_STAGES name): RunConfig.fit_scale, or for
-    none the recipe family's (FIT_SCALE_BY_FAMILY), for the reings fits; 1 for the baselines and stage none."""
+    none the recipe family's (FIT_SCALE_BY_FAMILY; without a depth prior its no-prior rule, NO_PRIOR_BY_FAMILY:
+    1 for 'llff', not measured there), for the reings fits; 1 for the baselines and stage none."""
     if cfg.method != "reings" or stage not in FIT_STAGES["reings"]:
         return 1
-    return int(stage_value(FIT_SCALE_BY_FAMILY[family] if cfg.fit_scale is None else cfg.fit_scale, stage))
+    scales = cfg.fit_scale
+    if scales is None:
+        scales = _no_prior_rule(cfg, family, "fit_scale", FIT_SCALE_BY_FAMILY[family])
+    return int(stage_value(scales, stage))
 
 
 def scaled_views(train, priors, confidences, scale: int):

@@ -37,6 +37,8 @@ def test_the_option_parses_and_refuses():
 @pytest.mark.parametrize("method, family, kw, want", [
     ("reings", "llff", {}, (2, 1, 1)), ("reings", "dtu", {}, (1, 1, 1)),  # the family defaults
     ("reings", "llff", {"fit_scale": (1,)}, (1, 1, 1)), ("reings", "dtu", {"fit_scale": (2, 2, 1)}, (2, 2, 1)),
+    ("reings", "llff", {"depth_prior": "none"}, (1, 1, 1)),  # without a prior: not measured, 1
+    ("reings", "llff", {"depth_prior": "none", "fit_scale": (2, 1, 1)}, (2, 1, 1)),
     ("dngaussian", "llff", {"fit_scale": (2,)}, (1, 1, 1))])  # the baselines: always 1
 def test_the_scale_of_each_stage(method, family, kw, want):
     from reings.pipeline import FIT_SCALE_BY_FAMILY, fit_scale_of
@@ -55,9 +57,13 @@ def test_scaled_views_against_a_loop():
     scene = reings.make_procedural_scene(n_views=2, width=33, height=21, supersample=1)
     rng = np.random.default_rng(0)
     priors = [rng.random((21, 33)).astype(np.float32) * 5, None]
-    conf = None
+    assert scaled_views(scene, priors, None, 2)[2] is None
+    conf = [None, rng.random((21, 33)).astype(np.float32)]
     views, p2, c2 = scaled_views(scene, priors, conf, 2)
-    assert c2 is None and p2[1] is None and len(views) == 2
+    assert c2[0] is None and p2[1] is None and len(views) == 2
+    ref = np.array([[np.mean(conf[1][2 * i:2 * i + 2, 2 * j:2 * j + 2].astype(np.float64)) for j in range(16)]
+                    for i in range(10)])
+    np.testing.assert_array_equal(c2[1], ref.astype(np.float32))
     for (im, cam), im0, cam0 in zip(views, scene.images, scene.cameras):
         ref = np.array([[[np.mean(im0[2 * i:2 * i + 2, 2 * j:2 * j + 2, c].astype(np.float64)) for c in range(3)]
                          for j in range(16)] for i in range(10)])

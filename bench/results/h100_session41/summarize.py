@@ -1,6 +1,7 @@
 """python summarize.py: session 41's fit_scale runs (callN_runs.txt here) against the defaults' digits (session 38's
-H200 runs, bench/results/h100_session38/hd.txt, trex.txt, views2.txt; session 40's fast preset, call4_runs.txt there):
-per scene the seeds' PSNR, mean, sd and the difference of the means; the SSIM means alike."""
+H200 runs, bench/results/h100_session38/hd.txt, trex.txt, views2.txt; session 40's fast preset, the fast_600_600_2400
+rows of bench/results/h100_session40/call2_runs.txt): per scene the seeds' PSNR, mean, sample sd and the difference of
+the means; the SSIM means alike."""
 import glob
 import os
 import statistics as st
@@ -34,9 +35,9 @@ for tag in ("s221", "s211", "s411"):
         ps = [got[s][0] for s in have]
         ss = [got[s][1] for s in have]
         print(tag, sc, v, "|", " / ".join("%.4f" % got[s][0] if got[s] else "-" for s in range(3)), "|",
-              "%.3f %.3f" % (st.mean(ps), st.pstdev(ps)), "|", "%+.3f (n=%d)" % (st.mean(ps) - st.mean(bp[s] for s in have), len(have)),
+              "%.3f %.3f" % (st.mean(ps), st.stdev(ps) if len(ps) > 1 else 0.0), "|", "%+.3f (n=%d)" % (st.mean(ps) - st.mean(bp[s] for s in have), len(have)),
               "|", "%.4f %+.4f" % (st.mean(ss), st.mean(ss) - st.mean(bs[s] for s in have)))
 for sc, b in FAST.items():
     ps = [rows[("fast211", sc, 3, s)][0] for s in range(3)]
-    print("fast211", sc, 3, "|", " / ".join("%.4f" % x for x in ps), "|", "%.3f %.3f" % (st.mean(ps), st.pstdev(ps)), "|",
+    print("fast211", sc, 3, "|", " / ".join("%.4f" % x for x in ps), "|", "%.3f %.3f" % (st.mean(ps), st.stdev(ps) if len(ps) > 1 else 0.0), "|",
           "%+.3f (n=3)" % (st.mean(ps) - st.mean(b)))
