@@ -282,12 +282,14 @@ def test_no_prior_rules(family, prior):
     view_warp term from 1/3 of each fit, DropGaussian 0.3, the SSIM weight 0.2 / 0.4 / 0.4 in the coarse /
     fine / final fits); with a prior, on 'dtu' and for the baselines the family's rules stay (2/3; 0.2 for
     reings, 0 for dngaussian; the recipe's SSIM weight); a value given wins."""
-    from reings.pipeline import NO_PRIOR_BY_FAMILY, drop_gamma_of, lambda_dssim_of, run_settings, view_warp_start_of
+    from reings.pipeline import (NO_PRIOR_BY_FAMILY, drop_gamma_of, fit_scale_of, lambda_dssim_of, run_settings,
+                                 view_warp_start_of)
 
     assert NO_PRIOR_BY_FAMILY == {"llff": {"cross_warp": 0.15, "drop_gamma": 0.3, "view_warp_start": 1 / 3,
-                                           "lambda_dssim": (0.2, 0.4, 0.4)}, "dtu": {}}
+                                           "lambda_dssim": (0.2, 0.4, 0.4), "fit_scale": (1, 1, 1)}, "dtu": {}}
     rule = family == "llff" and prior in ("none", "off")
     ctx, _ = _ctx(family, depth_prior=prior)
+    assert fit_scale_of(ctx.cfg, family, "coarse") == (2 if family == "llff" and not rule else 1)
     assert view_warp_start_of(ctx.cfg, family) == (1 / 3 if rule else 2 / 3)
     assert drop_gamma_of(ctx.cfg, family) == (0.3 if rule else 0.2)
     r = ctx.binocular(soft_depth_recipe(600, 0, family))
