@@ -149,12 +149,16 @@ def test_an_interrupted_ensemble_resumes_to_the_same_result(tmp_path, monkeypatc
 
 
 def test_members_train_on_the_training_views_only(tmp_path, monkeypatch):
-    """The leakage guard for the members: every fit of every member gets the training images only."""
+    """The leakage guard for the members: every fit of every member gets the training images only (the coarse
+    fit their 2 x 2 block means: the LLFF family's fit_scale)."""
+    from reings.train import block_mean
+
     seen = []
     real = pipeline.fit
 
     def fit(views, *a, **k):
-        seen.append({np.asarray(im, np.float32).tobytes() for im in views.images})
+        images = views.images if hasattr(views, "images") else [v[0] for v in views]
+        seen.append((k.get("desc"), {np.asarray(im, np.float32).tobytes() for im in images}))
         return real(views, *a, **k)
 
     monkeypatch.setattr(pipeline, "fit", fit)
@@ -162,7 +166,8 @@ def test_members_train_on_the_training_views_only(tmp_path, monkeypatch):
     scene = reings.make_procedural_scene()
     tr, _ = few_shot_split(scene, 3)
     train = {np.asarray(scene.images[i], np.float32).tobytes() for i in tr}
-    assert len(seen) == 6 and all(s == train for s in seen)
+    pooled = {block_mean(scene.images[i], 2).tobytes() for i in tr}
+    assert len(seen) == 6 and all(s == (pooled if name == "coarse" else train) for name, s in seen)
 
 
 def test_defaults_settings_and_refusals():

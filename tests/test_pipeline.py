@@ -200,7 +200,8 @@ def test_profile_records_the_phases_of_every_fit(tmp_path):
 def test_new_inputs_come_from_the_training_views_only(tmp_path, monkeypatch):
     """The leakage guard for this session's inputs: the view_warp baseline's scene depth
     (pipeline.typical_depth) sees the training cameras and the SfM box of the training views; the
-    DTU background masks (background.dark_background_mask) see the training images only."""
+    DTU background masks (background.dark_background_mask) see the training images only (or their 2 x 2
+    block means: the LLFF family's coarse fit at 1/2, RunConfig.fit_scale)."""
     import reings.background as B
     import reings.pipeline as P
     from reings.data.splits import few_shot_split
@@ -224,8 +225,11 @@ def test_new_inputs_come_from_the_training_views_only(tmp_path, monkeypatch):
     tr, _ = few_shot_split(scene, 3)
     train_cams = [scene.cameras[i].viewmat.tobytes() for i in tr]
     train_ims = {np.asarray(scene.images[i], np.float32).tobytes() for i in tr}
+    from reings.train import block_mean
+
+    pooled = {block_mean(scene.images[i], 2).tobytes() for i in tr}
     assert seen_cams and all(c == train_cams for c in seen_cams)
-    assert seen_ims and set(seen_ims) <= train_ims
+    assert seen_ims and set(seen_ims) <= train_ims | pooled and pooled <= set(seen_ims)
 
 
 def test_depth_confidence_comes_from_the_training_views_only(tmp_path, monkeypatch):
