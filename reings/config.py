@@ -770,8 +770,10 @@ class RunConfig:
               "hard depth pass at its own scale divided by S, at least 1; every depth patch keeps its "
               "full-resolution scene area; speed, issue 15): S for every reings fit, or A,B,C for coarse, fine, "
               "final; the re-initialisations (IVPS, CVPS), probes and the evaluation render at full resolution; "
-              "the settings in pixels (the DTU dark-background mask, cross_warp's blur sigmas, a hard pass's "
-              "'pixels' patches) are then taken in the fit's own pixels; "
+              "the settings in pixels (the DTU dark-background mask, cross_warp's blur sigmas) are then taken in "
+              "the fit's own pixels; a hard pass at the fit's own resolution keeps the full-resolution patch area "
+              "whatever --hard-depth-patches says, one coarser than the fit takes 'pixels' patches in the fit's own "
+              "pixels; "
               "none: the recipe family's (2,1,1 for 'llff': fern / flower / room / trex at 3 views, seeds 0-2, "
               "+0.00 / +0.03 / +0.25 / -0.12 dB against 1, docs/results.md §52; 1 for 'dtu' and for runs without a "
               "depth prior, not measured); the baselines fit at 1",

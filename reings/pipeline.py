@@ -320,7 +320,7 @@ HARD_DEPTH_SCALE_BY_FAMILY = {"llff": 2, "dtu": 1}
 # RunConfig.fit_scale = none: the reings fits' resolution divisors (coarse, fine, final). LLFF since session 41: the
 # coarse fit at 1/2 (H200, full schedule, seeds 0-2, against 1,1,1: fern / flower / room / trex (held out) at 3 views
 # +0.00 / +0.03 / +0.25 / -0.12 dB, fern / flower at 2 views +0.09 / -0.12, the fast preset fern / flower / room
-# -0.09 / +0.13 / +0.02; fern's coarse fit 468.5 -> 262.7-279.6 s on 2 Xeon cores; docs/results.md §52). The fine fit
+# -0.09 / +0.13 / +0.02; fern's coarse fit 468.5 -> 236.3-279.6 s on 2 Xeon cores; docs/results.md §52). The fine fit
 # at 1/2 too (2,2,1) cost trex 0.41 dB, the coarse at 1/4 (4,1,1) flower 2.5 dB (seed 0). DTU, and runs without a
 # depth prior (NO_PRIOR_BY_FAMILY): not measured, 1
 FIT_SCALE_BY_FAMILY = {"llff": (2, 1, 1), "dtu": (1, 1, 1)}
@@ -461,6 +461,10 @@ def scaled_views(train, priors, confidences, scale: int):
     and confidences averaged as the images (None entries and lists kept as they are)."""
     from .train import block_mean, depth_pass_camera
 
+    for cam in train.cameras:
+        if cam.width < scale or cam.height < scale:
+            raise ValueError(f"fit_scale {scale}: a {cam.width}x{cam.height} training view has no {scale}x{scale} block; "
+                             "pass --fit-scale 1")
     views = [(block_mean(im, scale), depth_pass_camera(cam, scale)) for im, cam in zip(train.images, train.cameras)]
 
     def pooled(maps):
@@ -949,6 +953,10 @@ def option_notes(cfg: RunConfig, family: str, n_train: int) -> list:
     for opt_name in ("cross_warp_start", "cross_warp_occlusion", "cross_warp_blur"):
         if getattr(cfg, opt_name) and not (cfg.cross_warp or cross_warp_of(cfg, family)):
             notes.append(f"{opt_name} without cross_warp; ignored")
+    if cfg.fit_scale is not None and any(s != 1 for s in cfg.fit_scale) and cfg.method != "reings":
+        notes.append("fit_scale applies to the reings fits only; ignored")
+    if cfg.view_warp_scale != 1 and (cfg.method != "reings" or not cfg.view_warp):
+        notes.append("view_warp_scale applies to the reings fits' view_warp term only; ignored")
     return notes
 
 

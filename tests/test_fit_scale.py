@@ -185,3 +185,22 @@ def test_the_view_warp_scale_is_over_the_fits_own(kw, want):
     assert s.get("view_warp_scale") == kw.get("view_warp_scale")
     tag = _setting_tag({"method": "reings", "preset": "paper", "config": json.loads(json.dumps(s))})
     assert ("at 1/2" in tag) == ("view_warp_scale" in kw)
+
+
+def test_notes_and_refusals_of_the_two_scales():
+    """A scale given where nothing takes it gets a note (not a silent drop); a view too small for the fit's
+    blocks is refused with the option's name."""
+    import reings
+    from reings.pipeline import option_notes, scaled_views
+
+    def notes(**kw):
+        return option_notes(RunConfig(**kw).resolved(), "llff", 3)
+
+    assert any("fit_scale" in n for n in notes(method="dngaussian", fit_scale=(2,)))
+    assert not any("fit_scale" in n for n in notes(method="dngaussian", fit_scale=(1,)) + notes(fit_scale=(2,)))
+    assert any("view_warp_scale" in n for n in notes(view_warp_scale=2, view_warp=0.0))
+    assert any("view_warp_scale" in n for n in notes(method="3dgs", view_warp_scale=2))
+    assert not any("view_warp_scale" in n for n in notes(view_warp_scale=2))
+    scene = reings.make_procedural_scene(n_views=1, width=3, height=1, supersample=1)
+    with pytest.raises(ValueError, match="fit_scale 2: a 3x1 training view has no 2x2 block"):
+        scaled_views(scene, None, None, 2)
