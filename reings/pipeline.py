@@ -461,11 +461,8 @@ def scaled_views(train, priors, confidences, scale: int):
     and confidences averaged as the images (None entries and lists kept as they are)."""
     from .train import block_mean, depth_pass_camera
 
-    for cam in train.cameras:
-        if cam.width < scale or cam.height < scale:
-            raise ValueError(f"fit_scale {scale}: a {cam.width}x{cam.height} training view has no {scale}x{scale} block; "
-                             "pass --fit-scale 1")
-    views = [(block_mean(im, scale), depth_pass_camera(cam, scale)) for im, cam in zip(train.images, train.cameras)]
+    views = [(block_mean(im, scale), depth_pass_camera(cam, scale, "fit_scale"))
+             for im, cam in zip(train.images, train.cameras)]
 
     def pooled(maps):
         return None if maps is None else [None if m is None else block_mean(m, scale) for m in maps]

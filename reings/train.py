@@ -351,18 +351,19 @@ def _metric_weights(targets, confidence):
             for t, c in zip(targets, conf)]
 
 
-def depth_pass_camera(cam, scale: int):
+def depth_pass_camera(cam, scale: int, option: str = "hard_depth_scale"):
     """The hard depth pass's camera at 1/scale of `cam`'s resolution (LossConfig.hard_depth_scale; the view_warp
-    term's virtual camera at LossConfig.view_warp_scale): the intrinsics divided by scale, so that its pixel
-    (i, j) covers cam's pixels [s i, s i + s) x [s j, s j + s) (pixel centres at +0.5 in both); the last rows
-    and columns that do not fill a block are dropped."""
+    term's virtual camera at LossConfig.view_warp_scale; a fit's views at RunConfig.fit_scale): the intrinsics
+    divided by scale, so that its pixel (i, j) covers cam's pixels [s i, s i + s) x [s j, s j + s) (pixel
+    centres at +0.5 in both); the last rows and columns that do not fill a block are dropped. `option`: the
+    setting a view too small for one block is refused under."""
     from .types import Camera
 
     if scale == 1:
         return cam
     w, h = cam.width // scale, cam.height // scale
     if w < 1 or h < 1:
-        raise ValueError(f"hard_depth_scale {scale}: a {cam.width}x{cam.height} view has no {scale}x{scale} block")
+        raise ValueError(f"{option} {scale}: a {cam.width}x{cam.height} training view has no {scale}x{scale} block")
     K = cam.K.copy()
     K[:2] /= scale
     return Camera(K, cam.viewmat, w, h)
@@ -698,7 +699,7 @@ class _Iteration:
         warp = L.view_warp_weight > 0 and it >= L.view_warp_from and (it - L.view_warp_from) % L.view_warp_every == 0
         if warp:  # at view_warp_scale S > 1 the virtual view is rendered at 1/S (the term on the S-grid)
             b = warp_baseline(self.cfg.seed, it, L.view_warp_baseline, self.draws)
-            vcam = depth_pass_camera(virtual_camera(cam, b), L.view_warp_scale)
+            vcam = depth_pass_camera(virtual_camera(cam, b), L.view_warp_scale, "view_warp_scale")
             with ph("warp_render"):
                 virt = tr.forward(vcam, self.k, self.bg, self.near, drop=drop, keep=True)
         cross = L.cross_warp > 0 and it >= L.cross_warp_from and len(self.cameras) > 1

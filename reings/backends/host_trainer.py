@@ -27,6 +27,7 @@ import numpy as np
 
 from ..types import ACCUM, FIELDS, PARAM_NAMES, Camera, Gaussians, RenderOutput
 from .base import HeldDepth, check_held_depth, check_view_warp_scale, render_importance
+from .reference_block_mean import block_mean_bwd_f32, block_mean_f32
 from .reference_drop import Drop
 from .reference_loss import DepthSmoothWeights, mse, regularize_fwd_bwd
 from .reference_state import (HeldRows, adam_update, densify_accumulate, grad_add, ndc_grad_norm, opacity_decay_,
@@ -360,8 +361,6 @@ class HostTrainer(HeldRows):
         scale s > 1: on the s-grid, the frame's depth and the training image pooled by
         kernels/block_mean.cl's float32 operations (reference_block_mean.block_mean_f32; the image's made
         once per view), focal fx / s, the depth cotangent spread back by block_mean_bwd_f32."""
-        from .reference_block_mean import block_mean_bwd_f32, block_mean_f32
-
         s = check_view_warp_scale(virt, fr, scale)
         if s == 1:
             self._warp, v_virt, v_depth = self.b.view_warp(virt.out.rgb, fr.out.depth, self.images[view], fr.cam.fx,
