@@ -146,6 +146,22 @@ def parse_fit_scale(text: str):
     return _checked_list(parts, int, "expected an integer", fit_scale_values)
 
 
+def fit_scale_share_values(v):
+    """None, or why fit-scale shares are refused: one or three (one per reings fitting stage) numbers in (0, 1]."""
+    if len(v) not in (1, 3):
+        return f"must be one share or three (reings: coarse, fine, final), got {len(v)}"
+    bad = [x for x in v if not 0 < x <= 1]  # also NaN
+    return f"must lie in (0, 1], got {bad[0]}" if bad else None
+
+
+def parse_fit_scale_share(text: str):
+    """F, or A,B,C (the share of each reings fit's iterations at its fit scale: coarse, fine, final): in (0, 1]."""
+    parts = [p.strip() for p in str(text).split(",")]
+    if len(parts) not in (1, 3):
+        raise ValueError(f"expected F or A,B,C (one share per reings stage: coarse, fine, final), got {text!r}")
+    return _checked_list(parts, float, "expected a number", fit_scale_share_values)
+
+
 def blur_sigmas(v):
     """None, or why a tuple of blur sigmas (pixels) is refused: each a finite number > 0 (the sharp
     level, sigma 0, is always taken: a 0 here would count it twice)."""
@@ -297,6 +313,13 @@ class DensifyConfig:
                                             "ones (None = off)")
     max_screen_size: float | None = opt(20.0, "prune if max screen radius (px) exceeds this (with size_prune_from)")
     max_world_size: float | None = opt(0.1, "prune if max scale exceeds this * extent (with size_prune_from)")
+    off_frame_margin: float | None = opt(None, "at each densification also drop the Gaussians whose centre lies "
+                                               "in no training view's image widened by this fraction of its size "
+                                               "on every side (or behind every training camera): the near-camera "
+                                               "floaters that cover a novel view whole (docs/method.md §14); "
+                                               "None = off",
+                                         check=lambda v: None if v is None or (v >= 0 and v == v and v != float("inf"))
+                                         else f"must be >= 0 and finite, got {v}")
     max_gaussians: int | None = opt(None, "optional cap on the Gaussian count (highest-gradient candidates win)")
     clean_views: bool = opt(False, "drop Gaussians no training view sees, at the first iteration (DNGaussian)")
     prune_unseen: bool = opt(False, "at each densification also drop the Gaussians that no pixel of any training "
@@ -778,6 +801,33 @@ class RunConfig:
               "+0.00 / +0.03 / +0.25 / -0.12 dB against 1, docs/results.md §52; 1 for 'dtu' and for runs without a "
               "depth prior, not measured); the baselines fit at 1",
         parse=parse_fit_scale, check=lambda v: None if v is None else fit_scale_values(v), metavar="S|A,B,C")
+    max_screen_fraction: float | None = opt(
+        None, "reings fits: at each densification step also prune the Gaussians whose largest screen radius (3 "
+              "sigma) in a training view since the last step exceeds F times the largest image side of the fit's "
+              "views (a variant of 3DGS's screen-size prune: relative to the image, and from the densification's "
+              "start where 3DGS waits for its first opacity reset; against the near-camera floaters that cover a "
+              "novel view whole); none / 0: off (DNGaussian's recipes have no size prune; at 1 it cured two "
+              "collapsed flower runs but cost the default flower 0.17 dB (seeds 0-2) and room 0.43 dB (seed 0), "
+              "docs/method.md §14)",
+        check=lambda v: None if v is None or (v >= 0 and v == v and v != float("inf"))
+        else f"must be >= 0 and finite, got {v}", metavar="F")
+    off_frame_margin: float | None = opt(
+        None, "reings fits: at each densification step also drop the Gaussians whose centre lies in no training "
+              "view's image widened by F times its size on every side (DensifyConfig.off_frame_margin; the "
+              "near-camera floaters beside the training cameras that cover a novel view whole, docs/method.md "
+              "§14); none: off",
+        check=lambda v: None if v is None or (v >= 0 and v == v and v != float("inf"))
+        else f"must be >= 0 and finite, got {v}", metavar="F")
+    fit_scale_share: tuple[float, ...] | None = opt(
+        None, "reings fits at a --fit-scale S > 1: the share of the fit's iterations run at 1/S, its first ones "
+              "(rounded, at least 1); the rest at full resolution, the parameters, Adam moments and densification "
+              "statistics carried over (a coarse-to-fine schedule inside one fit; speed, issue 15): F for every "
+              "reings fit, or A,B,C for coarse, fine, final; none: 1 (the whole fit at 1/S). Measured (H200, 3 "
+              "views, seeds 0-2, against the default 2,1,1): --fit-scale 2,2,2 with 1,0.67,0.5 fern / flower / room / "
+              "trex -0.16 / -0.14 / +0.24 / -0.19 dB; 2,2,1 with 1,0.5,1 broke flower on 2 of 3 seeds "
+              "(docs/results.md §53)",
+        parse=parse_fit_scale_share, check=lambda v: None if v is None else fit_scale_share_values(v),
+        metavar="F|A,B,C")
     grad_threshold_scale: float = opt(1.0, "every fit: multiplies the recipe's densification threshold on the mean "
                                            "screen-space gradient (DNGaussian: 0.0013 for 'llff', 0.001 for 'dtu'; 3DGS: 0.0002); "
                                            "1 = the recipe's",

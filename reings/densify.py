@@ -187,6 +187,26 @@ def clean_views(state: TrainState, visible: np.ndarray) -> int:
     return removed
 
 
+def centres_in_frames(means: np.ndarray, cameras, margin: float, near: float = 0.01) -> np.ndarray:
+    """[N] bool: the Gaussians whose centre some camera sees inside its image widened by `margin` times
+    the image's width / height on each side, in front of its `near` plane (float64; the pinhole
+    projection of reings.types.Camera: x = R mu + t, u = fx x / z + cx, v = fy y / z + cy)."""
+    if not margin >= 0 or not np.isfinite(margin):  # also NaN
+        raise ValueError(f"off_frame_margin must be >= 0 and finite, got {margin}")
+    mu = np.asarray(means, np.float64).reshape(-1, 3)
+    inside = np.zeros(len(mu), bool)
+    for cam in cameras:
+        x = mu @ cam.viewmat[:3, :3].T + cam.viewmat[:3, 3]
+        z = x[:, 2]
+        front = z > near
+        zs = np.where(front, z, 1.0)
+        u = cam.K[0, 0] * x[:, 0] / zs + cam.K[0, 2]
+        v = cam.K[1, 1] * x[:, 1] / zs + cam.K[1, 2]
+        mw, mh = margin * cam.width, margin * cam.height
+        inside |= front & (u >= -mw) & (u <= cam.width + mw) & (v >= -mh) & (v <= cam.height + mh)
+    return inside
+
+
 def unseen_plan(seen: np.ndarray, n: int) -> RowPlan | None:
     """DensifyConfig.prune_unseen's row plan: keep the Gaussians some training pixel blends (`seen`:
     rendering.gaussian_importance over the training views > 0), or None when none or every one
@@ -226,18 +246,22 @@ def schedule(cfg, iteration: int) -> tuple[bool, bool]:
 
 
 def maybe_densify(state: TrainState, cfg, iteration: int, extent: float, rng: np.random.Generator) -> dict | None:
-    """`densify_rows` on a TrainState (without prune_unseen, which needs the training views)."""
+    """`densify_rows` on a TrainState (without prune_unseen and the off-frame prune, which need the training
+    views)."""
     return densify_rows(HeldRows(state), cfg, iteration, extent, rng)
 
 
-def densify_rows(rows, cfg, iteration: int, extent: float, rng: np.random.Generator, importance=None) -> dict | None:
+def densify_rows(rows, cfg, iteration: int, extent: float, rng: np.random.Generator, importance=None,
+                 cameras=None, near: float = 0.01) -> dict | None:
     """Run what `schedule` says is due after `iteration`, on `rows`: a Trainer (reings/backends/
     base.py) or reference_state.HeldRows of a TrainState. With dark_white_rules (DTU,
     reings.background) first the black / white rules; then `densify_plan` from the columns it reads
     (`read_columns`: on the device ~56 bytes per Gaussian cross the bus, not the state), applied by
     `apply_rows` (size pruning after size_prune_from); the opacity reset; with
     cfg.prune_unseen and `importance` (a callable giving Omega_G over the training views of the
-    rows as they are then) the unseen Gaussians' prune. Returns the counts or None."""
+    rows as they are then) the unseen Gaussians' prune; with cfg.off_frame_margin and the training
+    `cameras`, the prune of the Gaussians whose centre no training view frames (`centres_in_frames`).
+    Returns the counts or None."""
     dens, reset = schedule(cfg, iteration)
     out = {}
     if dens:
@@ -262,5 +286,12 @@ def densify_rows(rows, cfg, iteration: int, extent: float, rng: np.random.Genera
         if plan is not None:
             rows.apply_rows(plan)
         out.update(unseen=n - rows.n, n=rows.n)
+    if dens and cfg.off_frame_margin is not None and cameras is not None:
+        n = rows.n
+        params, _ = rows.read_columns(("means",))
+        plan = unseen_plan(centres_in_frames(params["means"], cameras, cfg.off_frame_margin, near), n)
+        if plan is not None:
+            rows.apply_rows(plan)
+        out.update(off_frame=n - rows.n, n=rows.n)
     return out or None
 # }}}

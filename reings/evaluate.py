@@ -172,8 +172,14 @@ def _setting_tag(m: dict) -> str:
                       else ""))
     if cfg.get("prune_unseen"):  # absent when off
         tag.append("prune unseen")
+    if cfg.get("off_frame_margin") is not None:  # the off-frame prune (absent when off)
+        tag.append(f"off-frame {cfg['off_frame_margin']:g}")
+    if cfg.get("max_screen_fraction"):  # the screen-size prune (absent when off)
+        tag.append(f"screen prune {cfg['max_screen_fraction']:g}")
     if cfg.get("fit_scale"):  # the fits' resolution divisors (absent when all 1)
-        tag.append("scale " + "/".join(map(str, cfg["fit_scale"])))
+        tag.append("scale " + "/".join(map(str, cfg["fit_scale"]))
+                   + (" share " + "/".join(f"{v:g}" for v in cfg["fit_scale_share"])
+                      if cfg.get("fit_scale_share") else ""))
     lam = cfg.get("lambda_dssim")  # --lambda-dssim (absent: the recipe's SSIM weight; a list: per stage)
     if lam is not None:
         tag.append("ssim " + ("/".join(f"{v:g}" for v in lam) if isinstance(lam, list) else f"{lam:g}"))
@@ -541,7 +547,8 @@ def _prepare(jobs) -> None:
 _ABSENT_WHEN_OFF = ("drop_gamma", "depth_metric", "prune_unseen", "cross_warp", "cross_warp_start",
                     "cross_warp_occlusion", "cross_warp_blur", "view_warp_start", "lambda_dssim",
                     "soft_depth_shared", "grad_threshold_scale", "ensemble", "ensemble_from", "hard_depth_scale",
-                    "hard_depth_patches", "view_warp_every", "fit_scale",
+                    "hard_depth_patches", "view_warp_every", "fit_scale", "fit_scale_share", "max_screen_fraction",
+                    "off_frame_margin",
                     "view_warp_scale")
 
 

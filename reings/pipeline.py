@@ -50,7 +50,7 @@ from .data.depth_prior import NO_PRIOR, prior_kind
 from .ensemble import fit_members, jobs_of
 from .reinit import (cvps_select, ehps_init, gaussian_importance, ivps_points, prune_keep_indices,
                      stereo_box, stereo_seed_points)
-from .train import builds_since, fit, gaussians_from_points, kernel_builds, random_points_in_box, scene_extent, with_iterations
+from .train import FitLead, builds_since, fit, gaussians_from_points, kernel_builds, random_points_in_box, scene_extent, with_iterations
 
 PRUNE_CURVE_KEEP = (1.0, 0.9, 0.8, 0.7, 0.6, 0.5, 0.4)
 
@@ -219,8 +219,15 @@ def run_settings(cfg: RunConfig, dataset_kind: str) -> dict:
         s["depth_confidence"] = cfg.depth_confidence
     family = recipe_family(cfg.recipe, dataset_kind)
     fs = [fit_scale_of(cfg, family, st) for st in FIT_STAGES[cfg.method]]
+    if cfg.off_frame_margin is not None and cfg.method == "reings":  # absent when off, as before the option
+        s["off_frame_margin"] = cfg.off_frame_margin
+    if cfg.max_screen_fraction and cfg.method == "reings":  # absent when off, the value before the option existed
+        s["max_screen_fraction"] = cfg.max_screen_fraction
     if any(v != 1 for v in fs):  # absent at 1, the value before the option existed
         s["fit_scale"] = fs
+        share = [fit_scale_share_of(cfg, st) if f != 1 else 1.0 for f, st in zip(fs, FIT_STAGES[cfg.method])]
+        if any(v != 1 for v in share):  # absent at 1 (the whole fit at its scale), the value before the option
+            s["fit_scale_share"] = share
     hd = hard_depth_scale_of(cfg, family)
     if hd != 1:  # absent at 1, the value before the option existed
         s["hard_depth_scale"] = hd
@@ -454,6 +461,13 @@ def fit_scale_of(cfg: RunConfig, family: str, stage: str | None) -> int:
     return int(stage_value(scales, stage))
 
 
+def fit_scale_share_of(cfg: RunConfig, stage: str | None) -> float:
+    """The share of fit `stage`'s iterations at its fit scale (RunConfig.fit_scale_share; none: 1)."""
+    if cfg.fit_scale_share is None or cfg.method != "reings" or stage not in FIT_STAGES["reings"]:
+        return 1.0
+    return float(stage_value(cfg.fit_scale_share, stage))
+
+
 def scaled_views(train, priors, confidences, scale: int):
     """The training views, depth priors and their confidences at 1/scale resolution (a fit at
     RunConfig.fit_scale): [(image, camera)] with each image averaged over scale x scale blocks and the
@@ -564,11 +578,12 @@ class RunContext:
         self._omega = None
         self.kernel_builds = None  # builds_since the run's start (_run_prepared), for metrics.json
 
-    def run_recipe(self, recipe, stage: str | None = None):
+    def run_recipe(self, recipe, stage: str | None = None, fit_scale: int | None = None):
         """A stage's recipe with the run's settings: its seed, the Gaussian cap, the smoothness
         weight, the SSIM weight of fitting stage `stage` (`lambda_dssim_of`; none: the last), the
         densification threshold's scale, the binocular terms (reings fits), DropGaussian (reings and
-        dngaussian fits), the metric depth term (reings fits), the DTU background rules."""
+        dngaussian fits), the metric depth term (reings fits), the DTU background rules; the settings of a fit
+        at 1/`fit_scale` resolution (none: the stage's, `fit_scale_of`)."""
         c = self.cfg
         recipe = replace(recipe, seed=c.seed)
         if c.max_gaussians:
@@ -577,13 +592,23 @@ class RunContext:
             recipe = replace(recipe, loss=replace(recipe.loss, depth_smooth_weight=self.smooth_w))
         if c.depth_confidence:
             recipe = replace(recipe, loss=replace(recipe.loss, depth_confidence=c.depth_confidence))
-        fs = fit_scale_of(c, self.family, stage)  # the fit's views at 1/fs (`fit`): the hard pass's scale over fs
+        fs = fit_scale_of(c, self.family, stage) if fit_scale is None else fit_scale  # the fit's views at 1/fs
+        # (`fit`): the hard pass's scale over fs
         hd = max(1, hard_depth_scale_of(c, self.family) // fs)
         if hd != 1:
             recipe = replace(recipe, loss=replace(recipe.loss, hard_depth_scale=hd,
                                                   hard_depth_patches=c.hard_depth_patches))
         if fs != 1:
             recipe = replace(recipe, loss=replace(recipe.loss, depth_patch_div=fs))
+        if c.off_frame_margin is not None and c.method == "reings":
+            recipe = replace(recipe, densify=replace(recipe.densify, off_frame_margin=c.off_frame_margin))
+        if c.max_screen_fraction and c.method == "reings":  # in the fit's own pixels
+            d = recipe.densify
+            side = max(max(cam.width, cam.height) for cam in self.train.cameras) / fs
+            recipe = replace(recipe, densify=replace(
+                d, max_screen_size=c.max_screen_fraction * side,
+                size_prune_from=d.densify_from if d.size_prune_from is None else d.size_prune_from,
+                max_world_size=None if d.size_prune_from is None else d.max_world_size))
         lam = lambda_dssim_of(c, self.family, stage)  # stage none: the one weight, or the last of three
         if lam is not None:
             recipe = replace(recipe, loss=replace(recipe.loss, lambda_dssim=lam))
@@ -694,7 +719,7 @@ class RunContext:
         """One fitting stage: `recipe` with the run's seed and overrides, from `init`; its probes
         join the PSNR-vs-seconds series, its seconds (probes excluded) the method clock."""
         c = self.cfg
-        recipe = self.run_recipe(recipe, name)
+        base, recipe = recipe, self.run_recipe(recipe, name)
         ee = auto_eval_every(recipe.iterations) if c.output.eval_every is None else c.output.eval_every
         if not self.series and ee:  # the starting point of the curve: the initial Gaussians
             self.series.append({"stage": "init", "iteration": 0, "seconds": 0.0, "wall_seconds": 0.0,
@@ -702,10 +727,16 @@ class RunContext:
         prof = {} if c.output.profile else None  # phase -> wall seconds (Trainer.phase)
         built = kernel_builds(self.backend)
         views, priors, conf = self.train, self.priors, self.confidences
-        fs = fit_scale_of(c, self.family, name)
+        fs, lead = fit_scale_of(c, self.family, name), None
         if fs != 1:
             views, priors, conf = scaled_views(self.train, priors, conf, fs)
-        r = fit(views, recipe, device=self.device, init=init,
+            until = max(1, int(round(fit_scale_share_of(c, name) * recipe.iterations)))
+            if until < recipe.iterations:  # its first iterations at 1/fs, the rest at full resolution
+                lead = FitLead(until, views, recipe.loss, priors if use_priors else None,
+                               conf if use_priors else None, recipe.densify)
+                recipe = self.run_recipe(base, name, fit_scale=1)
+                views, priors, conf = self.train, self.priors, self.confidences
+        r = fit(views, recipe, device=self.device, init=init, lead=lead,
                 depth_targets=priors if use_priors else None, progress=self.progress,
                 depth_confidence=conf if use_priors else None,
                 checkpoint=self.checkpoint(name), checkpoint_every=c.output.checkpoint_every,
@@ -733,6 +764,9 @@ class RunContext:
                             "gaussians": len(g), "model_bytes": self.model_bytes[name],
                             "peak_rss_mb": _peak_rss_mb(), "device_peak_bytes": device_peak_bytes(self.backend),
                             "config": recipe.to_dict(), "history": r.history.to_dict(),
+                            **({"lead": {"until": lead.until, "fit_scale": fs,  # its first iterations at 1/fs
+                                         "config": replace(recipe, loss=lead.loss, densify=lead.densify).to_dict()}}
+                               if lead is not None else {}),
                             "kernel_builds": builds_since(self.backend, built), "kernel_builds_on_clock": r.kernel_builds,
                             **({"phases": {k: v for k, v in prof.items() if k != "device_ms"}} if prof is not None else {})})
         last = f", test PSNR {self.series[-1]['psnr']:.2f}" if self.series and self.series[-1]["stage"] == name else ""
@@ -952,6 +986,12 @@ def option_notes(cfg: RunConfig, family: str, n_train: int) -> list:
             notes.append(f"{opt_name} without cross_warp; ignored")
     if cfg.fit_scale is not None and any(s != 1 for s in cfg.fit_scale) and cfg.method != "reings":
         notes.append("fit_scale applies to the reings fits only; ignored")
+    if cfg.fit_scale_share is not None and any(v != 1 for v in cfg.fit_scale_share) and not any(
+            fit_scale_of(cfg, family, st) != 1 and fit_scale_share_of(cfg, st) != 1 for st in FIT_STAGES["reings"]):
+        notes.append("fit_scale_share applies to the reings fits at a fit scale above 1 only; ignored")
+    for opt_name in ("max_screen_fraction", "off_frame_margin"):
+        if getattr(cfg, opt_name) is not None and cfg.method != "reings":
+            notes.append(f"{opt_name} applies to the reings fits only; ignored")
     if cfg.view_warp_scale != 1 and (cfg.method != "reings" or not cfg.view_warp):
         notes.append("view_warp_scale applies to the reings fits' view_warp term only; ignored")
     return notes

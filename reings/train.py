@@ -394,11 +394,28 @@ def _depth_uploads(depth_targets, weights, metric, cameras, hard_cams, scale: in
     return targets, shapes, weights, metric
 
 
+@dataclass(frozen=True)
+class FitLead:
+    """The first iterations of a fit on other views of the same scenes' cameras (a coarse-to-fine
+    resolution schedule: `pipeline.scaled_views`, RunConfig.fit_scale_share): iterations 1..`until` on
+    `views` (a `fit` views argument: the training views at another resolution) with `depth_targets`
+    and `depth_confidence` at that resolution and the fit's config but `loss` and (unless None)
+    `densify` (the settings in the part's pixels); the rest on the fit's own views. Parameters, Adam moments, densification statistics and the rng carry across the switch
+    (`Trainer.download` into the state, a new trainer's `upload`)."""
+    until: int
+    views: object
+    loss: object  # a LossConfig
+    depth_targets: object = None
+    depth_confidence: object = None
+    densify: object = None  # a DensifyConfig, or None: the fit's
+
+
 def fit(views, config: TrainConfig, device: str = "pocl", init: Gaussians | None = None,
         depth_targets=None, progress: bool = False, checkpoint: str | None = None,
         checkpoint_every: int = 250, eval_fn=None, eval_every: int = 0, log_every: int = 10,
         desc: str = "fit", extent: float | None = None, engine: str = "auto", adam: str = "auto",
-        profile: dict | None = None, depth_confidence=None, checkpoint_seconds: float = 0.0) -> FitResult:
+        profile: dict | None = None, depth_confidence=None, checkpoint_seconds: float = 0.0,
+        lead: FitLead | None = None) -> FitResult:
     """Optimise Gaussians on the training views.
 
     views: a `Scene` holding ONLY the training views (`scene.subset(train)`), or a list of
@@ -425,6 +442,7 @@ def fit(views, config: TrainConfig, device: str = "pocl", init: Gaussians | None
     profile: optional dict that receives wall seconds per phase (and, device trainer, device
         milliseconds per kernel stage under "device_ms"); the device trainer then waits for the
         queue around each phase.
+    lead: a FitLead (its first iterations on other views, e.g. at 1/2 resolution), or None.
     Returns FitResult(gaussians, history, seconds, state, checkpoints).
     """
     from . import densify as D
@@ -434,9 +452,80 @@ def fit(views, config: TrainConfig, device: str = "pocl", init: Gaussians | None
     images, cameras = _training_views(views)
     if init is None or len(init) == 0:
         raise ValueError("fit: `init` must hold at least one Gaussian")
-    if depth_targets is not None and len(depth_targets) != len(images):
-        raise ValueError(f"fit: {len(depth_targets)} depth targets for {len(images)} views")
-    cfg, L = config, config.loss
+    cfg = config
+    # the fit's parts: (last iteration, images, cameras, depth targets, confidences, config), in order
+    parts = [(cfg.iterations, images, cameras, depth_targets, depth_confidence, cfg)]
+    if lead is not None:
+        if not 0 < lead.until <= cfg.iterations:
+            raise ValueError(f"fit: FitLead.until must lie in [1, {cfg.iterations}] (the fit's iterations), "
+                             f"got {lead.until}")
+        lead_images, lead_cameras = _training_views(lead.views)
+        if len(lead_images) != len(images):
+            raise ValueError(f"fit: FitLead holds {len(lead_images)} views for the fit's {len(images)}")
+        parts.insert(0, (lead.until, lead_images, lead_cameras, lead.depth_targets, lead.depth_confidence,
+                         replace(cfg, loss=lead.loss, densify=lead.densify or cfg.densify)))
+    for _, ims, cams, targets, confidence, part_cfg in parts:  # every part checked before any iteration
+        if targets is not None and len(targets) != len(ims):
+            raise ValueError(f"fit: {len(targets)} depth targets for {len(ims)} views")
+        if targets is not None and confidence is not None and len(confidence) != len(targets):
+            raise ValueError(f"fit: {len(confidence)} depth confidences for {len(targets)} depth targets")
+        _check_loss(part_cfg.loss)
+        m = part_cfg.densify.off_frame_margin
+        if m is not None and not (m >= 0 and np.isfinite(m)):  # also NaN
+            raise ValueError(f"fit: DensifyConfig.off_frame_margin must be >= 0 and finite, got {m}")
+        _hard_cameras(cams, targets, part_cfg.loss)  # refuses a view with no hard-pass block
+    extent = scene_extent(cameras) if extent is None else extent
+    backend = get_backend(device)
+    state, rng, history = _initial_state(init, cfg, checkpoint)
+    todo = [part for part in parts if state.iteration < part[0]]  # a resumed fit skips the parts it has done
+    # the first part's trainer before the clock, as its programs (the device trainer's loss kernels); a later
+    # part's is made at its switch, on the clock (its image and state uploads are the schedule's cost)
+    made = _part_trainer(backend, *todo[0][1:], engine, adam, profile) if todo else None
+    opt = make_optimizer(state, cfg.optim, extent)
+    if hasattr(backend, "prepare"):  # OpenCL: the programs the fit will use, built before its clock
+        from .backends.base import select_engine
+
+        for _, _, _, targets, _, part_cfg in todo:
+            backend.prepare(**programs_of(part_cfg, state.max_sh_degree, targets is not None,
+                                          select_engine(backend, engine)))
+    built = kernel_builds(backend)
+    t0 = time.perf_counter() - (history.seconds[-1] if history.seconds else 0.0)
+    if state.iteration == 0 and cfg.iterations >= 1 and cfg.densify.clean_views:
+        # DNGaussian clean_views: drop the Gaussians no training view sees, before iteration 1
+        g = state.gaussians(sh_degree_at(1, cfg.sh_degree, cfg.sh_degree_interval))
+        D.clean_views(state, np.stack([backend.project_fwd(g, cam, cfg.near).radii > 0 for cam in cameras]))
+    cur = {}  # the running part's trainer, for the bookkeeping's callbacks
+    book = _Bookkeeping(cfg, state, history, rng, t0, progress, desc, checkpoint, checkpoint_every,
+                        eval_fn, eval_every, log_every,
+                        sync=lambda params_only: cur["trainer"].download(state, params_only=params_only),
+                        checkpoint_seconds=checkpoint_seconds, phase=lambda name: cur["trainer"].phase(name),
+                        rows=lambda: cur["trainer"].n)
+    hard_ema = None  # the hard depth loss's average (LossConfig.soft_depth_ema_gate) carries across parts
+    try:
+        for i, (last, _, cams, targets, _, part_cfg) in enumerate(todo):
+            if made is None:
+                made = _part_trainer(backend, *todo[i][1:], engine, adam, profile)
+            trainer, ims, hard_cams, bg_masks = made
+            cur["trainer"], made = trainer, None
+            _upload_part(trainer, state, bg_masks, cams, targets, todo[i][4], part_cfg.loss, hard_cams)
+            iteration = _Iteration(trainer, part_cfg, state, opt, rng, extent, ims, cams, targets, book, hard_cams)
+            iteration.hard_ema = hard_ema
+            for it in range(state.iteration + 1, last + 1):
+                iteration(it)
+            hard_ema = iteration.hard_ema
+            trainer.download(state)  # the next part's trainer, or the result, takes the state from here
+            trainer.finish()
+            iteration = trainer = None  # its buffers go before the next part's trainer is made
+            cur.clear()
+    finally:
+        book.close()
+    deg = sh_degree_at(cfg.iterations, cfg.sh_degree, cfg.sh_degree_interval)
+    seconds = time.perf_counter() - t0
+    return FitResult(state.gaussians(deg), history, seconds, state, book.checkpoints, builds_since(backend, built))
+
+
+def _check_loss(L) -> None:
+    """ValueError naming the first LossConfig field `fit` refuses."""
     if not 0.0 <= L.drop_gamma < 1.0:  # also NaN
         raise ValueError(f"fit: LossConfig.drop_gamma must lie in [0, 1), got {L.drop_gamma}")
     for name in ("depth_metric", "cross_warp", "cross_warp_occlusion"):
@@ -453,8 +542,14 @@ def fit(views, config: TrainConfig, device: str = "pocl", init: Gaussians | None
     bad = blur_sigmas(L.cross_warp_blur)  # 0 is the sharp level, always taken
     if bad:
         raise ValueError(f"fit: LossConfig.cross_warp_blur {bad}")
-    extent = scene_extent(cameras) if extent is None else extent
-    backend = get_backend(device)
+
+
+def _part_trainer(backend, images, cameras, depth_targets, depth_confidence, cfg, engine, adam, profile):
+    """(trainer, images, hard-pass cameras, background masks) for one part of a fit (`fit`, FitLead): a
+    trainer made on the part's images (DTU's dark background zeroed where LossConfig.dark_background, its
+    masks then returned, else None); a view with no hard-pass block is refused before any upload.
+    `_upload_part` then loads it."""
+    L = cfg.loss
     bg_masks = None
     if L.dark_background:  # DNGaussian's DTU rule (reings.background): training views only
         from .background import dark_background_mask, zero_background
@@ -462,23 +557,15 @@ def fit(views, config: TrainConfig, device: str = "pocl", init: Gaussians | None
         bg_masks = [dark_background_mask(im) for im in images]
         images = [zero_background(im, m) for im, m in zip(images, bg_masks)]
     trainer = backend.trainer(images, engine=engine, adam=adam, profile=profile)
-    state, rng, history = _initial_state(init, cfg, checkpoint)
-    opt = make_optimizer(state, cfg.optim, extent)
-    if hasattr(backend, "prepare"):  # OpenCL: the programs the fit will use, built before its clock
-        from .backends.base import select_engine
+    return trainer, images, _hard_cameras(cameras, depth_targets, L), bg_masks
 
-        backend.prepare(**programs_of(cfg, state.max_sh_degree, depth_targets is not None,
-                                      select_engine(backend, engine)))
-    built = kernel_builds(backend)
-    t0 = time.perf_counter() - (history.seconds[-1] if history.seconds else 0.0)
-    if state.iteration == 0 and cfg.iterations >= 1 and cfg.densify.clean_views:
-        # DNGaussian clean_views: drop the Gaussians no training view sees, before iteration 1
-        g = state.gaussians(sh_degree_at(1, cfg.sh_degree, cfg.sh_degree_interval))
-        D.clean_views(state, np.stack([backend.project_fwd(g, cam, cfg.near).radii > 0 for cam in cameras]))
+
+def _upload_part(trainer, state, bg_masks, cameras, depth_targets, depth_confidence, L, hard_cams) -> None:
+    """Onto one part's trainer (`_part_trainer`): the state, the background masks, the depth targets, their
+    weights and the metric term's."""
     trainer.upload(state)
     if bg_masks is not None:
         trainer.upload_bg_masks(bg_masks)
-    hard_cams = _hard_cameras(cameras, depth_targets, L)  # refuses a view with no block before any upload
     if depth_targets is not None and (L.hard_depth or L.soft_depth or L.depth_metric):
         targets, shapes, weights, metric = _depth_uploads(
             depth_targets, _depth_weights(depth_targets, depth_confidence, L.depth_confidence),
@@ -487,21 +574,6 @@ def fit(views, config: TrainConfig, device: str = "pocl", init: Gaussians | None
         trainer.upload_depth_targets(targets, shapes, smooth=L.depth_smooth_weight != 0, weights=weights)
         if metric is not None:
             trainer.upload_depth_metric(metric)
-    book = _Bookkeeping(cfg, state, history, rng, t0, progress, desc, checkpoint, checkpoint_every,
-                        eval_fn, eval_every, log_every,
-                        sync=lambda params_only: trainer.download(state, params_only=params_only),
-                        checkpoint_seconds=checkpoint_seconds, phase=trainer.phase, rows=lambda: trainer.n)
-    iteration = _Iteration(trainer, cfg, state, opt, rng, extent, images, cameras, depth_targets, book, hard_cams)
-    try:
-        for it in range(state.iteration + 1, cfg.iterations + 1):
-            iteration(it)
-    finally:
-        book.close()
-    trainer.download(state)
-    trainer.finish()
-    deg = sh_degree_at(cfg.iterations, cfg.sh_degree, cfg.sh_degree_interval)
-    seconds = time.perf_counter() - t0
-    return FitResult(state.gaussians(deg), history, seconds, state, book.checkpoints, builds_since(backend, built))
 
 
 def kernel_builds(backend) -> dict | None:
@@ -795,7 +867,8 @@ class _Iteration:
             return
         with self.tr.phase("densify"):
             dens = D.densify_rows(self.tr, self.cfg.densify, it, self.extent, self.rng,
-                                  importance=lambda: self.tr.importance(self.cameras, self.bg, self.near))
+                                  importance=lambda: self.tr.importance(self.cameras, self.bg, self.near),
+                                  cameras=self.cameras, near=self.near)
         if dens:
             self.book.history.densify.append((it, dens))
 
