@@ -114,6 +114,15 @@ def stage_value(values, stage: str | None) -> float:
     return float(values[stages.index(stage)] if stage in stages else values[-1])
 
 
+def _per_stage(text: str, one: str, what: str, convert, wrong: str, check) -> tuple:
+    """A per-stage option's text: `one` value or A,B,C (one `what` per reings fitting stage), each converted
+    (`wrong` when one does not) and the whole `check`ed (_checked_list)."""
+    parts = [p.strip() for p in str(text).split(",")]
+    if len(parts) not in (1, 3):
+        raise ValueError(f"expected {one} or A,B,C (one {what} per reings stage: coarse, fine, final), got {text!r}")
+    return _checked_list(parts, convert, wrong, check)
+
+
 def lambda_dssim_values(v):
     """None, or why SSIM weights are refused: one or three (one per reings fitting stage) numbers in [0, 10]."""
     if len(v) not in (1, 3):
@@ -124,10 +133,7 @@ def lambda_dssim_values(v):
 
 def parse_lambda_dssim(text: str):
     """L, or A,B,C (one SSIM weight per reings fitting stage: coarse, fine, final); numbers in [0, 10]."""
-    parts = [p.strip() for p in str(text).split(",")]
-    if len(parts) not in (1, 3):
-        raise ValueError(f"expected L or A,B,C (one SSIM weight per reings stage: coarse, fine, final), got {text!r}")
-    return _checked_list(parts, float, "expected a number", lambda_dssim_values)
+    return _per_stage(text, "L", "SSIM weight", float, "expected a number", lambda_dssim_values)
 
 
 def fit_scale_values(v):
@@ -140,10 +146,7 @@ def fit_scale_values(v):
 
 def parse_fit_scale(text: str):
     """S, or A,B,C (one resolution divisor per reings fitting stage: coarse, fine, final): 1, 2 or 4."""
-    parts = [p.strip() for p in str(text).split(",")]
-    if len(parts) not in (1, 3):
-        raise ValueError(f"expected S or A,B,C (one scale per reings stage: coarse, fine, final), got {text!r}")
-    return _checked_list(parts, int, "expected an integer", fit_scale_values)
+    return _per_stage(text, "S", "scale", int, "expected an integer", fit_scale_values)
 
 
 def fit_scale_share_values(v):
@@ -156,10 +159,7 @@ def fit_scale_share_values(v):
 
 def parse_fit_scale_share(text: str):
     """F, or A,B,C (the share of each reings fit's iterations at its fit scale: coarse, fine, final): in (0, 1]."""
-    parts = [p.strip() for p in str(text).split(",")]
-    if len(parts) not in (1, 3):
-        raise ValueError(f"expected F or A,B,C (one share per reings stage: coarse, fine, final), got {text!r}")
-    return _checked_list(parts, float, "expected a number", fit_scale_share_values)
+    return _per_stage(text, "F", "share", float, "expected a number", fit_scale_share_values)
 
 
 def blur_sigmas(v):
