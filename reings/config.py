@@ -317,9 +317,7 @@ class DensifyConfig:
                                                "in no training view's image widened by this fraction of its size "
                                                "on every side (or behind every training camera): the near-camera "
                                                "floaters that cover a novel view whole (docs/method.md §14); "
-                                               "None = off",
-                                         check=lambda v: None if v is None or (v >= 0 and v == v and v != float("inf"))
-                                         else f"must be >= 0 and finite, got {v}")
+                                               "None = off", check=finite_nonneg)
     max_gaussians: int | None = opt(None, "optional cap on the Gaussian count (highest-gradient candidates win)")
     clean_views: bool = opt(False, "drop Gaussians no training view sees, at the first iteration (DNGaussian)")
     prune_unseen: bool = opt(False, "at each densification also drop the Gaussians that no pixel of any training "
@@ -809,15 +807,13 @@ class RunConfig:
               "novel view whole); none / 0: off (DNGaussian's recipes have no size prune; at 1 it cured two "
               "collapsed flower runs but cost the default flower 0.17 dB (seeds 0-2) and room 0.43 dB (seed 0), "
               "docs/method.md §14)",
-        check=lambda v: None if v is None or (v >= 0 and v == v and v != float("inf"))
-        else f"must be >= 0 and finite, got {v}", metavar="F")
+        check=finite_nonneg, metavar="F")
     off_frame_margin: float | None = opt(
         None, "reings fits: at each densification step also drop the Gaussians whose centre lies in no training "
               "view's image widened by F times its size on every side (DensifyConfig.off_frame_margin; the "
               "near-camera floaters beside the training cameras that cover a novel view whole, docs/method.md "
               "§14); none: off",
-        check=lambda v: None if v is None or (v >= 0 and v == v and v != float("inf"))
-        else f"must be >= 0 and finite, got {v}", metavar="F")
+        check=finite_nonneg, metavar="F")
     fit_scale_share: tuple[float, ...] | None = opt(
         None, "reings fits at a --fit-scale S > 1: the share of the fit's iterations run at 1/S, its first ones "
               "(rounded, at least 1); the rest at full resolution, the parameters, Adam moments and densification "

@@ -23,6 +23,7 @@ from __future__ import annotations
 import numpy as np
 
 from .backends.reference_state import HeldRows, apply_rows, densify_accumulate, ndc_grad_norm, zero_stats
+from .config import finite_nonneg
 from .state import TrainState, apply_index_op, index_plan
 from .types import ACCUM, COUNT, RADII, RowPlan
 
@@ -191,8 +192,9 @@ def centres_in_frames(means: np.ndarray, cameras, margin: float, near: float = 0
     """[N] bool: the Gaussians whose centre some camera sees inside its image widened by `margin` times
     the image's width / height on each side, in front of its `near` plane (float64; the pinhole
     projection of reings.types.Camera: x = R mu + t, u = fx x / z + cx, v = fy y / z + cy)."""
-    if not margin >= 0 or not np.isfinite(margin):  # also NaN
-        raise ValueError(f"off_frame_margin must be >= 0 and finite, got {margin}")
+    why = finite_nonneg(margin)
+    if why:
+        raise ValueError(f"off_frame_margin {why}")
     mu = np.asarray(means, np.float64).reshape(-1, 3)
     inside = np.zeros(len(mu), bool)
     for cam in cameras:

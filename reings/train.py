@@ -44,7 +44,7 @@ import numpy as np
 from .backends.reference_block_mean import block_mean
 from .backends.reference_drop import Drop
 from .backends.reference_view_warp import draw_baseline, virtual_camera
-from .config import TrainConfig, blur_sigmas, count_at_least_1
+from .config import DensifyConfig, TrainConfig, blur_sigmas, check_value, count_at_least_1
 from .seeding import IterationDraws
 from .types import Camera, Gaussians
 
@@ -470,9 +470,9 @@ def fit(views, config: TrainConfig, device: str = "pocl", init: Gaussians | None
         if targets is not None and confidence is not None and len(confidence) != len(targets):
             raise ValueError(f"fit: {len(confidence)} depth confidences for {len(targets)} depth targets")
         _check_loss(part_cfg.loss)
-        m = part_cfg.densify.off_frame_margin
-        if m is not None and not (m >= 0 and np.isfinite(m)):  # also NaN
-            raise ValueError(f"fit: DensifyConfig.off_frame_margin must be >= 0 and finite, got {m}")
+        why = check_value(DensifyConfig.__dataclass_fields__["off_frame_margin"], part_cfg.densify.off_frame_margin)
+        if why:
+            raise ValueError(f"fit: DensifyConfig.off_frame_margin {why}")
         _hard_cameras(cams, targets, part_cfg.loss)  # refuses a view with no hard-pass block
     extent = scene_extent(cameras) if extent is None else extent
     backend = get_backend(device)
@@ -480,7 +480,7 @@ def fit(views, config: TrainConfig, device: str = "pocl", init: Gaussians | None
     todo = [part for part in parts if state.iteration < part[0]]  # a resumed fit skips the parts it has done
     # the first part's trainer before the clock, as its programs (the device trainer's loss kernels); a later
     # part's is made at its switch, on the clock (its image and state uploads are the schedule's cost)
-    made = _part_trainer(backend, *todo[0][1:], engine, adam, profile) if todo else None
+    made = _part_trainer(backend, *todo[0][1:4], todo[0][5].loss, engine, adam, profile) if todo else None
     opt = make_optimizer(state, cfg.optim, extent)
     if hasattr(backend, "prepare"):  # OpenCL: the programs the fit will use, built before its clock
         from .backends.base import select_engine
@@ -502,12 +502,12 @@ def fit(views, config: TrainConfig, device: str = "pocl", init: Gaussians | None
                         rows=lambda: cur["trainer"].n)
     hard_ema = None  # the hard depth loss's average (LossConfig.soft_depth_ema_gate) carries across parts
     try:
-        for i, (last, _, cams, targets, _, part_cfg) in enumerate(todo):
+        for last, ims, cams, targets, confidence, part_cfg in todo:
             if made is None:
-                made = _part_trainer(backend, *todo[i][1:], engine, adam, profile)
+                made = _part_trainer(backend, ims, cams, targets, part_cfg.loss, engine, adam, profile)
             trainer, ims, hard_cams, bg_masks = made
             cur["trainer"], made = trainer, None
-            _upload_part(trainer, state, bg_masks, cams, targets, todo[i][4], part_cfg.loss, hard_cams)
+            _upload_part(trainer, state, bg_masks, cams, targets, confidence, part_cfg.loss, hard_cams)
             iteration = _Iteration(trainer, part_cfg, state, opt, rng, extent, ims, cams, targets, book, hard_cams)
             iteration.hard_ema = hard_ema
             for it in range(state.iteration + 1, last + 1):
@@ -544,12 +544,11 @@ def _check_loss(L) -> None:
         raise ValueError(f"fit: LossConfig.cross_warp_blur {bad}")
 
 
-def _part_trainer(backend, images, cameras, depth_targets, depth_confidence, cfg, engine, adam, profile):
+def _part_trainer(backend, images, cameras, depth_targets, L, engine, adam, profile):
     """(trainer, images, hard-pass cameras, background masks) for one part of a fit (`fit`, FitLead): a
     trainer made on the part's images (DTU's dark background zeroed where LossConfig.dark_background, its
     masks then returned, else None); a view with no hard-pass block is refused before any upload.
-    `_upload_part` then loads it."""
-    L = cfg.loss
+    `_upload_part` then loads it (L: the part's LossConfig)."""
     bg_masks = None
     if L.dark_background:  # DNGaussian's DTU rule (reings.background): training views only
         from .background import dark_background_mask, zero_background

@@ -115,7 +115,7 @@ def test_the_lead_is_checked(case):
             fit(scene, cfg, device="reference", init=init, lead=FitLead(until, scene, cfg.loss))
     with pytest.raises(ValueError, match="FitLead holds 2 views for the fit's 3"):
         fit(scene, cfg, device="reference", init=init, lead=FitLead(5, scene.subset([0, 1]), cfg.loss))
-    with pytest.raises(ValueError, match="DensifyConfig.off_frame_margin must be >= 0 and finite, got nan"):
+    with pytest.raises(ValueError, match="DensifyConfig.off_frame_margin must be a finite number >= 0, got nan"):
         fit(scene, replace(cfg, densify=replace(cfg.densify, off_frame_margin=float("nan"))), device="reference",
             init=init)
     with pytest.raises(ValueError, match="LossConfig.view_warp_scale must be 1 or 2, got 3"):
@@ -135,7 +135,7 @@ def test_the_share_option_parses_and_refuses():
     args = ["run", "--fit-scale-share", "1,0.5,1", "--off-frame-margin", "0.25"]
     c = config_from_args(build_parser().parse_args(args))
     assert c.fit_scale_share == (1.0, 0.5, 1.0) and c.off_frame_margin == 0.25
-    with pytest.raises(ValueError, match="must be >= 0 and finite"):
+    with pytest.raises(ValueError, match="must be a finite number >= 0"):
         RunConfig(off_frame_margin=-0.1)
 
 
@@ -219,7 +219,7 @@ def test_centres_in_frames_analytic():
     turned = replace(cam, viewmat=np.diag([-1.0, 1.0, -1.0, 1.0]))
     np.testing.assert_array_equal(centres_in_frames(pts, [cam, turned], 0.0), [1, 1, 0, 0, 1, 1, 0])
     for bad in (-0.1, float("nan"), float("inf")):
-        with pytest.raises(ValueError, match="off_frame_margin must be >= 0 and finite"):
+        with pytest.raises(ValueError, match="off_frame_margin must be a finite number >= 0"):
             centres_in_frames(pts, [cam], bad)
 
 
