@@ -53,6 +53,16 @@
                  device trainer sets it on CPU devices: PoCL compiles each slot into a work-item
                  loop of its own instead of selecting the slot per work-item); 0 (default): none.
                  The same bits either way.
+     ADAM_LOADS_FIRST  1: an element's p is read with its m and v, before the stores to m and v (the
+                 device trainer sets it on GPUs); 0 (default): after them. The compiler cannot move the
+                 load above the stores itself (p, m and v might alias, as far as it knows; `restrict`
+                 did not move it on NVIDIA), and after them it costs a second memory round trip per
+                 element: NVIDIA H200, scene C at SH 3, Adam's device time 0.176 -> 0.156 ms (docs/perf_notes.md
+                 §39). CPUs keep 0, whose text is the loads where their values are used: PoCL 3.0 (LLVM
+                 14, 2 Xeon cores) ran adam_step_multi into a segmentation fault with any other order
+                 of the loads (1, or only m's and v's loads moved up; tests/test_adam_multi.py), and a
+                 CPU's caches hide the round trip. The same bits either way (the same values,
+                 operations and order; checked under Oclgrind and in the GPUs' test runs).
    Not handled: weight decay, amsgrad (3DGS uses neither).
 */
 #pragma OPENCL FP_CONTRACT OFF
@@ -64,6 +74,9 @@
 #endif
 #ifndef ADAM_MULTI_SPLIT
 #define ADAM_MULTI_SPLIT 0
+#endif
+#ifndef ADAM_LOADS_FIRST
+#define ADAM_LOADS_FIRST 0
 #endif
 #if ADAM_FP64
 #pragma OPENCL EXTENSION cl_khr_fp64 : enable
@@ -77,12 +90,22 @@ static inline void adam_elem(__global float *p, __global float *m, __global floa
                              const float b1, const float omb1, const float b2, const float omb2,
                              const bc_t inv_sqrt_bc2, const float eps, const float neg_step)
 {
-    const float mi = m[i] * b1 + gi * omb1;
-    const float vi = v[i] * b2 + (gi * gi) * omb2;
+#if ADAM_LOADS_FIRST
+    const float p0 = p[i], m0 = m[i], v0 = v[i]; /* the three loads before the stores (the header's define) */
+#else /* each load where its value is used (the form PoCL runs: the header's ADAM_LOADS_FIRST) */
+#define p0 p[i]
+#define m0 m[i]
+#define v0 v[i]
+#endif
+    const float mi = m0 * b1 + gi * omb1;
+    const float vi = v0 * b2 + (gi * gi) * omb2;
     m[i] = mi;
     v[i] = vi;
     const float den = (float)((bc_t)SQRT1(vi) * inv_sqrt_bc2) + eps;
-    p[i] = p[i] + (mi / den) * neg_step;
+    p[i] = p0 + (mi / den) * neg_step;
+#undef p0
+#undef m0
+#undef v0
 }
 
 __kernel void adam_step(const uint rows, const uint cols,

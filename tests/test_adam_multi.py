@@ -27,11 +27,13 @@ def _bits(a):
     return np.ascontiguousarray(a, np.float32).view(np.uint32)
 
 
-def _run(device, st0, groups_seq, sh_k, multi, seed, steps=4, split=None, fp64=True, flat_views=None):
+def _run(device, st0, groups_seq, sh_k, multi, seed, steps=4, split=None, fp64=True, flat_views=None,
+         loads_first=None):
     """Step a trainer on a copy of st0 `steps` times per entry of groups_seq; returns (state after,
     step counts, launches per adam_step call). split: None (the trainer's choice) or the
     ADAM_MULTI_SPLIT build of adam_step_multi; fp64 False: the ADAM_FP64=0 builds (float
-    inv_sqrt_bc2, as on devices without cl_khr_fp64)."""
+    inv_sqrt_bc2, as on devices without cl_khr_fp64); loads_first: None (the trainer's choice) or the
+    ADAM_LOADS_FIRST build of the three kernels."""
     rng = np.random.default_rng(seed)  # the same gradients and lrs for both variants
     st = TrainState.from_arrays(st0.to_arrays())
     n = len(st)
@@ -41,8 +43,12 @@ def _run(device, st0, groups_seq, sh_k, multi, seed, steps=4, split=None, fp64=T
         t.adam_flat_views = flat_views
     if not fp64:
         t.fp64 = False
-    if split is not None or not fp64:
-        defs = {"ADAM_FP64": int(t.fp64), "ADAM_MULTI_SPLIT": int(bool(t.b.cpu)) if split is None else split}
+    if split is not None or not fp64 or loads_first is not None:
+        defs = dict(t._adam_defs, ADAM_FP64=int(t.fp64))
+        if split is not None:
+            defs["ADAM_MULTI_SPLIT"] = split
+        if loads_first is not None:
+            defs["ADAM_LOADS_FIRST"] = loads_first
         t.k_adam = t.b.kernel("adam.cl", "adam_step", **defs)
         t.k_adam_flat = t.b.kernel("adam.cl", "adam_step_flat", **defs)
         t.k_adam_multi = t.b.kernel("adam.cl", "adam_step_multi", **defs)
@@ -200,19 +206,23 @@ for n, kmax, sh_k in ((37, 16, 4), (53, 4, 1)):
     st0 = _state(np.random.default_rng(7), n, kmax)
     seq = [T.ALL, ("means", "sh_dc")]
     ref = T._run("oclgrind", st0, seq, sh_k, False, seed=8, steps=1)[0]
-    for split, flat_views in ((0, False), (1, False), (0, True)):
+    for split, flat_views, first in ((0, False, 0), (1, False, 0), (0, True, 0), (0, True, 1), (0, False, 1)):
         got, _, launches = T._run("oclgrind", st0, seq, sh_k, True, seed=8, steps=1, split=split,
-                                  flat_views=flat_views)
-        T._assert_same(got, ref, f"oclgrind n={n} kmax={kmax} split={split} flat_views={flat_views}")
+                                  flat_views=flat_views, loads_first=first)
+        T._assert_same(got, ref, f"oclgrind n={n} kmax={kmax} split={split} flat_views={flat_views} first={first}")
         assert launches == [1, 1], launches
+    # the per-group kernels (adam_step, adam_step_flat) with the loads first
+    got = T._run("oclgrind", st0, seq, sh_k, False, seed=8, steps=1, loads_first=1)[0]
+    T._assert_same(got, ref, f"oclgrind n={n} kmax={kmax} per group, loads first")
 print("ok")
 """
 
 
 @pytest.mark.oclgrind
 def test_adam_multi_oclgrind():
-    """adam_step_multi (both builds: with and without the slot barrier) under Oclgrind's checks
-    (out-of-bounds accesses, races, barrier divergence), against the per-group kernels."""
+    """adam_step_multi (both builds: with and without the slot barrier; the GPUs' ADAM_LOADS_FIRST build,
+    which PoCL 3.0 cannot run) under Oclgrind's checks (out-of-bounds accesses, races, barrier
+    divergence), against the per-group kernels, and those with the loads first."""
     from oclgrind_util import check_script
 
     check_script(_MULTI_OCLGRIND)

@@ -169,7 +169,10 @@ class DeviceTrainer:
             self.adam_multi = False
         self.profile = profile
         self.photo = backend.photometric_kernels
-        adam_defs = {"ADAM_FP64": int(self.fp64), "ADAM_MULTI_SPLIT": int(bool(backend.cpu))}  # one build
+        # one build; the loads first on GPUs only (adam.cl's ADAM_LOADS_FIRST: the same bits, one memory round
+        # trip per element on NVIDIA, a crash of PoCL 3.0's adam_step_multi)
+        adam_defs = {"ADAM_FP64": int(self.fp64), "ADAM_MULTI_SPLIT": int(bool(backend.cpu)),
+                     "ADAM_LOADS_FIRST": int(not backend.cpu)}
         # adam_step_multi steps the SH groups' strided gradient views flat on GPUs (every lane busy, p / m / v
         # contiguous; docs/perf_notes.md §19), in lines of rows on CPUs (PoCL vectorizes along a row); the same bits
         self.adam_flat_views = not backend.cpu
