@@ -318,6 +318,10 @@ class DensifyConfig:
                                                "on every side (or behind every training camera): the near-camera "
                                                "floaters that cover a novel view whole (docs/method.md §14); "
                                                "None = off", check=finite_nonneg)
+    near_prune_radius: float | None = opt(None, "at each densification also drop the Gaussians whose centre lies "
+                                                "within this distance (world units) of a training camera's centre: "
+                                                "DNGaussian's near pruning on the training cameras only; None = off",
+                                          check=finite_nonneg)
     max_gaussians: int | None = opt(None, "optional cap on the Gaussian count (highest-gradient candidates win)")
     clean_views: bool = opt(False, "drop Gaussians no training view sees, at the first iteration (DNGaussian)")
     prune_unseen: bool = opt(False, "at each densification also drop the Gaussians that no pixel of any training "
@@ -813,6 +817,14 @@ class RunConfig:
               "view's image widened by F times its size on every side (DensifyConfig.off_frame_margin; the "
               "near-camera floaters beside the training cameras that cover a novel view whole, docs/method.md "
               "§14); none: off",
+        check=finite_nonneg, metavar="F")
+    near_prune: float | None = opt(
+        None, "reings fits: at each densification step also drop the Gaussians whose centre lies within F times "
+              "the scene's near depth of a training camera's centre (DensifyConfig.near_prune_radius; the near depth: "
+              "the smallest over the training views of the 1st percentile of the SfM points' depths, the SfM of the "
+              "training views; DNGaussian's LLFF near pruning, which reads the render path's poses, on the training "
+              "cameras only: against the near-camera floaters that cover a novel view whole, docs/method.md §14); "
+              "none: off; a run without SfM points ignores it",
         check=finite_nonneg, metavar="F")
     fit_scale_share: tuple[float, ...] | None = opt(
         None, "reings fits at a --fit-scale S > 1: the share of the fit's iterations run at 1/S, its first ones "

@@ -188,14 +188,19 @@ def clean_views(state: TrainState, visible: np.ndarray) -> int:
     return removed
 
 
+def _means_for_rule(means, name: str, value: float) -> np.ndarray:
+    """The means as float64 [N, 3] for a geometric prune whose setting `name` has `value` (checked: finite, >= 0)."""
+    why = finite_nonneg(value)
+    if why:
+        raise ValueError(f"{name} {why}")
+    return np.asarray(means, np.float64).reshape(-1, 3)
+
+
 def centres_in_frames(means: np.ndarray, cameras, margin: float, near: float = 0.01) -> np.ndarray:
     """[N] bool: the Gaussians whose centre some camera sees inside its image widened by `margin` times
     the image's width / height on each side, in front of its `near` plane (float64; the pinhole
     projection of reings.types.Camera: x = R mu + t, u = fx x / z + cx, v = fy y / z + cy)."""
-    why = finite_nonneg(margin)
-    if why:
-        raise ValueError(f"off_frame_margin {why}")
-    mu = np.asarray(means, np.float64).reshape(-1, 3)
+    mu = _means_for_rule(means, "off_frame_margin", margin)
     inside = np.zeros(len(mu), bool)
     for cam in cameras:
         x = mu @ cam.viewmat[:3, :3].T + cam.viewmat[:3, 3]
@@ -207,6 +212,17 @@ def centres_in_frames(means: np.ndarray, cameras, margin: float, near: float = 0
         mw, mh = margin * cam.width, margin * cam.height
         inside |= front & (u >= -mw) & (u <= cam.width + mw) & (v >= -mh) & (v <= cam.height + mh)
     return inside
+
+
+def away_from_cameras(means: np.ndarray, cameras, radius: float) -> np.ndarray:
+    """[N] bool: the Gaussians whose centre lies at least `radius` from every camera's centre (float64;
+    the centre of reings.types.Camera, -R^T t)."""
+    mu = _means_for_rule(means, "near_prune_radius", radius)
+    away = np.ones(len(mu), bool)
+    for cam in cameras:
+        d = mu - np.asarray(cam.center, np.float64)
+        away &= np.einsum("ij,ij->i", d, d) >= radius * radius
+    return away
 
 
 def unseen_plan(seen: np.ndarray, n: int) -> RowPlan | None:
@@ -262,8 +278,9 @@ def densify_rows(rows, cfg, iteration: int, extent: float, rng: np.random.Genera
     `apply_rows` (size pruning after size_prune_from); the opacity reset; with
     cfg.prune_unseen and `importance` (a callable giving Omega_G over the training views of the
     rows as they are then) the unseen Gaussians' prune; with cfg.off_frame_margin and the training
-    `cameras`, the prune of the Gaussians whose centre no training view frames (`centres_in_frames`).
-    Returns the counts or None."""
+    `cameras`, the prune of the Gaussians whose centre no training view frames (`centres_in_frames`), with
+    cfg.near_prune_radius the prune of those near a training camera (`away_from_cameras`): one read of the
+    means, one surgery. Returns the counts or None."""
     dens, reset = schedule(cfg, iteration)
     out = {}
     if dens:
@@ -288,12 +305,23 @@ def densify_rows(rows, cfg, iteration: int, extent: float, rng: np.random.Genera
         if plan is not None:
             rows.apply_rows(plan)
         out.update(unseen=n - rows.n, n=rows.n)
-    if dens and cfg.off_frame_margin is not None and cameras is not None:
+    rules = {"off_frame": cfg.off_frame_margin, "near": cfg.near_prune_radius}
+    if dens and cameras is not None and any(v is not None for v in rules.values()):
         n = rows.n
         params, _ = rows.read_columns(("means",))
-        plan = unseen_plan(centres_in_frames(params["means"], cameras, cfg.off_frame_margin, near), n)
+        keep = np.ones(n, bool)
+        for name, v in rules.items():
+            if v is None:
+                continue
+            mask = (centres_in_frames(params["means"], cameras, v, near) if name == "off_frame"
+                    else away_from_cameras(params["means"], cameras, v))
+            out[name] = int((keep & ~mask).sum())  # the ones this rule adds
+            keep &= mask
+        plan = unseen_plan(keep, n)
         if plan is not None:
             rows.apply_rows(plan)
-        out.update(off_frame=n - rows.n, n=rows.n)
+        else:  # none, or every one (never empty the model)
+            out.update({name: 0 for name, v in rules.items() if v is not None})
+        out["n"] = rows.n
     return out or None
 # }}}

@@ -174,6 +174,8 @@ def _setting_tag(m: dict) -> str:
         tag.append("prune unseen")
     if cfg.get("off_frame_margin") is not None:  # the off-frame prune (absent when off)
         tag.append(f"off-frame {cfg['off_frame_margin']:g}")
+    if cfg.get("near_prune") is not None:  # the near prune (absent when off)
+        tag.append(f"near prune {cfg['near_prune']:g}")
     if cfg.get("max_screen_fraction"):  # the screen-size prune (absent when off)
         tag.append(f"screen prune {cfg['max_screen_fraction']:g}")
     if cfg.get("fit_scale"):  # the fits' resolution divisors (absent when all 1)
@@ -548,7 +550,7 @@ _ABSENT_WHEN_OFF = ("drop_gamma", "depth_metric", "prune_unseen", "cross_warp", 
                     "cross_warp_occlusion", "cross_warp_blur", "view_warp_start", "lambda_dssim",
                     "soft_depth_shared", "grad_threshold_scale", "ensemble", "ensemble_from", "hard_depth_scale",
                     "hard_depth_patches", "view_warp_every", "fit_scale", "fit_scale_share", "max_screen_fraction",
-                    "off_frame_margin",
+                    "off_frame_margin", "near_prune",
                     "view_warp_scale")
 
 

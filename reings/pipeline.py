@@ -81,6 +81,20 @@ def typical_depth(cameras, box) -> float:
     return max(float(np.median(meds)) if meds else 1.0, 1e-6)
 
 
+def near_depth(cameras, box, q: float = 1.0) -> float | None:
+    """The scene's near depth from the training views: the smallest over the cameras of the q-th
+    percentile of the camera-space z of the SfM points in front of them (box.points); None without
+    points (RunConfig.near_prune then has no scale)."""
+    pts = np.asarray(box.points, np.float64).reshape(-1, 3)
+    near = []
+    for cam in cameras:
+        z = pts @ cam.viewmat[2, :3] + cam.viewmat[2, 3]
+        z = z[np.isfinite(z) & (z > 0)]
+        if len(z):
+            near.append(float(np.percentile(z, q)))
+    return min(near) if near else None
+
+
 def auto_eval_every(iters: int, points: int = 15) -> int:
     """Test-PSNR probes every this many iterations: about `points` per stage."""
     return max(1, int(round(iters / points)))
@@ -221,6 +235,8 @@ def run_settings(cfg: RunConfig, dataset_kind: str) -> dict:
     fs = [fit_scale_of(cfg, family, st) for st in FIT_STAGES[cfg.method]]
     if cfg.off_frame_margin is not None and cfg.method == "reings":  # absent when off, as before the option
         s["off_frame_margin"] = cfg.off_frame_margin
+    if cfg.near_prune is not None and cfg.method == "reings":  # absent when off, as before the option
+        s["near_prune"] = cfg.near_prune
     if cfg.max_screen_fraction and cfg.method == "reings":  # absent when off, the value before the option existed
         s["max_screen_fraction"] = cfg.max_screen_fraction
     if any(v != 1 for v in fs):  # absent at 1, the value before the option existed
@@ -566,6 +582,7 @@ class RunContext:
         self.log, self.progress = log, progress
         self.iterations = cfg.stage_iterations()
         self.extent = scene_extent(train.cameras)  # the learning-rate scale of the means
+        self.near_depth = near_depth(train.cameras, box) if box is not None else None  # near_prune's scale
         self.rng = np.random.default_rng(cfg.seed)
         # the smoothness weight of every fit: as given, else the recipe's, except with the stereo
         # prior (no measured benefit: RunConfig.depth_smooth)
@@ -602,6 +619,8 @@ class RunContext:
             recipe = replace(recipe, loss=replace(recipe.loss, depth_patch_div=fs))
         if c.off_frame_margin is not None and c.method == "reings":
             recipe = replace(recipe, densify=replace(recipe.densify, off_frame_margin=c.off_frame_margin))
+        if c.near_prune is not None and c.method == "reings" and self.near_depth is not None:
+            recipe = replace(recipe, densify=replace(recipe.densify, near_prune_radius=c.near_prune * self.near_depth))
         if c.max_screen_fraction and c.method == "reings":  # in the fit's own pixels
             d = recipe.densify
             side = max(max(cam.width, cam.height) for cam in self.train.cameras) / fs
@@ -989,7 +1008,7 @@ def option_notes(cfg: RunConfig, family: str, n_train: int) -> list:
     if cfg.fit_scale_share is not None and any(v != 1 for v in cfg.fit_scale_share) and not any(
             fit_scale_of(cfg, family, st) != 1 and fit_scale_share_of(cfg, st) != 1 for st in FIT_STAGES["reings"]):
         notes.append("fit_scale_share applies to the reings fits at a fit scale above 1 only; ignored")
-    for opt_name in ("max_screen_fraction", "off_frame_margin"):
+    for opt_name in ("max_screen_fraction", "off_frame_margin", "near_prune"):
         if getattr(cfg, opt_name) is not None and cfg.method != "reings":
             notes.append(f"{opt_name} applies to the reings fits only; ignored")
     if cfg.view_warp_scale != 1 and (cfg.method != "reings" or not cfg.view_warp):

@@ -470,9 +470,10 @@ def fit(views, config: TrainConfig, device: str = "pocl", init: Gaussians | None
         if targets is not None and confidence is not None and len(confidence) != len(targets):
             raise ValueError(f"fit: {len(confidence)} depth confidences for {len(targets)} depth targets")
         _check_loss(part_cfg.loss)
-        why = check_value(DensifyConfig.__dataclass_fields__["off_frame_margin"], part_cfg.densify.off_frame_margin)
-        if why:
-            raise ValueError(f"fit: DensifyConfig.off_frame_margin {why}")
+        for name in ("off_frame_margin", "near_prune_radius"):
+            why = check_value(DensifyConfig.__dataclass_fields__[name], getattr(part_cfg.densify, name))
+            if why:
+                raise ValueError(f"fit: DensifyConfig.{name} {why}")
         _hard_cameras(cams, targets, part_cfg.loss)  # refuses a view with no hard-pass block
     extent = scene_extent(cameras) if extent is None else extent
     backend = get_backend(device)

@@ -481,3 +481,31 @@ def run_tool(main, argv) -> int:
     finally:
         log.handlers[:] = handlers
         log.setLevel(level)
+
+
+def densify_state(means):
+    """A TrainState of small opaque Gaussians at `means` (SH degree 0) with zeroed densification statistics:
+    the geometric prunes' cases (tests/test_fit_lead.py, tests/test_near_prune.py)."""
+    from reings.densify import init_stats
+    from reings.state import TrainState
+
+    n = len(means)
+    g = Gaussians(np.asarray(means, np.float32), np.tile([1, 0, 0, 0], (n, 1)).astype(np.float32),
+                  np.full((n, 3), -3, np.float32), np.full(n, 2, np.float32), np.zeros((n, 1, 3), np.float32))
+    st = TrainState.from_gaussians(g, 0)
+    init_stats(st)
+    return st
+
+
+def prune_on_both_engines(scene, init, cfg, device, key: str):
+    """A fit of `cfg` on the host and the device engines: both must drop the same counts under densification
+    history `key` at every step, some in all, and end with the same count. Returns the device engine's result."""
+    from reings.train import fit
+
+    runs = {e: fit(scene, cfg, device=device, init=init, depth_targets=list(scene.depths), progress=False,
+                   log_every=5, engine=e) for e in ("host", "device")}
+    h, d = runs["host"].history, runs["device"].history
+    assert [n[key] for _, n in h.densify] == [n[key] for _, n in d.densify]
+    assert sum(n[key] for _, n in d.densify) > 0
+    assert h.n_gaussians == d.n_gaussians
+    return runs["device"]

@@ -226,19 +226,11 @@ def test_centres_in_frames_analytic():
 def test_the_off_frame_prune_at_a_densification_step():
     """densify_rows with off_frame_margin: the Gaussians no training view frames go at a densification step
     (counted), the others keep their rows; none at a step that does not densify; never the whole model."""
+    from cases import densify_state as state
+
     from reings.backends.reference_state import HeldRows
     from reings.config import DensifyConfig
-    from reings.densify import densify_rows, init_stats
-    from reings.state import TrainState
-    from reings.types import Gaussians
-
-    def state(means):
-        n = len(means)
-        g = Gaussians(np.asarray(means, np.float32), np.tile([1, 0, 0, 0], (n, 1)).astype(np.float32),
-                      np.full((n, 3), -3, np.float32), np.full(n, 2, np.float32), np.zeros((n, 1, 3), np.float32))
-        st = TrainState.from_gaussians(g, 0)
-        init_stats(st)
-        return st
+    from reings.densify import densify_rows
 
     cfg = DensifyConfig(densify_from=0, densify_until=100, densify_interval=10, prune_opacity=0.0,
                         off_frame_margin=0.0)
@@ -277,18 +269,15 @@ def test_the_off_frame_prune_in_a_fit_on_both_engines(device, case):
     """A fit with off_frame_margin 0: the Gaussians the training views do not frame go at its densifications (the
     case's random points fill a box larger than the views' frusta), the same rows on both engines; the returned
     model's centres all lie in some training view's frame."""
+    from cases import prune_on_both_engines
+
     from reings.densify import centres_in_frames
 
     scene, init, cfg = case
     cfg = replace(cfg, densify=replace(cfg.densify, off_frame_margin=0.0))
-    runs = {e: fit(scene, cfg, device=device, init=init, depth_targets=list(scene.depths), progress=False,
-                   log_every=5, engine=e) for e in ("host", "device")}
-    h, d = runs["host"].history, runs["device"].history
-    assert [n["off_frame"] for _, n in h.densify] == [n["off_frame"] for _, n in d.densify]
-    assert sum(n["off_frame"] for _, n in d.densify) > 0
-    assert h.n_gaussians == d.n_gaussians
+    run = prune_on_both_engines(scene, init, cfg, device, "off_frame")
     # the last densification (20) judged the centres as they were then; 3 iterations moved them a little since
-    assert centres_in_frames(runs["device"].gaussians.means, scene.cameras, 0.05).all()
+    assert centres_in_frames(run.gaussians.means, scene.cameras, 0.05).all()
 
 
 def test_the_screen_prune_is_in_each_parts_own_pixels():
