@@ -821,10 +821,10 @@ class RunConfig:
     near_prune: float | None = opt(
         None, "reings fits: at each densification step also drop the Gaussians whose centre lies within F times "
               "the scene's near depth of a training camera's centre (DensifyConfig.near_prune_radius; the near depth: "
-              "the smallest over the training views of the 1st percentile of the SfM points' depths, the SfM of the "
-              "training views; DNGaussian's LLFF near pruning, which reads the render path's poses, on the training "
+              "the smallest over the training views of the 1st percentile of the depths of the scene box's points: the "
+              "SfM of the training views, or the stereo prior's where the box is the prior's; DNGaussian's LLFF near pruning, which reads the render path's poses, on the training "
               "cameras only: against the near-camera floaters that cover a novel view whole, docs/method.md §14); "
-              "none: off; a run without SfM points ignores it",
+              "none: off; a run whose box has no points ignores it (with a note)",
         check=finite_nonneg, metavar="F")
     fit_scale_share: tuple[float, ...] | None = opt(
         None, "reings fits at a --fit-scale S > 1: the share of the fit's iterations run at 1/S, its first ones "

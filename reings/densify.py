@@ -264,8 +264,8 @@ def schedule(cfg, iteration: int) -> tuple[bool, bool]:
 
 
 def maybe_densify(state: TrainState, cfg, iteration: int, extent: float, rng: np.random.Generator) -> dict | None:
-    """`densify_rows` on a TrainState (without prune_unseen and the off-frame prune, which need the training
-    views)."""
+    """`densify_rows` on a TrainState (without prune_unseen, the off-frame prune and the near prune, which need
+    the training views)."""
     return densify_rows(HeldRows(state), cfg, iteration, extent, rng)
 
 

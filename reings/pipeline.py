@@ -83,8 +83,9 @@ def typical_depth(cameras, box) -> float:
 
 def near_depth(cameras, box, q: float = 1.0) -> float | None:
     """The scene's near depth from the training views: the smallest over the cameras of the q-th
-    percentile of the camera-space z of the SfM points in front of them (box.points); None without
-    points (RunConfig.near_prune then has no scale)."""
+    percentile of the camera-space z of the scene box's points in front of them (box.points: the SfM
+    points of the training views, or the stereo prior's confident points where the box is the prior's);
+    None without points (RunConfig.near_prune then has no scale)."""
     pts = np.asarray(box.points, np.float64).reshape(-1, 3)
     near = []
     for cam in cameras:
@@ -582,7 +583,12 @@ class RunContext:
         self.log, self.progress = log, progress
         self.iterations = cfg.stage_iterations()
         self.extent = scene_extent(train.cameras)  # the learning-rate scale of the means
-        self.near_depth = near_depth(train.cameras, box) if box is not None else None  # near_prune's scale
+        self.near_depth = None  # near_prune's scale: the scene's near depth from the box's points
+        if cfg.near_prune is not None and cfg.method == "reings":
+            self.near_depth = near_depth(train.cameras, box) if box is not None else None
+            if self.near_depth is None:
+                log(f"[{cfg.label}] note: --near-prune needs the scene box's points (SfM or the stereo prior's), "
+                    f"and this box has none; ignored")
         self.rng = np.random.default_rng(cfg.seed)
         # the smoothness weight of every fit: as given, else the recipe's, except with the stereo
         # prior (no measured benefit: RunConfig.depth_smooth)

@@ -50,8 +50,9 @@ def test_near_depth_is_the_smallest_percentile_over_the_views():
     from reings.data.sfm import SfmExtent
     from reings.pipeline import near_depth
 
-    ctx, cam = _ctx("llff")  # SfM points straight ahead of camera 0 at depths 2, 4, 6
+    ctx, cam = _ctx("llff", near_prune=0.25)  # SfM points straight ahead of camera 0 at depths 2, 4, 6
     assert ctx.near_depth == pytest.approx(2.04, abs=1e-9)  # numpy's linear percentile: 2 + 0.01 * 2 * (4 - 2)
+    assert _ctx("llff")[0].near_depth is None  # not computed when the option is off
     assert near_depth([cam], ctx.box, 50.0) == pytest.approx(4.0, abs=1e-9)
     # a second camera 1 unit further back sees them at 3, 5, 7; the first's nearer percentile wins
     back = replace(cam, viewmat=cam.viewmat.copy())
@@ -110,8 +111,21 @@ def test_the_radius_reaches_the_reings_recipes_only():
     assert ctx.run_recipe(soft_depth_recipe(600, 0, "llff")).densify.near_prune_radius is None
     assert any(n.startswith("near_prune applies to the reings fits only") for n in option_notes(ctx.cfg, "llff", 3))
     ctx, _ = _ctx("llff", near_prune=0.25)
-    ctx.near_depth = None  # no SfM points: no scale
+    ctx.near_depth = None  # no points in the box: no scale
     assert ctx.run_recipe(soft_depth_recipe(600, 0, "llff"), "final").densify.near_prune_radius is None
+
+
+def test_a_box_without_points_gets_a_note(capsys):
+    import reings
+    from reings.data.sfm import SfmExtent
+    from reings.pipeline import RunContext
+
+    scene = reings.make_procedural_scene(n_views=3, width=32, height=24, supersample=1)
+    box = SfmExtent(np.zeros(3), np.ones(3), "frusta", np.zeros((0, 3)), np.zeros((0, 3), np.float32))
+    ctx = RunContext(RunConfig(near_prune=0.25).resolved(), None, scene.subset([0]), scene.subset([1]), None, box,
+                     print, False)
+    assert ctx.near_depth is None
+    assert "--near-prune needs the scene box's points" in capsys.readouterr().out
 
 
 def test_the_option_parses_and_refuses():
