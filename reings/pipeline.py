@@ -65,6 +65,19 @@ class RunResult:
 
 # {{{ small helpers
 
+def _depths_per_camera(cameras, pts, stat) -> list:
+    """`stat` of the camera-space z of the points `pts` [P, 3] in front of each camera (finite, > 0), for
+    the cameras that have any."""
+    pts = np.asarray(pts, np.float64).reshape(-1, 3)
+    out = []
+    for cam in cameras:
+        z = pts @ cam.viewmat[2, :3] + cam.viewmat[2, 3]
+        z = z[np.isfinite(z) & (z > 0)]
+        if len(z):
+            out.append(float(stat(z)))
+    return out
+
+
 def typical_depth(cameras, box) -> float:
     """The scene's typical depth from the training views: the median over the cameras of the
     median camera-space z of the SfM points in front of them (box.points), or, without points,
@@ -72,12 +85,7 @@ def typical_depth(cameras, box) -> float:
     pts = np.asarray(box.points, np.float64).reshape(-1, 3)
     if not len(pts):
         pts = (0.5 * (np.asarray(box.lo, np.float64) + np.asarray(box.hi, np.float64)))[None]
-    meds = []
-    for cam in cameras:
-        z = pts @ cam.viewmat[2, :3] + cam.viewmat[2, 3]
-        z = z[np.isfinite(z) & (z > 0)]
-        if len(z):
-            meds.append(float(np.median(z)))
+    meds = _depths_per_camera(cameras, pts, np.median)
     return max(float(np.median(meds)) if meds else 1.0, 1e-6)
 
 
@@ -86,13 +94,7 @@ def near_depth(cameras, box, q: float = 1.0) -> float | None:
     percentile of the camera-space z of the scene box's points in front of them (box.points: the SfM
     points of the training views, or the stereo prior's confident points where the box is the prior's);
     None without points (RunConfig.near_prune then has no scale)."""
-    pts = np.asarray(box.points, np.float64).reshape(-1, 3)
-    near = []
-    for cam in cameras:
-        z = pts @ cam.viewmat[2, :3] + cam.viewmat[2, 3]
-        z = z[np.isfinite(z) & (z > 0)]
-        if len(z):
-            near.append(float(np.percentile(z, q)))
+    near = _depths_per_camera(cameras, box.points, lambda z: np.percentile(z, q))
     return min(near) if near else None
 
 
