@@ -355,7 +355,7 @@ isect_reduce(ISECT_REDUCE_PARAMS) {
  * every select / any / fmin / min / max was a call, around which every live vector register is spilled
  * (objdump of PoCL's kernel cache; docs/perf_notes.md §17). The CPU schedule writes them with plain
  * operators instead, the same value for every input: SEL(a, b, c) and any8 (common.h) are select and any,
- * VMIN(x, a) is fmin(a, x) (a NaN x gives a), FINITE (above) is isfinite. (PoCL inlines exp now: no call.) */
+ * VMIN(x, a) is fmin(a, x) (a NaN x gives a), FINITE (above) is isfinite; VEXP (below) is exp. */
 #define VMIN(x, a) ((x) < (a) ? (x) : (a))
 #define IMIN(a, b) ((a) < (b) ? (a) : (b))
 #define IMAX(a, b) ((a) > (b) ? (a) : (b))
@@ -411,6 +411,108 @@ inline int hmax(vi x) {
 inline int vany(vi m) { return any16(m); } /* any(m) */
 #else
 #error "RASTER_VEC must be 8 or 16"
+#endif
+
+/* RASTER_PLAIN_IO (CPU schedule; default REINGS_CLANG_BUILTINS): the tiles' pixel loads and stores (the
+ * forward's outputs, the backward's cotangents and forward outputs, the private rows between them) as plain
+ * operators on 4-byte-aligned, may_alias vector types instead of vload / vstore, which PoCL 3.0 calls (§17 of
+ * docs/perf_notes.md: a call spills every live vector register): the same bytes moved (the byte tests of
+ * RASTER_ROW_IO run with it, tests/test_rasterize.py). G: __global, P: private; 4: a float4 at p + 4 o, V: a
+ * pixel vector at p; I: the int forms. */
+#ifndef RASTER_PLAIN_IO
+#define RASTER_PLAIN_IO REINGS_CLANG_BUILTINS
+#endif
+#if RASTER_PLAIN_IO
+typedef float4 __attribute__((aligned(4), may_alias)) f4u;
+typedef int4 __attribute__((aligned(4), may_alias)) i4u;
+typedef vf __attribute__((aligned(4), may_alias)) vfu;
+typedef vi __attribute__((aligned(4), may_alias)) viu;
+#define GLOAD4(o, p) (((__global const f4u *)(p))[o])
+#define GLOAD4I(o, p) (((__global const i4u *)(p))[o])
+#define GSTORE4(v, o, p) (((__global f4u *)(p))[o] = (v))
+#define GSTORE4I(v, o, p) (((__global i4u *)(p))[o] = (v))
+#define PLOAD4(o, p) (((const f4u *)(p))[o])
+#define PLOAD4I(o, p) (((const i4u *)(p))[o])
+#define PSTORE4(v, o, p) (((f4u *)(p))[o] = (v))
+#define PSTORE4I(v, o, p) (((i4u *)(p))[o] = (v))
+#define PLOADV(p) (*(const vfu *)(p))
+#define PLOADVI(p) (*(const viu *)(p))
+#define PSTOREV(v, p) (*(vfu *)(p) = (v))
+#define PSTOREVI(v, p) (*(viu *)(p) = (v))
+#else
+#define GLOAD4(o, p) vload4(o, p)
+#define GLOAD4I(o, p) vload4(o, p)
+#define GSTORE4(v, o, p) vstore4(v, o, p)
+#define GSTORE4I(v, o, p) vstore4(v, o, p)
+#define PLOAD4(o, p) vload4(o, p)
+#define PLOAD4I(o, p) vload4(o, p)
+#define PSTORE4(v, o, p) vstore4(v, o, p)
+#define PSTORE4I(v, o, p) vstore4(v, o, p)
+#define PLOADV(p) VLOAD(0, p)
+#define PLOADVI(p) VLOAD(0, p)
+#define PSTOREV(v, p) VSTORE(v, 0, p)
+#define PSTOREVI(v, p) VSTORE(v, 0, p)
+#endif
+
+/* RASTER_EXP_INLINE (CPU schedule; default: REINGS_CLANG_BUILTINS where clang targets an x86-64 with FMA, __FMA__):
+ * VEXP(x) is exp(x) written out in operators, the operations of PoCL 3.0's own vector exp on x86-64
+ * with FMA (Sleef's expf_u10: n = rint(x / ln 2) by a product and a round to nearest even, the reduction
+ * s = x - n ln 2 in two fused steps (ln 2 split 0.693145751953125 + 1.428606765330187e-06), a degree-5 polynomial
+ * by Horner's fused steps, u = s^2 P(s) + s, then 1 + u, times 2^(n >> 1) and 2^(n - (n >> 1)) built in the
+ * exponent bits; 0 below -104, inf above 100), in the same order, so the same bits for every input (checked
+ * against the build's exp by tests/test_rasterize.py::test_inline_exp_is_the_library_exp on every float of a dense
+ * set, and against float64 to 1 ulp). PoCL 3.0 calls its exp (_cl_exp), around which every live vector register
+ * is spilled and reloaded: the call and its spills were ~25 % of the rasterizer's samples (docs/perf_notes.md §40).
+ * docs/perf_notes.md §22's inline exp (Cephes' polynomial, on AVX2) changed the bits and did not pay. */
+#ifndef RASTER_EXP_INLINE
+#if REINGS_CLANG_BUILTINS && defined(__FMA__)
+#define RASTER_EXP_INLINE 1
+#else
+#define RASTER_EXP_INLINE 0
+#endif
+#endif
+#if RASTER_EXP_INLINE
+#if RASTER_VEC == 8
+typedef uint8 vu;
+#define AS_VF as_float8
+#define AS_VI as_int8
+#define AS_VU as_uint8
+#else
+typedef uint16 vu;
+#define AS_VF as_float16
+#define AS_VI as_int16
+#define AS_VU as_uint16
+#endif
+/* Only operators: PoCL 3.0 calls OpenCL's fma and conversions as it calls exp (docs/perf_notes.md §17). Each
+ * a * b + c below is one fused multiply-add by OpenCL's FP_CONTRACT (on by default: clang's fmuladd, one vfmadd
+ * where the target has FMA, __FMA__), and only those: a product whose sum is in another statement is rounded on
+ * its own. rint(t) for |t| < 2^22 is (t + 1.5 2^23) - 1.5 2^23 in round-to-nearest-even, and the sum's low
+ * mantissa bits are rint(t) as an integer. The exponent bits in unsigned arithmetic: a lane out of range (x below
+ * -104, above 100, inf) wraps instead of overflowing, and its value is selected out at the end. */
+inline vf exp_inline(vf x) {
+    const vf t = x * 1.442695040888963407359924681001892137f; /* rounded alone, as Sleef's d * R_LN2f */
+    const vf big = t + 12582912.0f;                          /* 1.5 2^23: |t| < 151 here (else selected out) */
+    const vu n = AS_VU(big) - 0x4b400000u;                   /* rint(t), two's complement */
+    const vf q = big - 12582912.0f;                          /* the same, as a float (exact) */
+    vf s = q * -0.693145751953125f + x;
+    s = q * -1.428606765330187045e-06f + s;
+    vf u = s * 0.000198527617612853646278381f + 0.00139304355252534151077271f;
+    u = u * s + 0.00833336077630519866943359f;
+    u = u * s + 0.0416664853692054748535156f;
+    u = u * s + 0.166666671633720397949219f;
+    u = u * s + 0.5f;
+    const vf s2 = s * s;
+    u = u * s2 + s;
+    u = u + 1.0f;
+    const vu h = AS_VU(AS_VI(n) >> 1); /* floor(n / 2): 2^n as 2^h 2^(n - h), each in the exponent's range */
+    u = u * AS_VF((h << 23) + 0x3f800000u);
+    u = u * AS_VF(((n - h) << 23) + 0x3f800000u);
+    u = SEL(u, (vf)(0.0f), x < -104.0f);
+    return SEL(u, (vf)(INFINITY), x > 100.0f);
+}
+#define VEXP(x) exp_inline(x)
+#else
+#define VEXP(x) exp(x)
 #endif
 
 /* A pixel vector is a block of BW x BH pixels (RASTER_BLOCK_H rows of RASTER_VEC / RASTER_BLOCK_H);
@@ -566,7 +668,7 @@ __kernel void rasterize_fwd(__global const float16 *packed,      // [N] records 
                     if (!vany((power >= g.se) & (T > 0.0f))) continue;
 #endif
 #endif
-                    const vf a = g.s5 * exp(power); /* once: VMIN names its argument twice */
+                    const vf a = g.s5 * VEXP(power); /* once: VMIN names its argument twice */
                     const vf alpha = VMIN(a, (vf)(ALPHA_MAX));
                     const vi ok = (T > 0.0f) & (power <= 0.0f) & (alpha >= ALPHA_MIN);
                     /* no test of any(ok) here: past the cut test a lane nearly always passes, and a vector
@@ -603,25 +705,25 @@ __kernel void rasterize_fwd(__global const float16 *packed,      // [N] records 
         const vf T = fabs(Tv[c]);
         float tT[RASTER_VEC], tD[RASTER_VEC], tA[RASTER_VEC], tR[RASTER_VEC], tG[RASTER_VEC], tB[RASTER_VEC];
         int tL[RASTER_VEC];
-        VSTORE(T, 0, tT);
-        VSTORE(Dv[c], 0, tD);
-        VSTORE(1.0f - T, 0, tA);
-        VSTORE(Rv[c] + T * bg_r, 0, tR);
-        VSTORE(Gv[c] + T * bg_g, 0, tG);
-        VSTORE(Bv[c] + T * bg_b, 0, tB);
-        VSTORE(Lv[c], 0, tL);
+        PSTOREV(T, tT);
+        PSTOREV(Dv[c], tD);
+        PSTOREV(1.0f - T, tA);
+        PSTOREV(Rv[c] + T * bg_r, tR);
+        PSTOREV(Gv[c] + T * bg_g, tG);
+        PSTOREV(Bv[c] + T * bg_b, tB);
+        PSTOREVI(Lv[c], tL);
 #if RASTER_ROW_IO && BW == 4
         if (px0 + BW <= width && py0 + BH <= height) { /* the whole block inside: a row of 4 pixels at a time */
             for (int r = 0; r < BH; ++r) {
                 const int p = (py0 + r) * width + px0;
-                vstore4(vload4(r, tT), 0, out_T + p);
-                vstore4(vload4(r, tD), 0, out_depth + p);
-                vstore4(vload4(r, tA), 0, out_alpha + p);
-                vstore4(vload4(r, tL), 0, out_last + p);
-                const float4 R4 = vload4(r, tR), G4 = vload4(r, tG), B4 = vload4(r, tB);
-                vstore4((float4)(R4.x, G4.x, B4.x, R4.y), 0, out_rgb + 3 * p);
-                vstore4((float4)(G4.y, B4.y, R4.z, G4.z), 0, out_rgb + 3 * p + 4);
-                vstore4((float4)(B4.z, R4.w, G4.w, B4.w), 0, out_rgb + 3 * p + 8);
+                GSTORE4(PLOAD4(r, tT), 0, out_T + p);
+                GSTORE4(PLOAD4(r, tD), 0, out_depth + p);
+                GSTORE4(PLOAD4(r, tA), 0, out_alpha + p);
+                GSTORE4I(PLOAD4I(r, tL), 0, out_last + p);
+                const float4 R4 = PLOAD4(r, tR), G4 = PLOAD4(r, tG), B4 = PLOAD4(r, tB);
+                GSTORE4(((float4)(R4.x, G4.x, B4.x, R4.y)), 0, out_rgb + 3 * p);
+                GSTORE4(((float4)(G4.y, B4.y, R4.z, G4.z)), 0, out_rgb + 3 * p + 4);
+                GSTORE4(((float4)(B4.z, R4.w, G4.w, B4.w)), 0, out_rgb + 3 * p + 8);
             }
             continue;
         }
@@ -686,34 +788,34 @@ bwd_tile(__global const float16 *packed, __global const int *gid_from_isect, __g
             const int p = (py0 + r) * width + px0;
             float4 r4 = (float4)(0.0f);
             if (v_mask & 1) {
-                const float4 a = vload4(0, v_rgb + 3 * p), b = vload4(1, v_rgb + 3 * p), e = vload4(2, v_rgb + 3 * p);
-                const float4 oa = vload4(0, out_rgb + 3 * p), ob = vload4(1, out_rgb + 3 * p),
-                             oe = vload4(2, out_rgb + 3 * p);
+                const float4 a = GLOAD4(0, v_rgb + 3 * p), b = GLOAD4(1, v_rgb + 3 * p), e = GLOAD4(2, v_rgb + 3 * p);
+                const float4 oa = GLOAD4(0, out_rgb + 3 * p), ob = GLOAD4(1, out_rgb + 3 * p),
+                             oe = GLOAD4(2, out_rgb + 3 * p);
                 const float4 vr4 = (float4)(a.x, a.w, b.z, e.y), vg4 = (float4)(a.y, b.x, b.w, e.z),
                              vb4 = (float4)(a.z, b.y, e.x, e.w);
                 r4 += vr4 * (float4)(oa.x, oa.w, ob.z, oe.y) + vg4 * (float4)(oa.y, ob.x, ob.w, oe.z) +
                       vb4 * (float4)(oa.z, ob.y, oe.x, oe.w);
-                vstore4(vr4, r, vr);
-                vstore4(vg4, r, vg);
-                vstore4(vb4, r, vb);
+                PSTORE4(vr4, r, vr);
+                PSTORE4(vg4, r, vg);
+                PSTORE4(vb4, r, vb);
             }
             if (v_mask & 2) {
-                const float4 vd4 = vload4(0, v_depth + p);
-                r4 += vd4 * vload4(0, out_depth + p);
-                vstore4(vd4, r, vd);
+                const float4 vd4 = GLOAD4(0, v_depth + p);
+                r4 += vd4 * GLOAD4(0, out_depth + p);
+                PSTORE4(vd4, r, vd);
             }
-            if (v_mask & 4) r4 -= vload4(0, v_alpha + p) * vload4(0, out_T + p);
-            vstore4(r4, r, R);
+            if (v_mask & 4) r4 -= GLOAD4(0, v_alpha + p) * GLOAD4(0, out_T + p);
+            PSTORE4(r4, r, R);
 #if RASTER_BWD_DEPTH_O
             {
                 float4 q4 = (float4)(0.0f);
-                const float4 vo4 = vload4(0, v_depth_o + p);
-                q4 += vo4 * vload4(0, out_depth + p);
-                vstore4(vo4, r, vo);
-                vstore4(q4, r, ro);
+                const float4 vo4 = GLOAD4(0, v_depth_o + p);
+                q4 += vo4 * GLOAD4(0, out_depth + p);
+                PSTORE4(vo4, r, vo);
+                PSTORE4(q4, r, ro);
             }
 #endif
-            vstore4(vload4(0, out_last + p), r, L);
+            PSTORE4I(GLOAD4I(0, out_last + p), r, L);
         }
         for (int l = rows ? RASTER_VEC : 0; l < RASTER_VEC; ++l) {
 #else
@@ -747,18 +849,18 @@ bwd_tile(__global const float16 *packed, __global const int *gid_from_isect, __g
             L[l] = out_last[p];
         }
         Tv[c] = (vf)(1.0f);
-        Rv[c] = VLOAD(0, R);
-        VR[c] = VLOAD(0, vr);
-        VG[c] = VLOAD(0, vg);
-        VB[c] = VLOAD(0, vb);
-        VD[c] = VLOAD(0, vd);
+        Rv[c] = PLOADV(R);
+        VR[c] = PLOADV(vr);
+        VG[c] = PLOADV(vg);
+        VB[c] = PLOADV(vb);
+        VD[c] = PLOADV(vd);
 #if RASTER_BWD_DEPTH_O
-        RO[c] = VLOAD(0, ro);
-        VO[c] = VLOAD(0, vo);
+        RO[c] = PLOADV(ro);
+        VO[c] = PLOADV(vo);
 #endif
         (void)vo;
         (void)ro;
-        Lv[c] = VLOAD(0, L);
+        Lv[c] = PLOADVI(L);
         lmax = IMAX(lmax, Lv[c]);
     }
     /* Gaussians at positions >= max(last) touch no pixel: their records are 0 */
@@ -833,7 +935,7 @@ bwd_tile(__global const float16 *packed, __global const int *gid_from_isect, __g
                     /* power <= 0 in every ok lane (the same G there); a lane that is not ok (a conic that is
                      * not positive definite, uploaded through the stage API, can give power > 88) must not
                      * make G = inf, which its zero va would turn into a NaN in a_o */
-                    const vf G = exp(VMIN(power, (vf)(0.0f)));
+                    const vf G = VEXP(VMIN(power, (vf)(0.0f)));
                     const vf a = g.s5 * G;
                     const vf alpha = VMIN(a, (vf)(ALPHA_MAX));
                     const vi ok = valid & (power <= 0.0f) & (alpha >= ALPHA_MIN);

@@ -306,7 +306,7 @@ def _cpu_define_keeps_the_bits(device, name, vec, define):
 
 
 @pytest.mark.parametrize("define", ["REINGS_CLANG_BUILTINS", "RASTER_ROW_IO", "RASTER_CUT_MASK", "RASTER_HITS",
-                                    "RASTER_CENTRES"])
+                                    "RASTER_CENTRES", "RASTER_PLAIN_IO", "RASTER_EXP_INLINE"])
 @pytest.mark.parametrize("vec", [8, 16])
 @pytest.mark.parametrize("name", ["random_large", "saturated", "many_in_one_tile", "needles", "size_70x45", "one"])
 def test_cpu_io_and_builtins_keep_the_bits(device, name, vec, define):
@@ -322,7 +322,10 @@ def test_cpu_io_and_builtins_keep_the_bits(device, name, vec, define):
     outcomes as bits), then the vectors that passed, instead of one branch per vector.
     RASTER_HITS: the backward walks each pair's vector set that its forward kept instead of testing the box
     again (a superset of the vectors its own tests pass, the others without an ok lane).
-    RASTER_CENTRES: the pixel vectors' centres from a table made once per tile instead of at each use."""
+    RASTER_CENTRES: the pixel vectors' centres from a table made once per tile instead of at each use.
+    RASTER_PLAIN_IO: the tiles' pixel loads and stores as plain operators instead of vload / vstore (calls on PoCL).
+    RASTER_EXP_INLINE: exp written out as PoCL 3.0's own (Sleef's) operations instead of its call (without FMA
+    hardware the library's exp may round otherwise: on PoCL's CPUs, where the default takes it, they agree)."""
     from reings.backends.opencl.rasterize import rasterizer_for
 
     # the builtins are PoCL's CPU schedule's (quirks.clang_builtins): elsewhere (NVIDIA, whose OpenCL C has
@@ -831,3 +834,72 @@ def test_oclgrind_checks(cpu, part):
     so that parallel test workers share them."""
     extra = {"OCLGRIND_UNINITIALIZED": "0"} if cpu else None
     run_oclgrind(_OCLGRIND_SCRIPT.format(cpu=bool(cpu), part=part), extra_env=extra)
+
+
+def _exp_inputs() -> np.ndarray:
+    """Floats where an exp can go wrong: every 97th float of [-110, 0] by bit pattern (~11M values, every binade),
+    the CPU schedule's range near 0 densely, the cut-offs of the inline form (-104, 100) and their neighbours, the
+    round-to-nearest-even ties of x / ln 2 (n + 0.5) ln 2, large and special values."""
+    neg = np.arange(0x80000000, 0xC2DC0000, 97, dtype=np.uint64).astype(np.uint32).view(np.float32)
+    near0 = -np.linspace(0.0, 6.0, 1 << 20, dtype=np.float32)
+    edges = np.array([-104.0, 100.0, -87.33655, 88.72283, -1e-45, -1e-38], np.float32)
+    around = np.concatenate([np.nextafter(edges, np.float32(np.inf)), np.nextafter(edges, np.float32(-np.inf))])
+    ties = ((np.arange(-160, 160) + 0.5) * np.log(2.0)).astype(np.float32)
+    special = np.array([0.0, -0.0, 1.0, 50.0, 101.0, 1e30, -1e30, np.inf, -np.inf, np.nan], np.float32)
+    x = np.concatenate([neg, near0, edges, around, ties, special]).astype(np.float32)
+    return np.concatenate([x, np.zeros(-len(x) % 16, np.float32)])
+
+
+def _vexp_on_device(device, x: np.ndarray, inline: int) -> np.ndarray:
+    """kernels/rasterize.cl's VEXP at RASTER_VEC 16, CPU schedule, RASTER_EXP_INLINE `inline`, over x (16 lanes a
+    work-item), through a probe kernel appended to the file's text and built with the library's options."""
+    import pyopencl as cl
+
+    from reings.backends.opencl.rasterize import rasterizer_for
+
+    lib = rasterizer_for(device, True)._lib
+    src = (lib.dir / "rasterize.cl").read_text() + """
+__kernel void vexp_probe(__global const float *x, __global float *y) {
+    const size_t i = get_global_id(0) * 16;
+    vstore16(VEXP(vload16(0, x + i)), 0, y + i);
+}
+"""
+    defines = {"REINGS_CPU_SCHEDULE": 1, "RASTER_VEC": 16, "RASTER_EXP_INLINE": inline}
+    prg = cl.Program(lib.context, src).build(options=lib.options(defines, "rasterize.cl"), devices=[lib.device])
+    q = cl.CommandQueue(lib.context, lib.device)
+    mf = cl.mem_flags
+    xb = cl.Buffer(lib.context, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=x)
+    yb = cl.Buffer(lib.context, mf.WRITE_ONLY, x.nbytes)
+    prg.vexp_probe(q, (len(x) // 16,), None, xb, yb)
+    y = np.empty_like(x)
+    cl.enqueue_copy(q, y, yb)
+    q.finish()
+    return y
+
+
+def test_inline_exp_is_the_library_exp(device):
+    """RASTER_EXP_INLINE (kernels/rasterize.cl, on by default on PoCL's CPU devices with fast FMA): the inline
+    exp_inline against float64's exp to 1 ulp of float32 (0 below -104, inf above 100, NaN for NaN), on ~11M
+    inputs; and where the device's own vector exp is PoCL 3.0's (the operations it copies: the default there), the
+    same bits as that exp for every one of them, so the rasterizer's outputs keep theirs."""
+    from reings.backends.opencl.rasterize import rasterizer_for
+
+    lib = rasterizer_for(device, True)._lib
+    x = _exp_inputs()
+    y = _vexp_on_device(device, x, 1)
+    with np.errstate(over="ignore", under="ignore", invalid="ignore"):
+        want = np.exp(x.astype(np.float64))
+    want[x < -104] = 0.0
+    want[x > 100] = np.inf
+    f32 = np.finfo(np.float32)
+    fin = (want >= f32.tiny) & (want <= f32.max)  # normal results: 1 ulp
+    ulp = np.spacing(want[fin].astype(np.float32)).astype(np.float64)
+    err = np.abs(y[fin].astype(np.float64) - want[fin]) / ulp
+    assert err.max() <= 1.0, (err.max(), x[fin][np.argmax(err)])
+    sub = want < f32.tiny  # subnormal results and 0: within one subnormal step
+    assert np.all(np.abs(y[sub].astype(np.float64) - want[sub]) <= 2.0 ** -149), x[sub][np.argmax(np.abs(y[sub] - want[sub]))]
+    assert np.array_equal(np.isnan(y), np.isnan(x)) and np.all(y[want > f32.max] == np.inf)
+    if lib.base_defines.get("REINGS_CLANG_BUILTINS") and "pocl" in device:
+        lib_exp = _vexp_on_device(device, x, 0)
+        same = y.view(np.uint32) == lib_exp.view(np.uint32)
+        assert same.all(), (int((~same).sum()), x[~same][:5], y[~same][:5], lib_exp[~same][:5])
