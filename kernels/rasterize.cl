@@ -41,6 +41,10 @@
  *   RASTER_PREFETCH (4 where REINGS_CLANG_BUILTINS and the compiler has __builtin_prefetch, else 0; CPU
  *   schedule): the forward and backward prefetch the record this many list positions ahead (the loads of
  *   random records were ~5-8 % of their time; docs/perf_notes.md §30; no value changes);
+ *   RASTER_EXP_INLINE (REINGS_CLANG_BUILTINS on an x86-64 with FMA; CPU schedule): exp written out as PoCL 3.0's
+ *   own vector exp's operations (the same bits, no call); RASTER_PLAIN_IO (REINGS_CLANG_BUILTINS; CPU schedule):
+ *   the tiles' pixel loads and stores as plain operators instead of vload / vstore calls (the same bytes); both
+ *   below, docs/perf_notes.md §40;
  *   RASTER_IMPORTANCE (0); RASTER_VEC (8 here; CPU pixel lanes, 8 = AVX2, 16 = AVX-512: the host always
  *   passes it, $REINGS_RASTER_VEC, else 16 where the device's native float vector is 16 wide, else 8:
  *   reings.backends.opencl.rasterize.raster_vec);
