@@ -329,10 +329,14 @@ def test_cpu_io_and_builtins_keep_the_bits(device, name, vec, define):
     hardware the library's exp may round otherwise: on PoCL's CPUs, where the default takes it, they agree)."""
     from reings.backends.opencl.rasterize import rasterizer_for
 
-    # the builtins are PoCL's CPU schedule's (quirks.clang_builtins): elsewhere (NVIDIA, whose OpenCL C has
-    # distinct address spaces, Oclgrind) the kernels are never built with them
-    if define == "REINGS_CLANG_BUILTINS" and not rasterizer_for(device, True)._lib.base_defines[define]:
-        pytest.skip("clang's builtins are taken on PoCL's CPU devices only")
+    # the builtins, the plain I/O and the inline exp are PoCL's CPU schedule's (quirks.clang_builtins): elsewhere
+    # (NVIDIA, whose OpenCL C has distinct address spaces and its own exp, Oclgrind) the kernels are never built with
+    # them; the inline exp copies PoCL's x86-64 exp, whose bits it keeps there only
+    builtins = rasterizer_for(device, True)._lib.base_defines["REINGS_CLANG_BUILTINS"]
+    if define in ("REINGS_CLANG_BUILTINS", "RASTER_PLAIN_IO", "RASTER_EXP_INLINE") and not builtins:
+        pytest.skip(f"{define} is taken on PoCL's CPU devices only")
+    if define == "RASTER_EXP_INLINE" and platform.machine() != "x86_64":
+        pytest.skip("the inline exp copies PoCL's x86-64 exp")
     _cpu_define_keeps_the_bits(device, name, vec, define)
 
 
