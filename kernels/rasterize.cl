@@ -41,8 +41,9 @@
  *   RASTER_PREFETCH (4 where REINGS_CLANG_BUILTINS and the compiler has __builtin_prefetch, else 0; CPU
  *   schedule): the forward and backward prefetch the record this many list positions ahead (the loads of
  *   random records were ~5-8 % of their time; docs/perf_notes.md §30; no value changes);
- *   RASTER_EXP_INLINE (REINGS_CLANG_BUILTINS on an x86-64 with FMA; CPU schedule): exp written out as PoCL 3.0's
- *   own vector exp's operations (the same bits, no call); RASTER_PLAIN_IO (REINGS_CLANG_BUILTINS; CPU schedule):
+ *   RASTER_EXP_INLINE (2 where REINGS_CLANG_BUILTINS on an x86-64 with FMA, else 0; CPU schedule): exp written
+ *   out as PoCL 3.0's own vector exp's operations (1: over its whole range; 2: the same bits on [-87, 88], the
+ *   rasterizer's lanes; no call either way); RASTER_PLAIN_IO (REINGS_CLANG_BUILTINS; CPU schedule):
  *   the tiles' pixel loads and stores as plain operators instead of vload / vstore calls (the same bytes); both
  *   below, docs/perf_notes.md §40;
  *   RASTER_IMPORTANCE (0); RASTER_VEC (8 here; CPU pixel lanes, 8 = AVX2, 16 = AVX-512: the host always
@@ -420,9 +421,9 @@ inline int vany(vi m) { return any16(m); } /* any(m) */
 /* RASTER_PLAIN_IO (CPU schedule; default REINGS_CLANG_BUILTINS): the tiles' pixel loads and stores (the
  * forward's outputs, the backward's cotangents and forward outputs, the private rows between them) as plain
  * operators on 4-byte-aligned, may_alias vector types instead of vload / vstore, which PoCL 3.0 calls (§17 of
- * docs/perf_notes.md: a call spills every live vector register): the same bytes moved (the byte tests of
- * RASTER_ROW_IO run with it, tests/test_rasterize.py). G: __global, P: private; 4: a float4 at p + 4 o, V: a
- * pixel vector at p; I: the int forms. */
+ * docs/perf_notes.md: a call spills every live vector register): the same bytes moved (on / off byte for byte:
+ * tests/test_rasterize.py::test_cpu_io_and_builtins_keep_the_bits). G: __global, P: private; 4: a float4 at
+ * p + 4 o, V: a pixel vector at p; I: the int forms. */
 #ifndef RASTER_PLAIN_IO
 #define RASTER_PLAIN_IO REINGS_CLANG_BUILTINS
 #endif
@@ -458,8 +459,8 @@ typedef vi __attribute__((aligned(4), may_alias)) viu;
 #define PSTOREVI(v, p) VSTORE(v, 0, p)
 #endif
 
-/* RASTER_EXP_INLINE (CPU schedule; default: REINGS_CLANG_BUILTINS where clang targets an x86-64 with FMA, __FMA__):
- * VEXP(x) is exp(x) written out in operators, the operations of PoCL 3.0's own vector exp on x86-64
+/* RASTER_EXP_INLINE (CPU schedule; default 2 where REINGS_CLANG_BUILTINS and clang targets an x86-64 with FMA,
+ * __FMA__, else 0): at 1 VEXP(x) is exp_inline(x), exp(x) written out in operators, the operations of PoCL 3.0's own vector exp on x86-64
  * with FMA (Sleef's expf_u10: n = rint(x / ln 2) by a product and a round to nearest even, the reduction
  * s = x - n ln 2 in two fused steps (ln 2 split 0.693145751953125 + 1.428606765330187e-06), a degree-5 polynomial
  * by Horner's fused steps, u = s^2 P(s) + s, then 1 + u, times 2^(n >> 1) and 2^(n - (n >> 1)) built in the
@@ -470,7 +471,7 @@ typedef vi __attribute__((aligned(4), may_alias)) viu;
  * docs/perf_notes.md §22's inline exp (Cephes' polynomial, on AVX2) changed the bits and did not pay. */
 #ifndef RASTER_EXP_INLINE
 #if REINGS_CLANG_BUILTINS && defined(__FMA__)
-#define RASTER_EXP_INLINE 1
+#define RASTER_EXP_INLINE 2
 #else
 #define RASTER_EXP_INLINE 0
 #endif
@@ -514,7 +515,34 @@ inline vf exp_inline(vf x) {
     u = SEL(u, (vf)(0.0f), x < -104.0f);
     return SEL(u, (vf)(INFINITY), x > 100.0f);
 }
+/* exp_splat(x) (RASTER_EXP_INLINE 2): exp_inline's value, bit for bit, for every x in [-87, 88], where 2^n is one
+ * normal float and the one product u 2^n is exact as Sleef's two are; below -87 (and NaN) it takes x = -87, a finite
+ * value; above 88 unspecified. The rasterizer's lanes outside [-87, 0] never pass its pixel test (ALPHA_CUT_LN puts
+ * every blended power above -6; the backward clamps its powers to 0 and zeroes those lanes' cotangents), so they
+ * only need a finite value there: 8 operations fewer than exp_inline's range handling. */
+inline vf exp_splat(vf x) {
+    x = SEL((vf)(-87.0f), x, x >= -87.0f);
+    const vf t = x * 1.442695040888963407359924681001892137f;
+    const vf big = t + 12582912.0f;
+    const vu n = AS_VU(big) - 0x4b400000u;
+    const vf q = big - 12582912.0f;
+    vf s = q * -0.693145751953125f + x;
+    s = q * -1.428606765330187045e-06f + s;
+    vf u = s * 0.000198527617612853646278381f + 0.00139304355252534151077271f;
+    u = u * s + 0.00833336077630519866943359f;
+    u = u * s + 0.0416664853692054748535156f;
+    u = u * s + 0.166666671633720397949219f;
+    u = u * s + 0.5f;
+    const vf s2 = s * s;
+    u = u * s2 + s;
+    u = u + 1.0f;
+    return u * AS_VF((n << 23) + 0x3f800000u);
+}
+#if RASTER_EXP_INLINE == 2
+#define VEXP(x) exp_splat(x)
+#else
 #define VEXP(x) exp_inline(x)
+#endif
 #else
 #define VEXP(x) exp(x)
 #endif

@@ -263,8 +263,8 @@ def _bits_scene(name: str):
     return proj, ref.bin(proj, cam.width, cam.height), cam.width, cam.height
 
 
-def _backwards_by_define(proj, bins, w, h, define: str, **on):
-    """The full, opacity-only and second-cotangent backwards with `define` 0 and 1 (the rasterizer's
+def _backwards_by_define(proj, bins, w, h, define: str, value: int = 1, **on):
+    """The full, opacity-only and second-cotangent backwards with `define` 0 and `value` (the rasterizer's
     other options in `on`): their records byte for byte equal; returns the last pair {0: ..., 1: ...}."""
     from reings.backends.opencl.rasterize import rasterize_bwd_host
 
@@ -272,7 +272,8 @@ def _backwards_by_define(proj, bins, w, h, define: str, **on):
     _, vo, _ = _cotangents(w, h, seed=7)
     for kw in ({"v_rgb": vr, "v_depth": vd, "v_alpha": va}, {"v_depth": vd, "opacity_only": True},
                {"v_rgb": vr, "v_depth_o": vo}):
-        out = {t: rasterize_bwd_host(proj, bins, w, h, background=BG, **{define: t}, **kw, **on) for t in (0, 1)}
+        out = {t: rasterize_bwd_host(proj, bins, w, h, background=BG, **{define: t * value}, **kw, **on)
+               for t in (0, 1)}
         assert np.array_equal(out[1].v_emit.view(np.uint32), out[0].v_emit.view(np.uint32)), list(kw)
         if "v_depth_o" in kw:
             assert np.array_equal(out[1].v_emit_o.view(np.uint32), out[0].v_emit_o.view(np.uint32))
@@ -290,24 +291,25 @@ def test_cpu_alpha_cut_keeps_the_bits(device, name, vec):
     _cpu_define_keeps_the_bits(device, name, vec, "RASTER_ALPHA_CUT")
 
 
-def _cpu_define_keeps_the_bits(device, name, vec, define):
-    """The CPU schedule with `define` 0 and 1 at RASTER_VEC `vec` on _bits_scene(name): the forward's images,
+def _cpu_define_keeps_the_bits(device, name, vec, define, value=1):
+    """The CPU schedule with `define` 0 and `value` at RASTER_VEC `vec` on _bits_scene(name): the forward's images,
     `last` and importance, and the records of the full, opacity-only and second-cotangent backwards, byte
     for byte equal."""
     from reings.backends.opencl.rasterize import rasterize_fwd_host
 
     proj, bins, w, h = _bits_scene(name)
     on = dict(device=device, cpu_schedule=True, RASTER_VEC=vec)
-    fwd = {c: rasterize_fwd_host(proj, bins, w, h, BG, True, **{define: c}, **on) for c in (0, 1)}
+    fwd = {c: rasterize_fwd_host(proj, bins, w, h, BG, True, **{define: c * value}, **on) for c in (0, 1)}
     for f in ("rgb", "depth", "alpha", "final_T", "last", "importance"):
         assert np.array_equal(np.asarray(getattr(fwd[1], f)).view(np.uint32),
                               np.asarray(getattr(fwd[0], f)).view(np.uint32)), f
-    out = _backwards_by_define(proj, bins, w, h, define, **on)
+    out = _backwards_by_define(proj, bins, w, h, define, value, **on)
     assert np.abs(out[1].v_emit).max() > 0
 
 
 @pytest.mark.parametrize("define", ["REINGS_CLANG_BUILTINS", "RASTER_ROW_IO", "RASTER_CUT_MASK", "RASTER_HITS",
-                                    "RASTER_CENTRES", "RASTER_PLAIN_IO", "RASTER_EXP_INLINE"])
+                                    "RASTER_CENTRES", "RASTER_PLAIN_IO", "RASTER_EXP_INLINE",
+                                    "RASTER_EXP_INLINE=2"])
 @pytest.mark.parametrize("vec", [8, 16])
 @pytest.mark.parametrize("name", ["random_large", "saturated", "many_in_one_tile", "needles", "size_70x45", "one"])
 def test_cpu_io_and_builtins_keep_the_bits(device, name, vec, define):
@@ -325,19 +327,21 @@ def test_cpu_io_and_builtins_keep_the_bits(device, name, vec, define):
     again (a superset of the vectors its own tests pass, the others without an ok lane).
     RASTER_CENTRES: the pixel vectors' centres from a table made once per tile instead of at each use.
     RASTER_PLAIN_IO: the tiles' pixel loads and stores as plain operators instead of vload / vstore (calls on PoCL).
-    RASTER_EXP_INLINE: exp written out as PoCL 3.0's own (Sleef's) operations instead of its call (without FMA
-    hardware the library's exp may round otherwise: on PoCL's CPUs, where the default takes it, they agree)."""
+    RASTER_EXP_INLINE: exp written out as PoCL 3.0's own (Sleef's) operations instead of its call, over its whole
+    range (1) or as the rasterizer's lanes need it (2, the default: the same bits on [-87, 88], a finite value below,
+    whose lanes never pass the pixel test)."""
     from reings.backends.opencl.rasterize import rasterizer_for
 
     # the builtins, the plain I/O and the inline exp are PoCL's CPU schedule's (quirks.clang_builtins): elsewhere
     # (NVIDIA, whose OpenCL C has distinct address spaces and its own exp, Oclgrind) the kernels are never built with
     # them; the inline exp copies PoCL's x86-64 exp, whose bits it keeps there only
+    define, _, value = define.partition("=")
     builtins = rasterizer_for(device, True)._lib.base_defines["REINGS_CLANG_BUILTINS"]
     if define in ("REINGS_CLANG_BUILTINS", "RASTER_PLAIN_IO", "RASTER_EXP_INLINE") and not builtins:
         pytest.skip(f"{define} is taken on PoCL's CPU devices only")
     if define == "RASTER_EXP_INLINE" and platform.machine() != "x86_64":
         pytest.skip("the inline exp copies PoCL's x86-64 exp")
-    _cpu_define_keeps_the_bits(device, name, vec, define)
+    _cpu_define_keeps_the_bits(device, name, vec, define, int(value or 1))
 
 
 @pytest.mark.parametrize("what", ["colour", "all_colours", "cotangent", "inf_cotangent", "sparse_non_finite"])
@@ -909,3 +913,18 @@ def test_inline_exp_is_the_library_exp(device, vec):
         lib_exp = _vexp_on_device(device, x, 0, vec)
         same = y.view(np.uint32) == lib_exp.view(np.uint32)
         assert same.all(), (int((~same).sum()), x[~same][:5], y[~same][:5], lib_exp[~same][:5])
+
+
+@pytest.mark.parametrize("vec", [8, 16])
+def test_splat_exp_keeps_the_bits_on_its_domain(device, vec):
+    """RASTER_EXP_INLINE 2 (exp_splat, kernels/rasterize.cl): exp_inline's bits (the full-range inline exp, itself
+    checked above) for every input of the set in [-87, 88]; a finite positive value below -87, for -inf and NaN (the
+    rasterizer's lanes there never pass the pixel test, but a backward multiplies their zero cotangents by it)."""
+    x = _exp_inputs()
+    y2 = _vexp_on_device(device, x, 2, vec)
+    y1 = _vexp_on_device(device, x, 1, vec)
+    dom = (x >= -87.0) & (x <= 88.0)
+    same = y2[dom].view(np.uint32) == y1[dom].view(np.uint32)
+    assert same.all(), (int((~same).sum()), x[dom][~same][:5])
+    low = ~(x >= -87.0)  # below -87, -inf, NaN
+    assert low.sum() > 1000 and np.all(np.isfinite(y2[low])) and np.all(y2[low] > 0)
