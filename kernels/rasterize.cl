@@ -494,10 +494,12 @@ typedef uint16 vu;
  * its own. rint(t) for |t| < 2^22 is (t + 1.5 2^23) - 1.5 2^23 in round-to-nearest-even, and the sum's low
  * mantissa bits are rint(t) as an integer. The exponent bits in unsigned arithmetic: a lane out of range (x below
  * -104, above 100, inf) wraps instead of overflowing, and its value is selected out at the end. */
-inline vf exp_inline(vf x) {
+/* exp_scaled(x, &n): Sleef's 1 + u with exp(x) = (1 + u) 2^n, n = rint(x / ln 2) (two's complement), the part both
+ * forms below share */
+inline vf exp_scaled(vf x, vu *n) {
     const vf t = x * 1.442695040888963407359924681001892137f; /* rounded alone, as Sleef's d * R_LN2f */
     const vf big = t + 12582912.0f;                          /* 1.5 2^23: |t| < 151 here (else selected out) */
-    const vu n = AS_VU(big) - 0x4b400000u;                   /* rint(t), two's complement */
+    *n = AS_VU(big) - 0x4b400000u;                           /* rint(t), two's complement */
     const vf q = big - 12582912.0f;                          /* the same, as a float (exact) */
     vf s = q * -0.693145751953125f + x;
     s = q * -1.428606765330187045e-06f + s;
@@ -508,7 +510,11 @@ inline vf exp_inline(vf x) {
     u = u * s + 0.5f;
     const vf s2 = s * s;
     u = u * s2 + s;
-    u = u + 1.0f;
+    return u + 1.0f;
+}
+inline vf exp_inline(vf x) {
+    vu n;
+    vf u = exp_scaled(x, &n);
     const vu h = AS_VU(AS_VI(n) >> 1); /* floor(n / 2): 2^n as 2^h 2^(n - h), each in the exponent's range */
     u = u * AS_VF((h << 23) + 0x3f800000u);
     u = u * AS_VF(((n - h) << 23) + 0x3f800000u);
@@ -522,20 +528,8 @@ inline vf exp_inline(vf x) {
  * only need a finite value there: 8 operations fewer than exp_inline's range handling. */
 inline vf exp_splat(vf x) {
     x = SEL((vf)(-87.0f), x, x >= -87.0f);
-    const vf t = x * 1.442695040888963407359924681001892137f;
-    const vf big = t + 12582912.0f;
-    const vu n = AS_VU(big) - 0x4b400000u;
-    const vf q = big - 12582912.0f;
-    vf s = q * -0.693145751953125f + x;
-    s = q * -1.428606765330187045e-06f + s;
-    vf u = s * 0.000198527617612853646278381f + 0.00139304355252534151077271f;
-    u = u * s + 0.00833336077630519866943359f;
-    u = u * s + 0.0416664853692054748535156f;
-    u = u * s + 0.166666671633720397949219f;
-    u = u * s + 0.5f;
-    const vf s2 = s * s;
-    u = u * s2 + s;
-    u = u + 1.0f;
+    vu n;
+    const vf u = exp_scaled(x, &n);
     return u * AS_VF((n << 23) + 0x3f800000u);
 }
 #if RASTER_EXP_INLINE == 2
