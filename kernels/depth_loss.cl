@@ -64,6 +64,8 @@
  *            NVIDIA, PoCL's CPUs); 0 (default) elsewhere and under Oclgrind (docs/perf_notes.md §26)
  *   DL_WG    work-group size of the two reduce kernels, a power of two (host: 1 on CPU devices,
  *            256 on GPUs; 64 here by default)
+ *   DL_GROUP blocks per dl_block_stats item, their sums interleaved (the same bits; host: 8 on the CPU
+ *            schedule without DL_FUSE, else 1)
  * Per-pixel weights (has_wt = 1, `wt` [H, W] float32 in [0, 1]: the depth prior's confidence
  * map, reference_loss.depth_norm_loss_fwd_bwd(weight=)): each selected element's squared error is
  * weighted, term = sum(wt diff^2 over mask) / cnt (cnt still counts the selected elements), so
@@ -187,6 +189,51 @@ static void block_stats_one(__global const float *depth, __global const float *t
     bstats[2 * (ji * Bcap + b) + 1] = ss;
 }
 
+#ifndef DL_GROUP
+#define DL_GROUP 1
+#endif
+#if DL_GROUP > 1
+/* DL_GROUP > 1 (the host's CPU schedule, without DL_FUSE): item (g, ji) takes blocks [g DL_GROUP, (g + 1) DL_GROUP)
+ * of (job, input) ji together, their sums interleaved element by element: each block's sums in block_stats_one's
+ * order (the same expressions, so the same bits), DL_GROUP independent chains of double adds in flight instead of
+ * one (a chain of dependent adds waits each add's latency; docs/perf_notes.md §41). A group past the last block
+ * repeats the last block's loads in its spare lanes and stores nothing for them. */
+static void block_stats_group(__global const float *depth, __global const float *target, __global real *bstats,
+                              const int g, const int ji, const int W, const int H, const int pl, const int pg,
+                              const int Bcap)
+{
+    int bw, bh, nbx, M;
+    job_geom(ji >> 1, W, H, pl, pg, &bw, &bh, &nbx, &M);
+    const int b0 = g * DL_GROUP;
+    if (!(b0 < M)) return;
+    __global const float *src = (ji & 1) ? target : depth;
+    const real k0 = SHIFT(src);
+    __global const float *base[DL_GROUP];
+    real s[DL_GROUP], mean[DL_GROUP], ss[DL_GROUP];
+    for (int q = 0; q < DL_GROUP; ++q) {
+        int bx, by;
+        divmod((uint)min(b0 + q, M - 1), (uint)nbx, &by, &bx);
+        base[q] = src + by * bh * W + bx * bw;
+        s[q] = 0;
+        ss[q] = 0;
+    }
+    for (int y = 0; y < bh; ++y)
+        for (int x = 0; x < bw; ++x)
+            for (int q = 0; q < DL_GROUP; ++q) s[q] += (real)base[q][y * W + x] - k0;
+    for (int q = 0; q < DL_GROUP; ++q) mean[q] = s[q] / (real)(bw * bh);
+    for (int y = 0; y < bh; ++y)
+        for (int x = 0; x < bw; ++x)
+            for (int q = 0; q < DL_GROUP; ++q) {
+                const real u = ((real)base[q][y * W + x] - k0) - mean[q];
+                ss[q] += u * u;
+            }
+    for (int q = 0; q < DL_GROUP && b0 + q < M; ++q) {
+        bstats[2 * (ji * Bcap + b0 + q)] = mean[q];
+        bstats[2 * (ji * Bcap + b0 + q) + 1] = ss[q];
+    }
+}
+#endif
+
 /* A block's share of the combined sum of squares, SS_b + n (mean_b - mean)^2 (each record word loaded once). */
 static real ss_term(const real ss_b, const real mean_b, const real mean, const real n)
 {
@@ -241,7 +288,8 @@ static int last_group(__global int *done, const int lane, __local int *flag)
 }
 #endif
 
-/* DL_FUSE 0: item (b, ji) of a (>= max blocks, 6) range; dl_reduce_stats follows.
+/* DL_FUSE 0: item (b, ji) of a (>= max blocks, 6) range (DL_GROUP > 1: item (g, ji) of a (>= max blocks / DL_GROUP,
+ * 6) range); dl_reduce_stats follows.
  * DL_FUSE 1: the same items in work-groups of (DL_WG, 1), and the last group to finish runs
  * dl_reduce_stats's six reductions in turn (the same lanes and order: the same bits). */
 __kernel void dl_block_stats(__global const float *depth,   // [H, W] rendered depth
@@ -252,7 +300,11 @@ __kernel void dl_block_stats(__global const float *depth,   // [H, W] rendered d
                              __global int *done)            // [2] finished-group counts, 0 between launches (DL_FUSE only)
 {
     const int b = get_global_id(0), ji = get_global_id(1);
+#if DL_GROUP > 1
+    if (ji < 6) block_stats_group(depth, target, bstats, b, ji, W, H, pl, pg, Bcap); /* b: a group of blocks */
+#else
     if (ji < 6) block_stats_one(depth, target, bstats, b, ji, W, H, pl, pg, Bcap);
+#endif
 #if DL_FUSE
     __local real s[DL_WG];
     __local int flag;

