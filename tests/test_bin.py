@@ -11,6 +11,8 @@ an estimate of K, here also forced to 1 so that every grid-stride loop runs long
 """
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -102,6 +104,28 @@ def test_bin_sync_free_bound(device):
     assert done == {"sync": 1, "async": 0}
     exp = ref.bin(f32_depths(p), w, h)
     assert len(exp.gid_from_isect) > n * tx * ty  # beyond the bound indeed
+    for f in BINS_FIELDS:
+        np.testing.assert_array_equal(getattr(dev, f), getattr(exp, f), err_msg=f)
+
+
+@pytest.mark.parametrize("bad", [[3, 3, 1, 1], [2, 0, 1, 3], [-2, -2, 1, 1], [0, 0, 10, 10], [0, 2, 5, 4]])
+def test_bin_refuses_rects_off_the_grid(device, bad):
+    """An uploaded projection whose visible rect is inverted, starts below 0 or has a tile id past the grid made the
+    binning kernels write past their buffers (a segfault, or heap corruption): `bin` refuses it with a ValueError
+    naming the rows, on the device and in the reference, before anything runs; the backend bins a valid projection
+    after it, equal to the reference. Culled rows (radius 0) and empty rects are never checked."""
+    w, h = 64, 48  # 4 x 3 tiles
+    n = 4
+    rect = np.array([[0, 0, 2, 2], bad, [0, 0, 1, 1], [7, 7, 2, 2]], np.int32)
+    p = Projected(np.full((n, 2), 20.0), np.tile([[0.1, 0.0, 0.1]], (n, 1)), np.array([1.0, 2.0, 3.0, 4.0]),
+                  np.array([5, 5, 5, 0], np.int32), rect, np.full((n, 3), 0.5), np.full(n, 0.5))
+    be = get_backend(device)
+    for binner in (be.bin, ref.bin):
+        with pytest.raises(ValueError, match=r"bin: tile_rect of 1 visible row\(s\) .*row 1: "):
+            binner(p, w, h)
+    ok = replace(p, tile_rect=np.array([[0, 0, 2, 2], [1, 1, 4, 3], [0, 0, 1, 1], [0, 0, 0, 0]], np.int32))
+    ok = f32_depths(ok)
+    dev, exp = be.bin(ok, w, h), ref.bin(ok, w, h)
     for f in BINS_FIELDS:
         np.testing.assert_array_equal(getattr(dev, f), getattr(exp, f), err_msg=f)
 

@@ -51,6 +51,28 @@ def tile_grid(width: int, height: int) -> tuple[int, int]:
     return (width + TILE_SIZE - 1) // TILE_SIZE, (height + TILE_SIZE - 1) // TILE_SIZE
 
 
+def tile_rect_problem(tile_rect, radii, width: int, height: int) -> str | None:
+    """Why a projection's tile rects cannot be binned on a width x height image, or None. A visible row's rect
+    [tx0, tx1) x [ty0, ty1) (radii > 0) is empty (tx1 == tx0 or ty1 == ty0) or has tx0, ty0 >= 0 and every tile id
+    ty * tiles_x + tx inside [0, n_tiles) (project_fwd's rects lie in the grid; an uploaded rect may run past its
+    right edge while its ids wrap inside it: tests/test_bin.py::test_bin_sync_free_bound); an inverted rect
+    (tx1 < tx0 or ty1 < ty0) never is. The binning kernels would write past their buffers otherwise."""
+    tiles_x, tiles_y = tile_grid(width, height)
+    r = np.asarray(tile_rect, np.int64).reshape(-1, 4)
+    vis = np.asarray(radii).reshape(-1) > 0
+    tx0, ty0, tx1, ty1 = r[:, 0], r[:, 1], r[:, 2], r[:, 3]
+    inverted = vis & ((tx1 < tx0) | (ty1 < ty0))
+    live = vis & (tx1 > tx0) & (ty1 > ty0)
+    off = live & ((tx0 < 0) | (ty0 < 0) | ((ty1 - 1) * tiles_x + (tx1 - 1) >= tiles_x * tiles_y))
+    for bad, what in ((inverted, "inverted (tx1 < tx0 or ty1 < ty0)"),
+                      (off, f"off the {tiles_x} x {tiles_y} tile grid (a negative start or a tile id past it)")):
+        if bad.any():
+            i = int(np.flatnonzero(bad)[0])
+            return (f"tile_rect of {int(bad.sum())} visible row(s) {what}, e.g. row {i}: {r[i].tolist()} "
+                    "([tx0, ty0, tx1, ty1], half-open)")
+    return None
+
+
 @dataclass
 class Projected:
     """Output of `project_fwd`, one row per Gaussian (gid). Culled rows have radii == 0 and an

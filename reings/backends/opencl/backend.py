@@ -98,7 +98,8 @@ from typing import Any, Sequence
 import numpy as np
 
 from ...types import FIELDS, Camera, Gaussians, RenderOutput
-from ..base import (CLAMP_GUARD, V_RECORD, Bins, Projected, RasterGrads, RasterOut, grad_columns, tile_grid)
+from ..base import (CLAMP_GUARD, V_RECORD, Bins, Projected, RasterGrads, RasterOut, grad_columns, tile_grid,
+                    tile_rect_problem)
 from ..reference_drop import Drop, drop_args
 from . import quirks
 from .bin_counts import (CTRL_ISECTS, CTRL_RANKED, CTRL_VISIBLE, CTRL_WORDS, CountsRing, DeviceCounts,
@@ -1044,6 +1045,9 @@ class OpenCLBackend:
         b["tile_ranges"] = self._upload("tile", "tile_ranges_in", np.asarray(bins.tile_ranges, _I32))
 
     def bin(self, proj: Projected, width: int, height: int) -> Bins:  # noqa: A003 (stage name)
+        problem = tile_rect_problem(proj.tile_rect, proj.radii, width, height)  # the kernels would write out of bounds
+        if problem:
+            raise ValueError(f"bin: {problem}")
         n = proj.means2d.shape[0]
         fr = self._new_frame(n, width, height, 1)
         self._upload_projected(fr, proj)
