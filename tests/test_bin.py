@@ -130,6 +130,43 @@ def test_bin_refuses_rects_off_the_grid(device, bad):
         np.testing.assert_array_equal(getattr(dev, f), getattr(exp, f), err_msg=f)
 
 
+def _corrupt(bins, field, index, value):
+    a = np.array(getattr(bins, field), copy=True)
+    a.reshape(-1)[index] = value
+    return replace(bins, **{field: a})
+
+
+@pytest.mark.parametrize("field, index, value, message", [
+    ("gid_from_isect", 3, 10**6, r"gid_from_isect: 1 entry outside \[0, 50\), e.g. at 3"),
+    ("gid_from_rank", 0, -1, r"gid_from_rank: 1 entry outside \[0, 50\)"),
+    ("emit_from_isect", 2, -5, r"emit_from_isect: 1 entry outside"),
+    ("tile_ranges", -1, 10**6, r"tile_ranges: 1 entry not 0 <= start <= end <= K"),
+    ("tile_ranges", 0, 5, r"tile_ranges: 1 entry not 0 <= start <= end <= K"),  # start past its end
+    ("offset_from_rank", -1, 0, r"offset_from_rank: .* not a run from 0 to K"),
+])
+def test_rasterize_refuses_bins_out_of_range(device, field, index, value, message):
+    """An uploaded Bins whose gids, emit slots, offsets or tile ranges lie outside the arrays they index made the
+    rasterizer read and write out of bounds (a segfault): rasterize_fwd / rasterize_bwd refuse it with a ValueError
+    naming the field, on the device and in the reference, and the backend still rasterizes valid bins after it."""
+    g, cam = random_scene(50, 64, 48, seed=0)
+    w, h = cam.width, cam.height
+    be = get_backend(device)
+    p = be.project_fwd(g, cam)
+    good = be.bin(p, w, h)
+    bad = _corrupt(good, field, index, value)
+    if field == "tile_ranges" and index == 0:
+        bad = _corrupt(bad, "tile_ranges", 1, 0)  # tile 0: start 5 > end 0
+    v = np.ones((h, w, 3), np.float32)
+    for rasterize in (lambda b: be.rasterize_fwd(p, b, w, h), lambda b: be.rasterize_bwd(p, b, None, v, None, None, w, h),
+                      lambda b: ref.rasterize_fwd(p, b, w, h)):
+        with pytest.raises(ValueError, match="rasterize: Bins." + message):
+            rasterize(bad)
+    shape = replace(good, tile_ranges=np.asarray(good.tile_ranges)[:-1])
+    with pytest.raises(ValueError, match=r"Bins.tile_ranges: expected integers of shape \(12, 2\)"):
+        be.rasterize_fwd(p, shape, w, h)
+    np.testing.assert_array_equal(be.rasterize_fwd(p, good, w, h).rgb, be.render(g, cam).rgb)
+
+
 def test_bin_depth_ties(device):
     """Many exact depth ties (quantised depths): ties must keep gid order, in rank and in each tile."""
     g, cam = random_scene(3000, 128, 96, seed=4, scale_median=0.1)

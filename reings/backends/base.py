@@ -73,6 +73,36 @@ def tile_rect_problem(tile_rect, radii, width: int, height: int) -> str | None:
     return None
 
 
+def bins_problem(bins, n: int, width: int, height: int) -> str | None:
+    """Why `bins` cannot be rasterized for n Gaussians on a width x height image, or None: the arrays' shapes
+    ([V], [V + 1], [K], [K], [n_tiles, 2]), gids in [0, n), offset_from_rank from 0 to K without a step down, emit
+    slots in [0, K) and tile ranges 0 <= start <= end <= K. The rasterizer reads and writes at these indices: an
+    uploaded Bins outside them crashed the process (a segfault)."""
+    tiles_x, tiles_y = tile_grid(width, height)
+    arrs = {f: np.asarray(getattr(bins, f)) for f in
+            ("gid_from_rank", "offset_from_rank", "gid_from_isect", "emit_from_isect", "tile_ranges")}
+    v, k = arrs["gid_from_rank"].size, arrs["gid_from_isect"].size
+    shapes = {"gid_from_rank": (v,), "offset_from_rank": (v + 1,), "gid_from_isect": (k,), "emit_from_isect": (k,),
+              "tile_ranges": (tiles_x * tiles_y, 2)}
+    for f, shape in shapes.items():
+        if arrs[f].shape != shape or not np.issubdtype(arrs[f].dtype, np.integer):
+            return f"Bins.{f}: expected integers of shape {shape}, got {arrs[f].dtype} {arrs[f].shape}"
+    off, tr = arrs["offset_from_rank"].astype(np.int64), arrs["tile_ranges"].astype(np.int64)
+    checks = (("gid_from_rank", (arrs["gid_from_rank"] < 0) | (arrs["gid_from_rank"] >= n), f"outside [0, {n})"),
+              ("gid_from_isect", (arrs["gid_from_isect"] < 0) | (arrs["gid_from_isect"] >= n), f"outside [0, {n})"),
+              ("emit_from_isect", (arrs["emit_from_isect"] < 0) | (arrs["emit_from_isect"] >= k), f"outside [0, {k})"),
+              ("offset_from_rank", np.r_[off[0] != 0, np.diff(off) < 0, off[-1] != k],
+               f"not a run from 0 to K = {k} without a step down"),
+              ("tile_ranges", (tr[:, 0] < 0) | (tr[:, 0] > tr[:, 1]) | (tr[:, 1] > k),
+               f"not 0 <= start <= end <= K = {k}"))
+    for f, bad, what in checks:
+        if bad.any():
+            i = int(np.flatnonzero(bad)[0])
+            c = int(bad.sum())
+            return f"Bins.{f}: {c} entr{'y' if c == 1 else 'ies'} {what}, e.g. at {i}"
+    return None
+
+
 @dataclass
 class Projected:
     """Output of `project_fwd`, one row per Gaussian (gid). Culled rows have radii == 0 and an

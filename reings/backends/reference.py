@@ -62,7 +62,7 @@ from .reference_drop import Drop
 from .reference_loss import depth_loss as _depth_loss
 from .reference_loss import photometric_loss as _photometric_loss
 from .base import (ALPHA_MAX, ALPHA_MIN, CLAMP_GUARD, EPS2D, T_MIN, TILE_SIZE, Bins, Projected,
-                   RasterGrads, RasterOut, select_engine, tile_grid, tile_rect_problem)
+                   RasterGrads, RasterOut, bins_problem, select_engine, tile_grid, tile_rect_problem)
 
 QUAT_NORM_MIN = 1e-12  # quaternion norm below this: rotation undefined, cull
 FLT_MAX = float(np.finfo(np.float32).max)
@@ -542,12 +542,20 @@ def _tile_blend(proj: Projected, gids: np.ndarray, ii: np.ndarray, jj: np.ndarra
                 last=last, evaluated=evaluated, A=A, B=B, C=C, o=o)
 
 
+def _check_bins(bins: Bins, proj: Projected, width: int, height: int) -> None:
+    problem = bins_problem(bins, proj.means2d.shape[0], width, height)
+    if problem:
+        raise ValueError(f"rasterize: {problem}")
+
+
 def rasterize_fwd(proj: Projected, bins: Bins, width: int, height: int,
                   background: Sequence[float] = (0.0, 0.0, 0.0), want_importance: bool = False,
                   alpha_min: float = ALPHA_MIN) -> RasterOut:
     """Blend each pixel's tile list front to back (§3 of the issue). `alpha_min` is a test-only
     knob (the FD tests pass 0); keep the default everywhere else. The stats count of evaluated
-    pairs is left on the returned object as `evaluated_pairs`."""
+    pairs is left on the returned object as `evaluated_pairs`. Bins that cannot be rasterized (base.bins_problem)
+    raise ValueError."""
+    _check_bins(bins, proj, width, height)
     tiles_x, tiles_y = tile_grid(width, height)
     bg = np.asarray(background, np.float64).reshape(3)
     n = proj.means2d.shape[0]
@@ -592,6 +600,7 @@ def rasterize_bwd(proj: Projected, bins: Bins, raster_out: RasterOut, v_rgb, v_d
     reached get nothing; dα/d(opacity, power) is zero where opacity*exp(power) > ALPHA_MAX.
     `raster_out` is accepted for the stage signature; the forward is recomputed.
     """
+    _check_bins(bins, proj, width, height)
     tiles_x, tiles_y = tile_grid(width, height)
     bg = np.asarray(background, np.float64).reshape(3)
     n = proj.means2d.shape[0]

@@ -98,8 +98,8 @@ from typing import Any, Sequence
 import numpy as np
 
 from ...types import FIELDS, Camera, Gaussians, RenderOutput
-from ..base import (CLAMP_GUARD, V_RECORD, Bins, Projected, RasterGrads, RasterOut, grad_columns, tile_grid,
-                    tile_rect_problem)
+from ..base import (CLAMP_GUARD, V_RECORD, Bins, Projected, RasterGrads, RasterOut, bins_problem, grad_columns,
+                    tile_grid, tile_rect_problem)
 from ..reference_drop import Drop, drop_args
 from . import quirks
 from .bin_counts import (CTRL_ISECTS, CTRL_RANKED, CTRL_VISIBLE, CTRL_WORDS, CountsRing, DeviceCounts,
@@ -1035,6 +1035,9 @@ class OpenCLBackend:
         b["ctrl"] = self._upload("small", "ctrl", np.zeros(CTRL_WORDS, _U32))  # as project_fwd leaves it
 
     def _upload_bins(self, fr: _Frame, bins: Bins) -> None:
+        problem = bins_problem(bins, fr.n, fr.width, fr.height)  # the rasterizer would read and write out of bounds
+        if problem:
+            raise ValueError(f"rasterize: {problem}")
         b = fr.bufs
         fr.counts = len(bins.gid_from_rank), len(bins.gid_from_isect)
         fr.ranks, fr.cap = fr.counts
