@@ -130,6 +130,23 @@ def test_bin_refuses_rects_off_the_grid(device, bad):
         np.testing.assert_array_equal(getattr(dev, f), getattr(exp, f), err_msg=f)
 
 
+@pytest.mark.parametrize("field", ["radii", "tile_rect", "conics", "depths", "opacities"])
+def test_projected_of_other_lengths_is_refused(device, field):
+    """A Projected whose fields do not all have means2d's N rows was read past its shorter arrays' ends (garbage, or
+    a crash): `bin` and the rasterizer's upload refuse it with a ValueError naming the field, and the reference's
+    `bin` too."""
+    g, cam = random_scene(50, 64, 48, seed=0)
+    be = get_backend(device)
+    p = be.project_fwd(g, cam)
+    good = be.bin(p, 64, 48)
+    short = replace(p, **{field: np.asarray(getattr(p, field))[:10]})
+    msg = rf"Projected.{field}: expected shape \(50"
+    for call in (lambda: be.bin(short, 64, 48), lambda: ref.bin(short, 64, 48),
+                 lambda: be.rasterize_fwd(short, good, 64, 48)):
+        with pytest.raises(ValueError, match=msg):
+            call()
+
+
 def _corrupt(bins, field, index, value):
     a = np.array(getattr(bins, field), copy=True)
     a.reshape(-1)[index] = value

@@ -51,6 +51,19 @@ def tile_grid(width: int, height: int) -> tuple[int, int]:
     return (width + TILE_SIZE - 1) // TILE_SIZE, (height + TILE_SIZE - 1) // TILE_SIZE
 
 
+def projected_shape_problem(proj) -> str | None:
+    """Why a Projected's arrays are not one row per Gaussian of its fields' widths (means2d [N, 2], conics [N, 3],
+    depths [N], radii [N], tile_rect [N, 4], colors [N, 3], opacities [N]), or None. The kernels read N rows of each:
+    a shorter array was read past its end."""
+    n = np.asarray(proj.means2d).shape[0] if np.ndim(proj.means2d) else -1
+    for f, tail in (("means2d", (2,)), ("conics", (3,)), ("depths", ()), ("radii", ()), ("tile_rect", (4,)),
+                    ("colors", (3,)), ("opacities", ())):
+        shape = np.shape(getattr(proj, f))
+        if shape != (n,) + tail:
+            return f"Projected.{f}: expected shape {(n,) + tail} (N = {n} rows of means2d), got {shape}"
+    return None
+
+
 def tile_rect_problem(tile_rect, radii, width: int, height: int) -> str | None:
     """Why a projection's tile rects cannot be binned on a width x height image, or None. A visible row's rect
     [tx0, tx1) x [ty0, ty1) (radii > 0) is empty (tx1 == tx0 or ty1 == ty0) or has tx0, ty0 >= 0 and every tile id

@@ -99,7 +99,7 @@ import numpy as np
 
 from ...types import FIELDS, Camera, Gaussians, RenderOutput
 from ..base import (CLAMP_GUARD, V_RECORD, Bins, Projected, RasterGrads, RasterOut, bins_problem, grad_columns,
-                    tile_grid, tile_rect_problem)
+                    projected_shape_problem, tile_grid, tile_rect_problem)
 from ..reference_drop import Drop, drop_args
 from . import quirks
 from .bin_counts import (CTRL_ISECTS, CTRL_RANKED, CTRL_VISIBLE, CTRL_WORDS, CountsRing, DeviceCounts,
@@ -1022,6 +1022,9 @@ class OpenCLBackend:
         """Host Projected -> the device buffers project_fwd would have written (float32), plus depth
         sort keys: the float bits of t_z for visible rows (all the reference's Bins rank), the
         culled key elsewhere."""
+        problem = projected_shape_problem(proj)  # the kernels read N rows of every field
+        if problem:
+            raise ValueError(problem)
         b = fr.bufs
         radii = np.asarray(proj.radii, _I32)
         depths = np.asarray(proj.depths, _F32)
@@ -1048,7 +1051,8 @@ class OpenCLBackend:
         b["tile_ranges"] = self._upload("tile", "tile_ranges_in", np.asarray(bins.tile_ranges, _I32))
 
     def bin(self, proj: Projected, width: int, height: int) -> Bins:  # noqa: A003 (stage name)
-        problem = tile_rect_problem(proj.tile_rect, proj.radii, width, height)  # the kernels would write out of bounds
+        # the kernels would read and write out of bounds
+        problem = projected_shape_problem(proj) or tile_rect_problem(proj.tile_rect, proj.radii, width, height)
         if problem:
             raise ValueError(f"bin: {problem}")
         n = proj.means2d.shape[0]
