@@ -86,6 +86,12 @@ def tile_rect_problem(tile_rect, radii, width: int, height: int) -> str | None:
     return None
 
 
+def bin_problem(proj, width: int, height: int) -> str | None:
+    """Why `proj` cannot be binned on a width x height image, or None: its arrays' shapes (projected_shape_problem),
+    then its visible rows' tile rects (tile_rect_problem). The binning's one check, on OpenCL and in the reference."""
+    return projected_shape_problem(proj) or tile_rect_problem(proj.tile_rect, proj.radii, width, height)
+
+
 def bins_problem(bins, n: int, width: int, height: int) -> str | None:
     """Why `bins` cannot be rasterized for n Gaussians on a width x height image, or None: the arrays' shapes
     ([V], [V + 1], [K], [K], [n_tiles, 2]), gids in [0, n), offset_from_rank from 0 to K without a step down, emit

@@ -62,8 +62,7 @@ from .reference_drop import Drop
 from .reference_loss import depth_loss as _depth_loss
 from .reference_loss import photometric_loss as _photometric_loss
 from .base import (ALPHA_MAX, ALPHA_MIN, CLAMP_GUARD, EPS2D, T_MIN, TILE_SIZE, Bins, Projected,
-                   RasterGrads, RasterOut, bins_problem, projected_shape_problem, select_engine, tile_grid,
-                   tile_rect_problem)
+                   RasterGrads, RasterOut, bin_problem, bins_problem, select_engine, tile_grid)
 
 QUAT_NORM_MIN = 1e-12  # quaternion norm below this: rotation undefined, cull
 FLT_MAX = float(np.finfo(np.float32).max)
@@ -460,9 +459,9 @@ def project_bwd(g, cam: Camera, proj: Projected, grads: RasterGrads, near: float
 # bin
 # ----------------------------------------------------------------------------------------------
 def bin(proj: Projected, width: int, height: int) -> Bins:  # noqa: A001 (stage name)
-    """Per-tile depth-ordered lists (exact integer semantics of base.py); a rect that cannot be binned
-    (base.tile_rect_problem) raises ValueError."""
-    problem = projected_shape_problem(proj) or tile_rect_problem(proj.tile_rect, proj.radii, width, height)
+    """Per-tile depth-ordered lists (exact integer semantics of base.py); a projection that cannot be binned
+    (base.bin_problem: its shapes, its visible rows' tile rects) raises ValueError."""
+    problem = bin_problem(proj, width, height)
     if problem:
         raise ValueError(f"bin: {problem}")
     tiles_x, tiles_y = tile_grid(width, height)

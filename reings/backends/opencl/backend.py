@@ -98,8 +98,8 @@ from typing import Any, Sequence
 import numpy as np
 
 from ...types import FIELDS, Camera, Gaussians, RenderOutput
-from ..base import (CLAMP_GUARD, V_RECORD, Bins, Projected, RasterGrads, RasterOut, bins_problem, grad_columns,
-                    projected_shape_problem, tile_grid, tile_rect_problem)
+from ..base import (CLAMP_GUARD, V_RECORD, Bins, Projected, RasterGrads, RasterOut, bin_problem, bins_problem,
+                    grad_columns, projected_shape_problem, tile_grid)
 from ..reference_drop import Drop, drop_args
 from . import quirks
 from .bin_counts import (CTRL_ISECTS, CTRL_RANKED, CTRL_VISIBLE, CTRL_WORDS, CountsRing, DeviceCounts,
@@ -1051,8 +1051,7 @@ class OpenCLBackend:
         b["tile_ranges"] = self._upload("tile", "tile_ranges_in", np.asarray(bins.tile_ranges, _I32))
 
     def bin(self, proj: Projected, width: int, height: int) -> Bins:  # noqa: A003 (stage name)
-        # the kernels would read and write out of bounds
-        problem = projected_shape_problem(proj) or tile_rect_problem(proj.tile_rect, proj.radii, width, height)
+        problem = bin_problem(proj, width, height)  # the kernels would read and write out of bounds
         if problem:
             raise ValueError(f"bin: {problem}")
         n = proj.means2d.shape[0]
