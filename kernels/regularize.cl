@@ -9,7 +9,8 @@
    Kernels
      regularize_opacity_count  counts[0] += #(sigmoid(logit) > 0.2), counts[1] += #(< 0.2) (counts
                                zero on entry); each work-item a contiguous chunk, one atomic add
-                               per item.
+                               per item. With REGULARIZE_FP64, a compare of the float logit with
+                               LOGIT_UNDER_SPLIT: the same counts without an exp per Gaussian.
      regularize_grads          the three penalties' gradients, one work-item per REG_VW Gaussians. The counts
                                are one of two pairs, used in turn: work-item 0 zeroes the other pair,
                                the next call's (the host fills both once, when they are made).
@@ -43,6 +44,9 @@ typedef float real;
 #endif
 
 #define OPA_SPLIT ((real)0.2) /* reference_loss.OPACITY_SPLIT */
+/* the largest float logit whose sigmoid (in double) is under OPA_SPLIT; the next float up, -0x1.62e42ep+0f, is over
+   it (tests/test_adam_kernel.py::test_opacity_count_at_the_split checks both against numpy's float64 sigmoid) */
+#define LOGIT_UNDER_SPLIT (-0x1.62e430p+0f)
 
 __kernel void regularize_opacity_count(const int n, const int chunk,
                                        __global const float *logits,  /* [N] */
@@ -54,9 +58,19 @@ __kernel void regularize_opacity_count(const int n, const int chunk,
     const int hi = min(n, lo + chunk);
     int nh = 0, nl = 0;
     for (int i = lo; i < hi; ++i) {
+#if REGULARIZE_FP64
+        /* o = 1 / (1 + exp(-x)) in double is above 0.2 exactly where the float x is above LOGIT_UNDER_SPLIT and
+         * under 0.2 where x is at or below it (NaN: neither): no float lies within 3e-9 of -ln 4, where o = 0.2, so
+         * o is at least 6e-10 from 0.2, beyond any double rounding (test_opacity_count_at_the_split). No exp per
+         * Gaussian (PoCL: a scalar library call each) */
+        const float x = logits[i];
+        nh += x > LOGIT_UNDER_SPLIT;
+        nl += x <= LOGIT_UNDER_SPLIT;
+#else
         const real o = (real)1.0 / ((real)1.0 + exp(-(real)logits[i]));
         nh += o > OPA_SPLIT;
         nl += o < OPA_SPLIT;
+#endif
     }
     if (nh) atomic_add(&counts[0], nh);
     if (nl) atomic_add(&counts[1], nl);

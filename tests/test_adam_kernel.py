@@ -144,6 +144,35 @@ def test_regularizer_kernel_matches_numpy(device, rng, chunk, monkeypatch):
             assert np.any(got != g0[k]) == (k in rg)
 
 
+def test_opacity_count_at_the_split(device, rng):
+    """regularize_opacity_count counts o > 0.2 and o < 0.2 as numpy's float64 sigmoid does on the 4001 float logits
+    around logit(0.2) = -ln 4 (where the kernel's compare with LOGIT_UNDER_SPLIT could be off by a float), NaN,
+    +-inf and random logits; the opacity gradient (which divides by the counts) agrees to 4 ulps."""
+    near = np.float32(-np.log(4.0)).view(np.int32) + np.arange(-2000, 2001, dtype=np.int32)
+    lg = np.concatenate([near.view(np.float32), np.float32([np.nan, np.inf, -np.inf]),
+                         rng.normal(-1, 2, size=97).astype(np.float32)])
+    n = len(lg)
+    st = _state(rng, n, 1)
+    st.params["opacity_logits"][:] = lg
+    o = 1.0 / (1.0 + np.exp(-lg.astype(np.float64)))
+    want_counts = [int((o > 0.2).sum()), int((o < 0.2).sum())]
+    assert min(want_counts) > 2000  # the window straddles the split
+    t = _trainer(device, st, "kernel")
+    g0 = {"log_scales": np.zeros((n, 3), np.float32), "opacity_logits": rng.normal(size=n).astype(np.float32) * 1e-3}
+    for _ in range(2):  # both pairs of counters
+        pair = t._reg_pair
+        bufs = _grad_buffers(t, g0, 1)
+        t.regularize(bufs, 0.0, 0.0, 0.5)
+        counts = t._read(t._reg_counts, (2, 2), np.int32)
+        assert counts[pair].tolist() == want_counts
+        _, rg = regularizers(st.params, 0.0, 0.0, 0.5)
+        got = t._read(bufs["opacity_logits"], (n,), np.float32)
+        want = g0["opacity_logits"] + rg["opacity_logits"]
+        ok = np.isfinite(want)
+        assert np.array_equal(np.isnan(got), np.isnan(want))
+        assert _ulps(got[ok], want[ok]).max() <= 4
+
+
 def test_regularizer_lanes_keep_the_bits(device, rng):
     """regularize_grads on 8 lanes (REG_VW 8, the CPU build: the argmax / argmin as masks, the branches as
     selects) gives the bytes of one work-item per Gaussian (REG_VW 1): 1003 Gaussians (a partial last
