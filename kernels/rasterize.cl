@@ -171,6 +171,9 @@
 #ifndef REDUCE_UNROLL
 #define REDUCE_UNROLL 8 /* isect_reduce: gradient records loaded per step of a segment */
 #endif
+#ifndef REDUCE_CHUNK
+#define REDUCE_CHUNK 1 /* isect_reduce, CPU schedule: ranks per work-item (> 1: the fields as vectors) */
+#endif
 #if REDUCE_UNROLL < 1
 #error "REDUCE_UNROLL must be at least 1"
 #endif
@@ -245,7 +248,63 @@ inline float reduce_rescaled(__global const float *records, const int a, const i
         __global float *out, const int n_rank, const int width, const int accumulate,                      \
         __global const uint *counts, const int count_at
 
-#if REINGS_CPU_SCHEDULE
+#if REINGS_CPU_SCHEDULE && REDUCE_CHUNK > 1
+/* CPU schedule, REDUCE_CHUNK ranks per work-item (the host launches ceil(V / REDUCE_CHUNK); Rasterizer.reduce_chunk):
+ * a gradient record's fields as a float8 and a float2 of running sums, s0 + records[a] + records[a + 1] + ... lane
+ * by lane, the adds of one work-item per rank in the same order (the same bits). 0.46-0.48x of that kernel's time on
+ * fern's fine and final states (2 Xeon cores, docs/perf_notes.md §43). With REINGS_CLANG_BUILTINS the loads and
+ * stores are operators on 4-byte-aligned vector types (PoCL calls vload8), elsewhere vload8 / vstore8. */
+#if REINGS_CLANG_BUILTINS
+typedef float8 __attribute__((aligned(4), may_alias)) f8u_red;
+typedef float2 __attribute__((aligned(4), may_alias)) f2u_red;
+#define RLOAD8(p) (*(__global const f8u_red *)(p))
+#define RLOAD2(p) (*(__global const f2u_red *)(p))
+#define RSTORE8(v, p) (*(__global f8u_red *)(p) = (v))
+#define RSTORE2(v, p) (*(__global f2u_red *)(p) = (v))
+#else
+#define RLOAD8(p) vload8(0, p)
+#define RLOAD2(p) vload2(0, p)
+#define RSTORE8(v, p) vstore8(v, 0, p)
+#define RSTORE2(v, p) vstore2(v, 0, p)
+#endif
+__kernel void isect_reduce(ISECT_REDUCE_PARAMS) {
+    const int v = (int)launch_count((uint)n_rank, counts, count_at);
+    const int r0 = get_global_id(0) * REDUCE_CHUNK, r1 = min(r0 + REDUCE_CHUNK, v);
+    for (int r = r0; r < r1; ++r) {
+        const int a = offset_from_rank[r], b = offset_from_rank[r + 1];
+        const int gid = gid_from_rank[r];
+        if (width == V_RECORD) {
+            __global float *o = out + (size_t)gid * V_RECORD;
+            float8 s8 = accumulate ? RLOAD8(o) : (float8)(0.0f);
+            float2 s2 = accumulate ? RLOAD2(o + 8) : (float2)(0.0f);
+            for (int e = a; e < b; ++e) {
+                __global const float *rec = records + (size_t)e * V_RECORD;
+                s8 += RLOAD8(rec);
+                s2 += RLOAD2(rec + 8);
+            }
+            const int8 bad8 = (as_int8(s8) & 0x7f800000) == 0x7f800000; /* !FINITE per lane */
+            const int2 bad2 = (as_int2(s2) & 0x7f800000) == 0x7f800000;
+            if (any8(bad8) || (bad2.x | bad2.y) < 0) { /* rare: the fields that overflowed, rescaled (as below) */
+                float t[V_RECORD] = {s8.s0, s8.s1, s8.s2, s8.s3, s8.s4, s8.s5, s8.s6, s8.s7, s2.s0, s2.s1};
+                for (int f = 0; f < V_RECORD; ++f)
+                    if (!FINITE(t[f])) t[f] = reduce_rescaled(records, a, b, V_RECORD, f, accumulate ? o[f] : 0.0f);
+                s8 = (float8)(t[0], t[1], t[2], t[3], t[4], t[5], t[6], t[7]);
+                s2 = (float2)(t[8], t[9]);
+            }
+            RSTORE8(s8, o);
+            RSTORE2(s2, o + 8);
+            continue;
+        }
+        for (int f = 0; f < width; ++f) { /* other widths (the importance records): the per-field sums below */
+            const float s0 = accumulate ? out[gid * width + f] : 0.0f;
+            float s = s0;
+            for (int e = a; e < b; ++e) s += records[e * width + f];
+            if (!FINITE(s)) s = reduce_rescaled(records, a, b, width, f, s0);
+            out[gid * width + f] = s;
+        }
+    }
+}
+#elif REINGS_CPU_SCHEDULE
 /* CPU schedule: one work-item per rank walks its segment */
 __kernel void isect_reduce(ISECT_REDUCE_PARAMS) {
     const int r = get_global_id(0);

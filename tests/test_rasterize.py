@@ -616,9 +616,23 @@ def test_bwd_overflow_never_nan(device, what, cpu):
     assert not np.isnan(two.grads_o.v_opacities).any()
 
 
+# isect_reduce's ranks per work-item on the CPU schedule (REDUCE_CHUNK): the default (16), one per work-item, and 3
+# (partial chunks at the ends); the GPU schedule takes none of them
+REDUCE_CHUNKS = [None, 1, 3]
+
+
+def _reducer(device, cpu, chunk):
+    from reings.backends.opencl.rasterize import rasterizer_for
+
+    if chunk is not None and not cpu:
+        pytest.skip("REDUCE_CHUNK is the CPU schedule's")
+    return rasterizer_for(device, cpu_schedule=bool(cpu), **({} if chunk is None else {"REDUCE_CHUNK": chunk}))
+
+
+@pytest.mark.parametrize("chunk", REDUCE_CHUNKS)
 @pytest.mark.parametrize("cpu", SCHEDULES)
 @pytest.mark.parametrize("width", [1, V_RECORD])
-def test_isect_reduce_overflow(device, width, cpu):
+def test_isect_reduce_overflow(device, width, cpu, chunk):
     """isect_reduce: +inf and -inf records of one Gaussian (or huge finite ones whose partial sums
     overflow both ways) sum to +-inf or a finite value, never NaN; a NaN record stays NaN. Width
     V_RECORD (the gradient records, summed in registers in one pass): the overflowing field is
@@ -627,7 +641,7 @@ def test_isect_reduce_overflow(device, width, cpu):
 
     from reings.backends.opencl.rasterize import rasterizer_for
 
-    r = rasterizer_for(device, cpu_schedule=bool(cpu))
+    r = _reducer(device, cpu, chunk)
     ctx, q = r.handle.context, r.queue
     col = np.array([[np.inf], [-np.inf], [1.0],                    # rank 0: inf - inf
                     [FLT_MAX], [FLT_MAX], [-FLT_MAX], [-FLT_MAX],  # rank 1: partial sums overflow both ways
@@ -653,8 +667,9 @@ def test_isect_reduce_overflow(device, width, cpu):
     np.testing.assert_array_equal(others, want)
 
 
+@pytest.mark.parametrize("chunk", REDUCE_CHUNKS)
 @pytest.mark.parametrize("cpu", SCHEDULES)
-def test_isect_reduce_sums_in_record_order(device, cpu):
+def test_isect_reduce_sums_in_record_order(device, cpu, chunk):
     """Each field of a rank is s0 + records[a] + records[a + 1] + ... in float32, in that order
     (the CPU schedule's register pass of width V_RECORD keeps the order of the per-field loop; the
     GPU schedule's lanes add a round's staged records in that order): bit for bit against a
@@ -665,7 +680,7 @@ def test_isect_reduce_sums_in_record_order(device, cpu):
 
     from reings.backends.opencl.rasterize import rasterizer_for
 
-    r = rasterizer_for(device, cpu_schedule=bool(cpu))
+    r = _reducer(device, cpu, chunk)
     ctx, q = r.handle.context, r.queue
     rng = np.random.default_rng(11)
     n = 600
@@ -692,8 +707,9 @@ def test_isect_reduce_sums_in_record_order(device, cpu):
         np.testing.assert_array_equal(got, want, err_msg=f"width {width}")
 
 
+@pytest.mark.parametrize("chunk", REDUCE_CHUNKS)
 @pytest.mark.parametrize("cpu", SCHEDULES)
-def test_isect_reduce(device, cpu):
+def test_isect_reduce(device, cpu, chunk):
     """Segmented sum per rank into its gid, width 1 and 10, plain and accumulating; others untouched;
     with the rank count from the host, and from the device (count=(ctrl, 0): the sync-free
     binning's V, launched over a bound of N ranks, docs/perf_notes.md §8)."""
@@ -701,7 +717,7 @@ def test_isect_reduce(device, cpu):
 
     from reings.backends.opencl.rasterize import rasterizer_for
 
-    r = rasterizer_for(device, cpu_schedule=bool(cpu))
+    r = _reducer(device, cpu, chunk)
     ctx, q = r.handle.context, r.queue
     rng = np.random.default_rng(5)
     n, v = 50, 37
@@ -814,12 +830,16 @@ _OCLGRIND_SCRIPT = """
     elif "{part}" == "reduce":
         # the width-V_RECORD register pass of isect_reduce in record order
         from test_rasterize import test_isect_reduce_sums_in_record_order
-        test_isect_reduce_sums_in_record_order("oclgrind", int({cpu}))
+        # (the CPU schedule's default REDUCE_CHUNK: several ranks per work-item, the fields as vectors)
+        test_isect_reduce_sums_in_record_order("oclgrind", int({cpu}), None)
         # on fresh scratch sized for this case alone (a read past a buffer's end is out of bounds)
         overflow_rerun()
-        # isect_reduce with the rank count from the host and from the device (sync-free binning)
+        # isect_reduce with the rank count from the host and from the device (sync-free binning); on the CPU
+        # schedule also with chunks of 3 ranks (partial chunks at both counts' ends)
         from test_rasterize import test_isect_reduce
-        test_isect_reduce("oclgrind", int({cpu}))
+        test_isect_reduce("oclgrind", int({cpu}), None)
+        if cpu:
+            test_isect_reduce("oclgrind", 1, 3)
     else:
         raise ValueError("unknown part {part}")
 """

@@ -97,6 +97,11 @@ def bwd_pix() -> int:
     return BWD_PIX
 
 
+# isect_reduce's ranks per work-item on the CPU schedule (REDUCE_CHUNK): the fields as vectors, fewer work-items;
+# 0.46-0.48x of one rank per work-item on fern's fine / final states, 2 Xeon cores (docs/perf_notes.md §43)
+REDUCE_CHUNK_CPU = 16
+
+
 def _nd(n: int, local: int) -> int:
     return max(local, (n + local - 1) // local * local)
 
@@ -135,6 +140,11 @@ class Rasterizer:
             if int(d["BWD_PIX"]) not in (1, 2, 4):
                 raise ValueError(f"Rasterizer: BWD_PIX must be 1, 2 or 4, got {d['BWD_PIX']}")
         self._lib, self._defines = lib, d
+        if self.cpu_schedule:  # isect_reduce's ranks per work-item (kernels/rasterize.cl REDUCE_CHUNK)
+            d.setdefault("REDUCE_CHUNK", REDUCE_CHUNK_CPU)
+        self.reduce_chunk = int(d.get("REDUCE_CHUNK", 1)) if self.cpu_schedule else 1
+        if self.reduce_chunk < 1:
+            raise ValueError(f"Rasterizer: REDUCE_CHUNK must be at least 1, got {self.reduce_chunk}")
         self.k_prep = lib.get(FILE, "rasterize_prep", RASTER_IMPORTANCE=0, **d)
         self.k_fwd = lib.get(FILE, "rasterize_fwd", RASTER_IMPORTANCE=0, **d)
         self.k_bwd = lib.get(FILE, "rasterize_bwd", RASTER_IMPORTANCE=0, **d)
@@ -331,7 +341,7 @@ class Rasterizer:
             return self.cl.enqueue_marker(self.queue, wait_for=wait_for)
         counts, count_at = (self._dummy, -1) if count is None else count
         if self.cpu_schedule:
-            gsize, lsize = (_nd(n_rank, 64),), None
+            gsize, lsize = (_nd(-(-n_rank // self.reduce_chunk), 64),), None
         else:  # RED_WG // RED_LANES ranks per work-group, each over RED_LANES work-items
             if not 1 <= width <= self.red_lanes:
                 raise ValueError(f"isect_reduce: record width {width} outside 1..{self.red_lanes} (RED_LANES)")
