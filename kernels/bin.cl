@@ -42,8 +42,8 @@
    reduces; the visible count (radii > 0) is ctrl[2], the statistic reported as "visible".
 
    Defines: REINGS_CPU_SCHEDULE (bin_count's blocks: a work-item per block on CPUs, a work-group per
-   block on GPUs) and, on the GPU schedule, SCAN_WG / SCAN_ITEMS (the scan's block: ExclusiveScan's
-   defines). The tile grid arrives as tiles_x / n_tiles. Integers only: no float math here.
+   block on GPUs), on the GPU schedule SCAN_WG / SCAN_ITEMS (the scan's block: ExclusiveScan's
+   defines), TR_CHUNK (tile_ranges' positions per work-item, the host's `tr_chunk`). The tile grid arrives as tiles_x / n_tiles. Integers only: no float math here.
 */
 
 #include "common.h"
@@ -164,7 +164,12 @@ __kernel void bin_emit(const int n_ranked, const int tiles_x,
     }
 }
 
-/* Per sorted intersection i in [0, K] (K + 1 work-items). Tile t's range is [start, end) with
+#ifndef TR_CHUNK
+#define TR_CHUNK 1
+#endif
+/* Per sorted intersection i in [0, K]: TR_CHUNK consecutive positions per work-item (the host launches
+   ceil((K + 1) / TR_CHUNK); OpenCLBackend.tr_chunk: 32 on CPUs, 0.50-0.61x of one position per work-item on fern's
+   fine state, 2 Xeon cores, docs/perf_notes.md §43; 1 on GPUs). Tile t's range is [start, end) with
    start = first i with key >= t, end = first i with key > t (numpy searchsorted left/right), so an
    empty tile gets start == end == the position where it would be. */
 __kernel void tile_ranges(const int n_isects, const int n_tiles,
@@ -176,14 +181,18 @@ __kernel void tile_ranges(const int n_isects, const int n_tiles,
                           __global const uint *counts,           /* K = counts[count_at] (header) */
                           const int count_at) {
     const int k = (int)launch_count((uint)n_isects, counts, count_at);
-    const int stride = (int)get_global_size(0);
-    for (int i = get_global_id(0); i <= k; i += stride) { /* once per work-item with a host count */
-        const int prev = i == 0 ? -1 : (int)tile_keys_sorted[i - 1];
-        const int cur = i == k ? n_tiles : (int)tile_keys_sorted[i];
-        /* tiles in (prev, cur] start at i; tiles in [prev, cur) end at i */
-        for (int t = prev + 1; t <= cur && t < n_tiles; ++t) ranges[2 * t] = i;
-        for (int t = max(prev, 0); t < cur; ++t) ranges[2 * t + 1] = i;
-        if (i < k) gid_from_isect[i] = (int)gid_from_emit[emit_from_isect[i]];
-        if (i > k - stride) break; /* i + stride > k: stop before the int sum can pass INT_MAX */
+    /* TR_CHUNK consecutive positions per work-item (CPU schedule), chunk after chunk grid-stride */
+    const int stride = (int)get_global_size(0) * TR_CHUNK;
+    for (int base = get_global_id(0) * TR_CHUNK; base <= k; base += stride) { /* once with a host count */
+        const int last = min(base + TR_CHUNK - 1, k);
+        for (int i = base; i <= last; ++i) {
+            const int prev = i == 0 ? -1 : (int)tile_keys_sorted[i - 1];
+            const int cur = i == k ? n_tiles : (int)tile_keys_sorted[i];
+            /* tiles in (prev, cur] start at i; tiles in [prev, cur) end at i */
+            for (int t = prev + 1; t <= cur && t < n_tiles; ++t) ranges[2 * t] = i;
+            for (int t = max(prev, 0); t < cur; ++t) ranges[2 * t + 1] = i;
+            if (i < k) gid_from_isect[i] = (int)gid_from_emit[emit_from_isect[i]];
+        }
+        if (base > k - stride) break; /* base + stride > k: stop before the int sum can pass INT_MAX */
     }
 }

@@ -116,6 +116,9 @@ DEPTH_KEY_CULLED = 0xFFFFFFFF
 GRAD_BITS = {"means": 1, "quats": 2, "log_scales": 4, "opacity_logits": 8, "sh": 16}
 ISECT_GUESS = 8  # sync-free binning: intersections per Gaussian guessed before a slot's first K is known
 ISECT_HISTORY = 8  # ... then the largest of its last ISECT_HISTORY known K's, plus 1/8
+# tile_ranges' positions per work-item on CPU devices (kernels/bin.cl TR_CHUNK): 0.50-0.61x of one per work-item on
+# fern's fine state, 2 Xeon cores (docs/perf_notes.md §43); GPUs 1
+TR_CHUNK_CPU = 32
 _F32, _I32, _U32 = np.float32, np.int32, np.uint32
 
 
@@ -265,6 +268,7 @@ class OpenCLBackend:
         self.depth_sorts = {"sorted": 0, "shared": 0}  # forwards that sorted / that shared an order
         self.scan = ExclusiveScan(self.handle)
         self.wg = 256 if self.cpu else 128  # PoCL: fewer, larger work-groups (dispatch cost ~us each)
+        self.tr_chunk = TR_CHUNK_CPU if self.cpu else 1  # tile_ranges' positions per work-item (kernels/bin.cl TR_CHUNK)
         self.proj_vw = proj_lanes(self.handle.device) if self.cpu else 1  # Gaussians per work-item in project.cl
         self.proj_wg = 512 // self.proj_vw if self.cpu else 128  # project.cl work-group (512 Gaussians on CPUs)
         # project.cl's SH rows through local memory on the GPU schedule only (_proj_defines, width-1 lanes);
@@ -582,8 +586,8 @@ class OpenCLBackend:
         # (5) tile ranges + gid_from_isect, no atomics
         ranges = b["tile_ranges"] = s.get("tile", "tile_ranges", fr.n_tiles, 8)
         gfi = b["gid_from_isect"] = s.get("isect", "gid_from_isect", cap, 4)
-        ev = self.launch(self.kernel("bin.cl", "tile_ranges"), k_launch + 1, _I32(cap), _I32(fr.n_tiles), tk,
-                          efi, gid_from_emit, ranges, gfi, ctrl, at_k)
+        ev = self.launch(self.kernel("bin.cl", "tile_ranges", TR_CHUNK=self.tr_chunk), -(-(k_launch + 1) // self.tr_chunk),
+                         _I32(cap), _I32(fr.n_tiles), tk, efi, gid_from_emit, ranges, gfi, ctrl, at_k)
         self._mark("tile_ranges", ev)
 
     def _rank_count(self, fr: _Frame) -> tuple:
