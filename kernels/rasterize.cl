@@ -249,6 +249,9 @@ inline float reduce_rescaled(__global const float *records, const int a, const i
         __global const uint *counts, const int count_at
 
 #if REINGS_CPU_SCHEDULE && REDUCE_CHUNK > 1
+#if V_RECORD != 10
+#error "isect_reduce's REDUCE_CHUNK form sums a gradient record as a float8 and a float2: V_RECORD must be 10"
+#endif
 /* CPU schedule, REDUCE_CHUNK ranks per work-item (the host launches ceil(V / REDUCE_CHUNK); Rasterizer.reduce_chunk):
  * a gradient record's fields as a float8 and a float2 of running sums, s0 + records[a] + records[a + 1] + ... lane
  * by lane, the adds of one work-item per rank in the same order (the same bits). 0.46-0.48x of that kernel's time on

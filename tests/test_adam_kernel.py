@@ -158,6 +158,8 @@ def test_opacity_count_at_the_split(device, rng):
     want_counts = [int((o > 0.2).sum()), int((o < 0.2).sum())]
     assert min(want_counts) > 2000  # the window straddles the split
     t = _trainer(device, st, "kernel")
+    if not t.fp64:
+        pytest.skip("the compare is the build with doubles' (without them the kernel keeps the float sigmoid)")
     g0 = {"log_scales": np.zeros((n, 3), np.float32), "opacity_logits": rng.normal(size=n).astype(np.float32) * 1e-3}
     for _ in range(2):  # both pairs of counters
         pair = t._reg_pair

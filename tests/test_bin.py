@@ -78,10 +78,15 @@ def test_bin_cases(device, name, mode):
               mode=mode)
 
 
+@pytest.mark.parametrize("tr_chunk", [None, 1, 3])
 @pytest.mark.parametrize("n,w,h", [(1, 16, 16), (300, 96, 64), (5000, 504, 378)])
-def test_bin_sync_free_estimates(device, n, w, h, estimate):
+def test_bin_sync_free_estimates(device, n, w, h, estimate, tr_chunk, monkeypatch):
     """The sync-free binning with the launch estimate forced to 1 (bin_emit over N ranks reading V,
-    the tile sort and tile_ranges looping to the device's K) and as the backend makes it."""
+    the tile sort and tile_ranges looping to the device's K) and as the backend makes it; tile_ranges
+    at the device's positions per work-item (TR_CHUNK: 32 on CPUs, 1 on GPUs), 1 and 3 (its chunked
+    grid-stride loop over 0..K from a launch of one work-group)."""
+    if tr_chunk is not None:
+        monkeypatch.setattr(get_backend(device), "tr_chunk", tr_chunk)
     g, cam = random_scene(n, w, h, seed=n + 1, scale_median=0.08)
     check_bin(device, ref.project_fwd(g, cam), w, h, name=f"{estimate} n={n}", mode="async")
 

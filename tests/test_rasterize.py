@@ -629,17 +629,17 @@ def _reducer(device, cpu, chunk):
     return rasterizer_for(device, cpu_schedule=bool(cpu), **({} if chunk is None else {"REDUCE_CHUNK": chunk}))
 
 
+@pytest.mark.parametrize("accumulate", [False, True])
 @pytest.mark.parametrize("chunk", REDUCE_CHUNKS)
 @pytest.mark.parametrize("cpu", SCHEDULES)
 @pytest.mark.parametrize("width", [1, V_RECORD])
-def test_isect_reduce_overflow(device, width, cpu, chunk):
+def test_isect_reduce_overflow(device, width, cpu, chunk, accumulate):
     """isect_reduce: +inf and -inf records of one Gaussian (or huge finite ones whose partial sums
     overflow both ways) sum to +-inf or a finite value, never NaN; a NaN record stays NaN. Width
     V_RECORD (the gradient records, summed in registers in one pass): the overflowing field is
-    field 3, the other fields plain sums that the rerun of field 3 leaves alone."""
+    field 3, then field 9 (REDUCE_CHUNK's float2 of fields 8-9), the other fields plain sums that the
+    rerun of that field leaves alone. accumulate: the sums start from the output's values (2.0)."""
     import pyopencl as cl
-
-    from reings.backends.opencl.rasterize import rasterizer_for
 
     r = _reducer(device, cpu, chunk)
     ctx, q = r.handle.context, r.queue
@@ -648,23 +648,26 @@ def test_isect_reduce_overflow(device, width, cpu, chunk):
                     [FLT_MAX], [FLT_MAX], [-1.0],                  # rank 2: truly beyond FLT_MAX
                     [np.nan], [1.0],                               # rank 3: NaN stays NaN
                     [2.0], [3.0]], np.float32)                     # rank 4: plain
-    f = 0 if width == 1 else 3
-    rec = np.tile(np.arange(1, width + 1, dtype=np.float32), (len(col), 1))  # small integers: exact sums
-    rec[:, f] = col[:, 0]
-    offs = np.array([0, 3, 7, 10, 12, 14], np.int32)
-    gid = np.arange(5, dtype=np.int32)
-    mf = cl.mem_flags
-    bufs = [cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=a) for a in (rec, offs, gid)]
-    out = cl.Buffer(ctx, mf.READ_WRITE, 5 * 4 * width)
-    r.reduce(bufs[0], width, bufs[1], bufs[2], 5, out)
-    full = np.empty((5, width), np.float32)
-    cl.enqueue_copy(q, full, out)
-    got = full[:, f]
-    assert not np.isnan(got[[0, 1, 2, 4]]).any(), got
-    assert got[1] == 0.0 and got[2] == np.inf and np.isnan(got[3]) and got[4] == 5.0, got
-    others = np.delete(full, f, axis=1)
-    want = np.add.reduceat(np.delete(rec, f, axis=1), offs[:-1], axis=0)
-    np.testing.assert_array_equal(others, want)
+    s0 = 2.0 if accumulate else 0.0
+    for f in ((0,) if width == 1 else (3, 9)):
+        rec = np.tile(np.arange(1, width + 1, dtype=np.float32), (len(col), 1))  # small integers: exact sums
+        rec[:, f] = col[:, 0]
+        offs = np.array([0, 3, 7, 10, 12, 14], np.int32)
+        gid = np.arange(5, dtype=np.int32)
+        mf = cl.mem_flags
+        bufs = [cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=a) for a in (rec, offs, gid)]
+        out = cl.Buffer(ctx, mf.READ_WRITE | mf.COPY_HOST_PTR, hostbuf=np.full((5, width), s0, np.float32))
+        r.reduce(bufs[0], width, bufs[1], bufs[2], 5, out, accumulate=accumulate)
+        full = np.empty((5, width), np.float32)
+        cl.enqueue_copy(q, full, out)
+        got = full[:, f]
+        assert not np.isnan(got[[0, 1, 2, 4]]).any(), (f, got)
+        assert got[2] == np.inf and np.isnan(got[3]) and got[4] == s0 + 5.0, (f, got)
+        if not accumulate:
+            assert got[1] == 0.0, (f, got)
+        others = np.delete(full, f, axis=1)
+        want = s0 + np.add.reduceat(np.delete(rec, f, axis=1), offs[:-1], axis=0)
+        np.testing.assert_array_equal(others, want)
 
 
 @pytest.mark.parametrize("chunk", REDUCE_CHUNKS)

@@ -574,7 +574,7 @@ class OpenCLBackend:
         tile_keys = s.get("isect", "tile_keys", cap, 4)
         emit_vals = s.get("isect", "emit_vals", cap, 4)
         gid_from_emit = b["gid_from_emit"] = s.get("isect", "gid_from_emit", cap, 4)
-        ev = self.launch(self.kernel("bin.cl", "bin_emit"), v_launch, _I32(v_launch), _I32(fr.tiles_x), gfr,
+        ev = self.launch(self.kernel("bin.cl", "bin_emit", TR_CHUNK=self.tr_chunk), v_launch, _I32(v_launch), _I32(fr.tiles_x), gfr,
                           offsets, b["tile_rect"], tile_keys, emit_vals, gid_from_emit, ctrl, at_v)
         self._mark("bin_emit", ev)
         # (4) stable tile sort over ceil(log2 T) bits: keeps (depth, gid) order inside each tile
@@ -798,7 +798,7 @@ class OpenCLBackend:
         for k in sorted(set(int(k) for k in sh_ks)):
             self.lib.program("project.cl", **self._proj_defines(k))
         self.lib.program("bin.cl", **self.scan.defines)
-        self.lib.program("bin.cl")
+        self.lib.program("bin.cl", TR_CHUNK=self.tr_chunk)  # bin_emit and tile_ranges (one program)
         sync_free = soft_shared and self.bin_mode != "sync"  # "auto" may bin a forward sync-free
         self._slot_raster(0).prepare(importance=importance, opacity_only=opacity_only or sync_free,
                                      depth_o=soft_shared and self.bin_mode != "async")
