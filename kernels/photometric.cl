@@ -52,6 +52,9 @@ typedef float8 vf;
 #error "SSIM_VW must be 8 or 16"
 #endif
 #define VW SSIM_VW
+#ifndef SSIM_VTAIL /* 1: a row's last elements as one overlapping vector; the vertical passes' first / last SSIM_R rows on vectors */
+#define SSIM_VTAIL 1
+#endif
 #ifndef SSIM_ROWS
 #error "the CPU schedule needs SSIM_ROWS (rows per work-item; the host's global size depends on it)"
 #endif
@@ -136,6 +139,11 @@ typedef vf __attribute__((aligned(4))) vf_u;
         int o = 0;                                                                                 \
         for (; o < e; ++o) ELEM(float, LD1, ST1, TAPS_CHECKED)                                     \
         for (; o + VW <= n - 3 * SSIM_R; o += VW) ELEM(vf, LDV, STV, TAPS_ALL)                     \
+        if (SSIM_VTAIL && o < n - 3 * SSIM_R && n - 6 * SSIM_R >= VW) {                            \
+            o = n - 3 * SSIM_R - VW; /* the interior's last VW, overlapping: the same values again */  \
+            ELEM(vf, LDV, STV, TAPS_ALL)                                                           \
+            o = n - 3 * SSIM_R;                                                                    \
+        }                                                                                          \
         for (; o < n - 3 * SSIM_R; ++o) ELEM(float, LD1, ST1, TAPS_ALL)                            \
         for (; o < n; ++o) ELEM(float, LD1, ST1, TAPS_CHECKED)                                     \
     }
@@ -163,6 +171,13 @@ __kernel void ssim_vpass_fwd(__global const float *h5, __constant float *taps, _
         int o = 0;
         if (k_lo == -SSIM_R && k_hi == SSIM_R)
             for (; o + VW <= n; o += VW) VFWD(vf, LDV, STV, -SSIM_R, SSIM_R)
+        else if (SSIM_VTAIL) /* the first and last SSIM_R rows: their valid rows only, in the same order */
+            for (; o + VW <= n; o += VW) VFWD(vf, LDV, STV, k_lo, k_hi)
+        if (SSIM_VTAIL && o < n && n >= VW) { /* the row's last VW, overlapping: the same values again */
+            o = n - VW;
+            VFWD(vf, LDV, STV, k_lo, k_hi)
+            o = n;
+        }
         for (; o < n; ++o) VFWD(float, LD1, ST1, k_lo, k_hi)
     }
 }
@@ -188,6 +203,13 @@ __kernel void ssim_vpass_bwd(__global const float *h3, __global const float *x, 
         int o = 0;
         if (k_lo == -SSIM_R && k_hi == SSIM_R)
             for (; o + VW <= n; o += VW) VBWD(vf, LDV, STV, -SSIM_R, SSIM_R, SIGNV)
+        else if (SSIM_VTAIL)
+            for (; o + VW <= n; o += VW) VBWD(vf, LDV, STV, k_lo, k_hi, SIGNV)
+        if (SSIM_VTAIL && o < n && n >= VW) {
+            o = n - VW;
+            VBWD(vf, LDV, STV, k_lo, k_hi, SIGNV)
+            o = n;
+        }
         for (; o < n; ++o) VBWD(float, LD1, ST1, k_lo, k_hi, SIGN1)
     }
 }
