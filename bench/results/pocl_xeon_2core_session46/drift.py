@@ -1,7 +1,7 @@
 """Per fit: the untouched kernels' busy ms/it ratio (B / A) and the changed kernels' ms/it, two census JSONs."""
 import json, sys
 a, b = (json.load(open(p))["stages"] for p in sys.argv[1:3])
-changed = {"isect_reduce", "tile_ranges", "regularize_opacity_count", "loss_row_sums"}
+changed = {"isect_reduce", "tile_ranges", "regularize_opacity_count", "loss_row_sums", "ssim_vpass_fwd", "ssim_vpass_bwd", "ssim_hpass_fwd", "ssim_hpass_bwd"} if "--ssim" in sys.argv else {"isect_reduce", "tile_ranges", "regularize_opacity_count", "loss_row_sums"}
 tot_a = tot_b = 0.0
 for st in ("coarse", "fine", "final"):
     ka, kb = a[st]["kernels"], b[st]["kernels"]
