@@ -43,7 +43,8 @@
 
    Defines: REINGS_CPU_SCHEDULE (bin_count's blocks: a work-item per block on CPUs, a work-group per
    block on GPUs), on the GPU schedule SCAN_WG / SCAN_ITEMS (the scan's block: ExclusiveScan's
-   defines), TR_CHUNK (tile_ranges' positions per work-item, the host's `tr_chunk`). The tile grid arrives as tiles_x / n_tiles. Integers only: no float math here.
+   defines), TR_CHUNK (tile_ranges' positions per work-item, the host's `tr_chunk`). The tile grid
+   arrives as tiles_x / n_tiles. Integers only: no float math here.
 */
 
 #include "common.h"

@@ -453,7 +453,7 @@ __kernel void loss_row_sums(__global const float *smap,   // [H, W, 3]
     float ss = 0.0f, sl = 0.0f;
     for (int o = j * W * 3; o < (j + 1) * W * 3; ++o) {
         ss += smap[o];
-        sl += as_float(as_uint(x[o] - y[o]) & 0x7fffffffu); /* fabs as the sign bit cleared: PoCL calls fabs (3.6 ms) */
+        sl += as_float(as_uint(x[o] - y[o]) & 0x7fffffffu); /* fabs as the sign bit cleared (PoCL calls fabs: perf_notes §43) */
     }
     partial[2 * j] = ss;
     partial[2 * j + 1] = sl;

@@ -55,7 +55,7 @@
  *   forward's images), only the order of a tile's per-Gaussian sums differs;
  *   FWD_BATCH (256) / BWD_BATCH (64): Gaussians staged in local memory per batch (GPU schedule; the batch
  *   only partitions a tile's list: any BWD_BATCH gives the same records, docs/perf_notes.md §28);
- *   REDUCE_UNROLL (8): gradient records isect_reduce loads before adding them (the same order; CPU schedule);
+ *   REDUCE_CHUNK (1; the host passes 16): isect_reduce's ranks per work-item on the CPU schedule;
  *   RED_LANES (16) / RED_WG (256) / RED_STAGE (320): isect_reduce's GPU schedule, work-items per rank,
  *   per work-group, and floats staged per rank and round (the host passes the first two);
  *   BWD_PIX (1): rasterize_bwd's GPU schedule, pixels per work-item (1, 2 or 4; work-groups of
@@ -168,14 +168,11 @@
 #ifndef RASTER_BWD_TRANSPOSE
 #define RASTER_BWD_TRANSPOSE 1 /* NVIDIA: the backward's per-field warp sums in one transposed sum */
 #endif
-#ifndef REDUCE_UNROLL
-#define REDUCE_UNROLL 8 /* isect_reduce: gradient records loaded per step of a segment */
-#endif
 #ifndef REDUCE_CHUNK
-#define REDUCE_CHUNK 1 /* isect_reduce, CPU schedule: ranks per work-item (> 1: the fields as vectors) */
+#define REDUCE_CHUNK 1 /* isect_reduce, CPU schedule: ranks per work-item (Rasterizer.reduce_chunk) */
 #endif
-#if REDUCE_UNROLL < 1
-#error "REDUCE_UNROLL must be at least 1"
+#if REDUCE_CHUNK < 1
+#error "REDUCE_CHUNK must be at least 1"
 #endif
 #if V_RECORD + 1 > 16
 #error "the transposed warp sum holds at most 16 fields"
@@ -248,14 +245,15 @@ inline float reduce_rescaled(__global const float *records, const int a, const i
         __global float *out, const int n_rank, const int width, const int accumulate,                      \
         __global const uint *counts, const int count_at
 
-#if REINGS_CPU_SCHEDULE && REDUCE_CHUNK > 1
+#if REINGS_CPU_SCHEDULE
 #if V_RECORD != 10
 #error "isect_reduce's REDUCE_CHUNK form sums a gradient record as a float8 and a float2: V_RECORD must be 10"
 #endif
 /* CPU schedule, REDUCE_CHUNK ranks per work-item (the host launches ceil(V / REDUCE_CHUNK); Rasterizer.reduce_chunk):
- * a gradient record's fields as a float8 and a float2 of running sums, s0 + records[a] + records[a + 1] + ... lane
- * by lane, the adds of one work-item per rank in the same order (the same bits). 0.46-0.48x of that kernel's time on
- * fern's fine and final states (2 Xeon cores, docs/perf_notes.md §43). With REINGS_CLANG_BUILTINS the loads and
+ * each field's sum is s0 + records[a] + records[a + 1] + ... in that order, a gradient record's fields as a float8 and
+ * a float2 of running sums (lane by lane: the per-field loop's adds, the same bits). At 16 ranks 0.46-0.50x of the time
+ * of one rank per work-item with the fields in scalars (its form until session 46; fern's fine and final states, 2 Xeon
+ * cores, docs/perf_notes.md §43). With REINGS_CLANG_BUILTINS the loads and
  * stores are operators on 4-byte-aligned vector types (PoCL calls vload8), elsewhere vload8 / vstore8. */
 #if REINGS_CLANG_BUILTINS
 typedef float8 __attribute__((aligned(4), may_alias)) f8u_red;
@@ -287,7 +285,7 @@ __kernel void isect_reduce(ISECT_REDUCE_PARAMS) {
             }
             const int8 bad8 = (as_int8(s8) & 0x7f800000) == 0x7f800000; /* !FINITE per lane */
             const int2 bad2 = (as_int2(s2) & 0x7f800000) == 0x7f800000;
-            if (any8(bad8) || (bad2.x | bad2.y) < 0) { /* rare: the fields that overflowed, rescaled (as below) */
+            if (any8(bad8) || (bad2.x | bad2.y) < 0) { /* rare: the fields that overflowed, rescaled */
                 float t[V_RECORD] = {s8.s0, s8.s1, s8.s2, s8.s3, s8.s4, s8.s5, s8.s6, s8.s7, s2.s0, s2.s1};
                 for (int f = 0; f < V_RECORD; ++f)
                     if (!FINITE(t[f])) t[f] = reduce_rescaled(records, a, b, V_RECORD, f, accumulate ? o[f] : 0.0f);
@@ -298,57 +296,13 @@ __kernel void isect_reduce(ISECT_REDUCE_PARAMS) {
             RSTORE2(s2, o + 8);
             continue;
         }
-        for (int f = 0; f < width; ++f) { /* other widths (the importance records): the per-field sums below */
+        for (int f = 0; f < width; ++f) { /* other widths (the importance records): field by field */
             const float s0 = accumulate ? out[gid * width + f] : 0.0f;
             float s = s0;
             for (int e = a; e < b; ++e) s += records[e * width + f];
             if (!FINITE(s)) s = reduce_rescaled(records, a, b, width, f, s0);
             out[gid * width + f] = s;
         }
-    }
-}
-#elif REINGS_CPU_SCHEDULE
-/* CPU schedule: one work-item per rank walks its segment */
-__kernel void isect_reduce(ISECT_REDUCE_PARAMS) {
-    const int r = get_global_id(0);
-    if (r >= (int)launch_count((uint)n_rank, counts, count_at)) return;
-    const int a = offset_from_rank[r], b = offset_from_rank[r + 1];
-    const int gid = gid_from_rank[r];
-    if (width == V_RECORD) {
-        /* gradient records: one pass over the rank's records, the fields in registers. Each field's
-         * sum is s0 + records[a] + records[a + 1] + ... in that order, as in the loop below: the
-         * same bits, one read of each record instead of one strided pass per field. */
-        float s[V_RECORD];
-        for (int f = 0; f < V_RECORD; ++f) s[f] = accumulate ? out[gid * V_RECORD + f] : 0.0f;
-        int e = a;
-        /* REDUCE_UNROLL records loaded before they are added (in order): a Gaussian over many tiles
-         * makes one work-item walk a long segment, and its loads then overlap instead of each
-         * waiting for the one before (the adds, and so the bits, are unchanged) */
-        for (; e + REDUCE_UNROLL <= b; e += REDUCE_UNROLL) {
-            float x[REDUCE_UNROLL][V_RECORD];
-            for (int u = 0; u < REDUCE_UNROLL; ++u)
-                for (int f = 0; f < V_RECORD; ++f) x[u][f] = records[(size_t)(e + u) * V_RECORD + f];
-            for (int u = 0; u < REDUCE_UNROLL; ++u)
-                for (int f = 0; f < V_RECORD; ++f) s[f] += x[u][f];
-        }
-        for (; e < b; ++e) {
-            __global const float *rec = records + (size_t)e * V_RECORD;
-            for (int f = 0; f < V_RECORD; ++f) s[f] += rec[f];
-        }
-        for (int f = 0; f < V_RECORD; ++f) {
-            float v = s[f];
-            if (!FINITE(v))
-                v = reduce_rescaled(records, a, b, V_RECORD, f, accumulate ? out[gid * V_RECORD + f] : 0.0f);
-            out[gid * V_RECORD + f] = v;
-        }
-        return;
-    }
-    for (int f = 0; f < width; ++f) {
-        const float s0 = accumulate ? out[gid * width + f] : 0.0f;
-        float s = s0;
-        for (int e = a; e < b; ++e) s += records[e * width + f];
-        if (!FINITE(s)) s = reduce_rescaled(records, a, b, width, f, s0);
-        out[gid * width + f] = s;
     }
 }
 #else

@@ -574,7 +574,7 @@ class OpenCLBackend:
         tile_keys = s.get("isect", "tile_keys", cap, 4)
         emit_vals = s.get("isect", "emit_vals", cap, 4)
         gid_from_emit = b["gid_from_emit"] = s.get("isect", "gid_from_emit", cap, 4)
-        ev = self.launch(self.kernel("bin.cl", "bin_emit", TR_CHUNK=self.tr_chunk), v_launch, _I32(v_launch), _I32(fr.tiles_x), gfr,
+        ev = self.launch(self._bin_kernel("bin_emit"), v_launch, _I32(v_launch), _I32(fr.tiles_x), gfr,
                           offsets, b["tile_rect"], tile_keys, emit_vals, gid_from_emit, ctrl, at_v)
         self._mark("bin_emit", ev)
         # (4) stable tile sort over ceil(log2 T) bits: keeps (depth, gid) order inside each tile
@@ -586,9 +586,13 @@ class OpenCLBackend:
         # (5) tile ranges + gid_from_isect, no atomics
         ranges = b["tile_ranges"] = s.get("tile", "tile_ranges", fr.n_tiles, 8)
         gfi = b["gid_from_isect"] = s.get("isect", "gid_from_isect", cap, 4)
-        ev = self.launch(self.kernel("bin.cl", "tile_ranges", TR_CHUNK=self.tr_chunk), -(-(k_launch + 1) // self.tr_chunk),
-                         _I32(cap), _I32(fr.n_tiles), tk, efi, gid_from_emit, ranges, gfi, ctrl, at_k)
+        ev = self.launch(self._bin_kernel("tile_ranges"), -(-(k_launch + 1) // self.tr_chunk), _I32(cap),
+                         _I32(fr.n_tiles), tk, efi, gid_from_emit, ranges, gfi, ctrl, at_k)
         self._mark("tile_ranges", ev)
+
+    def _bin_kernel(self, name: str):
+        """bin_emit / tile_ranges: bin.cl's program with TR_CHUNK (the one `prepare` builds)."""
+        return self.kernel("bin.cl", name, TR_CHUNK=self.tr_chunk)
 
     def _rank_count(self, fr: _Frame) -> tuple:
         """(n_rank, count) of the per-rank reduces: (V, None), or sync-free (N, (ctrl, 0)); V the

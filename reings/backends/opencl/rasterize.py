@@ -97,8 +97,8 @@ def bwd_pix() -> int:
     return BWD_PIX
 
 
-# isect_reduce's ranks per work-item on the CPU schedule (REDUCE_CHUNK): the fields as vectors, fewer work-items;
-# 0.46-0.48x of one rank per work-item on fern's fine / final states, 2 Xeon cores (docs/perf_notes.md §43)
+# isect_reduce's ranks per work-item on the CPU schedule (REDUCE_CHUNK, its fields as vectors): 0.46-0.50x of one rank
+# per work-item with scalar fields on fern's fine / final states, 2 Xeon cores (docs/perf_notes.md §43)
 REDUCE_CHUNK_CPU = 16
 
 
