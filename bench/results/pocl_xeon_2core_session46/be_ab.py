@@ -1,18 +1,13 @@
-"""bin_emit with BE_CHUNK ranks per work-item against one (session 46, not kept: the kernel form, a loop over
-ranks gid*BE_CHUNK .. min(+BE_CHUNK, V) around the per-rank body, is no longer in kernels/bin.cl, so both builds
-are now the same). Usage: python be_ab.py CK/fine.npz 1 8 32"""
+"""bin_emit with BE_CHUNK ranks per work-item against one (session 46, not kept). Needs the kernel form of
+be_chunk.patch (`git apply bench/results/pocl_xeon_2core_session46/be_chunk.patch`, applies on dba606a): without it
+the chunked launches cover only part of the ranks and the byte check fails. Usage: python be_ab.py CK/fine.npz 1 8 32"""
 import sys, time, numpy as np, pyopencl as cl
-import os; _R = os.path.dirname(os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))); sys.path.insert(0, _R); sys.path.insert(0, os.path.join(_R, "bench"))
-import bench_rasterize as B
-from reings.backends import reference as ref
+from ckscene import load
 from reings.backends import get_backend
 from reings.backends.base import tile_grid
-class A: pass
-a = A(); a.checkpoint = sys.argv[1]; a.cameras = None; a.view = 0; a.opacity = None; a.n = None; a.scene = "A"
 chunks = [int(x) for x in sys.argv[2:]]
-g, cam = B._scene(a)
+g, cam, proj, bins = load(sys.argv[1])
 W, H = cam.width, cam.height
-proj = ref.project_fwd(g, cam); bins = ref.bin(proj, W, H)
 tx, ty = tile_grid(W, H)
 V = len(bins.gid_from_rank); K = int(bins.offset_from_rank[-1])
 be = get_backend("pocl"); ctx, q = be.handle.context, be.queue; mf = cl.mem_flags

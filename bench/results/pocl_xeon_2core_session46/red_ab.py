@@ -1,15 +1,14 @@
+"""isect_reduce at REDUCE_CHUNK ranks per work-item, the builds alternating, outputs byte-compared. Usage:
+python red_ab.py CK/STAGE.npz 1 16 [...]. Since dba606a REDUCE_CHUNK=1 is the vector-fields form at one rank per
+work-item; the scalar per-rank form that ab_console.txt's 0.46-0.50 ratios compare against is the CPU isect_reduce
+of 22b7d83 (a tree checked out there, chunk 1 against 16)."""
 import sys, time, numpy as np, pyopencl as cl
-import os; _R = os.path.dirname(os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))); sys.path.insert(0, _R); sys.path.insert(0, os.path.join(_R, "bench"))
-import bench_rasterize as B
-from reings.backends import reference as ref
+from ckscene import load
 from reings.backends import get_backend
 from reings.backends.opencl.rasterize import Rasterizer
-class A: pass
-a = A(); a.checkpoint = sys.argv[1]; a.cameras = None; a.view = 0; a.opacity = None; a.n = None; a.scene = "A"
 chunks = [int(x) for x in sys.argv[2:]]
-g, cam = B._scene(a)
+g, cam, proj, bins = load(sys.argv[1])
 W, H = cam.width, cam.height
-proj = ref.project_fwd(g, cam); bins = ref.bin(proj, W, H)
 off = bins.offset_from_rank.astype(np.int32); V = len(bins.gid_from_rank); K = int(off[-1]); N = len(g)
 be = get_backend("pocl"); ctx, q = be.handle.context, be.queue; mf = cl.mem_flags
 up = lambda x: cl.Buffer(ctx, mf.READ_ONLY | mf.COPY_HOST_PTR, hostbuf=np.ascontiguousarray(x))

@@ -1,16 +1,11 @@
 """isect_reduce on the real segment lengths vs the same K in equal segments (branch predictability)."""
 import sys, time, numpy as np, pyopencl as cl
-import os; _R = os.path.dirname(os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))); sys.path.insert(0, _R); sys.path.insert(0, os.path.join(_R, "bench"))
-import bench_rasterize as B
-from reings.backends import reference as ref
+from ckscene import load
 from reings.backends import get_backend
 from reings.backends.opencl.rasterize import Rasterizer
-class A: pass
-a = A(); a.checkpoint = sys.argv[1]; a.cameras = None; a.view = 0; a.opacity = None; a.n = None; a.scene = "A"
 defs = [dict(kv.split("=") for kv in s.split(",")) if s else {} for s in sys.argv[2:4]]
-g, cam = B._scene(a)
+g, cam, proj, bins = load(sys.argv[1])
 W, H = cam.width, cam.height
-proj = ref.project_fwd(g, cam); bins = ref.bin(proj, W, H)
 off = bins.offset_from_rank.astype(np.int32); V = len(bins.gid_from_rank); K = int(off[-1]); N = len(g)
 L = np.diff(off); print("V", V, "K", K, "mean len", L.mean(), "p50/p90/p99/max", np.percentile(L, [50, 90, 99]), L.max())
 uni = np.minimum(np.arange(V + 1) * K // V, K).astype(np.int32)

@@ -1,15 +1,10 @@
 """In-process A/B of tile_ranges (TR_PREFETCH, tried in session 46, is no longer in kernels/bin.cl; TR_CHUNK is): builds with -D defines alternating, on a checkpoint's binning."""
 import sys, time, numpy as np, pyopencl as cl
-import os; _R = os.path.dirname(os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))); sys.path.insert(0, _R); sys.path.insert(0, os.path.join(_R, "bench"))
-import bench_rasterize as B
-from reings.backends import reference as ref
+from ckscene import load
 from reings.backends import get_backend
-class A: pass
-a = A(); a.checkpoint = sys.argv[1]; a.cameras = None; a.view = 0; a.opacity = None; a.n = None; a.scene = "A"
 defs = [dict(kv.split("=") for kv in s.split(",")) if s else {} for s in sys.argv[2:4]]
-g, cam = B._scene(a)
+g, cam, proj, bins = load(sys.argv[1])
 W, H = cam.width, cam.height
-proj = ref.project_fwd(g, cam); bins = ref.bin(proj, W, H)
 K = len(bins.gid_from_isect); T = len(bins.tile_ranges)
 tile_of = np.repeat(np.arange(T), bins.tile_ranges[:, 1] - bins.tile_ranges[:, 0]).astype(np.uint32)
 gid_from_emit = np.repeat(bins.gid_from_rank, np.diff(bins.offset_from_rank)).astype(np.uint32)

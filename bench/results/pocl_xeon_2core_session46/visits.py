@@ -1,15 +1,11 @@
 """Pass visits (popcount of the forward's hits) and box visits of the CPU forward on a checkpoint."""
 import sys, time, numpy as np, pyopencl as cl
-import os; _R = os.path.dirname(os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))); sys.path.insert(0, _R); sys.path.insert(0, os.path.join(_R, "bench"))
+from ckscene import load
 import bench_rasterize as B
-from reings.backends import reference as ref
 from reings.backends.opencl.device import open_device
 from reings.backends.opencl.rasterize import Rasterizer
-class A: pass
-a = A(); a.checkpoint = sys.argv[1]; a.cameras = None; a.view = 0; a.opacity = None; a.n = None; a.scene = "A"
-g, cam = B._scene(a)
+g, cam, proj, bins = load(sys.argv[1])
 W, H = cam.width, cam.height
-proj = ref.project_fwd(g, cam); bins = ref.bin(proj, W, H)
 n, k = len(g), len(bins.gid_from_isect)
 h = open_device("pocl", profiling=True)
 r = Rasterizer(h)

@@ -1,4 +1,6 @@
-"""view_warp_bwd_depth with VW_CHUNK pixels per work-item against one: builds alternating, outputs byte-compared."""
+"""view_warp_bwd_depth with VW_CHUNK pixels per work-item against one: builds alternating, outputs byte-compared.
+Not kept, and the kernel form (the per-pixel body in a loop over VW_CHUNK pixels of a row, a grid of ceil(W / VW_CHUNK)
+columns) is not in kernels/view_warp.cl: without it the chunked launches cover part of each row and the check fails."""
 import sys, time, numpy as np, pyopencl as cl
 from reings.backends import get_backend
 from reings.backends.opencl.program import library_for
