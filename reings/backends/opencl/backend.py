@@ -133,15 +133,18 @@ def _sh_args(inp: dict, k: int) -> tuple:
 
 
 def proj_lanes(device) -> int:
-    """project.cl's lanes on a CPU (PROJ_VW): 16 where the device's native float vector is 16 wide or more
-    (PoCL on AVX-512), else 8. Every lane computes its Gaussian's values with the same operations at
-    either width: the same bytes (tests/test_project.py::test_project_widths_keep_the_bits). On a
-    2-core AVX-512 Xeon (PoCL 3.0) 16 lanes took 0.87-0.94 of 8 lanes' project_fwd time on fern's fine
-    state (51,537 Gaussians) and about the same on the coarse one: a small gain, within this
-    machine's noise for the backward (docs/perf_notes.md §31)."""
+    """project.cl's lanes on a CPU (PROJ_VW): 16 on PoCL's CPUs (whose builds take clang's builtins,
+    quirks.clang_builtins: there 16 lanes move their rows as blocks, PROJ_BLOCK_IO), else 16 where the
+    device's native float vector is 16 wide or more, else 8. Every lane computes its Gaussian's values
+    with the same operations at either width: the same bytes
+    (tests/test_project.py::test_project_widths_keep_the_bits). On a 2-core AVX-512 Xeon (PoCL 3.0) 16
+    lanes took 0.87-0.94 of 8 lanes' project_fwd time on fern's fine state (docs/perf_notes.md §31); on
+    2 AVX2 cores (AMD EPYC, Zen 3), where 8 lanes gather their rows a float at a time and write the
+    rasterizer's records lane by lane, 16 lanes took 0.59-0.65 of project_fwd's and 0.80-0.85 of
+    project_bwd's time on fern's fine and final states (docs/perf_notes.md §44)."""
     from .rasterize import native_lanes
 
-    return native_lanes(device)
+    return 16 if quirks.clang_builtins(device) else native_lanes(device)
 
 
 def tile_bits(n_tiles: int) -> int:
