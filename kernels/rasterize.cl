@@ -785,6 +785,30 @@ __kernel void rasterize_fwd(__global const float16 *packed,      // [N] records 
     }
 }
 
+/* RASTER_BWD_SPLIT (CPU schedule with RASTER_CUT_MASK; the full backward): each Gaussian's vectors walked twice, the
+ * recursion (T, R, d/d alpha, the opacity sum) first, keeping each vector's w and d/d power, then the colour and
+ * geometry sums from them: fewer live values per walk, the same bits. One walk holds ten sums and about ten of the
+ * Gaussian's values besides its vectors' state: more than AVX2's 16 vector registers, and the rest went to the stack
+ * at every vector (2 AVX2 cores, Zen 3: 0.86-0.89 of the backward's time split, docs/perf_notes.md §44). Default
+ * on, except where the target has AVX-512's 32 registers (not measured split). */
+#ifndef RASTER_BWD_SPLIT
+#if defined(__AVX512F__)
+#define RASTER_BWD_SPLIT 0
+#else
+#define RASTER_BWD_SPLIT 1
+#endif
+#endif
+#define BWD_SPLIT (RASTER_BWD_SPLIT && RASTER_CUT_MASK && !RASTER_BWD_OPACITY)
+/* the geometry's sums of one vector: d/d (A, B, C) of the conic and d/d (u, v) of the mean, from d/d power vp */
+#define BWD_GEOMETRY_SUMS(dx, dy, vp)                                                                  \
+    do {                                                                                               \
+        a_A -= 0.5f * (dx) * (dx) * (vp);                                                              \
+        a_B -= (dx) * (dy) * (vp);                                                                     \
+        a_C -= 0.5f * (dy) * (dy) * (vp);                                                              \
+        a_u -= (g.s2 * (dx) + g.s3 * (dy)) * (vp);                                                     \
+        a_v -= (g.s3 * (dx) + g.s4 * (dy)) * (vp);                                                     \
+    } while (0)
+
 /* One tile of rasterize_bwd with the cotangents scaled by sv and the colours, depths and outputs by
  * sk (see "Overflow" at the top); writes the records of positions [start, *stop_at) and returns 1 if
  * one of them is not finite. Called with literal 1s first, so that the common case compiles to the
@@ -952,6 +976,10 @@ bwd_tile(__global const float16 *packed, __global const int *gid_from_isect, __g
             BOX_TESTS(pw, hit, BWD_PASSES);
         }
 #undef BWD_PASSES
+#if BWD_SPLIT
+        vf wv[NVEC], vpv[NVEC]; /* the first walk's w and d/d power per vector, for the second */
+        const vset hit0 = hit;
+#endif
         { /* the vectors past the tests (this block's braces pair with the #else branch's box loop) */
             for (; hit; hit &= hit - 1) {
                 {
@@ -987,7 +1015,7 @@ bwd_tile(__global const float16 *packed, __global const int *gid_from_isect, __g
                     const vf vr = VR[c], vg = VG[c], vb = VB[c], vd = VD[c];
                     const vf vc = vr * cr + vg * cg + vb * cb + vd * cz;
                     const vf Rn = R - vc * w;
-#if !RASTER_BWD_OPACITY
+#if !RASTER_BWD_OPACITY && !BWD_SPLIT
                     a_r += vr * w;
                     a_g += vg * w;
                     a_b += vb * w;
@@ -1007,17 +1035,35 @@ bwd_tile(__global const float16 *packed, __global const int *gid_from_isect, __g
 #endif
 #if !RASTER_BWD_OPACITY
                     const vf vp = va * alpha; /* d/d power (alpha = o exp(power) when unclamped) */
-                    a_A -= 0.5f * dx * dx * vp;
-                    a_B -= dx * dy * vp;
-                    a_C -= 0.5f * dy * dy * vp;
-                    a_u -= (g.s2 * dx + g.s3 * dy) * vp;
-                    a_v -= (g.s3 * dx + g.s4 * dy) * vp;
+#if BWD_SPLIT
+                    wv[c] = w;
+                    vpv[c] = vp;
+                    (void)dx;
+                    (void)dy;
+#else
+                    BWD_GEOMETRY_SUMS(dx, dy, vp);
+#endif
 #endif
                     Tv[c] = SEL(T, T * (1.0f - alpha), ok);
                     Rv[c] = SEL(R, Rn, ok);
                 }
             }
         }
+#if BWD_SPLIT
+        /* the second walk: the colour and geometry sums from the first's w and d/d power, each sum's terms in the
+         * first walk's order (the same vectors, the same expressions: the same bits) */
+        for (vset m = hit0; m; m &= m - 1) {
+            const int c = VSET_LOW(m);
+            const vf dy = DYC(g, c / BPR);
+            const vf dx = DXC(g, c % BPR);
+            const vf w = wv[c], vp = vpv[c];
+            a_r += VR[c] * w;
+            a_g += VG[c] * w;
+            a_b += VB[c] * w;
+            a_z += VD[c] * w;
+            BWD_GEOMETRY_SUMS(dx, dy, vp);
+        }
+#endif
         /* back to unscaled units: the d/d alpha path carries sv * sk, the colour/depth path sv */
         float o[V_RECORD];
 #if RASTER_BWD_OPACITY
@@ -1052,6 +1098,9 @@ bwd_tile(__global const float16 *packed, __global const int *gid_from_isect, __g
     }
     return bad;
 }
+
+#undef BWD_SPLIT
+#undef BWD_GEOMETRY_SUMS
 
 /* Pass 1 of rasterize_bwd: bounds of |v| (*mv_out) and of |colour, depth, output, 1| (*mk_out)
  * over the tile's pixels and its Gaussians [start, stop_at); fmax skips NaN (a NaN input stays NaN). */

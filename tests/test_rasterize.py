@@ -308,12 +308,12 @@ def _cpu_define_keeps_the_bits(device, name, vec, define, value=1):
 
 
 @pytest.mark.parametrize("define", ["REINGS_CLANG_BUILTINS", "RASTER_ROW_IO", "RASTER_CUT_MASK", "RASTER_HITS",
-                                    "RASTER_CENTRES", "RASTER_PLAIN_IO", "RASTER_EXP_INLINE",
+                                    "RASTER_BWD_SPLIT", "RASTER_CENTRES", "RASTER_PLAIN_IO", "RASTER_EXP_INLINE",
                                     "RASTER_EXP_INLINE=2"])
 @pytest.mark.parametrize("vec", [8, 16])
 @pytest.mark.parametrize("name", ["random_large", "saturated", "many_in_one_tile", "needles", "size_70x45", "one"])
 def test_cpu_io_and_builtins_keep_the_bits(device, name, vec, define):
-    """Five CPU-schedule choices that must not change a value, each on (1, the default where it applies) against
+    """The CPU-schedule choices that must not change a value, each on (1, the default where it applies) against
     off (0), byte for byte: the forward's images, `last` and importance, and the records of the full,
     opacity-only and second-cotangent backwards, at both widths, on scenes with partial blocks at the image's
     edges (size_70x45; random_large at 16 lanes) and whole ones.
@@ -325,6 +325,8 @@ def test_cpu_io_and_builtins_keep_the_bits(device, name, vec, define):
     outcomes as bits), then the vectors that passed, instead of one branch per vector.
     RASTER_HITS: the backward walks each pair's vector set that its forward kept instead of testing the box
     again (a superset of the vectors its own tests pass, the others without an ok lane).
+    RASTER_BWD_SPLIT: the backward walks each Gaussian's vectors twice, the recursion first (keeping each vector's
+    weight and d/d power), then the colour and geometry sums, instead of everything in one walk.
     RASTER_CENTRES: the pixel vectors' centres from a table made once per tile instead of at each use.
     RASTER_PLAIN_IO: the tiles' pixel loads and stores as plain operators instead of vload / vstore (calls on PoCL).
     RASTER_EXP_INLINE: exp written out as PoCL 3.0's own (Sleef's) operations instead of its call, over its whole
