@@ -83,6 +83,11 @@ from .scratch import Scratch
 #     N=100k SH3: kernel 21.4, numpy 24.5.
 # (Before the padded 2-D range of the strided adam_step the kernel lost at SH3: 6.2 vs 4.6 ms.)
 CPU_DEFAULT_ADAM = "kernel"
+# the strided adam_step's work-group rows on CPU devices: a group's columns padded to a multiple of this. 16 left 13
+# of 16 lanes idle for sh_dc (3 columns) and 7 for SH degree 1's sh_rest (9); 4 gives PoCL 4-lane vectors along a
+# row: 0.45 of 16's time for the two SH groups at degree 1 on 2 AVX2 cores (Zen 3), the same bytes
+# (bench/results/pocl_epyc_2core_session47/adam_pad_ab.py; docs/perf_notes.md §44)
+ADAM_CPU_PAD = 4
 # kernels/adam.cl adam_step_multi: group slots of one launch, lanes per line (a strided group's
 # columns padded to a multiple of it: PoCL vectorizes along them)
 ADAM_SLOTS, ADAM_LX = 6, 16
@@ -1138,9 +1143,9 @@ class DeviceTrainer:
         if gs == cols and go == 0 and gc == cols:
             self._launch("adam", self.k_adam_flat, n * cols, _U32(n * cols), *pmv, g, *sc)
         else:
-            # columns padded to 16 in a work-group row: PoCL vectorizes along it (4x faster
+            # columns padded to ADAM_CPU_PAD in a work-group row: PoCL vectorizes along it (4x faster
             # than the runtime's choice for 45 columns)
-            cpad = -(-cols // 16) * 16
+            cpad = -(-cols // ADAM_CPU_PAD) * ADAM_CPU_PAD
             ly = max(1, 64 // cpad)
             ev = self._call(self.k_adam, (cpad, -(-n // ly) * ly), (cpad, ly), _U32(n), _U32(cols), *pmv, g,
                             _U32(gs), _U32(go), _U32(gc), *sc)
