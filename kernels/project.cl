@@ -41,8 +41,9 @@
      SH_K          number of SH coefficients per channel (1, 4, 9 or 16); default 1.
      DENSIFY_FP64  project_bwd's statistics in double (densify.h; the host sets it where the device
                    has cl_khr_fp64, as for densify_accumulate.cl).
-     PROJ_VW       Gaussians per work-item, 1, 8 or 16 (default 1). 8 or 16 on CPU devices (PoCL; 16
-                   where the native float vector is 16 wide, AVX-512: backend.proj_lanes): the math
+     PROJ_VW       Gaussians per work-item, 1, 8 or 16 (default 1). 8 or 16 on CPU devices (16 on PoCL's
+                   CPUs, where 16 lanes take PROJ_BLOCK_IO, and where the native float vector is 16
+                   wide; else 8: backend.proj_lanes): the math
                    runs on float8 / float16 lanes (through PoCL's vector builtins, ~8x the scalar code,
                    which PoCL 3.0 does not vectorize across work-items); 1 on GPUs. The code is
                    written once over the lane types vf / vi; culling is a lane mask, never a branch.

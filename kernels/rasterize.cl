@@ -790,12 +790,13 @@ __kernel void rasterize_fwd(__global const float16 *packed,      // [N] records 
  * geometry sums from them: fewer live values per walk, the same bits. One walk holds ten sums and about ten of the
  * Gaussian's values besides its vectors' state: more than AVX2's 16 vector registers, and the rest went to the stack
  * at every vector (2 AVX2 cores, Zen 3: 0.86-0.89 of the backward's time split, docs/perf_notes.md §44). Default
- * on, except where the target has AVX-512's 32 registers (not measured split). */
+ * on for x86-64 targets without AVX-512 (16 vector registers), the measured case; off elsewhere (AVX-512's and
+ * aarch64's 32 registers: not measured split). */
 #ifndef RASTER_BWD_SPLIT
-#if defined(__AVX512F__)
-#define RASTER_BWD_SPLIT 0
-#else
+#if defined(__x86_64__) && !defined(__AVX512F__)
 #define RASTER_BWD_SPLIT 1
+#else
+#define RASTER_BWD_SPLIT 0
 #endif
 #endif
 #define BWD_SPLIT (RASTER_BWD_SPLIT && RASTER_CUT_MASK && !RASTER_BWD_OPACITY)

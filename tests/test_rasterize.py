@@ -346,13 +346,16 @@ def test_cpu_io_and_builtins_keep_the_bits(device, name, vec, define):
     _cpu_define_keeps_the_bits(device, name, vec, define, int(value or 1))
 
 
+@pytest.mark.parametrize("split", [0, 1])
 @pytest.mark.parametrize("what", ["colour", "all_colours", "cotangent", "inf_cotangent", "sparse_non_finite"])
-def test_cpu_forward_sets_keep_the_bits_on_overflow(device, what):
+def test_cpu_forward_sets_keep_the_bits_on_overflow(device, what, split):
     """RASTER_HITS on the overflow cases (kernels/rasterize.cl, "Overflow") and with a few non-finite cotangents:
     the backward tests the forward's set of each pair, which must give exactly the set its box's tests give (a
     vector only in the forward's set has no ok lane, but with an inf or NaN cotangent its zero weights would turn a
     record NaN or send the tile to the rescaled pass): the records, the reduced gradients and the second
-    cotangent's records are the bytes of the backward that tests its boxes."""
+    cotangent's records are the bytes of the backward that tests its boxes. RASTER_BWD_SPLIT (`split`; the
+    backward's two walks) on these cases too, the rescaled pass included: with the sets and without them, against
+    one walk over the boxes."""
     from reings.backends.opencl.rasterize import rasterize_bwd_host
 
     proj, bins, w, h = _scene("random")
@@ -367,12 +370,15 @@ def test_cpu_forward_sets_keep_the_bits_on_overflow(device, what):
     else:
         proj, vr, vd, va = _overflow_inputs(what, w, h, proj)
     vo = vd[::-1].copy()
-    out = {c: rasterize_bwd_host(proj, bins, w, h, vr, vd, va, BG, device=device, cpu_schedule=True,
-                                 RASTER_VEC=16, RASTER_HITS=c, v_depth_o=vo) for c in (0, 1)}
-    for f in ("v_emit", "v_emit_o"):
-        assert np.array_equal(getattr(out[1], f).view(np.uint32), getattr(out[0], f).view(np.uint32)), f
-    for f in ("v_means2d", "v_conics", "v_colors", "v_opacities", "v_depths"):
-        assert np.array_equal(getattr(out[1], f).view(np.uint32), getattr(out[0], f).view(np.uint32)), f
+    def run(hits, sp):
+        return rasterize_bwd_host(proj, bins, w, h, vr, vd, va, BG, device=device, cpu_schedule=True, RASTER_VEC=16,
+                                  RASTER_HITS=hits, RASTER_BWD_SPLIT=sp, v_depth_o=vo)
+
+    base = run(0, 0)
+    for hits in (0, 1) if split else (1,):
+        out = run(hits, split)
+        for f in ("v_emit", "v_emit_o", "v_means2d", "v_conics", "v_colors", "v_opacities", "v_depths"):
+            assert np.array_equal(getattr(out, f).view(np.uint32), getattr(base, f).view(np.uint32)), (f, hits)
 
 
 def test_cpu_backward_takes_only_its_forwards_sets(device):

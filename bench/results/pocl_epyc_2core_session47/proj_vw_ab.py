@@ -1,5 +1,5 @@
-"""In-process A/B of project.cl's lanes on a fern checkpoint: two backends, PROJ_VW 16 and the default (8 on AVX2),
-their render_vjp calls alternating; project_fwd / project_bwd device ms and the outputs' bytes compared.
+"""In-process A/B of project.cl's lanes on a fern checkpoint: two backends, PROJ_VW 16 and 8 (the default
+before session 47 on AVX2), their render_vjp calls alternating; project_fwd / project_bwd device ms and the outputs' bytes compared.
 argv: CK.npz [its]"""
 import sys
 from pathlib import Path

@@ -73,7 +73,8 @@ def raster_vec(device=None) -> int:
 
 def native_lanes(device) -> int:
     """16 where the device's native float vector is 16 wide or more (PoCL on AVX-512), else 8: the CPU
-    schedule's default pixel lanes (raster_vec) and project.cl's lanes (backend.proj_lanes)."""
+    schedule's default pixel lanes (raster_vec), SSIM's (losses.PhotometricCL) and project.cl's lanes where the
+    build does not take clang's builtins (backend.proj_lanes)."""
     return 16 if int(getattr(device, "native_vector_width_float", 0) or 0) >= 16 else 8
 
 
