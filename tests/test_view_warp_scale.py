@@ -171,7 +171,12 @@ def test_the_engines_agree_at_scale_2(device, case, loss):
     assert_same_state(host.state, dev.state, exact, f"view_warp_scale 2 {loss}")
     assert host.history.n_gaussians == dev.history.n_gaussians
     if exact:
-        assert host.history.loss == dev.history.loss and host.history.view_warp == dev.history.view_warp
+        # the states are the same bytes (above); the logged losses are float64 host sums of the same device values,
+        # formed by each engine's own code, whose last bit can differ between machines (equal on session 46's Xeon,
+        # 1 ulp apart in one entry on a Zen 3 EPYC, session 47, with session 46's code too): a few ulps
+        np.testing.assert_allclose(host.history.loss, dev.history.loss, rtol=4 * np.finfo(np.float64).eps, atol=0)
+        hv, dv = (np.asarray([tuple(x) for x in h.history.view_warp], np.float64) for h in (host, dev))
+        np.testing.assert_allclose(hv, dv, rtol=4 * np.finfo(np.float64).eps, atol=0)
     assert dev.history.view_warp and all(0.2 < v < 1 for _, _, v in dev.history.view_warp)
     scene, _, cfg = case
     fxs = {cam.fx for cam in scene.cameras}
