@@ -1,11 +1,12 @@
 """The four CPU SSIM passes at two builds given as define lists, e.g. "SSIM_VW=8" "SSIM_VW=16,SSIM_ROWS=8" (the builds
-alternating in one process; every output byte-compared). argv: A B [reps]. SSIM_ROWS defaults to losses.SSIM_ROWS."""
+alternating in one process; every output byte-compared). argv: A B [reps [H W]] (default 40 repetitions at 378 x 504).
+SSIM_ROWS defaults to losses.SSIM_ROWS, SSIM_VW to 8."""
 import sys, time, numpy as np, pyopencl as cl
 from reings.backends import get_backend
 from reings.backends.opencl.program import library_for
 from reings.backends.opencl.losses import SSIM_ROWS
 be = get_backend("pocl"); ctx, q = be.handle.context, be.queue; mf = cl.mem_flags
-H, W = 378, 504
+H, W = (int(sys.argv[4]), int(sys.argv[5])) if len(sys.argv) > 5 else (378, 504)
 rng = np.random.default_rng(0)
 x = rng.random((H, W, 3)).astype(np.float32); y = rng.random((H, W, 3)).astype(np.float32)
 g = np.exp(-0.5 * (np.arange(-5, 6) / 1.5) ** 2); taps = (g / g.sum()).astype(np.float32)
@@ -41,6 +42,6 @@ for key, size in (("h5", 5 * n), ("smap", n), ("d3", 3 * n), ("h3", 3 * n), ("vx
     for j in range(2): cl.enqueue_copy(q, o[j], builds[j][1][key])
     assert np.array_equal(o[0], o[1]), key
 a, b = np.array(res[0][4:]), np.array(res[1][4:])
-print(f"A {sys.argv[1]} ms", np.round(np.median(a, 0) * 1e3, 3), f"B {sys.argv[2]} ms", np.round(np.median(b, 0) * 1e3, 3),
+print(f"{H}x{W} A {sys.argv[1]} ms", np.round(np.median(a, 0) * 1e3, 3), f"B {sys.argv[2]} ms", np.round(np.median(b, 0) * 1e3, 3),
       "B/A per pass", np.round(np.median(b / a, 0), 3), "all four B/A %.3f (q25 %.3f q75 %.3f)" % (
           np.median(b.sum(1) / a.sum(1)), *np.quantile(b.sum(1) / a.sum(1), [.25, .75])))
